@@ -1,0 +1,5 @@
+import sys
+
+from nifo.cli import main
+
+sys.exit(main())

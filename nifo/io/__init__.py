@@ -1,0 +1,1 @@
+"""File and bag I/O: everything that turns files into ``nifo_core.record.Record`` and results into files."""

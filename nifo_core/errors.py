@@ -1,0 +1,114 @@
+"""The error hierarchy.
+
+Every error nifo raises for a user's mistake derives from :class:`NifoError`
+and carries a distinct process exit code, the file (``source``) and channel it
+concerns, and a hint saying what to do. ``str(err)`` is one line::
+
+    run1.mcap: /body/imu: 12 samples are NaN or infinite (first at t=3.215 s). Fix: ...
+
+Built-in mixins keep ``except ValueError`` working for library users.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "NifoError",
+    "InputError",
+    "DataFileError",
+    "MissingChannelError",
+    "NonFiniteError",
+    "TimestampError",
+    "SampleRateError",
+    "RecordTooShortError",
+    "ConfigError",
+    "IllConditionedError",
+    "EXIT_CODES",
+]
+
+
+class NifoError(Exception):
+    """Root of nifo's errors. ``exit_code`` is what the ``nifo`` command exits with."""
+
+    exit_code = 1
+
+    def __init__(self, message: str, *, source: str | None = None,
+                 channel: str | None = None, hint: str | None = None) -> None:
+        self.message = message
+        self.source = source
+        self.channel = channel
+        self.hint = hint
+        super().__init__(str(self))
+
+    def __str__(self) -> str:
+        parts = [p for p in (self.source, self.channel) if p]
+        text = ": ".join([*parts, self.message])
+        if self.hint:
+            text += f". Fix: {self.hint}"
+        return text.replace("\n", " ")
+
+    def with_context(self, *, source: str | None = None, channel: str | None = None) -> "NifoError":
+        """Return a copy naming ``source``/``channel`` where this one named none."""
+        return type(self)(self.message, source=self.source or source,
+                          channel=self.channel or channel, hint=self.hint)
+
+
+class InputError(NifoError, ValueError):
+    """Input data or arguments that cannot be used as given."""
+
+    exit_code = 2
+
+
+class DataFileError(InputError):
+    """A data file that cannot be read: missing, unreadable, truncated, empty or of unknown format."""
+
+    exit_code = 3
+
+
+class MissingChannelError(InputError, KeyError):
+    """A required topic, column or key is absent."""
+
+    exit_code = 4
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return NifoError.__str__(self)
+
+
+class NonFiniteError(InputError):
+    """NaN or infinite samples."""
+
+    exit_code = 5
+
+
+class TimestampError(InputError):
+    """Non-monotonic, duplicated or gapped timestamps."""
+
+    exit_code = 6
+
+
+class SampleRateError(InputError):
+    """Channels at different sample rates, or a rate that does not fit the request."""
+
+    exit_code = 7
+
+
+class RecordTooShortError(InputError):
+    """Too few samples for the requested spectral block or analysis."""
+
+    exit_code = 8
+
+
+class ConfigError(InputError):
+    """A model file, settings file or option value that is invalid."""
+
+    exit_code = 9
+
+
+class IllConditionedError(NifoError, ArithmeticError):
+    """The estimation problem is too ill-conditioned to give a trustworthy answer."""
+
+    exit_code = 10
+
+
+EXIT_CODES = {cls.__name__: cls.exit_code for cls in (
+    NifoError, InputError, DataFileError, MissingChannelError, NonFiniteError,
+    TimestampError, SampleRateError, RecordTooShortError, ConfigError, IllConditionedError)}

@@ -1,0 +1,126 @@
+"""``Record``: the one in-memory form of measured data every command works on.
+
+Whatever the source (rosbag2/MCAP, CSV, MAT, the simulator), loaders produce a
+:class:`Record`: uniformly sampled spindle and body vertical accelerations
+[m/s²] and, when measured, the tire-patch displacement [m].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from types import MappingProxyType
+from typing import Mapping
+
+import numpy as np
+
+from .errors import InputError, NonFiniteError, RecordTooShortError
+
+__all__ = ["Record", "CHANNELS"]
+
+#: channel names, in the order used throughout (CSV columns, bag topics' roles)
+CHANNELS = ("spindle_accel", "body_accel", "tire_patch_disp")
+
+
+def _as_signal(x, name: str, source: str) -> np.ndarray:
+    arr = np.asarray(x, dtype=np.float64)
+    if arr.ndim != 1:
+        arr = np.squeeze(arr)
+    if arr.ndim != 1:
+        raise InputError(f"expected a 1-D signal, got shape {np.shape(x)}", source=source, channel=name,
+                         hint="pass one sample per time step")
+    return arr
+
+
+@dataclass(frozen=True)
+class Record:
+    """Uniformly sampled measurement of one quarter car.
+
+    Parameters
+    ----------
+    fs_hz : float
+        Sample rate [Hz].
+    spindle_accel, body_accel : ndarray, shape (n,)
+        Vertical accelerations of the unsprung (x1) and sprung (x2) mass [m/s²].
+    tire_patch_disp : ndarray, shape (n,), optional
+        Tire-patch (road/actuator) displacement xb [m], when measured.
+    t0_ns : int
+        Time stamp of the first sample [ns].
+    source : str
+        Where the data came from (file name, "simulator", ...), used in messages.
+    meta : mapping
+        Provenance (settings, truth file, topic names ...), JSON-serialisable.
+
+    Arrays are made read-only: a ``Record`` never changes once built.
+    """
+
+    fs_hz: float
+    spindle_accel: np.ndarray
+    body_accel: np.ndarray
+    tire_patch_disp: np.ndarray | None = None
+    t0_ns: int = 0
+    source: str = ""
+    meta: Mapping = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        src = self.source or "record"
+        if not (np.isfinite(self.fs_hz) and self.fs_hz > 0):
+            raise InputError(f"sample rate must be positive, got {self.fs_hz!r} Hz", source=src,
+                             hint="give the sample rate in Hz")
+        s = _as_signal(self.spindle_accel, "spindle_accel", src)
+        b = _as_signal(self.body_accel, "body_accel", src)
+        sigs = {"spindle_accel": s, "body_accel": b}
+        if self.tire_patch_disp is not None:
+            sigs["tire_patch_disp"] = _as_signal(self.tire_patch_disp, "tire_patch_disp", src)
+        n = {k: v.size for k, v in sigs.items()}
+        if len(set(n.values())) != 1:
+            raise InputError(f"channels have different lengths {n}", source=src,
+                             hint="resample or trim the channels to one time base")
+        if s.size == 0:
+            raise RecordTooShortError("record holds no samples", source=src,
+                                      hint="check the file and the time range selected")
+        for name, v in sigs.items():
+            bad = ~np.isfinite(v)
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise NonFiniteError(
+                    f"{int(bad.sum())} samples are NaN or infinite (first at t={i / self.fs_hz:.3f} s)",
+                    source=src, channel=name,
+                    hint="cut the record before/after the bad stretch or repair the sensor data")
+            v = v.copy() if v.flags.writeable and v.base is not None else v
+            v.flags.writeable = False
+            object.__setattr__(self, name, v)
+        object.__setattr__(self, "meta", MappingProxyType(dict(self.meta)))
+
+    # -- derived -------------------------------------------------------------
+    @property
+    def n(self) -> int:
+        """Number of samples."""
+        return int(self.spindle_accel.size)
+
+    @property
+    def duration_s(self) -> float:
+        return self.n / self.fs_hz
+
+    @property
+    def has_tire_patch(self) -> bool:
+        return self.tire_patch_disp is not None
+
+    def time_s(self) -> np.ndarray:
+        """Sample times relative to the first sample [s]."""
+        return np.arange(self.n) / self.fs_hz
+
+    def slice(self, start: int, stop: int) -> "Record":
+        """Samples ``start:stop`` as a new record (stamps shifted accordingly)."""
+        start, stop, _ = slice(start, stop).indices(self.n)
+        tp = None if self.tire_patch_disp is None else self.tire_patch_disp[start:stop]
+        return replace(self, spindle_accel=self.spindle_accel[start:stop],
+                       body_accel=self.body_accel[start:stop], tire_patch_disp=tp,
+                       t0_ns=self.t0_ns + int(round(start * 1e9 / self.fs_hz)))
+
+    def require_samples(self, n_min: int, *, what: str) -> None:
+        """Raise :class:`RecordTooShortError` unless the record holds ``n_min`` samples."""
+        if self.n < n_min:
+            raise RecordTooShortError(
+                f"{self.n} samples ({self.duration_s:.1f} s) is too short for {what}, which needs {n_min}",
+                source=self.source or "record",
+                hint="record longer, or choose a smaller --block")

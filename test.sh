@@ -1,0 +1,10 @@
+#!/usr/bin/env bash
+# The test command. First use creates .venv and installs nifo with its test extras.
+#   ./test.sh            the whole suite (what CI runs)
+#   ./test.sh -k bag     any pytest arguments
+set -euo pipefail
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
+source "$here/tools/bootstrap.sh"
+nifo_bootstrap "$here" "test"
+cd "$here"
+exec "$here/.venv/bin/python" -m pytest "$@"
