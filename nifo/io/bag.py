@@ -213,14 +213,18 @@ def _write_bag_dir(bagdir: Path, data: Sequence[TopicData], axis: Axis) -> None:
     import heapq
 
     from rosbags.rosbag2 import Writer
-    from rosbags.rosbag2.enums import StoragePlugin
+    from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
     from rosbags.typesys import Stores, get_typestore
 
     typestore = get_typestore(Stores.ROS2_JAZZY)
     qos = [_sensor_qos()]
     from nifo_core import __version__
 
-    with Writer(bagdir, version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP) as writer:
+    writer = Writer(bagdir, version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
+    # zstd MCAP chunk compression (storage-level: ros2 bag, Foxglove and mcap read it natively);
+    # Imu messages are mostly constant fields, so bags shrink several-fold
+    writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    with writer:
         # a map, never null: yaml-cpp in ros2 bag cannot convert a null custom_data
         writer.set_custom_data("generator", f"nifo {__version__}")
         streams = []
