@@ -1,0 +1,122 @@
+"""The identified model: body fit, the feedback solver against the simulator, prediction at other levels."""
+
+import json
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from nifo_core.describing import Term
+from nifo_core.errors import ConfigError
+from nifo_core.integrate import IntegrationBand
+from nifo_core.model import (BodyModel, IdentifiedModel, PredictionDivergedError, fit_body_model, predict_body,
+                             predict_transmissibility)
+from nifo_core.nifo import identify_nifo
+from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, preset, simulate
+from nifo_core.spectral import SpectralSettings, cross_spectra, white_noise_floor
+from nifo_core.vehicle import QuarterCar
+
+FS = 600.0
+DZ = Term("velocity_deadzone", {"knee": 0.03})
+
+
+def _sim(name, rms_m, seed, *, duration_s=300, noise=0.02):
+    cfg = SimConfig(strut=preset(name), road=RandomRoad(rms_m), duration_s=duration_s, fs_hz=FS,
+                    noise=SensorNoise(relative=noise))
+    return simulate(cfg, rng=seed)
+
+
+def _hand_model(terms, gammas, body: BodyModel) -> IdentifiedModel:
+    f = SpectralSettings().freq_hz(FS)
+    w = 2 * np.pi * f
+    t21 = body.t21(f)
+    b = np.zeros((len(terms), f.size), complex)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for i, g in enumerate(gammas):
+            b[i] = g * (1 - t21) / w**2
+    return IdentifiedModel(freq_hz=f, t21=t21, b=b, terms=tuple(terms), c_over_m2=np.array(gammas, float),
+                           body=body, analysis_band_hz=(2.0, 30.0), fs_hz=FS, settings=SpectralSettings(),
+                           band=IntegrationBand(0.5, 200.0))
+
+
+def test_body_model_fit_returns_k2_and_c2_per_body_mass_from_an_exact_t21():
+    car = QuarterCar()
+    f = np.linspace(0.5, 40, 400)
+    body = fit_body_model(f, car.t21(f))
+    assert body.k == pytest.approx(car.k2 / car.m2, rel=1e-9)
+    assert body.c == pytest.approx(car.c2 / car.m2, rel=1e-9)
+    assert body.fit_rms < 1e-9
+
+
+def test_linear_model_prediction_equals_simulating_the_body_equation_in_time():
+    body = BodyModel(k=22e3 / 300, c=1400 / 300)
+    rng = np.random.default_rng(0)
+    a1 = signal.sosfiltfilt(signal.butter(4, 40, fs=FS, output="sos"), rng.standard_normal(60_000))
+    pred = predict_body(_hand_model([], [], body), a1, FS)
+    t = np.arange(a1.size) / FS
+    _, a2, _ = signal.lsim(([body.c, body.k], [1.0, body.c, body.k]), a1, t)   # A2/A1 = T21 (paper Eq. 7)
+    v = pred.valid
+    assert np.sqrt(np.mean((pred.body_accel[v] - a2[v]) ** 2)) < 2e-3 * np.std(a2[v])
+
+
+def test_true_nonlinear_model_reproduces_the_simulated_body_acceleration():
+    sim = _sim("paper", 0.001, 21, duration_s=60, noise=0.0)
+    car = sim.truth.vehicle
+    terms = [s.term for s in sim.truth.strut]
+    gam = [s.coefficient / car.m2 for s in sim.truth.strut]
+    model = _hand_model(terms, gam, BodyModel(car.k2 / car.m2, car.c2 / car.m2))
+    pred = predict_body(model, sim.record.spindle_accel, FS)
+    v = slice(6 * int(FS), sim.record.n - 6 * int(FS))          # away from the record's unknown past
+    y = sim.record.body_accel[v]
+    nmse = 100 * np.mean((pred.body_accel[v] - y) ** 2) / np.var(y)
+    print(f"\ntruth model, 1 mm road, backlash + deadzone: NMSE {nmse:.3f} % in {pred.iterations} iterations")
+    assert pred.residual < 1e-6 and nmse < 1.0
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    sim = _sim("paper_deadzone", 0.0025, 2)
+    spec = cross_spectra(np.stack([sim.record.spindle_accel]), FS, SpectralSettings())
+    res = identify_nifo(sim.record, [DZ], spindle_noise_psd=white_noise_floor(spec, 0, (250.0, 290.0)))
+    return IdentifiedModel.from_nifo(res), IdentifiedModel.from_nifo(res, source="h1")
+
+
+@pytest.mark.parametrize("rms_m", [0.001, 0.005])
+def test_model_fitted_at_2_5_mm_predicts_the_transmissibility_at_another_level(fitted, rms_m):
+    model, linear = fitted
+    test = _sim("paper_deadzone", rms_m, 31)
+    measured = identify_nifo(test.record, [])                 # measured spindle→body H1 at that level
+    m = measured.in_band
+    ref = measured.t21_h1[m]
+    out = {}
+    for name, mdl in (("nonlinear", model), ("linear", linear)):
+        for method in ("parametric", "nonparametric"):
+            p = predict_transmissibility(mdl, test.record.spindle_accel, FS, method=method)
+            e = np.abs(p.t21[m] / ref - 1)
+            out[name, method] = e
+            print(f"\n{rms_m * 1e3:.1f} mm from the 2.5 mm model, {name} {method}: |T21| error vs measured "
+                  f"median {np.median(e):.2%} max {e.max():.2%} at {measured.freq_hz[m][np.argmax(e)]:.2f} Hz, "
+                  f"3-30 Hz max {e[measured.freq_hz[m] >= 3].max():.2%} ({p.prediction.iterations} iterations)")
+    for method in ("parametric", "nonparametric"):
+        assert np.median(out["nonlinear", method]) < 0.03
+        assert np.median(out["nonlinear", method]) < 0.3 * np.median(out["linear", method])
+
+
+def test_model_round_trips_through_plain_json(fitted):
+    model, _ = fitted
+    back = IdentifiedModel.from_dict(json.loads(json.dumps(model.to_dict())))
+    np.testing.assert_array_equal(back.t21, model.t21)
+    np.testing.assert_array_equal(back.c_over_m2, model.c_over_m2)
+    assert back.terms == model.terms and back.body == model.body and back.settings == model.settings
+
+
+def test_a_model_file_without_terms_is_refused_by_name():
+    with pytest.raises(ConfigError, match="'terms'"):
+        IdentifiedModel.from_dict({"freq_hz": [0.0, 1.0]})
+
+
+def test_a_solve_that_does_not_converge_raises_with_the_last_change():
+    model = _hand_model([DZ], [-2.0], BodyModel(73.3, 4.67))
+    a1 = 20 * np.random.default_rng(1).standard_normal(20_000)
+    with pytest.raises(PredictionDivergedError, match="did not converge"):
+        predict_body(model, a1, FS, max_iter=2, tol=1e-14)
