@@ -42,6 +42,9 @@ def staged_dir(out: str | os.PathLike) -> Iterator[Path]:
     final = Path(out)
     final.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.partial-", dir=final.parent))
+    _umask = os.umask(0)
+    os.umask(_umask)
+    tmp.chmod(0o777 & ~_umask)  # mkdtemp makes 0700; results are ordinary directories
     try:
         yield tmp
     except BaseException:

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import argparse
 import os
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
@@ -34,7 +34,7 @@ from nifo_core.timebase import check_common_rate, sample_rate_from_stamps
 if TYPE_CHECKING:
     from .bag import BagTopics
 
-__all__ = ["load_record", "save_record", "load_records", "detect_format", "assemble_record",
+__all__ = ["load_record", "save_record", "load_records", "iter_record_chunks", "detect_format", "assemble_record",
            "parse_columns", "add_input_arguments", "input_options", "COLUMN_KEYS"]
 
 Format = Literal["bag", "csv", "mat"]
@@ -126,6 +126,33 @@ def load_record(path: str | os.PathLike, *, topics: "BagTopics | None" = None,
         return read_csv(path, columns=cols, fs_hz=fs_hz)
     from .matfile import read_mat
     return read_mat(path, columns=cols, fs_hz=fs_hz)
+
+
+def iter_record_chunks(path: str | os.PathLike, *, chunk_samples: int, topics: "BagTopics | None" = None,
+                       columns: Mapping[str, str] | None = None, fs_hz: float | None = None,
+                       axis: Axis = "z") -> Iterator[Record]:
+    """:func:`load_record`, handed out as consecutive chunks of ``chunk_samples`` samples.
+
+    Bags (single indexed MCAP) are decoded chunk by chunk with the same numpy
+    decoder (:func:`nifo.io.bag.iter_bag_chunks`), so memory does not grow
+    with the recording's length; CSV and MAT files are read whole and sliced.
+    Every chunk's ``meta["chunk"]`` holds ``index``, ``start`` (sample) and
+    ``total_samples`` (expected for the whole file). Pushing the chunks in
+    order into a streaming estimator gives what the whole record would.
+    """
+    fmt = detect_format(path)
+    if fmt != "bag":
+        from .bag import _record_chunks
+        yield from _record_chunks(load_record(path, topics=topics, columns=columns, fs_hz=fs_hz, axis=axis),
+                                  int(chunk_samples))
+        return
+    from .bag import iter_bag_chunks
+    first = True
+    for rec in iter_bag_chunks(path, chunk_samples=chunk_samples, topics=topics, axis=axis):
+        if first and fs_hz is not None:
+            _check_declared_rate(rec.fs_hz, fs_hz, source=str(path))
+        first = False
+        yield rec
 
 
 def load_records(paths: Iterable[str | os.PathLike], **kw) -> list[Record]:

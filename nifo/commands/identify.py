@@ -1,0 +1,432 @@
+"""``nifo identify``: output-only NIFO on one or more records (paper Eq. 8-9, METHOD.md §3).
+
+Data files are streamed chunk by chunk into one :class:`~nifo_core.nifo.StreamingNifo`
+each (bags are decoded chunk by chunk, so memory does not grow with the
+recording's length) and the accumulators are merged: several files are
+averaged exactly as :func:`~nifo_core.nifo.identify_nifo` averages records.
+A two-step model file (``steps:``) runs :func:`~nifo_core.nifo.identify_two_step`
+on each step's data. Writes ``identify.json``, ``model.json`` and figures into
+``--out`` atomically (all or nothing); see :mod:`nifo.io.results` for the files.
+"""
+
+from __future__ import annotations
+
+import argparse
+import warnings
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from nifo.io.atomic import staged_dir
+from nifo.io.loader import add_input_arguments, input_options
+from nifo.progress import Progress
+from nifo_core.errors import ConfigError, IllConditionedError, InputError, RecordTooShortError, SampleRateError
+
+HELP = "identify the nominal linear transmissibility and the nonlinear coefficient functions (NIFO)"
+DESCRIPTION = f"""{HELP}.
+
+Output-only NIFO (Haroon & Adams, Eq. 8-9): from spindle and body
+accelerations alone, the nominal (near-zero-level) linear spindle→body
+transmissibility T21(ω) and, for every declared nonlinearity g_i(z, ż), its
+coefficient function μ_i(ω)/K2, B_i(ω) and c_i/M2. Two estimates are given:
+the per-line least squares of the paper (Eq. 9) and the pooled fit with each
+c_i/M2 one real constant (static nonlinearity; far less noise-sensitive: the
+recommended T21, and the one model.json predicts with).
+
+MODEL.yaml names the nonlinearities (see nifo/io/modelfile.py):
+
+  nifo_model: 1
+  nonlinearities:
+    - {{kind: velocity_deadzone, params: {{knee: 0.03}}}}
+    - {{kind: backlash, params: {{deadband: 0.00043}}}}
+  settings: {{block: 6144, overlap: 0.52, window: flattop, band_hz: [0.5, 200], freq_range_hz: [2, 30]}}
+
+Kinds (g of z = x2 - x1 [m] or ż [m/s]): cubic_stiffness, clearance(gap),
+saturation(limit), bump_stop(gap, side, offset), backlash(deadband),
+velocity_deadzone(knee), velocity_saturation(limit), coulomb(eps),
+quadratic_damping, asymmetric_damping(side). With 'steps:' instead of
+'nonlinearities:' the terms are identified in two steps (paper §3.3), each on
+its own data (paths in the file or --step-data).
+
+Outputs in --out: identify.json, model.json, transmissibility.png (Fig. 9b/12b),
+coefficients.png (Fig. 10/13), conditioning.png, tire.png (Fig. 11/14, with a
+tire patch). Ill-conditioning is reported as a warning; the command refuses
+(exit code {IllConditionedError.exit_code}) only when nothing usable is left.
+"""
+
+#: default streaming chunk [samples] (7.3 min at 600 Hz): memory stays ~0.1 GB whatever the recording's length
+CHUNK_SAMPLES = 2 ** 18
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("data", nargs="*", type=Path, metavar="DATA",
+                   help="records (bag, .mcap, .csv, .mat); several are averaged")
+    p.add_argument("--model", required=True, type=Path, metavar="MODEL.yaml", help="model file (nonlinearities)")
+    p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory (replaced atomically)")
+    g = p.add_argument_group("spectral settings (override the model file's settings; defaults: paper Table 2)")
+    g.add_argument("--block", type=int, metavar="N", help="samples per spectral block (default 6144)")
+    g.add_argument("--overlap", type=float, metavar="F", help="block overlap fraction (default 0.52)")
+    g.add_argument("--window", metavar="W", help="window: flattop (default), hann, boxcar, ...")
+    g.add_argument("--band", type=float, nargs=2, metavar=("LO", "HI"),
+                   help="integration band for z, ż [Hz] (default 0.5-200 Hz; must contain body bounce)")
+    g.add_argument("--freq-range", type=float, nargs=2, metavar=("LO", "HI"),
+                   help="analysis band [Hz]: conditioning, pooled fit, summary (default 2-30)")
+    g.add_argument("--cond-limit", type=float, default=1e4, metavar="C",
+                   help="scaled cond(G_UU) counted as ill-conditioned (default 1e4)")
+    p.add_argument("--step-data", action="append", nargs="+", type=Path, metavar="PATH",
+                   help="data of one step of a two-step model (repeat once per step, in order)")
+    p.add_argument("--chunk-samples", type=int, default=CHUNK_SAMPLES, metavar="N",
+                   help=f"streaming chunk length [samples] (default {CHUNK_SAMPLES})")
+    p.add_argument("--no-plots", action="store_true", help="write the JSON files only")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    add_input_arguments(p)
+
+
+# ---------------------------------------------------------------------------------------------
+# settings
+# ---------------------------------------------------------------------------------------------
+def _pair(value, name: str) -> tuple[float, float] | None:
+    if value is None:
+        return None
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{name}={value!r} must be two numbers [Hz]", channel=name, hint="e.g. 2 30") from None
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):
+        raise ConfigError(f"{name} {lo:g}-{hi:g} Hz must satisfy 0 <= LO < HI", channel=name, hint="e.g. 2 30")
+    return lo, hi
+
+
+def resolve_settings(args: argparse.Namespace, file_settings) -> dict:
+    """Spectral settings, integration band and analysis band: command line > model file > defaults."""
+    from nifo_core.integrate import IntegrationBand
+    from nifo_core.nifo import DEFAULT_ANALYSIS_BAND_HZ
+    from nifo_core.spectral import SpectralSettings
+
+    fs = dict(file_settings or {})
+    spec = {k: v for k, v in (("block", args.block if args.block is not None else fs.get("block")),
+                              ("overlap", args.overlap if args.overlap is not None else fs.get("overlap")),
+                              ("window", args.window if args.window is not None else fs.get("window")))
+            if v is not None}
+    settings = SpectralSettings(**spec)
+    band = _pair(args.band if args.band is not None else fs.get("band_hz"), "--band")
+    if band is not None and band[0] <= 0:
+        raise ConfigError(f"integration band {band[0]:g}-{band[1]:g} Hz needs LO > 0", channel="--band",
+                          hint="e.g. --band 0.5 200")
+    freq = _pair(args.freq_range if args.freq_range is not None else fs.get("freq_range_hz"), "--freq-range")
+    if not (np.isfinite(args.cond_limit) and args.cond_limit > 1):
+        raise ConfigError(f"--cond-limit {args.cond_limit!r} must be a number > 1", channel="--cond-limit")
+    if args.chunk_samples < 2:
+        raise ConfigError(f"--chunk-samples {args.chunk_samples!r} must be at least 2", channel="--chunk-samples")
+    return {"spectral": settings, "band": None if band is None else IntegrationBand(*band),
+            "analysis_band_hz": freq or DEFAULT_ANALYSIS_BAND_HZ, "cond_limit": float(args.cond_limit)}
+
+
+# ---------------------------------------------------------------------------------------------
+# single step: streamed and merged
+# ---------------------------------------------------------------------------------------------
+def accumulate(paths: list[Path], terms, cfg: dict, *, opts: dict, chunk_samples: int = CHUNK_SAMPLES,
+               quiet: bool = False):
+    """Stream every file into its own StreamingNifo and merge them.
+
+    Returns (merged StreamingNifo, [data provenance entries], [(name, freq, plain H1) per file]).
+    The integration band, when not given, is ``default_band(fs, shortest duration)``
+    as in :func:`identify_nifo`, so the answer equals it on the same records.
+    """
+    from nifo.io.loader import iter_record_chunks
+    from nifo.io.results import data_entry
+    from nifo_core.integrate import default_band
+    from nifo_core.nifo import StreamingNifo
+    from nifo_core.spectral import h1
+
+    iters, firsts = [], []
+    for p in paths:
+        gen = iter_record_chunks(p, chunk_samples=chunk_samples, **opts)
+        try:
+            first_chunk = next(gen)
+        except StopIteration:
+            raise RecordTooShortError("the file holds no samples", source=str(p)) from None
+        iters.append(gen)
+        firsts.append(first_chunk)
+    rates = sorted({c.fs_hz for c in firsts})
+    if len(rates) > 1:
+        names = ", ".join(f"{p.name} {c.fs_hz:g} Hz" for p, c in zip(paths, firsts))
+        raise SampleRateError(f"the files have different sample rates ({names})", hint="resample to one rate first")
+    fs = rates[0]
+    totals = [int(c.meta.get("chunk", {}).get("total_samples", c.n)) for c in firsts]
+    has_tp = all(c.has_tire_patch for c in firsts)
+    band = cfg["band"] or default_band(fs, min(totals) / fs)
+
+    def fresh() -> StreamingNifo:
+        return StreamingNifo(fs, terms, settings=cfg["spectral"], band=band, with_tire_patch=has_tp,
+                             analysis_band_hz=cfg["analysis_band_hz"], on_ill_conditioned="warn",
+                             cond_limit=cfg["cond_limit"])
+
+    total, data, per_file = None, [], []
+    # progress only for long work (a minute of data streams in well under a second)
+    with Progress(float(sum(totals)), "identify", enabled=not quiet and sum(totals) / fs > 600) as bar:
+        for p, first, gen in zip(paths, firsts, iters):
+            one = fresh()
+            n = 0
+            meta = dict(first.meta)
+            for chunk in _chain(first, gen):
+                one.push(chunk.spindle_accel, chunk.body_accel, chunk.tire_patch_disp if has_tp else None)
+                n += chunk.n
+                bar.advance(chunk.n)
+            if one.n_avg == 0:
+                raise RecordTooShortError(
+                    f"{n} samples ({n / fs:.1f} s) is too short for NIFO (block={one.settings.block} plus "
+                    f"{one.delay_samples} integrator edge samples at each end for f_lo={band.f_lo_hz:g} Hz), "
+                    f"which needs {one.min_samples}", source=str(p), hint="record longer, or choose a smaller --block")
+            meta.pop("chunk", None)
+            data.append(data_entry(p, fs_hz=fs, n_samples=n, meta=meta))
+            spec = one.spectra()
+            per_file.append((p.name, spec.freq_hz, h1(spec, 0, 1)))
+            total = one if total is None else total.merge(one)
+    return total, data, per_file
+
+
+def _chain(first, gen):
+    yield first
+    yield from gen
+
+
+# ---------------------------------------------------------------------------------------------
+# checks and summary
+# ---------------------------------------------------------------------------------------------
+def _ill_fraction(res, cond_limit: float) -> float:
+    c = res.cond[res.in_band]
+    return float(np.mean(~(c <= cond_limit))) if c.size else 1.0
+
+
+def check_usable(res, cond_limit: float) -> None:
+    """Refuse (IllConditionedError) only when nothing usable is left."""
+    m = res.in_band
+    st = res.static
+    free = [i for i, f in enumerate(res.fixed) if not f]
+    if not np.all(np.isfinite(st.c_over_m2)):
+        raise IllConditionedError(f"the pooled coefficients c/M2 are not finite ({st.c_over_m2.tolist()}): the "
+                                  "declared describing functions are linearly dependent on the data",
+                                  hint="drop a duplicated or redundant term, or identify them in two steps")
+    ok_static = np.isfinite(st.t21[m]) & (np.abs(st.t21[m]) > 0)
+    if ok_static.mean() < 0.5:
+        raise IllConditionedError(f"the pooled T21 is undefined on {1 - ok_static.mean():.0%} of the analysis band",
+                                  hint="check the data (coherence) and the analysis band")
+    if free and not np.any(res.cond[m] <= cond_limit):
+        worst = res.cond[m]
+        raise IllConditionedError(
+            f"G_UU is ill-conditioned on every line of the analysis band {res.analysis_band_hz[0]:g}-"
+            f"{res.analysis_band_hz[1]:g} Hz (median scaled cond {np.nanmedian(worst):.3g} > {cond_limit:.3g}): "
+            "the declared terms cannot be told apart in these data",
+            hint="drop a term, identify correlated terms in two steps (steps: in the model file), "
+                 "or use data with more amplitude range")
+
+
+def _unit(term) -> str:
+    u = term.spec.coef_unit
+    return f"({u})/kg" if u else "1/kg"
+
+
+def summarize(res, cond_limit: float) -> tuple[dict, list[str]]:
+    """The printed numbers (also stored in identify.json) and plain-language warnings."""
+    m = res.in_band
+    st = res.static
+    lo, hi = res.analysis_band_hz
+    warn: list[str] = []
+    terms = []
+    for i, t in enumerate(res.terms):
+        free_c = res.c_over_m2[i][m]
+        re_mean = float(np.nanmean(free_c.real)) if not res.fixed[i] else None
+        im_mean = float(np.nanmean(free_c.imag)) if not res.fixed[i] else None
+        re_spread = float(np.nanstd(free_c.real)) if not res.fixed[i] else None
+        terms.append({"term": t.to_dict(), "label": t.label, "c_over_m2": float(st.c_over_m2[i]), "unit": _unit(t),
+                      "fixed": bool(res.fixed[i]), "per_line_mean_re": re_mean, "per_line_mean_im": im_mean,
+                      "per_line_std_re": re_spread})
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d_h1 = np.abs(st.t21[m] / res.t21_h1[m] - 1)
+        d_free = np.abs(res.t21[m] / st.t21[m] - 1)
+    frac = _ill_fraction(res, cond_limit)
+    summary = {
+        "analysis_band_hz": [lo, hi], "integration_band_hz": [res.band.f_lo_hz, res.band.f_hi_hz],
+        "n_avg": int(res.n_avg), "n_samples": int(res.n_samples), "duration_used_s": res.n_samples / res.fs_hz,
+        "terms": terms,
+        "t21_static_vs_h1_rel_diff": {"median": float(np.nanmedian(d_h1)), "max": float(np.nanmax(d_h1))},
+        "t21_free_vs_static_rel_diff": {"median": float(np.nanmedian(d_free)), "max": float(np.nanmax(d_free))},
+        "coherence_h1_median": float(np.nanmedian(res.coherence_h1[m])),
+        "cond_median": float(np.nanmedian(res.cond[m])), "cond_max": float(np.nanmax(res.cond[m])),
+        "ill_conditioned_fraction": frac, "cond_limit": cond_limit,
+    }
+    if frac > 0.1 and any(not f for f in res.fixed):
+        warn.append(f"The per-line (paper Eq. 9) estimate is ill-conditioned on {frac:.0%} of the {lo:g}-{hi:g} Hz "
+                    f"lines (median scaled cond {summary['cond_median']:.3g}, limit {cond_limit:.3g}): its T21 and "
+                    f"μ_i/K2 are sensitive to noise there. The pooled (constant c/M2) T21, the main result, pools all "
+                    f"lines and is much less affected. To improve the per-line estimate, identify correlated terms "
+                    f"in two steps (steps: in the model file), drop a term, or record more data.")
+    elif frac > 0:
+        warn.append(f"{frac:.0%} of the {lo:g}-{hi:g} Hz lines have a scaled cond(G_UU) above {cond_limit:.3g}; "
+                    "per-line coefficients there are noise-sensitive.")
+    for tm in terms:
+        if tm["fixed"] or tm["per_line_mean_re"] is None:
+            continue
+        pooled, re_m, im_m = tm["c_over_m2"], tm["per_line_mean_re"], tm["per_line_mean_im"]
+        if abs(im_m) > 0.5 * max(abs(re_m), 1e-300):
+            warn.append(f"{tm['label']}: the per-line c/M2 has a large imaginary part (band mean {re_m:.3g} "
+                        f"{im_m:+.3g}j): the term may not act as declared (static) or a missing effect is absorbed.")
+        if np.sign(re_m) != np.sign(pooled) and pooled != 0:
+            warn.append(f"{tm['label']}: pooled c/M2 {pooled:.3g} and per-line band mean {re_m:.3g} disagree in sign; "
+                        "treat this coefficient as not identified.")
+    if summary["coherence_h1_median"] < 0.8:
+        warn.append(f"The ordinary coherence spindle→body is low (median {summary['coherence_h1_median']:.2f} in "
+                    f"{lo:g}-{hi:g} Hz): noise or unmeasured inputs; average more data.")
+    return summary, warn
+
+
+def format_summary(summary: dict, warn: list[str], *, out: Path, files: int, model_written: bool) -> str:
+    lo, hi = summary["analysis_band_hz"]
+    lines = [f"identified on {files} file(s), {summary['duration_used_s']:.1f} s used, {summary['n_avg']} spectral "
+             f"averages; integration band {summary['integration_band_hz'][0]:g}-"
+             f"{summary['integration_band_hz'][1]:g} Hz, analysis band {lo:g}-{hi:g} Hz"]
+    if summary["terms"]:
+        lines.append("pooled coefficients c/M2 (constant over the band; per-line band mean Re/Im beside):")
+        for tm in summary["terms"]:
+            extra = " (held fixed from step 1)" if tm["fixed"] else (
+                f"   per line: {tm['per_line_mean_re']:.4g} {tm['per_line_mean_im']:+.3g}j")
+            lines.append(f"  {tm['label']:<40} {tm['c_over_m2']:>11.4g} {tm['unit']}{extra}")
+    else:
+        lines.append("no nonlinear terms declared: T21 is the plain H1")
+    d, df = summary["t21_static_vs_h1_rel_diff"], summary["t21_free_vs_static_rel_diff"]
+    lines.append(f"nominal T21 vs plain H1 at this level: median {100 * d['median']:.1f} %, max {100 * d['max']:.1f} % "
+                 f"apart; per-line vs pooled T21: median {100 * df['median']:.1f} %")
+    lines.append(f"coherence (plain H1) median {summary['coherence_h1_median']:.3f}; scaled cond(G_UU) median "
+                 f"{summary['cond_median']:.3g}, max {summary['cond_max']:.3g}")
+    lines += [f"WARNING: {w}" for w in warn]
+    lines.append(f"wrote {out}/identify.json" + (", model.json" if model_written else "") + " and figures")
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------------------------
+# figures
+# ---------------------------------------------------------------------------------------------
+def write_figures(out: Path, res, per_file, cond_limit: float) -> list[str]:
+    from nifo.plots.nifo import plot_coefficients, plot_conditioning, plot_tire, plot_transmissibility
+
+    f = res.freq_hz
+    curves = [(f"measured H1 {name}", fq, h, {"lw": 0.9, "alpha": 0.8}) for name, fq, h in per_file]
+    if res.terms:
+        curves.append(("NIFO nominal T21, per line (Eq. 9)", f, res.t21, {"color": "C0", "lw": 0.8, "ls": ":"}))
+        curves.append(("NIFO nominal T21, pooled (recommended)", f, res.static.t21,
+                       {"color": "C3", "lw": 1.6, "ls": "--"}))
+    plot_transmissibility(out / "transmissibility.png", curves, band_hz=res.analysis_band_hz,
+                          title="spindle → body transmissibility: measured and NIFO nominal linear (cf. Fig. 9b/12b)")
+    names = ["transmissibility.png"]
+    if res.terms:
+        plot_coefficients(out / "coefficients.png", res,
+                          title="coefficient functions μ_i(ω)/K2 (cf. paper Fig. 10/13)")
+        names.append("coefficients.png")
+    plot_conditioning(out / "conditioning.png", res, cond_limit=cond_limit)
+    names.append("conditioning.png")
+    if res.input_measured is not None:
+        plot_tire(out / "tire.png", res)
+        names.append("tire.png")
+    return names
+
+
+# ---------------------------------------------------------------------------------------------
+# run
+# ---------------------------------------------------------------------------------------------
+def _two_step(args, spec, cfg, opts):
+    from nifo.io.loader import load_records
+    from nifo.io.results import data_entry
+    from nifo_core.nifo import identify_two_step
+    from nifo_core.spectral import h1
+
+    if len(spec.steps) != 2:
+        raise ConfigError(f"the model file has {len(spec.steps)} steps; two-step identification takes exactly 2",
+                          source=str(args.model), hint="merge steps or split the model file")
+    if args.data:
+        raise ConfigError("DATA on the command line is for single-step models; this model file has steps",
+                          source=str(args.model), hint="give each step's data with --step-data PATH... (once per "
+                                                       "step) or under data: in the model file")
+    if args.step_data is not None and len(args.step_data) != 2:
+        raise ConfigError(f"--step-data given {len(args.step_data)} time(s) for 2 steps", channel="--step-data",
+                          hint="repeat --step-data once per step, in order")
+    paths = [list(args.step_data[i]) if args.step_data else list(s.data) for i, s in enumerate(spec.steps)]
+    for s, ps in zip(spec.steps, paths):
+        if not ps:
+            raise ConfigError(f"step {s.name!r} has no data", source=str(args.model),
+                              hint="list data: under the step or pass --step-data")
+    recs = [load_records(ps, **opts) for ps in paths]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = identify_two_step(recs[0], spec.steps[0].terms, recs[1], spec.steps[1].terms,
+                                settings=cfg["spectral"], band=cfg["band"], analysis_band_hz=cfg["analysis_band_hz"],
+                                cond_limit=cfg["cond_limit"], on_ill_conditioned="warn")
+    from nifo_core.spectral import cross_spectra
+    per_file = []
+    for r in recs[1]:
+        sp = cross_spectra(np.stack([r.spindle_accel, r.body_accel]), r.fs_hz, cfg["spectral"])
+        per_file.append((r.source, sp.freq_hz, h1(sp, 0, 1)))
+    data = {"steps": [{"name": s.name, "terms": [t.to_dict() for t in s.terms],
+                       "data": [data_entry(p, r) for p, r in zip(ps, rs)]}
+                      for s, ps, rs in zip(spec.steps, paths, recs)]}
+    return res, data, per_file, caught
+
+
+def run(args: argparse.Namespace) -> int:
+    from nifo.io.modelfile import load_model_spec
+    from nifo.io.results import IDENTIFY_JSON, MODEL_JSON, identify_document, write_json, write_model
+    from nifo_core.model import IdentifiedModel
+    from nifo_core.nifo import IllConditionedWarning
+
+    spec = load_model_spec(args.model)
+    cfg = resolve_settings(args, spec.settings)
+    opts = input_options(args)
+    if spec.two_step:
+        res, data, per_file, caught = _two_step(args, spec, cfg, opts)
+        files = sum(len(s["data"]) for s in data["steps"])
+    else:
+        if not args.data:
+            raise InputError("no data files given", hint="nifo identify DATA... --model MODEL.yaml --out DIR")
+        terms = spec.terms
+        acc, data, per_file = accumulate(list(args.data), terms, cfg, opts=opts, chunk_samples=args.chunk_samples,
+                                         quiet=args.quiet)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            res = acc.result()
+        res = replace(res, provenance={**dict(res.provenance), "sources": [d["name"] for d in data]})
+        files = len(data)
+    check_usable(res, cfg["cond_limit"])
+    summary, warn = summarize(res, cfg["cond_limit"])
+    # the core's own warnings are covered by the plain sentences above; keep any other ones verbatim
+    warn += [str(w.message) for w in caught if not issubclass(w.category, IllConditionedWarning)
+             and not issubclass(w.category, (DeprecationWarning, RuntimeWarning))]
+    model = linear = None
+    try:
+        model = IdentifiedModel.from_nifo(res, source="static")
+        linear = IdentifiedModel.from_nifo(res, source="h1")
+    except ConfigError as err:
+        warn.append(f"no model.json: the parametric body model could not be fitted to T21 ({err.message}); "
+                    "identify.json holds the non-parametric result")
+        model = None
+    prov = {"data": data, "model_file": str(args.model), "settings": _settings_doc(cfg, res)}
+    settings_doc = _settings_doc(cfg, res)
+    model_file = {"path": str(args.model), "steps": [{"name": s.name, "terms": [t.to_dict() for t in s.terms]}
+                                                    for s in spec.steps]}
+    with staged_dir(args.out) as tmp:
+        figures = [] if args.no_plots else write_figures(tmp, res, per_file, cfg["cond_limit"])
+        doc = identify_document(res, data=data, summary=summary, warnings=warn, settings=settings_doc,
+                                model_file=model_file, figures=figures)
+        write_json(tmp / IDENTIFY_JSON, doc, atomic=False)
+        if model is not None:
+            model = replace(model, provenance={**dict(model.provenance), **prov})
+            linear = replace(linear, provenance={**dict(linear.provenance), **prov})
+            write_model(tmp / MODEL_JSON, model, linear=linear, atomic=False)
+    print(format_summary(summary, warn, out=args.out, files=files, model_written=model is not None))
+    return 0
+
+
+def _settings_doc(cfg: dict, res) -> dict:
+    return {"spectral": res.settings.to_dict(), "integration_band_hz": [res.band.f_lo_hz, res.band.f_hi_hz],
+            "integration_band_source": "given" if cfg["band"] is not None else "default_band(fs, shortest duration)",
+            "analysis_band_hz": list(res.analysis_band_hz), "cond_limit": cfg["cond_limit"], "fs_hz": res.fs_hz}

@@ -1,0 +1,231 @@
+"""``nifo predict``: apply an identified model to other data (METHOD.md §4, paper §3.3 validation).
+
+For each record the measured spindle acceleration drives the model
+(:func:`nifo_core.model.predict_transmissibility`: the feedback
+x2 = T21·x1 + Σ B_i·G_i(x2 - x1) solved for the whole record), and the
+predicted body acceleration is compared with the measured one:
+
+- NMSE in time, 100·Σ(y - ŷ)²/(N·σ_y²) % over the prediction's valid part
+  (start-up edges left out; below 5 % good, below 1 % excellent);
+- the transmissibility error |T_pred/T_meas - 1|, median and max over the
+  lines of ``--freq-range`` (default 2-30 Hz), where T is the H1 from the
+  measured spindle signal to the predicted or the measured body signal, on
+  the same spectral settings.
+
+The same is done with the linear model stored beside it in model.json (the
+plain H1 at the identification level, i.e. the equivalent linearisation a
+linear identification would give), so the gain from the nonlinear terms is
+explicit. When a simulator truth file ``<DATA>.truth.json`` lies beside the
+data, the model's nominal T21 is also compared with the true linear T21.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+
+from nifo.io.atomic import staged_dir
+from nifo.io.loader import add_input_arguments, input_options
+from nifo_core.errors import ConfigError, InputError
+
+HELP = "predict the body response of other data with an identified model and compare with the measurement"
+DESCRIPTION = __doc__.split("\n", 1)[1].strip() if __doc__ else HELP
+
+EXCERPT_S = 4.0
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("data", nargs="+", type=Path, metavar="DATA", help="records to predict (bag, .mcap, .csv, .mat)")
+    p.add_argument("--model", required=True, type=Path, metavar="MODEL.json",
+                   help="model.json written by nifo identify (or its output directory)")
+    p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory (replaced atomically)")
+    p.add_argument("--freq-range", type=float, nargs=2, metavar=("LO", "HI"), default=(2.0, 30.0),
+                   help="band of the transmissibility errors [Hz] (default 2 30)")
+    p.add_argument("--method", choices=("parametric", "nonparametric"), default="parametric",
+                   help="linear responses from the fitted body model (default) or the identified T21(ω), B_i(ω)")
+    p.add_argument("--no-plots", action="store_true", help="write predict.json only")
+    add_input_arguments(p)
+
+
+def truth_for(path: Path) -> Path | None:
+    """The simulator's truth file beside ``path`` (``<name>.truth.json``), if any."""
+    p = Path(path)
+    cand = p.with_name(p.name + ".truth.json")
+    if cand.is_file():
+        return cand
+    if p.suffix:  # also road.truth.json beside road.mcap
+        cand = p.with_name(p.stem + ".truth.json")
+        if cand.is_file():
+            return cand
+    return None
+
+
+def _nmse(y: np.ndarray, yhat: np.ndarray) -> float:
+    """Worden & Tomlinson's normalised mean-square error [%]."""
+    return float(100 * np.sum((y - yhat) ** 2) / (y.size * np.var(y)))
+
+
+def _rel(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> dict:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e = np.abs(a[mask] / b[mask] - 1)
+    e = e[np.isfinite(e)]
+    return {"median": float(np.median(e)) if e.size else None, "max": float(np.max(e)) if e.size else None}
+
+
+def _interp(f_new: np.ndarray, f: np.ndarray, h: np.ndarray) -> np.ndarray:
+    h = np.where(np.isfinite(h), h, 0)
+    return np.interp(f_new, f, h.real) + 1j * np.interp(f_new, f, h.imag)
+
+
+def predict_one(path: Path, record, model, linear, *, band_hz, method: str) -> tuple[dict, dict]:
+    """Numbers (JSON-able) and arrays (for the figures) for one record."""
+    from nifo_core.model import predict_transmissibility
+    from nifo_core.spectral import coherence, cross_spectra, h1
+
+    fs = record.fs_hz
+    if abs(fs - model.fs_hz) > 1e-3 * model.fs_hz:
+        raise InputError(f"the record is sampled at {fs:g} Hz but the model was identified at {model.fs_hz:g} Hz",
+                         source=str(path), hint="resample the record to the model's rate")
+    a1, a2 = np.asarray(record.spindle_accel), np.asarray(record.body_accel)
+    pt = predict_transmissibility(model, a1, fs, method=method)
+    lt = predict_transmissibility(linear, a1, fs, method=method)
+    valid = pt.prediction.valid
+    meas_spec = cross_spectra(np.stack([a1[valid], a2[valid]]), fs, model.settings)
+    t_meas = h1(meas_spec, 0, 1)
+    f = meas_spec.freq_hz
+    mask = (f >= band_hz[0]) & (f <= band_hz[1])
+    y = a2[valid]
+    out = {
+        "path": str(path), "name": path.name, "fs_hz": fs, "n_samples": record.n, "duration_s": record.duration_s,
+        "valid_samples": [valid.start, valid.stop], "n_avg": int(meas_spec.n_avg),
+        "model": {"nmse_percent": _nmse(y, pt.prediction.body_accel[valid]),
+                  "transmissibility_error": _rel(pt.t21, t_meas, mask),
+                  "iterations": pt.prediction.iterations, "residual": pt.prediction.residual},
+        "linear": {"nmse_percent": _nmse(y, lt.prediction.body_accel[valid]),
+                   "transmissibility_error": _rel(lt.t21, t_meas, mask), "source": linear.source},
+        "coherence_measured_median": float(np.median(coherence(meas_spec, 0, 1)[mask])),
+    }
+    arrays = {"f": f, "t_meas": t_meas, "t_model": pt.t21, "t_linear": lt.t21, "mask": mask,
+              "a2": a2, "a2_model": pt.prediction.body_accel, "a2_linear": lt.prediction.body_accel,
+              "valid": valid, "fs": fs}
+    tp = truth_for(path)
+    if tp is not None:
+        out["truth"] = _truth_comparison(tp, model, f, t_meas, mask)
+        if out["truth"].get("t21") is not None:
+            arrays["t_true"] = _from_cplx(out["truth"].pop("t21"))
+    return out, arrays
+
+
+def _from_cplx(d) -> np.ndarray:
+    return np.asarray(d["re"]) + 1j * np.asarray(d["im"])
+
+
+def _truth_comparison(tp: Path, model, f: np.ndarray, t_meas: np.ndarray, mask: np.ndarray) -> dict:
+    from nifo_core.vehicle import QuarterCar
+
+    try:
+        doc = json.loads(tp.read_text())
+        veh = QuarterCar(**doc["vehicle"])
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        return {"file": str(tp), "error": f"cannot read the truth ({err})"}
+    t_true = veh.t21(f)
+    t_nom = _interp(f, model.freq_hz, model.t21)
+    return {"file": tp.name, "vehicle": doc["vehicle"], "strut": doc.get("strut"),
+            "model_nominal_t21_vs_true": _rel(t_nom, t_true, mask),
+            "model_body_t21_vs_true": _rel(model.body.t21(f), t_true, mask),
+            "measured_h1_vs_true": _rel(t_meas, t_true, mask),
+            "t21": {"re": t_true.real.tolist(), "im": t_true.imag.tolist()}}
+
+
+def _safe(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._") or "record"
+
+
+def _figures(out: Path, name: str, arr: dict, band_hz, model) -> list[str]:
+    from nifo.plots.nifo import plot_time_excerpt, plot_transmissibility
+
+    f = arr["f"]
+    curves = [("measured H1", f, arr["t_meas"], {"color": "k", "lw": 1.2}),
+              ("predicted, identified model", f, arr["t_model"], {"color": "C3", "lw": 1.3, "ls": "--"}),
+              ("predicted, linear model (plain H1 at id. level)", f, arr["t_linear"], {"color": "C0", "lw": 1.0,
+                                                                                       "ls": ":"})]
+    if "t_true" in arr:
+        curves.append(("true nominal linear T21", f, arr["t_true"], {"color": "C2", "lw": 0.9, "alpha": 0.8}))
+    stem = _safe(name)
+    names = [f"{stem}_transmissibility.png", f"{stem}_time.png"]
+    plot_transmissibility(out / names[0], curves, band_hz=tuple(band_hz),
+                          title=f"{name}: predicted vs measured transmissibility")
+    fs = arr["fs"]
+    v = arr["valid"]
+    n = int(min(EXCERPT_S * fs, v.stop - v.start))
+    mid = (v.start + v.stop) // 2
+    sl = slice(max(v.start, mid - n // 2), max(v.start, mid - n // 2) + n)
+    t = np.arange(sl.start, sl.stop) / fs
+    plot_time_excerpt(out / names[1], t, [("measured", arr["a2"][sl], {"color": "k", "lw": 1.0}),
+                                          ("identified model", arr["a2_model"][sl], {"color": "C3", "lw": 1.0,
+                                                                                     "ls": "--"}),
+                                          ("linear model", arr["a2_linear"][sl], {"color": "C0", "lw": 0.8,
+                                                                                  "ls": ":"})],
+                      title=f"{name}: body acceleration, measured vs predicted from the measured spindle")
+    return names
+
+
+def _linear_part(model):
+    """The model's nominal linear part alone (no terms): the fallback when model.json has no linear_h1."""
+    from dataclasses import replace
+
+    return replace(model, b=np.zeros((0, model.freq_hz.size), complex), terms=(), c_over_m2=np.zeros(0),
+                   source="linear part")
+
+
+def run(args: argparse.Namespace) -> int:
+    from nifo.io.loader import load_record
+    from nifo.io.results import PREDICT_JSON, read_model, write_json
+
+    lo, hi = args.freq_range
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):
+        raise ConfigError(f"--freq-range {lo:g} {hi:g} must satisfy 0 <= LO < HI", channel="--freq-range")
+    model, linear = read_model(args.model)
+    if linear is None:
+        linear = _linear_part(model)
+    opts = input_options(args)
+    records = [(Path(p), load_record(p, **opts)) for p in args.data]   # all read before anything is written
+    results, figures = [], []
+    with staged_dir(args.out) as tmp:
+        for path, rec in records:
+            numbers, arrays = predict_one(path, rec, model, linear, band_hz=(lo, hi), method=args.method)
+            if not args.no_plots:
+                numbers["figures"] = _figures(tmp, path.name, arrays, (lo, hi), model)
+                figures += numbers["figures"]
+            results.append(numbers)
+        doc = {"nifo_predict": 1, "model": str(args.model), "model_terms": [t.to_dict() for t in model.terms],
+               "model_c_over_m2": model.c_over_m2.tolist(), "linear_model": linear.source,
+               "method": args.method, "freq_range_hz": [lo, hi], "records": results}
+        write_json(tmp / PREDICT_JSON, doc, atomic=False)
+    print(_summary(results, (lo, hi), args.out))
+    return 0
+
+
+def _pct(x) -> str:
+    return "-" if x is None else f"{100 * x:.1f} %"
+
+
+def _summary(results: list[dict], band, out: Path) -> str:
+    lines = [f"{'record':<24} {'NMSE model':>11} {'NMSE linear':>12}   |T| error {band[0]:g}-{band[1]:g} Hz "
+             "model (median/max) | linear (median/max)"]
+    for r in results:
+        m, li = r["model"], r["linear"]
+        lines.append(f"{r['name'][:24]:<24} {m['nmse_percent']:10.2f}% {li['nmse_percent']:11.2f}%   "
+                     f"{_pct(m['transmissibility_error']['median'])} / {_pct(m['transmissibility_error']['max'])}"
+                     f" | {_pct(li['transmissibility_error']['median'])} / {_pct(li['transmissibility_error']['max'])}")
+        if "truth" in r and "model_nominal_t21_vs_true" in r["truth"]:
+            tr = r["truth"]
+            lines.append(f"  truth ({tr['file']}): model nominal T21 vs true linear T21 median "
+                         f"{_pct(tr['model_nominal_t21_vs_true']['median'])}, measured H1 vs true "
+                         f"{_pct(tr['measured_h1_vs_true']['median'])}")
+    lines.append(f"wrote {out}/predict.json")
+    return "\n".join(lines)

@@ -1,0 +1,192 @@
+"""Result files of ``nifo identify`` and ``nifo predict`` (JSON), written atomically.
+
+``identify.json`` (``nifo_identify: 1``)
+    ``result``: the whole :meth:`NifoResult.to_dict` (frequency lines; the
+    per-line paper-Eq. 9 estimate ``t21``, ``b``, ``mu_over_k2``, ``c_over_m2``;
+    the pooled constant-coefficient fit under ``static`` with its own T21,
+    B_i, μ_i/K2 and the pooled c_i/M2; plain ``t21_h1`` and its coherence;
+    multiple and partial coherences; ``cond``; ``random_error``; settings,
+    integration band, analysis band; ``input_measured`` when the tire patch
+    was recorded). Complex arrays are ``{"re": [...], "im": [...]}``.
+    ``bounds``: about-95 % random-error bounds |T21|·(1 ∓ 2ε) of both T21s.
+    ``summary``: the numbers the command prints (pooled c_i/M2 with units,
+    T21 vs plain H1, conditioning). ``warnings``: plain sentences.
+    ``data``: every file read (path, name, size in bytes, sample rate,
+    samples, duration, the reader's ``meta``), per step for two-step models.
+    ``model_file``: the model file and its steps. ``settings``: as run.
+
+``model.json`` (``nifo_identified_model: 1``)
+    :meth:`IdentifiedModel.to_dict` (T21, B_i, terms, pooled c_i/M2, the
+    parametric body model, settings, provenance: data files, model file,
+    identify settings), plus ``linear_h1``: the plain-H1 model at the
+    identification level (the equivalent linearisation) that ``nifo predict``
+    compares against. :func:`read_model` returns both.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from nifo_core import __version__
+from nifo_core.errors import ConfigError, DataFileError
+from nifo_core.model import IdentifiedModel
+from nifo_core.nifo import NifoResult
+from nifo_core.record import Record
+
+from .atomic import staged_file
+
+__all__ = ["data_entry", "identify_document", "write_json", "read_json", "read_identify", "model_document",
+           "write_model", "read_model", "IDENTIFY_JSON", "MODEL_JSON", "PREDICT_JSON"]
+
+IDENTIFY_JSON = "identify.json"
+MODEL_JSON = "model.json"
+PREDICT_JSON = "predict.json"
+
+
+def _default(o: Any):
+    if isinstance(o, (np.floating, np.integer, np.bool_)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    if isinstance(o, complex):
+        return {"re": o.real, "im": o.imag}
+    return str(o)
+
+
+def _nan_to_none(o):
+    """JSON has no NaN/inf: write null instead (strict parsers reject NaN)."""
+    if isinstance(o, float):
+        return o if np.isfinite(o) else None
+    if isinstance(o, dict):
+        return {k: _nan_to_none(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_nan_to_none(v) for v in o]
+    return o
+
+
+def write_json(path: str | os.PathLike, doc: Mapping, *, atomic: bool = True) -> Path:
+    """Write ``doc`` as JSON (NaN/inf as null); atomically unless inside an already staged directory."""
+    text = json.dumps(_nan_to_none(json.loads(json.dumps(doc, default=_default, allow_nan=True))),
+                      allow_nan=False, separators=(",", ":")) + "\n"
+    p = Path(path)
+    if not atomic:
+        p.write_text(text)
+        return p
+    with staged_file(p) as tmp:
+        tmp.write_text(text)
+    return p
+
+
+def _nan(x):
+    """null -> NaN in numeric lists read back from JSON (other None values stay None)."""
+    if isinstance(x, list):
+        if any(v is None for v in x):
+            return [float("nan") if v is None else _nan(v) for v in x]
+        return [_nan(v) for v in x]
+    if isinstance(x, dict):
+        return {k: _nan(v) for k, v in x.items()}
+    return x
+
+
+def read_json(path: str | os.PathLike, *, what: str) -> dict:
+    """A JSON document, or :class:`DataFileError` / :class:`ConfigError` naming the file."""
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise DataFileError(f"{what} not found", source=str(p), hint="check the path") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise DataFileError(f"cannot read {what} ({err})", source=str(p)) from err
+    except json.JSONDecodeError as err:
+        raise ConfigError(f"{what} is not valid JSON ({err.msg} at line {err.lineno})", source=str(p),
+                          hint="write it again with nifo identify") from None
+    if not isinstance(doc, dict):
+        raise ConfigError(f"{what} must be a JSON object", source=str(p))
+    return doc
+
+
+def data_entry(path: str | os.PathLike, record: Record | None = None, *, fs_hz: float | None = None,
+               n_samples: int | None = None, meta: Mapping | None = None) -> dict:
+    """Provenance of one data file: path, name, size in bytes, rate, samples, duration, reader meta."""
+    p = Path(path)
+    size = sum(f.stat().st_size for f in p.rglob("*") if f.is_file()) if p.is_dir() else p.stat().st_size
+    if record is not None:
+        fs_hz, n_samples, meta = record.fs_hz, record.n, record.meta
+    return {"path": str(p), "name": p.name, "size_bytes": int(size), "fs_hz": fs_hz, "n_samples": n_samples,
+            "duration_s": None if not (fs_hz and n_samples) else n_samples / fs_hz, "meta": dict(meta or {})}
+
+
+def identify_document(result: NifoResult, *, data: Any, summary: Mapping, warnings: list[str],
+                      settings: Mapping, model_file: Mapping, figures: list[str]) -> dict:
+    """The ``identify.json`` document (see the module docstring)."""
+    lo, hi = result.bounds("t21")
+    st = result.static
+    eps = np.asarray(st.random_error)
+    mag = np.abs(st.t21)
+    return {
+        "nifo_identify": 1, "nifo_version": __version__,
+        "model_file": dict(model_file), "data": data, "settings": dict(settings),
+        "summary": dict(summary), "warnings": list(warnings), "figures": list(figures),
+        "bounds": {"note": "about 95 % random-error bounds |T|(1 -/+ 2 eps); random error only",
+                   "t21_free": {"lower": lo, "upper": hi},
+                   "t21_static": {"lower": mag * np.maximum(1 - 2 * eps, 0), "upper": mag * (1 + 2 * eps)}},
+        "result": result.to_dict(),
+    }
+
+
+def read_identify(path: str | os.PathLike) -> tuple[NifoResult, dict]:
+    """The :class:`NifoResult` and the whole document of an ``identify.json`` (or its directory)."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / IDENTIFY_JSON
+    doc = read_json(p, what="identify result")
+    if doc.get("nifo_identify") != 1 or "result" not in doc:
+        raise ConfigError("not an identify.json (no 'nifo_identify: 1' and 'result')", source=str(p),
+                          hint="give the file nifo identify wrote")
+    try:
+        return NifoResult.from_dict(_nan(doc["result"])), doc
+    except ConfigError as err:
+        raise err.with_context(source=str(p)) from None
+
+
+def model_document(model: IdentifiedModel, *, linear: IdentifiedModel | None = None) -> dict:
+    """``model.json``: the model's dict plus the plain-H1 ``linear_h1`` model to compare against."""
+    doc = model.to_dict()
+    doc["nifo_version"] = __version__
+    if linear is not None:
+        doc["linear_h1"] = linear.to_dict()
+    return doc
+
+
+def write_model(path: str | os.PathLike, model: IdentifiedModel, *, linear: IdentifiedModel | None = None,
+                atomic: bool = True) -> Path:
+    """Write ``model.json`` (see :func:`model_document`)."""
+    return write_json(path, model_document(model, linear=linear), atomic=atomic)
+
+
+def read_model(path: str | os.PathLike) -> tuple[IdentifiedModel, IdentifiedModel | None]:
+    """The identified model and (when stored) its plain-H1 linear counterpart from a ``model.json``.
+
+    ``path`` may also be the directory ``nifo identify`` wrote.
+    """
+    p = Path(path)
+    if p.is_dir():
+        p = p / MODEL_JSON
+    doc = read_json(p, what="identified model")
+    if doc.get("nifo_identified_model") != 1:
+        raise ConfigError("not an identified model file (no 'nifo_identified_model: 1')", source=str(p),
+                          hint="give the model.json that nifo identify wrote")
+    try:
+        model = IdentifiedModel.from_dict(_nan(doc))
+        lin = doc.get("linear_h1")
+        linear = None if lin is None else IdentifiedModel.from_dict(_nan(lin))
+    except ConfigError as err:
+        raise err.with_context(source=str(p)) from None
+    return model, linear
