@@ -1,0 +1,337 @@
+"""``nifo characterize DATA... --out DIR``: restoring-force plots and an automatic characterization.
+
+Reads each DATA file (several files = several excitation levels), integrates
+ẍ2 - ẍ1 in one band, ranks the describing functions of the library by how much
+of the restoring force they explain beyond a linear strut
+(:mod:`nifo_core.characterize`) and writes, atomically, to DIR:
+
+- ``characterize.json``   ranked candidates with parameters, scores and confidence,
+                          the suggested model, the band and a per-file summary;
+- ``suggested_model.yaml`` a model file ``nifo identify`` accepts;
+- ``restoring_frequency*.png`` frequency slices of sweeps (paper Fig. 3);
+- ``restoring_amplitude.png`` amplitude slices: one row per file, or amplitude bins
+                          of one random record (paper Fig. 4);
+- ``characteristic.png``  the nonlinear part of the force against z or ż, per term;
+- ``ranking.png``         every kind's score against the threshold.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from nifo.io.atomic import staged_dir
+from nifo.io.loader import add_input_arguments, input_options, load_record
+from nifo.io.modelfile import write_model_spec
+from nifo.progress import Progress
+from nifo_core import __version__
+from nifo_core.characterize import DEFAULT_KINDS, Characterization, Thresholds, characterize_restoring
+from nifo_core.errors import ConfigError
+from nifo_core.integrate import IntegrationBand
+from nifo_core.restoring import (FrequencyTrack, RestoringForce, amplitude_slices, frequency_slices, restoring_force,
+                                 suggest_band, track_frequency)
+
+HELP = "restoring-force plots and automatic characterization of strut nonlinearities"
+DESCRIPTION = f"""{HELP}.
+
+The body acceleration, negated, is the strut force per unit sprung mass
+(paper Eq. 2); against the relative velocity ż and displacement z (integrated
+from ẍ2 - ẍ1 in one band) it shows damping and stiffness nonlinearities.
+Every kind of the describing-function library
+({", ".join(DEFAULT_KINDS[:4])},
+{", ".join(DEFAULT_KINDS[4:])})
+is fitted over a grid of its parameters on top of a linear strut; a kind is
+reported present only if it explains ≥ 2 % of the linear fit's residual
+variance, does so on held-out blocks too (≥ 1 %), is significant (F-test with
+effective degrees of freedom, p < 0.001 after Bonferroni over its grid) and its
+coefficient is stable across the files / quarters of the record (spread ≤ 0.5).
+Correlated near-duplicates (clearance vs cubic, Coulomb vs a velocity knee)
+are listed as alternatives of the suggested term, not suggested beside it.
+
+Several DATA files are taken as several excitation levels of one system (one
+amplitude slice each). Sweeps (slow chirps, sine sweeps) are detected and
+sliced by instantaneous frequency; --freq-window restricts the fit to part of
+a sweep (e.g. around one mode of a multi-mode structure).
+
+Example (the F-16 ground vibration test, nonlinearbenchmark.org):
+  nifo characterize F16Data_SineSw_Level7.mat --out l7 \\
+      --columns spindle_accel=Acceleration[1],body_accel=Acceleration[2],fs=Fs \\
+      --band 5 160 --freq-window 6.8 7.8 --slices-hz 5.3 7.3 9.2"""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("data", nargs="+", metavar="DATA", help="data files (several: several excitation levels)")
+    p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory (replaced atomically)")
+    add_input_arguments(p)
+    g = p.add_argument_group("analysis")
+    g.add_argument("--band", nargs=2, type=float, metavar=("LO", "HI"),
+                   help="integration band [Hz] (default: from the data, where z rises 10 dB out of the noise)")
+    g.add_argument("--m2", type=float, metavar="KG", help="sprung mass [kg]: coefficients and plots in newtons")
+    g.add_argument("--top", type=int, default=5, metavar="N", help="candidates shown in the table (default 5)")
+    g.add_argument("--max-terms", type=int, default=3, metavar="N", help="most terms suggested (default 3)")
+    g.add_argument("--kinds", metavar="KIND,...", help=f"kinds to try (default: {','.join(DEFAULT_KINDS)})")
+    g.add_argument("--freq-window", nargs=2, type=float, metavar=("LO", "HI"),
+                   help="fit only samples of a sweep whose instantaneous frequency is in [LO, HI] Hz")
+    g.add_argument("--grid", type=int, default=24, metavar="N", help="grid points per parameter (default 24)")
+    g.add_argument("--min-err", type=float, default=Thresholds.min_err, metavar="F",
+                   help=f"ERR threshold for 'present' (default {Thresholds.min_err:g})")
+    f = p.add_argument_group("figures")
+    f.add_argument("--slices-hz", nargs="+", type=float, metavar="HZ",
+                   help="centres of frequency slices for sweeps (default: four across the swept range); "
+                        "the first is also the frequency of the amplitude figure for several sweeps")
+    f.add_argument("--amplitude-bins", type=int, default=4, metavar="N",
+                   help="amplitude bins of a single random record (default 4)")
+
+
+# ---------------------------------------------------------------------------------------------
+def run(args: argparse.Namespace) -> int:
+    opts = input_options(args)
+    records = [load_record(p, **opts) for p in args.data]
+    rates = {r.fs_hz for r in records}
+    band = _band(args, records)
+    kinds = tuple(k.strip() for k in args.kinds.split(",")) if args.kinds else DEFAULT_KINDS
+    thresholds = Thresholds(min_err=args.min_err, min_err_cv=min(Thresholds.min_err_cv, args.min_err / 2))
+    if args.top < 1 or args.amplitude_bins < 1:
+        raise ConfigError("--top and --amplitude-bins must be at least 1")
+    rfs = [restoring_force(r, band=band) for r in records]
+    tracks = [track_frequency(rf.spindle_accel, rf.fs_hz) for rf in rfs]
+    masks = None
+    if args.freq_window:
+        lo, hi = args.freq_window
+        if not 0 < lo < hi:
+            raise ConfigError(f"--freq-window {lo:g} {hi:g} must satisfy 0 < LO < HI")
+        masks = [(t.freq_hz >= lo) & (t.freq_hz <= hi) for t in tracks]
+    with Progress(1.0, "characterize") as prog:
+        last = [0.0]
+
+        def step(frac: float) -> None:
+            prog.advance(frac - last[0])
+            last[0] = frac
+
+        char = characterize_restoring(rfs, m2_kg=args.m2, kinds=kinds, thresholds=thresholds, grid_points=args.grid,
+                                      max_terms=args.max_terms, masks=masks, progress=step)
+    with staged_dir(args.out) as tmp:
+        figures = _figures(tmp, args, rfs, tracks, masks, char)
+        doc = _document(args, records, rfs, tracks, char, figures, band_source=_band_source(args, records))
+        (tmp / "characterize.json").write_text(json.dumps(doc, indent=2, default=_json_default) + "\n")
+        write_model_spec(tmp / "suggested_model.yaml", char.suggested_terms,
+                         settings={"band_hz": [band.f_lo_hz, band.f_hi_hz]},
+                         note=_model_note(char), suggested_by=f"nifo characterize {__version__}")
+    print(_table(char, args.top, [str(p) for p in args.data], len(rates) > 1))
+    print(f"wrote {args.out}/ (characterize.json, suggested_model.yaml, {', '.join(figures)})")
+    return 0
+
+
+def _band(args: argparse.Namespace, records) -> IntegrationBand:
+    if args.band:
+        return IntegrationBand(*args.band).validate(min(r.fs_hz for r in records))
+    return suggest_band(records[0]).band
+
+
+def _band_source(args: argparse.Namespace, records) -> dict:
+    if args.band:
+        return {"chosen_by": "--band"}
+    s = suggest_band(records[0])
+    return {"chosen_by": "suggest_band", **s.to_dict()}
+
+
+# ---------------------------------------------------------------------------------------------
+# figures
+# ---------------------------------------------------------------------------------------------
+def _model_force(char: Characterization, rf: RestoringForce) -> np.ndarray | None:
+    if char.model is None:
+        return None
+    return char.model.force(rf.z, rf.zdot, fs_hz=rf.fs_hz, band=rf.band)
+
+
+def _default_centres(track: FrequencyTrack) -> list[float]:
+    lo, hi = track.range_hz
+    lo = max(lo, 0.5)
+    return [round(float(f), 1) for f in lo + (hi - lo) * np.array([0.2, 0.4, 0.6, 0.85])]
+
+
+def _short(path: str) -> str:
+    return Path(path).stem
+
+
+def _figures(out: Path, args, rfs: list[RestoringForce], tracks: list[FrequencyTrack], masks, char) -> list[str]:
+    from nifo.plots.restoring import (CharacteristicPlot, SlicePlot, plot_characteristics, plot_ranking,
+                                      plot_restoring_slices)
+
+    names = [_short(p) for p in args.data]
+    written: list[str] = []
+    models = [_model_force(char, rf) for rf in rfs]
+    fitted = ("fitted model: linear + " + " + ".join(_label(t) for t in char.suggested_terms) if char.suggested
+              else "fitted model: linear only (nothing nonlinear found)")
+    if args.freq_window:
+        fitted += f" (fitted on {args.freq_window[0]:g}-{args.freq_window[1]:g} Hz, drawn there only)"
+
+    def model_at(i: int, idx: np.ndarray):
+        """The model along the slice, if the slice lies (mostly) where the model was fitted."""
+        if models[i] is None or (masks is not None and masks[i] is not None and masks[i][idx].mean() < 0.5):
+            return None
+        return models[i][idx]
+
+    band = f"band {char.band.f_lo_hz:g}-{char.band.f_hi_hz:g} Hz"
+    # frequency slices of each sweep (paper Fig. 3)
+    sweeps = [i for i, t in enumerate(tracks) if t.is_sweep or args.slices_hz]
+    for i in sweeps:
+        centres = args.slices_hz or _default_centres(tracks[i])
+        sl = frequency_slices(rfs[i], centres, inst_freq_hz=tracks[i].freq_hz)
+        if not sl:
+            continue
+        rows = [SlicePlot(s.label, rfs[i].z[s.index], rfs[i].zdot[s.index], rfs[i].force[s.index],
+                          model_at(i, s.index), True,
+                          f"z peak {1e3 * np.max(np.abs(rfs[i].z[s.index])):.3g} mm") for s in sl]
+        fname = "restoring_frequency.png" if len(sweeps) == 1 else f"restoring_frequency_{i + 1}_{names[i]}.png"
+        plot_restoring_slices(rows, out / fname, title=f"{names[i]}: restoring force by frequency ({band})",
+                              m2_kg=args.m2, subtitle=fitted)
+        written.append(fname)
+    # amplitude slices (paper Fig. 4): one row per file, or bins of one random record
+    rows = []
+    if len(rfs) > 1:
+        fc = (args.slices_hz or [None])[0]
+        if fc is None and args.freq_window:
+            fc = 0.5 * sum(args.freq_window)
+        for i, rf in enumerate(rfs):
+            if fc is not None and tracks[i].is_sweep:
+                sl = frequency_slices(rf, [fc], inst_freq_hz=tracks[i].freq_hz)
+                if not sl:
+                    continue
+                idx, label, conn = sl[0].index, f"{names[i]} at {fc:g} Hz", True
+            else:
+                idx, label, conn = np.arange(rf.n), names[i], tracks[i].is_sweep
+            rows.append(SlicePlot(label, rf.z[idx], rf.zdot[idx], rf.force[idx], model_at(i, idx), conn,
+                                  f"z RMS {1e3 * np.std(rf.z[idx]):.3g} mm"))
+    elif not tracks[0].is_sweep:
+        for s in amplitude_slices(rfs[0], args.amplitude_bins):
+            rows.append(SlicePlot(s.label, rfs[0].z[s.index], rfs[0].zdot[s.index], rfs[0].force[s.index],
+                                  model_at(0, s.index), False))
+    if rows:
+        plot_restoring_slices(rows, out / "restoring_amplitude.png",
+                              title=f"restoring force by amplitude ({band})", m2_kg=args.m2, subtitle=fitted)
+        written.append("restoring_amplitude.png")
+    # characteristics of the suggested terms (or, if none, of the two best candidates)
+    panels = _characteristics(char, rfs, masks, CharacteristicPlot)
+    if panels:
+        what = "suggested terms" if char.suggested else "best candidates (below threshold: not present)"
+        plot_characteristics(panels, out / "characteristic.png", title=f"stiffness and damping characteristics: {what}",
+                             m2_kg=args.m2)
+        written.append("characteristic.png")
+    cands = char.to_dict()["candidates"]
+    plot_ranking(cands, out / "ranking.png", min_err=char.thresholds.min_err,
+                 title="each kind's best form: suggested terms first (scored given the ones above), "
+                       "then the rest by the variance they explain beyond linear")
+    written.append("ranking.png")
+    return written
+
+
+def _characteristics(char: Characterization, rfs, masks, CharacteristicPlot) -> list:
+    """A stiffness and/or damping characteristic of the suggested model (one panel per variable its terms
+    act on); with nothing suggested, of the best candidate fitted alone."""
+    from nifo_core.characterize import FittedModel
+
+    if char.suggested:
+        return _panels_for(char.model, char, rfs, masks, CharacteristicPlot)
+    c = char.candidates[0]
+    m = FittedModel(char.linear["k_per_kg"], char.linear["c_per_kg"], ((c.term, c.theta),), char.linear["r2"])
+    return _panels_for(m, char, rfs, masks, CharacteristicPlot, extra=" (best candidate, not present)")
+
+
+def _panels_for(model, char: Characterization, rfs, masks, CharacteristicPlot, extra: str = "") -> list:
+    """Per variable (z, ż): data = -ẍ2 minus the other variable's fitted part; fitted = this variable's part."""
+    variables = [v for v in ("z", "zdot") if any(t.variable == v for t, _ in model.terms)]
+    parts = {v: ([], [], [], [], []) for v in variables}  # x, measured, fitted, split, reference
+    for i, rf in enumerate(rfs):
+        _, per = model.contributions(rf.z, rf.zdot, fs_hz=rf.fs_hz, band=rf.band)
+        sel = np.ones(rf.n, bool) if masks is None or masks[i] is None else masks[i]
+        on = {v: sum((per[j] for j, (t, _) in enumerate(model.terms) if t.variable == v), np.zeros(rf.n))
+              for v in ("z", "zdot")}
+        own = {"z": model.k_per_kg * rf.z + on["z"], "zdot": model.c_per_kg * rf.zdot + on["zdot"]}
+        ref = {"z": char.linear["k_per_kg"] * rf.z, "zdot": char.linear["c_per_kg"] * rf.zdot}
+        for v in variables:
+            other = "zdot" if v == "z" else "z"
+            xs, meas, fit, split, refs = parts[v]
+            xs.append((rf.z if v == "z" else rf.zdot)[sel])
+            meas.append((rf.force - own[other])[sel])
+            fit.append(own[v][sel])
+            split.append(rf.zdot[sel])
+            refs.append(ref[v][sel])
+    out = []
+    for v in variables:
+        xs, meas, fit, split, refs = (np.concatenate(a) for a in parts[v])
+        terms = [f"{_label(t)} θ={th:.3g}" for t, th in model.terms if t.variable == v]
+        what = "stiffness" if v == "z" else "damping"
+        title = f"{what}: linear + " + "\n+ ".join(terms) + extra
+        out.append(CharacteristicPlot(title, v, xs, meas, fit, split if v == "z" else None, refs))
+    return out
+
+
+def _label(t) -> str:
+    p = {k: v for k, v in t.params.items() if not (k == "offset" and v == 0)}
+    if not p:
+        return t.kind
+    return t.kind + "(" + ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in p.items()) + ")"
+
+
+# ---------------------------------------------------------------------------------------------
+# text and JSON
+# ---------------------------------------------------------------------------------------------
+def _json_default(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"cannot serialise {type(o).__name__}")
+
+
+def _document(args, records, rfs, tracks, char: Characterization, figures, *, band_source: dict) -> dict:
+    doc = {"nifo_characterize": 1, "nifo_version": __version__, "inputs": [str(p) for p in args.data],
+           "band_choice": band_source, "freq_window_hz": args.freq_window, "figures": figures, **char.to_dict()}
+    for rec_doc, path, tr in zip(doc["records"], args.data, tracks):
+        rec_doc["path"] = str(path)
+        rec_doc["sweep"] = {"detected": tr.is_sweep, "range_hz": list(tr.range_hz),
+                            "reliable_fraction": tr.reliable_fraction, "trend": tr.trend}
+    return doc
+
+
+def _model_note(char: Characterization) -> str:
+    if char.nothing_found:
+        return "nifo characterize found no nonlinearity above its thresholds: a linear strut (plain H1) suffices"
+    return "suggested by nifo characterize: " + "; ".join(f"{c.term.label}: {c.describe()}" for c in char.suggested)
+
+
+def _fmt_coef(c, m2: float | None) -> str:
+    unit = c.term.spec.coef_unit
+    if m2:
+        return f"{c.coefficient:10.4g} {unit}"
+    return f"{c.theta:10.4g} ({unit})/kg"
+
+
+def _table(char: Characterization, top: int, paths: list[str], mixed_rates: bool) -> str:
+    lines = [f"characterized {len(paths)} file(s) in band {char.band.f_lo_hz:g}-{char.band.f_hi_hz:g} Hz; "
+             f"linear fit R² {char.linear['r2']:.4f}",
+             f"{'#':>2}  {'candidate':<44} {'coefficient':>18}  {'ERR':>7} {'ERR_cv':>7} {'p':>8} {'spread':>6}  status",
+             "    (suggested terms first, each scored given the ones above it; then the rest, ranked alone)"]
+    shown = [c for i, c in enumerate(char.candidates) if i < top or c.status == "suggested"]
+    for i, c in enumerate(shown, 1):
+        spread = f"{c.spread:6.2f}" if np.isfinite(c.spread) else "     -"
+        status = c.status + (f" (≈ {c.alternative_to})" if c.alternative_to else "")
+        lines.append(f"{i:>2}  {c.term.label[:44]:<44} {_fmt_coef(c, char.m2_kg):>18}  {c.err:7.4f} {c.err_cv:7.4f} "
+                     f"{c.p_value:8.1e} {spread}  {status}")
+    if char.nothing_found:
+        lines.append("nothing nonlinear found: no candidate met the thresholds "
+                     f"(ERR ≥ {char.thresholds.min_err:g}, held-out ERR ≥ {char.thresholds.min_err_cv:g}, "
+                     f"p < {char.thresholds.alpha:g}, spread ≤ {char.thresholds.max_spread:g})")
+    else:
+        lines.append("suggested model: " + "; ".join(f"{c.term.label} ({c.describe()})" for c in char.suggested))
+    lines += [f"note: {n}" for n in char.notes if not n.startswith("no nonlinear candidate")]
+    if mixed_rates:
+        lines.append("note: the files have different sample rates")
+    return "\n".join(lines)
+
