@@ -472,6 +472,10 @@ def _mcap_file(storage: Path) -> Path | None:
 _Decoded = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
+class _NoUsableIndex(Exception):
+    """The MCAP file has no chunk/message index nifo can use: read it with rosbags instead."""
+
+
 def _read_mcap_indexed(path: Path, wanted: Mapping[str, tuple[str, str]], *, expected: Mapping[str, int],
                        axis: Axis, typestore) -> dict[str, _Decoded] | None:
     """Messages of the ``wanted`` {role: (topic, msgtype)} via the MCAP chunk and message indexes.
@@ -483,53 +487,13 @@ def _read_mcap_indexed(path: Path, wanted: Mapping[str, tuple[str, str]], *, exp
     index does not hold the ``expected`` message count of every role (the
     caller then iterates with rosbags). Raises on damaged data.
     """
-    import struct
-    import zlib
-
-    from mcap.data_stream import ReadDataStream
-    from mcap.reader import make_reader
-    from mcap.records import Chunk
-
-    with path.open("rb") as f:
-        summary = make_reader(f).get_summary()
-        if summary is None or not summary.chunk_indexes:
-            return None
-        ids = {role: {cid for cid, ch in summary.channels.items() if ch.topic == topic}
-               for role, (topic, _) in wanted.items()}
-        parts: dict[str, list[_Decoded]] = {role: [] for role in wanted}
-        for ci in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
-            present = {role: [c for c in cids if c in ci.message_index_offsets] for role, cids in ids.items()}
-            if not any(present.values()):
-                continue
-            f.seek(ci.chunk_start_offset)
-            op, _ = struct.unpack("<BQ", f.read(9))
-            if op != 0x06:
-                raise ValueError(f"no chunk at offset {ci.chunk_start_offset}")
-            chunk = Chunk.read(ReadDataStream(f))
-            data = _decompress(chunk.data, chunk.compression, chunk.uncompressed_size)
-            if data is None:
-                return None
-            if len(data) != chunk.uncompressed_size or (chunk.uncompressed_crc
-                                                        and zlib.crc32(data) != chunk.uncompressed_crc):
-                raise ValueError("chunk checksum or size mismatch")
-            buf = np.frombuffer(data, np.uint8)
-            for role, cids in present.items():
-                for cid in cids:
-                    f.seek(ci.message_index_offsets[cid])
-                    op, _, ch, nbytes = struct.unpack("<BQHI", f.read(15))
-                    if op != 0x07 or ch != cid:
-                        raise ValueError("bad message index")
-                    idx = np.frombuffer(f.read(nbytes), dtype=[("t", "<u8"), ("o", "<u8")])
-                    o = idx["o"].astype(np.int64)
-                    if o.size and (o.max() + 31 > buf.size or (buf[o] != 0x05).any()):
-                        raise ValueError("message index points outside the messages")
-                    length = buf[(o + 1)[:, None] + _GATHER8].view("<u8")[:, 0].astype(np.int64)
-                    if (buf[(o + 9)[:, None] + np.arange(2)].view("<u2")[:, 0] != cid).any() \
-                            or (o + 9 + length > buf.size).any() or (length < 22).any():
-                        raise ValueError("message records do not match their index")
-                    stamps, values = _decode_buffer(buf, o + 31, length - 22, msgtype=wanted[role][1], axis=axis,
-                                                    typestore=typestore)
-                    parts[role].append((stamps, values, idx["t"].astype(np.int64)))
+    parts: dict[str, list[_Decoded]] = {role: [] for role in wanted}
+    try:
+        for chunk in _iter_mcap_indexed(path, wanted, axis=axis, typestore=typestore):
+            for role, decoded in chunk.items():
+                parts[role].append(decoded)
+    except _NoUsableIndex:
+        return None
     for role, ps in parts.items():
         if sum(p[0].size for p in ps) != expected[role]:
             return None  # an incomplete index: let rosbags scan the file
@@ -677,7 +641,7 @@ def _iter_mcap_indexed(path: Path, wanted: Mapping[str, tuple[str, str]], *, axi
     The same index walk and numpy decoder as :func:`_read_mcap_indexed`, but
     each chunk's messages are handed out (sorted by log time within the chunk)
     instead of being collected, so memory stays about one chunk. Yields
-    nothing and returns early by raising :class:`LookupError` when the file has
+    nothing and returns early by raising :class:`_NoUsableIndex` when the file has
     no usable index (the caller then reads the whole bag).
     """
     import struct
@@ -690,7 +654,7 @@ def _iter_mcap_indexed(path: Path, wanted: Mapping[str, tuple[str, str]], *, axi
     with path.open("rb") as f:
         summary = make_reader(f).get_summary()
         if summary is None or not summary.chunk_indexes:
-            raise LookupError("no chunk index")
+            raise _NoUsableIndex("no chunk index")
         ids = {role: {cid for cid, ch in summary.channels.items() if ch.topic == topic}
                for role, (topic, _) in wanted.items()}
         for ci in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
@@ -704,7 +668,7 @@ def _iter_mcap_indexed(path: Path, wanted: Mapping[str, tuple[str, str]], *, axi
             chunk = Chunk.read(ReadDataStream(f))
             data = _decompress(chunk.data, chunk.compression, chunk.uncompressed_size)
             if data is None:
-                raise LookupError(f"cannot decompress {chunk.compression!r} chunks")
+                raise _NoUsableIndex(f"cannot decompress {chunk.compression!r} chunks")
             if len(data) != chunk.uncompressed_size or (chunk.uncompressed_crc
                                                         and zlib.crc32(data) != chunk.uncompressed_crc):
                 raise ValueError("chunk checksum or size mismatch")
@@ -922,7 +886,7 @@ def iter_bag_chunks(path: str | os.PathLike, *, chunk_samples: int, topics: BagT
             part = next(it)
         except StopIteration:
             break
-        except LookupError as err:   # no usable index: the whole-bag reader, if nothing was handed out yet
+        except _NoUsableIndex as err:   # no usable index: the whole-bag reader, if nothing was handed out yet
             if asm.index or asm.emitted:
                 raise DataFileError(f"cannot read the bag chunk by chunk ({err})", source=src,
                                     hint="read it whole (nifo.io.loader.load_record)") from err
