@@ -1,0 +1,1 @@
+../ros2_ws/src/nifo_ros/launch/analysis.launch.py

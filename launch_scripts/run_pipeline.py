@@ -1,0 +1,107 @@
+#!/usr/bin/env python3
+"""Run the nifo pipeline as separate processes on a machine with only the pip rclpy (no ros2 launch).
+
+Starts the same nodes, namespace and YAML parameter files as ``ros2 launch nifo_ros
+pipeline.launch.py`` / ``analysis.launch.py``:
+
+    # a recorded bag through integrator -> identifier (nifo replay plays it)
+    python launch_scripts/run_pipeline.py --bag run1.mcap --model model.yaml --rate 2
+    # the virtual test vehicle (acquisition node with the simulator) in real time
+    python launch_scripts/run_pipeline.py --source simulator --model model.yaml
+    # a CSV/MAT/bag file through the acquisition node
+    python launch_scripts/run_pipeline.py --source file --path run1.csv --model model.yaml
+
+Ctrl-C (or SIGTERM) stops every process cleanly (SIGINT, then SIGTERM, then SIGKILL after
+timeouts); the identifier writes its checkpoint on the way out. With ``--bag`` and
+``--linger S`` the pipeline stops by itself S seconds after the replay ended.
+Node logs go to ``--log-dir`` (default: the terminal).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
+
+from nifo_nodes.launcher import CONFIG_DIR, NodeSpec, start, stop  # noqa: E402
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--bag", help="replay this rosbag2 bag (directory or .mcap) into the pipeline")
+    src.add_argument("--source", choices=["simulator", "file"], help="run the acquisition node with this source")
+    p.add_argument("--path", default="", help="file for --source file")
+    p.add_argument("--model", default=str(CONFIG_DIR / "model.yaml"), help="model file for the identifier")
+    p.add_argument("--rate", type=float, default=1.0, help="replay/acquisition speed (x real time)")
+    p.add_argument("--checkpoint", default="", help="identifier checkpoint file (.npz)")
+    p.add_argument("--config-dir", default=str(CONFIG_DIR), help="directory of the YAML parameter files")
+    p.add_argument("--namespace", default="/nifo")
+    p.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID for every process (default: inherited)")
+    p.add_argument("--log-dir", help="write each node's output to DIR/<node>.log")
+    p.add_argument("--linger", type=float, default=None, metavar="S",
+                   help="with --bag: stop S seconds after the replay ended (default: run until Ctrl-C)")
+    return p.parse_args(argv)
+
+
+def main(argv=None) -> int:
+    a = parse_args(argv)
+    env = dict(os.environ)
+    if a.domain_id is not None:
+        env["ROS_DOMAIN_ID"] = str(a.domain_id)
+    repo = str(Path(__file__).resolve().parents[1])
+    env["PYTHONPATH"] = repo + os.pathsep + env.get("PYTHONPATH", "")
+    cfg = Path(a.config_dir)
+
+    def spec(name, **params):
+        return NodeSpec(name, namespace=a.namespace, params_files=(str(cfg / f"{name}.yaml"),), params=params)
+
+    specs = [spec("integrator"), spec("identifier", model_file=a.model, checkpoint_file=a.checkpoint)]
+    if a.bag is None:
+        specs.insert(0, spec("acquisition", source=a.source or "simulator", path=a.path, speed=a.rate))
+    procs: list[subprocess.Popen] = []
+    stopping = False
+
+    def on_signal(signum, frame):
+        nonlocal stopping
+        stopping = True
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    try:
+        for s in specs:
+            procs.append(start(s, env=env, log_dir=a.log_dir))
+            print(f"run_pipeline: started {s.node} (pid {procs[-1].pid})", file=sys.stderr)
+        replay = None
+        if a.bag is not None:
+            cmd = [sys.executable, "-m", "nifo", "replay", a.bag, "--rate", str(a.rate), "--wait", "15"]
+            replay = subprocess.Popen(cmd, env=env, start_new_session=True)
+            procs.append(replay)
+            print(f"run_pipeline: replaying {a.bag} (pid {replay.pid})", file=sys.stderr)
+        ended_at = None
+        while not stopping:
+            time.sleep(0.2)
+            dead = [p for p in procs if p is not replay and p.poll() is not None]
+            if dead:
+                print(f"run_pipeline: a node exited (pid {dead[0].pid}, code {dead[0].returncode}); stopping",
+                      file=sys.stderr)
+                break
+            if replay is not None and replay.poll() is not None and ended_at is None:
+                ended_at = time.monotonic()
+                print(f"run_pipeline: replay finished (exit {replay.returncode})", file=sys.stderr)
+            if ended_at is not None and a.linger is not None and time.monotonic() - ended_at >= a.linger:
+                break
+    finally:
+        codes = stop(procs)
+        print(f"run_pipeline: stopped (exit codes {codes})", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

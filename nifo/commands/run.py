@@ -1,0 +1,164 @@
+"""``nifo run [DATA...] [--out DIR]``: the whole job — characterize, identify, predict, loop, report, recording.
+
+With no DATA, the bundled sample (``bags/sample/*``: a simulated quarter car
+at two road levels). Steps, each into its own subdirectory of ``--out``
+(default ``results/``), by calling the commands' own functions with the same
+options their command lines take:
+
+1. ``characterize/``  restoring-force plots and the suggested model (all DATA as levels);
+2. ``identify/``      NIFO with the suggested model on the highest level (``--identify-on all``: on all);
+3. ``predict/``       the identified model at the other level(s);
+4. ``loop/``          search for what the model lacks, error before and after (``nifo loop``);
+5. ``report/report.html``  the self-contained HTML report of all of the above;
+6. ``recording/nifo.rrd``  the Rerun recording (``rerun results/recording/nifo.rrd``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import time
+from pathlib import Path
+
+from nifo_core.errors import InputError, NifoError
+
+HELP = "the whole job on the bundled sample (or given data): characterize, identify, predict, loop, report"
+DESCRIPTION = __doc__.split("\n", 1)[1].strip() if __doc__ else HELP
+
+#: the bundled sample, relative to the checkout
+SAMPLE_DIR = Path(__file__).resolve().parents[2] / "bags" / "sample"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("data", nargs="*", type=Path, metavar="DATA",
+                   help="records at one or more excitation levels (default: the bundled sample bags/sample/*)")
+    p.add_argument("--out", type=Path, default=Path("results"), metavar="DIR", help="output directory (default results/)")
+    p.add_argument("--identify-on", choices=("highest", "all"), default="highest",
+                   help="identify on the highest level and predict the others (default), or on all levels")
+    p.add_argument("--no-loop", action="store_true", help="skip the loop step")
+    p.add_argument("--no-recording", action="store_true", help="skip the Rerun recording")
+
+
+def sample_data() -> list[Path]:
+    """The bundled sample's bags (sorted), or InputError when the checkout has none."""
+    found = sorted(p for p in SAMPLE_DIR.glob("*") if p.is_dir() and (p / "metadata.yaml").is_file())
+    if not found:
+        raise InputError("no data given and no bundled sample found", source=str(SAMPLE_DIR),
+                         hint="nifo run DATA... (bags, .mcap, .csv or .mat files)")
+    return found
+
+
+def _command(name: str):
+    return importlib.import_module(f"nifo.commands.{name}")
+
+
+def _call(name: str, argv: list[str]) -> int:
+    """Run one command's own ``run`` on its own parser (same defaults as its command line)."""
+    mod = _command(name)
+    parser = argparse.ArgumentParser(prog=f"nifo {name}")
+    mod.add_arguments(parser)
+    return int(mod.run(parser.parse_args(argv)) or 0)
+
+
+def _banner(step: int, total: int, text: str) -> None:
+    print(f"\n== [{step}/{total}] {text}", flush=True)
+
+
+def _levels(char_dir: Path, data: list[Path]) -> list[Path]:
+    """DATA ordered by excitation level (RMS of the relative displacement z from characterize.json)."""
+    import json
+
+    recs = json.loads((char_dir / "characterize.json").read_text()).get("records", [])
+    rms = {str(r.get("path")): float(r.get("z_rms_m") or 0.0) for r in recs}
+    return sorted(data, key=lambda p: rms.get(str(p), 0.0))
+
+
+def loop_available() -> bool:
+    """Whether ``nifo loop`` is part of this build."""
+    try:
+        _command("loop")
+    except ModuleNotFoundError as err:
+        if err.name in ("nifo.commands.loop", "nifo_core.loop"):
+            return False
+        raise
+    return True
+
+
+def run(args: argparse.Namespace) -> int:
+    data = [Path(p) for p in args.data] or sample_data()
+    out: Path = args.out
+    t0 = time.monotonic()
+    dirs = {k: out / k for k in ("characterize", "identify", "predict", "loop", "report", "recording")}
+    do_loop = not args.no_loop and loop_available()
+    total = 4 + (1 if do_loop else 0) + (0 if args.no_recording else 1) - (1 if len(data) < 2 else 0)
+    step, timings, notes, failed = 0, {}, [], None
+
+    def begin(text: str) -> float:
+        nonlocal step
+        step += 1
+        _banner(step, total, text)
+        return time.monotonic()
+
+    t = begin(f"characterize {len(data)} record(s): restoring force, suggested model")
+    _call("characterize", [*map(str, data), "--out", str(dirs["characterize"])])
+    timings["characterize"] = time.monotonic() - t
+    model = dirs["characterize"] / "suggested_model.yaml"
+    ordered = _levels(dirs["characterize"], data)
+    ident = ordered if args.identify_on == "all" else ordered[-1:]
+    others = [p for p in ordered if p not in ident]
+
+    t = begin(f"identify (NIFO) on {', '.join(p.name for p in ident)} with the suggested model")
+    _call("identify", [*map(str, ident), "--model", str(model), "--out", str(dirs["identify"])])
+    timings["identify"] = time.monotonic() - t
+
+    results = [dirs["characterize"], dirs["identify"]]
+    pred_on = others or ([] if len(data) < 2 else ordered[:-1])
+    if pred_on:
+        t = begin(f"predict {', '.join(p.name for p in pred_on)} with the identified model")
+        _call("predict", [*map(str, pred_on), "--model", str(dirs["identify"]), "--out", str(dirs["predict"])])
+        timings["predict"] = time.monotonic() - t
+        results.append(dirs["predict"])
+
+    if do_loop:
+        t = begin("loop: search the residual for what the model lacks, error before and after")
+        try:
+            _call("loop", [*map(str, ordered), "--model", str(model), "--out", str(dirs["loop"])])
+            results.append(dirs["loop"])
+        except NifoError as err:   # the report still shows everything else; the exit code says it failed
+            print(f"nifo run: loop failed: {err}", file=sys.stderr)
+            notes.append(f"The loop step failed: {err}")
+            failed = err
+        timings["loop"] = time.monotonic() - t
+    elif not args.no_loop:
+        notes.append("nifo loop is not available in this build: the loop step was skipped.")
+        print("nifo run: nifo loop is not available in this build: skipped", file=sys.stderr)
+
+    from nifo.viz.results import read_results
+
+    read = read_results(results)
+    rrd = dirs["recording"] / "nifo.rrd"
+    t = begin("report: one self-contained HTML file")
+    from nifo.viz.report_html import write_report
+
+    report = write_report(read, dirs["report"] / "report.html", title="nifo run: " + ", ".join(p.name for p in data),
+                          notes=notes, recording=None if args.no_recording else str(rrd))
+    timings["report"] = time.monotonic() - t
+    if not args.no_recording:
+        t = begin("recording: Rerun .rrd with the live layout")
+        from nifo.viz.offline import save_recording
+
+        save_recording(read, rrd)
+        timings["recording"] = time.monotonic() - t
+
+    took = time.monotonic() - t0
+    print(f"\nnifo run finished in {took:.0f} s (" + ", ".join(f"{k} {v:.0f} s" for k, v in timings.items()) + ")")
+    print("results:")
+    for r in read:
+        print(f"  {r.kind:<13} {r.path}/")
+    print(f"  {'report':<13} {report}   <- open in a browser")
+    if not args.no_recording:
+        print(f"  {'recording':<13} {rrd}   <- rerun {rrd}")
+    if failed is not None:
+        return failed.exit_code
+    return 0

@@ -1,0 +1,212 @@
+"""The integrator node: per-sample Imu in, aligned acceleration blocks and integrated motion out.
+
+Subscribes (raw serialized, decoded with :func:`messages.decode_imu`)
+``spindle/imu`` and ``body/imu``; aligns the two channels onto one sample
+grid (:class:`align.SampleAligner`: late, duplicate, malformed and non-finite
+samples are logged and skipped, holes and restarts start a new segment) and
+publishes
+
+* ``accel/block`` — the aligned accelerations, channels
+  ``spindle_accel|body_accel`` [m/s²] (what the identifier consumes);
+* ``motion/block`` — :class:`nifo_core.integrate.StreamingIntegrator` output,
+  channels ``spindle_vel|spindle_disp|body_vel|body_disp|rel_vel|rel_disp``
+  [m/s, m] (rel = body − spindle, integrated from ẍ2 − ẍ1 as the contract
+  says).
+
+Phase and band: the integrator is the offline :func:`nifo_core.integrate.integrate`
+in streaming form — the same linear-phase FIR, zero phase once its delay of
+``(taps-1)/2`` samples is removed, band ``[f_lo, f_hi]`` with raised-cosine
+edges (``f_lo/2..f_lo``, ``f_hi..1.25·f_hi``), zero outside. Motion samples
+carry the stamps of the acceleration samples they belong to, so they are
+published ``delay_samples`` (= 16/f_lo seconds / 2) after those arrived. The
+first ``delay_samples`` of each segment are start-up transients (zero history,
+as the batch form's edges); the last ``delay_samples`` of a segment are
+published (zero-padded, as the batch form does) only when the segment ends.
+
+Parameters: ``fs_hz`` (0: infer from the first 64 spindle stamps, snapped to
+1 mHz), ``f_lo_hz``/``f_hi_hz`` (0: :func:`nifo_core.integrate.default_band`),
+``block_s`` (samples per published block, as seconds), ``flush_s`` (publish a
+partial block after this much wall time), ``max_lag_s`` (how long a missing
+sample is waited for), ``restart_s``, ``qos_depth``, ``axis``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from nifo_core.errors import NifoError
+
+from .align import SampleAligner
+from .common import TOPICS, block_qos, run_node, sensor_qos
+from .messages import Block, block_to_msg, decode_imu
+
+__all__ = ["IntegratorNode", "main", "ACCEL_CHANNELS", "MOTION_CHANNELS"]
+
+ACCEL_CHANNELS = ("spindle_accel", "body_accel")
+MOTION_CHANNELS = ("spindle_vel", "spindle_disp", "body_vel", "body_disp", "rel_vel", "rel_disp")
+_INFER_N = 64
+
+try:
+    from rclpy.node import Node
+except ImportError:  # pragma: no cover - documented: the nodes need rclpy
+    Node = object
+
+
+class IntegratorNode(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__("integrator", **kwargs)
+        from rcl_interfaces.msg import SetParametersResult
+        from sensor_msgs.msg import Imu
+        from std_msgs.msg import Float64MultiArray
+
+        self._SetParametersResult = SetParametersResult
+        p = {"fs_hz": 0.0, "f_lo_hz": 0.0, "f_hi_hz": 0.0, "block_s": 0.1, "flush_s": 0.2,
+             "max_lag_s": 0.25, "restart_s": 1.0, "qos_depth": 2000, "axis": "z"}
+        for name, default in p.items():
+            self.declare_parameter(name, default)
+        self.add_on_set_parameters_callback(self._check_params)
+        bad = self._problems({n: self.get_parameter(n).value for n in p})
+        if bad:
+            raise NifoError(f"invalid parameters: {bad}", source="integrator",
+                            hint="fix the parameter file")
+        self._fs = float(self.get_parameter("fs_hz").value)
+        self._axis = str(self.get_parameter("axis").value)
+        self._aligner: SampleAligner | None = None
+        self._early: list[tuple[int, int, float]] = []
+        self._malformed = 0
+        self._seq = {"accel": 0, "motion": 0}
+        self._segment: int | None = None
+        self._integrators = None
+        depth = int(self.get_parameter("qos_depth").value)
+        self._pub_accel = self.create_publisher(Float64MultiArray, TOPICS["accel"], block_qos())
+        self._pub_motion = self.create_publisher(Float64MultiArray, TOPICS["motion"], block_qos())
+        self._subs = [
+            self.create_subscription(Imu, TOPICS[role], (lambda raw, ch=ch: self._on_sample(ch, raw)),
+                                     sensor_qos(depth), raw=True)
+            for ch, role in enumerate(("spindle", "body"))]
+        self._timer = self.create_timer(float(self.get_parameter("flush_s").value), self._publish)
+        if self._fs > 0:
+            self._start(self._fs)
+
+    # ------------------------------------------------------------------ parameters
+    @staticmethod
+    def _problems(v: dict) -> str:
+        bad = []
+        if v.get("fs_hz", 0) < 0:
+            bad.append(f"fs_hz={v['fs_hz']} must be >= 0 (0: infer)")
+        for k in ("block_s", "flush_s", "max_lag_s", "restart_s"):
+            if k in v and not v[k] > 0:
+                bad.append(f"{k}={v[k]} must be > 0")
+        if "qos_depth" in v and not 1 <= v["qos_depth"] <= 100_000:
+            bad.append(f"qos_depth={v['qos_depth']} must be in 1..100000")
+        if "axis" in v and v["axis"] not in ("x", "y", "z"):
+            bad.append(f"axis={v['axis']!r} must be x, y or z")
+        return "; ".join(bad)
+
+    def _check_params(self, params):
+        bad = self._problems({p.name: p.value for p in params})
+        if not bad and any(p.name in ("fs_hz", "f_lo_hz", "f_hi_hz", "axis", "qos_depth") for p in params):
+            bad = "fs_hz, band, axis and qos_depth are read at start-up only; restart the node to change them"
+        return self._SetParametersResult(successful=not bad, reason=bad)
+
+    # ------------------------------------------------------------------ input
+    def _on_sample(self, channel: int, raw: bytes) -> None:
+        try:
+            stamp, value = decode_imu(raw, self._axis)
+        except NifoError as err:
+            self._malformed += 1
+            self.get_logger().warning(f"{TOPICS[('spindle', 'body')[channel]]}: malformed message skipped "
+                                      f"({err}; {self._malformed} so far)", throttle_duration_sec=5.0)
+            return
+        if self._aligner is None:
+            self._infer(channel, stamp, value)
+            return
+        self._aligner.push(channel, stamp, value)
+        if self._aligner.pending >= self._block_n:
+            self._publish()
+
+    def _infer(self, channel: int, stamp: int, value: float) -> None:
+        from nifo_core.timebase import sample_rate_from_stamps
+
+        self._early.append((channel, stamp, value))
+        st = sorted({s for c, s, _ in self._early if c == 0})
+        if len(st) < _INFER_N:
+            return
+        try:
+            fs = sample_rate_from_stamps(np.array(st), source="integrator", channel=TOPICS["spindle"])
+        except NifoError as err:
+            self.get_logger().warning(f"cannot infer the sample rate yet ({err}); retrying",
+                                      throttle_duration_sec=5.0)
+            self._early = self._early[len(self._early) // 2:]
+            return
+        self._start(round(fs * 1000) / 1000)
+
+    def _start(self, fs: float) -> None:
+        self._fs = fs
+        lag = max(2, int(round(float(self.get_parameter("max_lag_s").value) * fs)))
+        self._block_n = max(1, int(round(float(self.get_parameter("block_s").value) * fs)))
+        self._aligner = SampleAligner(fs, 2, max_lag=lag, restart_s=float(self.get_parameter("restart_s").value),
+                                      log=lambda m: self.get_logger().warning(m))
+        self.get_logger().info(f"sample rate {fs:g} Hz, blocks of {self._block_n} samples")
+        early, self._early = self._early, []
+        for ch, st, v in sorted(early, key=lambda e: e[1]):
+            self._aligner.push(ch, st, v)
+
+    # ------------------------------------------------------------------ output
+    def _new_integrators(self):
+        from nifo_core.integrate import IntegrationBand, StreamingIntegrator, default_band
+
+        lo, hi = float(self.get_parameter("f_lo_hz").value), float(self.get_parameter("f_hi_hz").value)
+        d = default_band(self._fs)
+        band = IntegrationBand(lo or d.f_lo_hz, hi or d.f_hi_hz)
+        return [StreamingIntegrator(self._fs, band) for _ in range(3)]
+
+    def _publish(self) -> None:
+        if self._aligner is None:
+            return
+        for run in self._aligner.take():
+            if run.segment != self._segment:
+                self._end_segment()
+                self._segment = run.segment
+                self._integrators = self._new_integrators()
+                self._motion_stamp, self._motion_n = run.stamp_ns, 0
+            self._send("accel", Block(run.stamp_ns, self._fs, ACCEL_CHANNELS, run.rows))
+            x1, x2 = run.rows[:, 0], run.rows[:, 1]
+            self._send_motion([ig.push(a) for ig, a in zip(self._integrators, (x1, x2, x2 - x1))])
+
+    def _end_segment(self) -> None:
+        if self._integrators is not None:
+            self._send_motion([ig.flush() for ig in self._integrators])
+        self._integrators = None
+
+    def _send_motion(self, outs) -> None:
+        n = outs[0][0].size
+        if n == 0:
+            return
+        cols = np.column_stack([c for vx in outs for c in vx])
+        stamp = self._motion_stamp + int(round(self._motion_n * 1e9 / self._fs))
+        self._motion_n += n
+        self._send("motion", Block(stamp, self._fs, MOTION_CHANNELS, cols))
+
+    def _send(self, what: str, block: Block) -> None:
+        from dataclasses import replace
+
+        block = replace(block, seq=self._seq[what], segment=self._segment or 0)
+        self._seq[what] += 1
+        (self._pub_accel if what == "accel" else self._pub_motion).publish(block_to_msg(block))
+
+    def close(self) -> None:
+        """Publish what is still buffered (end of a replay or shutdown)."""
+        try:
+            self._publish()
+            self._end_segment()
+        except Exception as err:  # shutting down: report, do not mask the shutdown
+            self.get_logger().warning(f"could not flush on shutdown: {err}")
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(IntegratorNode, args)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

@@ -1,0 +1,89 @@
+"""Start nifo nodes as separate processes without ``ros2 launch`` (a machine with only pip rclpy).
+
+The same nodes, namespace and YAML parameter files as ``ros2_ws/.../launch``:
+each node is ``python -m nifo_nodes.<node> --ros-args -r __ns:=/nifo
+--params-file FILE [-p name:=value ...]``. :func:`stop` ends them the way
+``ros2 launch`` does: SIGINT, then SIGTERM, then SIGKILL after timeouts.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+__all__ = ["NodeSpec", "NODES", "command", "start", "stop", "CONFIG_DIR"]
+
+#: node name -> module that runs it
+NODES = {"acquisition": "nifo_nodes.acquisition", "integrator": "nifo_nodes.integrator",
+         "identifier": "nifo_nodes.identifier"}
+
+#: the YAML parameter files shipped with the ROS package (shared with ros2 launch)
+CONFIG_DIR = Path(__file__).resolve().parents[1] / "ros2_ws" / "src" / "nifo_ros" / "config"
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    node: str
+    namespace: str = "/nifo"
+    params_files: tuple[str, ...] = ()
+    params: dict = field(default_factory=dict)
+    remaps: dict = field(default_factory=dict)
+
+
+def _value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (list, tuple)):
+        return "[" + ",".join(_value(x) for x in v) + "]"
+    if isinstance(v, str):
+        return repr(v) if v == "" or v.lower() in ("true", "false") or v.replace(".", "", 1).isdigit() else v
+    return repr(v)
+
+
+def command(spec: NodeSpec) -> list[str]:
+    """The command line that runs ``spec``."""
+    if spec.node not in NODES:
+        raise ValueError(f"unknown node {spec.node!r}; one of {sorted(NODES)}")
+    cmd = [sys.executable, "-m", NODES[spec.node], "--ros-args", "-r", f"__ns:={spec.namespace}"]
+    for f in spec.params_files:
+        cmd += ["--params-file", str(f)]
+    for k, v in spec.params.items():
+        cmd += ["-p", f"{k}:={_value(v)}"]
+    for a, b in spec.remaps.items():
+        cmd += ["-r", f"{a}:={b}"]
+    return cmd
+
+
+def start(spec: NodeSpec, *, env: dict | None = None, log_dir: str | Path | None = None) -> subprocess.Popen:
+    """Start one node process (its own process group); stdout/stderr to ``log_dir/<node>.log`` if given."""
+    out = subprocess.DEVNULL
+    if log_dir is not None:
+        Path(log_dir).mkdir(parents=True, exist_ok=True)
+        out = open(Path(log_dir) / f"{spec.node}.log", "ab")  # noqa: SIM115 - owned by the process
+    e = dict(os.environ if env is None else env)
+    e.setdefault("PYTHONUNBUFFERED", "1")
+    e.setdefault("RCUTILS_LOGGING_BUFFERED_STREAM", "0")
+    return subprocess.Popen(command(spec), env=e, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+
+
+def stop(procs, *, timeout_s: float = 5.0) -> list[int | None]:
+    """Stop processes like ``ros2 launch`` does; returns their exit codes."""
+    procs = [p for p in procs if p is not None]
+    for sig, wait in ((signal.SIGINT, timeout_s), (signal.SIGTERM, timeout_s), (signal.SIGKILL, 5.0)):
+        live = [p for p in procs if p.poll() is None]
+        if not live:
+            break
+        for p in live:
+            try:
+                os.killpg(p.pid, sig)
+            except ProcessLookupError:
+                pass
+        end = time.monotonic() + wait
+        while time.monotonic() < end and any(p.poll() is None for p in live):
+            time.sleep(0.05)
+    return [p.poll() for p in procs]

@@ -1,0 +1,173 @@
+"""Message conventions and sample alignment of the ROS nodes (no graph needed; rclpy's serializer only)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+
+from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
+
+from nifo_core.errors import InputError  # noqa: E402
+from nifo_nodes.align import SampleAligner  # noqa: E402
+from nifo_nodes.messages import (Block, ImuEncoder, PointEncoder, block_from_msg, block_to_msg,  # noqa: E402
+                                 decode_imu, decode_point, table_from_msg, table_to_msg)
+
+
+@pytest.mark.parametrize("frame_id", ["", "spindle", "body", "a_longer_frame_id"])
+def test_imu_encoder_matches_rclpy_and_the_bag_writer_and_decodes_back(frame_id):
+    from nifo.io.bag import IMU, _payloads
+    from sensor_msgs.msg import Imu
+
+    stamp = 1_700_000_123_456_789_012
+    raw = ImuEncoder(frame_id).encode(stamp, -3.25)
+    msg = Imu()
+    msg.header.frame_id = frame_id
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+    msg.orientation.w = 0.0  # as in nifo's bags (orientation "not provided", REP-145)
+    msg.orientation_covariance[0] = -1.0
+    msg.angular_velocity_covariance[0] = -1.0
+    msg.linear_acceleration.z = -3.25
+    # rclpy leaves CDR padding bytes unset, so compare decoded messages with it, bytes with the bag writer
+    assert deserialize_message(raw, Imu) == deserialize_message(serialize_message(msg), Imu)
+    assert raw == _payloads(np.array([stamp]), np.array([-3.25]), frame_id=frame_id, msgtype=IMU,
+                            axis="z").tobytes()
+    assert decode_imu(raw) == (stamp, -3.25)
+
+
+def test_point_encoder_round_trips():
+    from geometry_msgs.msg import PointStamped
+
+    raw = PointEncoder("tire_patch").encode(42, 0.001)
+    assert deserialize_message(raw, PointStamped).point.z == 0.001
+    assert decode_point(raw) == (42, 0.001)
+
+
+@pytest.mark.parametrize("raw", [b"", b"\x00\x01\x00\x00", b"\x01\x00\x00\x00" + bytes(400),
+                                 ImuEncoder("x").encode(1, 1.0)[:-8]])
+def test_decode_imu_rejects_malformed_bytes(raw):
+    with pytest.raises(InputError):
+        decode_imu(raw)
+
+
+def test_block_round_trips_through_float64multiarray():
+    data = np.arange(12.0).reshape(6, 2)
+    b = Block(1_700_000_000_123_456_789, 600.0, ("spindle_accel", "body_accel"), data, seq=7, segment=2)
+    back = block_from_msg(block_to_msg(b))
+    assert back.stamp_ns == b.stamp_ns and back.fs_hz == 600.0 and back.seq == 7 and back.segment == 2
+    assert back.channels == b.channels
+    np.testing.assert_array_equal(back.data, data)
+
+
+def test_block_from_msg_rejects_a_message_with_the_wrong_layout():
+    from std_msgs.msg import Float64MultiArray
+
+    msg = block_to_msg(Block(0, 100.0, ("a", "b"), np.zeros((3, 2))))
+    msg.data = list(msg.data)[:-1]
+    with pytest.raises(InputError, match="layout"):
+        block_from_msg(msg)
+    with pytest.raises(InputError, match="not a nifo sample block"):
+        block_from_msg(Float64MultiArray(data=[1.0, 2.0]))
+
+
+def test_result_table_round_trips():
+    cols = {"freq_hz": np.arange(4.0), "t21_re": np.ones(4)}
+    back, stamp, n_avg = table_from_msg(table_to_msg(cols, stamp_ns=5_000_000_001, n_avg=3))
+    assert stamp == 5_000_000_001 and n_avg == 3
+    np.testing.assert_array_equal(back["t21_re"], cols["t21_re"])
+
+
+# ----------------------------------------------------------------------------- alignment
+def _rows(aligner):
+    runs = aligner.take()
+    return runs, (np.concatenate([r.rows for r in runs]) if runs else np.empty((0, 2)))
+
+
+def _feed(al, stamps, a, b, order=None):
+    events = [e for s, x, y in zip(stamps, a, b) for e in ((0, s, x), (1, s, y))]
+    if order is not None:
+        events = [events[i] for i in order]
+    for ch, s, x in events:
+        al.push(ch, int(s), float(x))
+
+
+def test_aligner_pairs_samples_whatever_the_interleaving_of_the_channels():
+    rng = np.random.default_rng(0)
+    n, fs = 500, 1000.0
+    stamps = 10**9 + np.arange(n) * 1_000_000
+    a, b = rng.standard_normal(n), rng.standard_normal(n)
+    al = SampleAligner(fs, 2, max_lag=50, log=lambda m: None)
+    # each topic arrives in order (one DDS writer each), the two interleave arbitrarily (up to 40 apart)
+    lag = rng.integers(0, 40, n)
+    events = sorted([(k, 0) for k in range(n)] + [(k + int(lag[k]), 1, k) for k in range(n)],
+                    key=lambda e: e[0])
+    i_b = 0
+    for e in events:
+        if e[1] == 0:
+            al.push(0, int(stamps[e[0]]), float(a[e[0]]))
+        else:
+            k = i_b  # body samples stay in order
+            i_b += 1
+            al.push(1, int(stamps[k]), float(b[k]))
+    runs, rows = _rows(al)
+    assert [r.segment for r in runs] == [0] and runs[0].stamp_ns == stamps[0]
+    np.testing.assert_array_equal(rows, np.column_stack([a, b]))
+    assert al.counts["late"] == al.counts["gap"] == 0
+
+
+def test_aligner_drops_late_and_duplicate_samples_without_a_new_segment():
+    msgs = []
+    al = SampleAligner(100.0, 2, max_lag=5, log=msgs.append)
+    st = np.arange(20) * 10_000_000
+    _feed(al, st[:10], np.arange(10.0), np.arange(10.0))
+    al.push(0, int(st[3]), 99.0)  # late (already emitted)
+    al.push(0, int(st[10]), 10.0)
+    al.push(0, int(st[10]), 77.0)  # duplicate
+    _feed(al, st[10:], np.arange(10.0, 20), np.arange(10.0, 20))
+    runs, rows = _rows(al)
+    assert {r.segment for r in runs} == {0}
+    np.testing.assert_array_equal(rows[:, 0], np.arange(20.0))
+    assert al.counts["late"] == 1 and al.counts["duplicate"] >= 1 and any("late" in m for m in msgs)
+
+
+def test_aligner_skips_a_nan_burst_and_starts_a_new_segment_after_it():
+    al = SampleAligner(100.0, 2, max_lag=5, log=lambda m: None)
+    st = np.arange(40) * 10_000_000
+    a = np.arange(40.0)
+    a[15:20] = np.nan
+    _feed(al, st, a, np.arange(40.0))
+    runs, rows = _rows(al)
+    assert [r.segment for r in runs] == [0, 1]
+    np.testing.assert_array_equal(runs[0].rows[:, 0], np.arange(15.0))
+    np.testing.assert_array_equal(runs[1].rows[:, 0], np.arange(20.0, 40))
+    assert runs[1].stamp_ns == st[20] and np.isfinite(rows).all()
+    assert al.counts["nonfinite"] == 5 and al.counts["gap"] == 1
+
+
+def test_aligner_survives_a_stalled_channel_and_resumes_on_a_new_segment():
+    al = SampleAligner(100.0, 2, max_lag=5, log=lambda m: None)
+    st = np.arange(100) * 10_000_000
+    _feed(al, st[:30], np.arange(30.0), np.arange(30.0))
+    for k in range(30, 80):  # the body publisher stalls
+        al.push(0, int(st[k]), float(k))
+    assert al.pending == 30
+    _feed(al, st[80:], np.arange(80.0, 100), np.arange(80.0, 100))
+    runs, _ = _rows(al)
+    assert [r.segment for r in runs] == [0, 1]
+    assert runs[1].stamp_ns == st[80] and runs[1].rows[0, 0] == 80.0
+
+
+def test_aligner_treats_stamps_jumping_back_as_a_restarted_publisher():
+    al = SampleAligner(100.0, 2, max_lag=5, restart_s=1.0, restart_count=4, log=lambda m: None)
+    st = 50 * 10**9 + np.arange(300) * 10_000_000
+    _feed(al, st, np.arange(300.0), np.arange(300.0))
+    restart = 10**9 + np.arange(50) * 10_000_000  # the publisher starts over with earlier stamps
+    for k, s in enumerate(restart):
+        al.push(0, int(s), -float(k))
+        al.push(1, int(s), -float(k))
+    runs, _ = _rows(al)
+    assert [r.segment for r in runs] == [0, 1]
+    assert runs[1].stamp_ns == restart[0]
+    np.testing.assert_array_equal(runs[1].rows[:, 0], -np.arange(50.0))
+    assert al.counts["restart"] == 1

@@ -1,0 +1,324 @@
+"""The real nodes as separate processes (isolated ROS_DOMAIN_ID): replay → integrator → identifier.
+
+Equality with the batch engine: the identifier feeds ``StreamingNifo``, the
+code path ``identify_nifo`` runs, with the same samples (bit-exact through the
+messages: float64 all the way). The only difference is chunking: the batch
+pushes the record in one piece, the node in blocks of ``block_s``; the
+streaming integrator's overlap-add FFT convolution then rounds differently,
+≈1e-16 relative per sample. We allow rtol 1e-9 on T21/H1/coherence and on
+the coefficient functions in the analysis band (lines where G_UU is
+ill-conditioned amplify rounding, hence not 1e-15).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+pytestmark = pytest.mark.ros
+
+from nifo_nodes.launcher import CONFIG_DIR, NodeSpec, start, stop  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+FS = 250.0
+BLOCK, OVERLAP, BAND = 512, 0.5, (2.0, 100.0)
+TERMS = [{"kind": "velocity_deadzone", "params": {"knee": 0.03}}]
+RTOL = 1e-9
+
+
+# ----------------------------------------------------------------------------- fixtures and helpers
+@pytest.fixture(scope="module")
+def sample(tmp_path_factory):
+    """A 40 s simulated record at 250 Hz (paper damper knee) saved as an MCAP bag, and its model file."""
+    from nifo.io.loader import load_record, save_record
+    from nifo.io.modelfile import write_model_spec
+    from nifo_core.describing import make_term
+    from nifo_core.simulate import SimConfig, preset, simulate
+
+    d = tmp_path_factory.mktemp("nodes")
+    sim = simulate(SimConfig(strut=preset("paper_deadzone"), duration_s=40.0, fs_hz=FS), rng=3)
+    save_record(d / "run.mcap", sim.record)
+    model = write_model_spec(d / "model.yaml", [make_term(t) for t in TERMS],
+                             settings={"block": BLOCK, "overlap": OVERLAP, "band_hz": list(BAND)})
+    return {"bag": d / "run.mcap", "record": load_record(d / "run.mcap"), "model": model, "dir": d}
+
+
+def batch_result(record_pieces):
+    """The batch engine on one record or on pieces separated by stream gaps."""
+    from nifo_core.describing import make_term
+    from nifo_core.integrate import IntegrationBand
+    from nifo_core.nifo import StreamingNifo, identify_nifo
+    from nifo_core.spectral import SpectralSettings
+
+    kw = dict(settings=SpectralSettings(block=BLOCK, overlap=OVERLAP), band=IntegrationBand(*BAND))
+    terms = [make_term(t) for t in TERMS]
+    if not isinstance(record_pieces, list):
+        return identify_nifo(record_pieces, terms, on_ill_conditioned="ignore", **kw)
+    s = StreamingNifo(FS, terms, on_ill_conditioned="ignore", **kw)
+    for a1, a2 in record_pieces:
+        s.push(a1, a2)
+        s.end_record()
+    return s.result()
+
+
+@pytest.fixture
+def domain():
+    d = random.randint(100, 200)
+    env = dict(os.environ, ROS_DOMAIN_ID=str(d), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return d, env
+
+
+def node(name, sample, **params):
+    files = (str(CONFIG_DIR / f"{name}.yaml"),)
+    if name == "identifier":
+        params.setdefault("model_file", str(sample["model"]))
+        params.setdefault("publish_period_s", 0.3)
+    if name == "integrator":
+        params.setdefault("fs_hz", FS)
+    return NodeSpec(name, params_files=files, params=params)
+
+
+def replay(bag, env, *, rate=4.0):
+    return subprocess.Popen([sys.executable, "-m", "nifo", "replay", str(bag), "--rate", str(rate), "--wait", "15",
+                             "--topics", "/nifo/spindle/imu", "/nifo/body/imu"], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
+
+
+class Collector:
+    """In-process subscriber (own rclpy context) keeping blocks and the latest results."""
+
+    def __init__(self, domain_id: int):
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from std_msgs.msg import Float64MultiArray, String
+
+        from nifo_nodes.common import block_qos, result_qos
+        from nifo_nodes.messages import block_from_msg, table_from_msg
+
+        self.ctx = rclpy.Context()
+        rclpy.init(context=self.ctx, domain_id=domain_id)
+        self.node = rclpy.create_node("collector", namespace="/nifo", context=self.ctx)
+        self.blocks = {"accel": [], "motion": []}
+        self.latest: dict = {}
+        def keep(k, m):
+            try:
+                self.blocks[k].append(block_from_msg(m))
+            except ValueError:  # the robustness test's own malformed block
+                pass
+
+        for k in self.blocks:
+            self.node.create_subscription(Float64MultiArray, f"{k}/block", lambda m, k=k: keep(k, m), block_qos())
+        for k in ("transmissibility", "coefficients"):
+            self.node.create_subscription(Float64MultiArray, f"identifier/{k}",
+                                          lambda m, k=k: self.latest.__setitem__(k, table_from_msg(m)), result_qos())
+        self.node.create_subscription(String, "identifier/result",
+                                      lambda m: self.latest.__setitem__("result", json.loads(m.data)), result_qos())
+        self.ex = SingleThreadedExecutor(context=self.ctx)
+        self.ex.add_node(self.node)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self):
+        while self.ctx.ok():
+            try:
+                self.ex.spin_once(timeout_sec=0.05)
+            except Exception:  # context shut down under us
+                break
+
+    def wait_for(self, cond, timeout_s: float, what: str):
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            if cond():
+                return
+            time.sleep(0.1)
+        raise AssertionError(f"timed out waiting for {what() if callable(what) else what}")
+
+    def wait_pipeline(self, tmp_path, timeout_s: float = 60):
+        """Until the integrator listens to the Imu topics and the identifier to accel/block."""
+        self.wait_for(lambda: self.node.count_subscribers("/nifo/spindle/imu") >= 1
+                      and self.node.count_subscribers("/nifo/body/imu") >= 1
+                      and self.node.count_subscribers("/nifo/accel/block") >= 2, timeout_s,
+                      lambda: f"the nodes to come up\n{logs(tmp_path)}")
+
+    def navg(self) -> int:
+        t = self.latest.get("transmissibility")
+        return -1 if t is None else t[2]
+
+    def close(self):
+        self.ctx.try_shutdown()
+        self.thread.join(2)
+        self.node.destroy_node()
+
+
+def assert_matches_batch(latest, ref):
+    cols, _, n_avg = latest["transmissibility"]
+    assert n_avg == ref.n_avg
+    np.testing.assert_array_equal(cols["freq_hz"], ref.freq_hz)
+    np.testing.assert_allclose(cols["t21_re"] + 1j * cols["t21_im"], ref.t21, rtol=RTOL, atol=0)
+    np.testing.assert_allclose(cols["t21_h1_re"] + 1j * cols["t21_h1_im"], ref.t21_h1, rtol=RTOL, atol=0)
+    np.testing.assert_allclose(cols["coherence_h1"], ref.coherence_h1, rtol=RTOL, atol=1e-15)
+    coef, _, _ = latest["coefficients"]
+    band = ref.in_band
+    np.testing.assert_allclose((coef["c0_re"] + 1j * coef["c0_im"])[band], ref.c_over_m2[0][band], rtol=RTOL)
+    np.testing.assert_allclose((coef["b0_re"] + 1j * coef["b0_im"])[band], ref.b[0][band], rtol=RTOL)
+    assert latest["result"]["n_avg"] == ref.n_avg
+
+
+def logs(d: Path) -> str:
+    return "\n".join(f"--- {p.name}\n{p.read_text(errors='replace')[-3000:]}" for p in sorted(d.glob("*.log")))
+
+
+# ----------------------------------------------------------------------------- tests
+def test_replayed_bag_through_integrator_and_identifier_equals_the_batch_engine(sample, domain, tmp_path):
+    from nifo_core.integrate import IntegrationBand, integrate
+
+    dom, env = domain
+    rec = sample["record"]
+    procs, col = [], None
+    try:
+        col = Collector(dom)
+        procs += [start(node("integrator", sample, f_lo_hz=BAND[0], f_hi_hz=BAND[1]), env=env, log_dir=tmp_path),
+                  start(node("identifier", sample), env=env, log_dir=tmp_path)]
+        col.wait_pipeline(tmp_path)
+        rp = replay(sample["bag"], env)
+        procs.append(rp)
+        ref = batch_result(rec)
+        col.wait_for(lambda: col.navg() == ref.n_avg, 90, f"n_avg={ref.n_avg} (got {col.navg()})\n{logs(tmp_path)}")
+        assert rp.wait(30) == 0, rp.stdout.read().decode()
+        assert_matches_batch(col.latest, ref)
+        # the aligned accelerations are the recorded samples, bit for bit
+        acc = np.concatenate([b.data for b in col.blocks["accel"]])
+        np.testing.assert_array_equal(acc, np.column_stack([rec.spindle_accel, rec.body_accel]))
+        assert {b.segment for b in col.blocks["accel"]} == {0}
+        # the integrator's motion: the offline zero-phase integration, once the segment is closed at shutdown
+        stop(procs[:1])
+        col.wait_for(lambda: sum(b.n for b in col.blocks["motion"]) >= rec.n, 10, "the motion tail")
+        mot = np.concatenate([b.data for b in col.blocks["motion"]])
+        rel = integrate(rec.body_accel - rec.spindle_accel, FS, band=IntegrationBand(*BAND))
+        scale = np.abs(rel.displacement).max()
+        np.testing.assert_allclose(mot[:, 5], rel.displacement, rtol=0, atol=1e-12 * scale)
+        np.testing.assert_allclose(mot[:, 4], rel.velocity, rtol=0, atol=1e-12 * np.abs(rel.velocity).max())
+        assert col.blocks["motion"][0].stamp_ns == rec.t0_ns
+    finally:
+        stop(procs)
+        if col:
+            col.close()
+
+
+def test_identifier_killed_mid_run_resumes_from_its_checkpoint_to_the_same_estimate(sample, domain, tmp_path):
+    dom, env = domain
+    ckpt = tmp_path / "identifier.npz"
+    ident = node("identifier", sample, checkpoint_file=str(ckpt), checkpoint_period_s=0.3)
+    procs, col = [], None
+    try:
+        col = Collector(dom)
+        integ = start(node("integrator", sample, f_lo_hz=BAND[0], f_hi_hz=BAND[1]), env=env, log_dir=tmp_path)
+        first = start(ident, env=env, log_dir=tmp_path)
+        procs += [integ, first]
+        col.wait_pipeline(tmp_path)
+        rp = replay(sample["bag"], env)
+        procs.append(rp)
+        ref = batch_result(sample["record"])
+        col.wait_for(lambda: col.navg() >= 3 and ckpt.exists(), 60, f"a checkpoint\n{logs(tmp_path)}")
+        os.killpg(first.pid, signal.SIGKILL)  # no chance to write a last checkpoint
+        first.wait(5)
+        assert col.navg() < ref.n_avg
+        rp.wait(60)
+        second = start(ident, env=env, log_dir=tmp_path)
+        procs.append(second)
+        # replay again once the new identifier listens (blocks published before that are not for it)
+        col.wait_for(lambda: col.node.count_subscribers("/nifo/accel/block") >= 2, 30, "the restarted identifier")
+        time.sleep(1.0)
+        procs.append(replay(sample["bag"], env))  # the bag again: the identifier skips what it already has
+        col.wait_for(lambda: col.navg() == ref.n_avg, 90,
+                     lambda: f"n_avg={ref.n_avg} (got {col.navg()}); accel blocks by segment "
+                     f"{np.unique([b.segment for b in col.blocks['accel']], return_counts=True)}\n{logs(tmp_path)}")
+        time.sleep(1.0)  # nothing more may arrive: every sample is used once
+        assert_matches_batch(col.latest, ref)
+        assert "resumed from" in (tmp_path / "identifier.log").read_text()
+    finally:
+        stop(procs)
+        if col:
+            col.close()
+
+
+def test_malformed_late_nan_stalled_and_restarted_streams_are_logged_and_skipped(sample, domain, tmp_path):
+    """A hostile stream: junk bytes, late duplicates, a NaN burst, a 1.5 s stall, a publisher starting over,
+    a malformed block. The nodes stay up and the estimate equals the batch engine on the clean pieces."""
+    from rclpy.qos import qos_profile_sensor_data  # noqa: F401 - QoS comes from nifo_nodes.common
+    from sensor_msgs.msg import Imu
+    from std_msgs.msg import Float64MultiArray
+
+    from nifo_nodes.common import block_qos, sensor_qos
+    from nifo_nodes.messages import ImuEncoder
+
+    dom, env = domain
+    rec = sample["record"]
+    a1, a2 = rec.spindle_accel.copy(), rec.body_accel.copy()
+    nan0, nan1 = 5000, 5050
+    a1[nan0:nan1] = np.nan
+    stamps = rec.t0_ns + np.rint(np.arange(rec.n) * 1e9 / FS).astype(np.int64)
+    procs, col = [], None
+    try:
+        col = Collector(dom)
+        pubs = [col.node.create_publisher(Imu, t, sensor_qos(1000)) for t in ("spindle/imu", "body/imu")]
+        bad_block = col.node.create_publisher(Float64MultiArray, "accel/block", block_qos())
+        enc = [ImuEncoder("spindle"), ImuEncoder("body")]
+        integ = start(node("integrator", sample, f_lo_hz=BAND[0], f_hi_hz=BAND[1]), env=env, log_dir=tmp_path)
+        ident = start(node("identifier", sample), env=env, log_dir=tmp_path)
+        procs += [integ, ident]
+        col.wait_for(lambda: all(p.get_subscription_count() > 0 for p in pubs) and bad_block.get_subscription_count(),
+                     30, f"the nodes' subscriptions\n{logs(tmp_path)}")
+        time.sleep(1.0)  # discovery is matched on both sides only a little after the publisher sees it
+
+        def send(k, values=(a1, a2)):
+            for ch in (0, 1):
+                pubs[ch].publish(enc[ch].encode(int(stamps[k]), float(values[ch][k])))
+
+        t0 = time.monotonic()
+        for k in range(rec.n):
+            send(k)
+            if k % 500 == 250:
+                pubs[0].publish(b"\x00\x01\x00\x00garbage")            # malformed
+                pubs[1].publish(bytes(40))                               # malformed (not CDR LE)
+            if k % 700 == 350:
+                send(k - 3)                                              # late duplicates
+            if k == 7000:
+                time.sleep(1.5)                                          # stalled publisher
+                bad_block.publish(Float64MultiArray(data=[1.0, 2.0, 3.0]))  # malformed block
+                t0 += 1.5
+            if k % 25 == 0:  # pace at ~1500 messages/s (best effort on a shared 2-core machine)
+                lag = t0 + k / 750 - time.monotonic()
+                if lag > 0:
+                    time.sleep(lag)
+        for k in range(1000):                                            # the publisher starts over
+            send(k, (rec.spindle_accel, rec.body_accel))
+            if k % 50 == 0:
+                time.sleep(0.02)
+        ref = batch_result([(a1[:nan0], a2[:nan0]), (a1[nan1:], a2[nan1:])])
+        col.wait_for(lambda: col.navg() == ref.n_avg, 60, f"n_avg={ref.n_avg} (got {col.navg()})\n{logs(tmp_path)}")
+        time.sleep(1.5)
+        assert integ.poll() is None and ident.poll() is None, logs(tmp_path)
+        assert_matches_batch(col.latest, ref)
+        il = (tmp_path / "integrator.log").read_text()
+        for what in ("malformed message skipped", "non-finite sample", "late/out-of-order", "gap in the samples",
+                     "publisher restarted"):
+            assert what in il, il[-3000:]
+        idl = (tmp_path / "identifier.log").read_text()
+        assert "malformed block skipped" in idl and "stream gap" in idl, idl[-3000:]
+    finally:
+        stop(procs)
+        if col:
+            col.close()
