@@ -18,7 +18,6 @@ of the restoring force they explain beyond a linear strut
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +25,7 @@ import numpy as np
 from nifo.io.atomic import staged_dir
 from nifo.io.loader import add_input_arguments, input_options, load_record
 from nifo.io.modelfile import write_model_spec
+from nifo.io.results import write_json
 from nifo.progress import Progress
 from nifo_core import __version__
 from nifo_core.characterize import DEFAULT_KINDS, Characterization, Thresholds, characterize_restoring
@@ -116,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
     with staged_dir(args.out) as tmp:
         figures = _figures(tmp, args, rfs, tracks, masks, char)
         doc = _document(args, records, rfs, tracks, char, figures, band_source=_band_source(args, records))
-        (tmp / "characterize.json").write_text(json.dumps(doc, indent=2, default=_json_default) + "\n")
+        write_json(tmp / "characterize.json", doc, atomic=False, indent=2)
         write_model_spec(tmp / "suggested_model.yaml", char.suggested_terms,
                          settings={"band_hz": [band.f_lo_hz, band.f_hi_hz]},
                          note=_model_note(char), suggested_by=f"nifo characterize {__version__}")
@@ -280,14 +280,6 @@ def _label(t) -> str:
 # ---------------------------------------------------------------------------------------------
 # text and JSON
 # ---------------------------------------------------------------------------------------------
-def _json_default(o):
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"cannot serialise {type(o).__name__}")
 
 
 def _document(args, records, rfs, tracks, char: Characterization, figures, *, band_source: dict) -> dict:

@@ -17,18 +17,16 @@ repeats (:mod:`nifo_core.loop`). Writes, atomically, to DIR:
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
-import numpy as np
 
 from nifo.io.atomic import staged_dir
 from nifo.io.loader import add_input_arguments, input_options, load_record
 from nifo.io.modelfile import load_model_spec, write_model_spec
+from nifo.io.results import write_json
 from nifo.progress import Progress
 from nifo_core import __version__
 from nifo_core.characterize import DEFAULT_KINDS, Thresholds
-from nifo_core.errors import ConfigError
 from nifo_core.integrate import IntegrationBand
 from nifo_core.loop import LoopResult, LoopSettings, close_loop
 from nifo_core.spectral import SpectralSettings
@@ -101,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     with staged_dir(args.out) as tmp:
         figures = _figures(tmp, doc, args.m2)
         doc["figures"] = figures
-        (tmp / "loop.json").write_text(json.dumps(doc, indent=2, default=_json_default) + "\n")
+        write_json(tmp / "loop.json", doc, atomic=False, indent=2)
         model_settings = {k: v for k, v in (spec.settings.items() if spec else []) if k != "band_hz"}
         model_settings["band_hz"] = [res.band.f_lo_hz, res.band.f_hi_hz]
         write_model_spec(tmp / "refined_model.yaml", res.terms, settings=model_settings,
@@ -141,11 +139,3 @@ def _figures(out: Path, doc: dict, m2: float | None) -> list[str]:
     return names
 
 
-def _json_default(o):
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")

@@ -538,15 +538,8 @@ class _Channel:
 _CHANNEL_OF_ROLE = {"spindle": "spindle_accel", "body": "body_accel", "tire_patch": "tire_patch_disp"}
 
 
-def read_bag(path: str | os.PathLike, *, topics: BagTopics | None = None, axis: Axis = "z") -> Record:
-    """Read a rosbag2 bag (directory, lone ``.mcap`` or ``.db3``) into a :class:`Record`.
-
-    Raises :class:`DataFileError` (unreadable, truncated, empty),
-    :class:`MissingChannelError`, :class:`NonFiniteError`,
-    :class:`TimestampError` or :class:`SampleRateError`, naming file and topic.
-    """
-    from .loader import assemble_record  # shared with the CSV and MAT readers
-
+def _open_checked(path: str | os.PathLike, axis: Axis) -> tuple[Path, str, Path]:
+    """(path, source name, storage path) of a bag that exists and is not empty, or a clear error."""
     if axis not in _AXES:
         raise ConfigError(f"{axis=} is not one of x, y, z", channel="--axis", hint="use --axis x, y or z")
     path = Path(path)
@@ -556,7 +549,19 @@ def read_bag(path: str | os.PathLike, *, topics: BagTopics | None = None, axis: 
     if path.is_file() and path.stat().st_size == 0:
         raise DataFileError("the file is empty (0 bytes)", source=src,
                             hint="re-copy the bag; the recording may not have started")
-    storage = _storage_path(path)
+    return path, src, _storage_path(path)
+
+
+def read_bag(path: str | os.PathLike, *, topics: BagTopics | None = None, axis: Axis = "z") -> Record:
+    """Read a rosbag2 bag (directory, lone ``.mcap`` or ``.db3``) into a :class:`Record`.
+
+    Raises :class:`DataFileError` (unreadable, truncated, empty),
+    :class:`MissingChannelError`, :class:`NonFiniteError`,
+    :class:`TimestampError` or :class:`SampleRateError`, naming file and topic.
+    """
+    from .loader import assemble_record  # shared with the CSV and MAT readers
+
+    path, src, storage = _open_checked(path, axis)
     chans = _read_channels(storage, topics, axis, src)
     # header stamps, unless a recorder left them all zero: then the receive (log) time
     use_log_time = not any(ch.stamp_ns.any() for ch in chans.values())
@@ -830,16 +835,7 @@ def iter_bag_chunks(path: str | os.PathLike, *, chunk_samples: int, topics: BagT
     if isinstance(chunk_samples, bool) or int(chunk_samples) < 2:
         raise ConfigError(f"chunk_samples={chunk_samples!r} must be an integer >= 2")
     chunk_samples = int(chunk_samples)
-    if axis not in _AXES:
-        raise ConfigError(f"{axis=} is not one of x, y, z", channel="--axis", hint="use --axis x, y or z")
-    path = Path(path)
-    src = str(path)
-    if not path.exists():
-        raise DataFileError("no such file or directory", source=src, hint="check the path")
-    if path.is_file() and path.stat().st_size == 0:
-        raise DataFileError("the file is empty (0 bytes)", source=src,
-                            hint="re-copy the bag; the recording may not have started")
-    storage = _storage_path(path)
+    path, src, storage = _open_checked(path, axis)
     mcap_file = None
     if not _is_sqlite(storage) and (storage.is_dir() or storage.suffix == ".mcap"):
         try:

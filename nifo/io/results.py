@@ -71,10 +71,11 @@ def _nan_to_none(o):
     return o
 
 
-def write_json(path: str | os.PathLike, doc: Mapping, *, atomic: bool = True) -> Path:
-    """Write ``doc`` as JSON (NaN/inf as null); atomically unless inside an already staged directory."""
+def write_json(path: str | os.PathLike, doc: Mapping, *, atomic: bool = True, indent: int | None = None) -> Path:
+    """Write ``doc`` as JSON (numpy values converted, NaN/inf as null); atomically unless
+    inside an already staged directory. ``indent`` for files people read."""
     text = json.dumps(_nan_to_none(json.loads(json.dumps(doc, default=_default, allow_nan=True))),
-                      allow_nan=False, separators=(",", ":")) + "\n"
+                      allow_nan=False, indent=indent, separators=None if indent else (",", ":")) + "\n"
     p = Path(path)
     if not atomic:
         p.write_text(text)
