@@ -23,6 +23,9 @@ from .messages import ImuEncoder, PointEncoder
 
 __all__ = ["AcquisitionNode", "main"]
 
+#: after both Imu topics have subscribers, wait this long for them to match us too
+_MATCH_GRACE_S = 0.5
+
 try:
     from rclpy.node import Node
 except ImportError:  # pragma: no cover
@@ -62,6 +65,7 @@ class AcquisitionNode(Node):
                           PointEncoder("tire_patch", axis))
         self.published = 0
         self._wait_until = self.get_clock().now().nanoseconds + int(float(v["wait_for_subscribers_s"]) * 1e9)
+        self._ready_at = None if float(v["wait_for_subscribers_s"]) > 0 else 0
         self._timer = self.create_timer(float(v["poll_s"]), self._poll)
         self.get_logger().info(f"source {v['source']} at {self._source.fs_hz:g} Hz")
 
@@ -80,8 +84,12 @@ class AcquisitionNode(Node):
 
     def _poll(self) -> None:
         if self._wait_until is not None:  # optionally hold the source until the subscribers are matched
-            ready = all(p.get_subscription_count() > 0 for p, _ in self._out)
-            if not ready and self.get_clock().now().nanoseconds < self._wait_until:
+            now = self.get_clock().now().nanoseconds
+            if self._ready_at is None and all(p.get_subscription_count() > 0 for p, _ in self._out):
+                # the publisher sees a subscriber a little before that subscriber has matched the
+                # publisher: best-effort samples sent in between are lost (as in nifo replay)
+                self._ready_at = now + int(_MATCH_GRACE_S * 1e9)
+            if now < (self._ready_at or self._wait_until):
                 return
             self._wait_until = None
         s = self._source.poll()

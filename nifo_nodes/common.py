@@ -6,7 +6,8 @@ nodes in ``/nifo``, giving the bag's ``/nifo/spindle/imu`` etc.).
 =================================  ==================================  ==========================================
 topic (relative)                   type                                QoS
 =================================  ==================================  ==========================================
-``spindle/imu``, ``body/imu``      ``sensor_msgs/msg/Imu``             sensor data (best effort, volatile)
+``spindle/imu``, ``body/imu``      ``sensor_msgs/msg/Imu``             sensor data (best effort, volatile);
+                                                                       replay for identification: reliable, keep all
 ``tire_patch/displacement``        ``geometry_msgs/msg/PointStamped``  sensor data
 ``accel/block``                    ``std_msgs/msg/Float64MultiArray``  reliable, volatile, keep last ``BLOCK_DEPTH``
 ``motion/block``                   ``std_msgs/msg/Float64MultiArray``  reliable, volatile, keep last ``BLOCK_DEPTH``
@@ -14,14 +15,32 @@ topic (relative)                   type                                QoS
 ``identifier/coefficients``        ``std_msgs/msg/Float64MultiArray``  reliable, transient local, depth 1
 ``identifier/result``              ``std_msgs/msg/String`` (JSON)      reliable, transient local, depth 1
 =================================  ==================================  ==========================================
+
+QoS matrix of the per-sample input (the integrator's ``input_reliability``
+against the publisher; DDS request/offer rules):
+
+=======================  ==========================  =====================================
+publisher                subscriber ``best_effort``  subscriber ``reliable``
+=======================  ==========================  =====================================
+sensor data (vehicle,    matched; samples may be     NOT matched (no data; rclpy logs an
+acquisition, default     dropped under load          incompatible-QoS warning)
+``nifo replay``)
+``nifo replay            matched, best effort        matched, lossless: a slow subscriber
+--reliable``             (drops possible)            blocks the replay (backpressure)
+=======================  ==========================  =====================================
 """
 
 from __future__ import annotations
 
 import sys
+import time
 from typing import Callable
 
-__all__ = ["TOPICS", "sensor_qos", "block_qos", "result_qos", "run_node", "BLOCK_DEPTH"]
+__all__ = ["TOPICS", "sensor_qos", "reliable_input_qos", "input_qos", "block_qos", "result_qos", "run_node",
+           "BLOCK_DEPTH", "RELIABILITIES", "polled_group", "take_raw", "publish_blocking"]
+
+#: values of the integrator's ``input_reliability`` parameter
+RELIABILITIES = ("best_effort", "reliable")
 
 TOPICS = {
     "spindle": "spindle/imu",
@@ -49,6 +68,93 @@ def sensor_qos(depth: int = 5):
     p = QoSProfile(**{k: getattr(qos_profile_sensor_data, k) for k in
                       ("history", "reliability", "durability", "liveliness")}, depth=int(depth))
     return p
+
+
+def reliable_input_qos():
+    """Per-sample input for offline replay: reliable, volatile, **keep all** (on both ends).
+
+    Keep-all on both sides is what makes it lossless: when the subscriber's
+    history is full the DDS reader stops acknowledging, the publisher's history
+    fills and ``publish`` blocks (:func:`publish_blocking`), so a CPU-starved
+    subscriber slows the replay down instead of losing samples. (A keep-last
+    writer overwrites unacknowledged samples; a keep-last reader overwrites
+    untaken ones: both lose data when a node falls behind.)
+    """
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+
+
+def input_qos(reliability: str, depth: int):
+    """The per-sample input QoS for ``reliability`` in :data:`RELIABILITIES` (see the matrix above)."""
+    if reliability not in RELIABILITIES:
+        raise ValueError(f"reliability={reliability!r} must be one of {RELIABILITIES}")
+    return reliable_input_qos() if reliability == "reliable" else sensor_qos(depth)
+
+
+def polled_group():
+    """A callback group the executor never runs: its subscriptions are drained with :func:`take_raw`.
+
+    The executor rebuilds its wait set and runs one Python callback per
+    message (≈250 µs each); a timer draining a whole burst per wake-up costs
+    a few µs per message instead.
+    """
+    from rclpy.callback_groups import CallbackGroup
+
+    class _Polled(CallbackGroup):
+        def can_execute(self, entity) -> bool:
+            return False
+
+    return _Polled()
+
+
+def take_raw(sub, limit: int) -> list[bytes]:
+    """Up to ``limit`` serialized messages waiting on a ``raw=True`` subscription, oldest first.
+
+    What the executor's ``_take_subscription`` does per message, in a loop.
+    """
+    from rclpy.exceptions import InvalidHandle
+
+    out: list[bytes] = []
+    try:
+        with sub.handle:
+            take, mtype = sub.handle.take_message, sub.msg_type
+            while len(out) < limit:
+                got = take(mtype, True)
+                if got is None:
+                    break
+                out.append(got[0])
+    except InvalidHandle:  # destroyed while shutting down
+        pass
+    return out
+
+
+def publish_blocking(pub, data, *, timeout_s: float = 60.0, should_stop: Callable[[], bool] = lambda: False,
+                     ) -> bool:
+    """``pub.publish(data)``, retried while a keep-all reliable history is full (backpressure).
+
+    rmw_fastrtps blocks ``publish`` for a while and then fails with "cannot
+    publish data" when the subscriber has not taken enough; we wait and
+    retry. Returns False if ``should_stop()`` became true; raises the last
+    error after ``timeout_s`` without progress (a subscriber that is stuck).
+    """
+    from rclpy.impl.implementation_singleton import rclpy_implementation
+
+    RCLError = rclpy_implementation.RCLError
+    deadline = None
+    while True:
+        try:
+            pub.publish(data)
+            return True
+        except RCLError:
+            now = time.monotonic()
+            deadline = deadline or now + timeout_s
+            if now > deadline:
+                raise
+            if should_stop():
+                return False
+            time.sleep(0.002)
 
 
 def block_qos():

@@ -1,7 +1,9 @@
 """The integrator node: per-sample Imu in, aligned acceleration blocks and integrated motion out.
 
-Subscribes (raw serialized, decoded with :func:`messages.decode_imu`)
-``spindle/imu`` and ``body/imu``; aligns the two channels onto one sample
+Subscribes (raw serialized) ``spindle/imu`` and ``body/imu``, drained every
+``drain_s`` by a timer (:func:`common.take_raw`, :func:`messages.decode_imu_batch`:
+one wake-up per burst, not one executor callback per message), the two
+channels merged in stamp order; aligns the two channels onto one sample
 grid (:class:`align.SampleAligner`: late, duplicate, malformed and non-finite
 samples are logged and skipped, holes and restarts start a new segment) and
 publishes
@@ -27,7 +29,11 @@ Parameters: ``fs_hz`` (0: infer from the first 64 spindle stamps, snapped to
 1 mHz), ``f_lo_hz``/``f_hi_hz`` (0: :func:`nifo_core.integrate.default_band`),
 ``block_s`` (samples per published block, as seconds), ``flush_s`` (publish a
 partial block after this much wall time), ``max_lag_s`` (how long a missing
-sample is waited for), ``restart_s``, ``qos_depth``, ``axis``.
+sample is waited for), ``restart_s``, ``qos_depth``, ``axis``, ``input_reliability`` (``best_effort``:
+sensor-data QoS, the vehicle; ``reliable``: lossless replay with ``nifo replay
+--reliable``, see the QoS matrix in :mod:`common`), ``drain_s`` (how often the
+input is drained; the best-effort history ``qos_depth`` must hold that long
+of samples).
 """
 
 from __future__ import annotations
@@ -37,14 +43,17 @@ import numpy as np
 from nifo_core.errors import NifoError
 
 from .align import SampleAligner
-from .common import TOPICS, block_qos, run_node, sensor_qos
-from .messages import Block, block_to_msg, decode_imu
+from .common import RELIABILITIES, TOPICS, block_qos, input_qos, polled_group, run_node, take_raw
+from .messages import Block, block_to_msg, decode_imu_batch
 
 __all__ = ["IntegratorNode", "main", "ACCEL_CHANNELS", "MOTION_CHANNELS"]
 
 ACCEL_CHANNELS = ("spindle_accel", "body_accel")
 MOTION_CHANNELS = ("spindle_vel", "spindle_disp", "body_vel", "body_disp", "rel_vel", "rel_disp")
 _INFER_N = 64
+_STARTUP_ONLY = ("fs_hz", "f_lo_hz", "f_hi_hz", "axis", "qos_depth", "input_reliability", "drain_s")
+#: most messages taken per channel per drain (bounds one timer callback)
+_TAKE_MAX = 20_000
 
 try:
     from rclpy.node import Node
@@ -61,7 +70,8 @@ class IntegratorNode(Node):
 
         self._SetParametersResult = SetParametersResult
         p = {"fs_hz": 0.0, "f_lo_hz": 0.0, "f_hi_hz": 0.0, "block_s": 0.1, "flush_s": 0.2,
-             "max_lag_s": 0.25, "restart_s": 1.0, "qos_depth": 2000, "axis": "z"}
+             "max_lag_s": 0.25, "restart_s": 1.0, "qos_depth": 2000, "axis": "z",
+             "input_reliability": "best_effort", "drain_s": 0.01}
         for name, default in p.items():
             self.declare_parameter(name, default)
         self.add_on_set_parameters_callback(self._check_params)
@@ -80,10 +90,11 @@ class IntegratorNode(Node):
         depth = int(self.get_parameter("qos_depth").value)
         self._pub_accel = self.create_publisher(Float64MultiArray, TOPICS["accel"], block_qos())
         self._pub_motion = self.create_publisher(Float64MultiArray, TOPICS["motion"], block_qos())
-        self._subs = [
-            self.create_subscription(Imu, TOPICS[role], (lambda raw, ch=ch: self._on_sample(ch, raw)),
-                                     sensor_qos(depth), raw=True)
-            for ch, role in enumerate(("spindle", "body"))]
+        qos, group = input_qos(str(self.get_parameter("input_reliability").value), depth), polled_group()
+        self._subs = [self.create_subscription(Imu, TOPICS[role], lambda raw: None, qos, raw=True,
+                                               callback_group=group)
+                      for role in ("spindle", "body")]
+        self._drain_timer = self.create_timer(float(self.get_parameter("drain_s").value), self._drain)
         self._timer = self.create_timer(float(self.get_parameter("flush_s").value), self._publish)
         if self._fs > 0:
             self._start(self._fs)
@@ -94,30 +105,48 @@ class IntegratorNode(Node):
         bad = []
         if v.get("fs_hz", 0) < 0:
             bad.append(f"fs_hz={v['fs_hz']} must be >= 0 (0: infer)")
-        for k in ("block_s", "flush_s", "max_lag_s", "restart_s"):
+        for k in ("block_s", "flush_s", "max_lag_s", "restart_s", "drain_s"):
             if k in v and not v[k] > 0:
                 bad.append(f"{k}={v[k]} must be > 0")
         if "qos_depth" in v and not 1 <= v["qos_depth"] <= 100_000:
             bad.append(f"qos_depth={v['qos_depth']} must be in 1..100000")
         if "axis" in v and v["axis"] not in ("x", "y", "z"):
             bad.append(f"axis={v['axis']!r} must be x, y or z")
+        if "input_reliability" in v and v["input_reliability"] not in RELIABILITIES:
+            bad.append(f"input_reliability={v['input_reliability']!r} must be one of {', '.join(RELIABILITIES)}")
+        if "drain_s" in v and v["drain_s"] > 0.1:
+            bad.append(f"drain_s={v['drain_s']} must be <= 0.1 (the input history has to hold a drain's worth)")
         return "; ".join(bad)
 
     def _check_params(self, params):
         bad = self._problems({p.name: p.value for p in params})
-        if not bad and any(p.name in ("fs_hz", "f_lo_hz", "f_hi_hz", "axis", "qos_depth") for p in params):
-            bad = "fs_hz, band, axis and qos_depth are read at start-up only; restart the node to change them"
+        if not bad and any(p.name in _STARTUP_ONLY for p in params):
+            bad = f"{', '.join(_STARTUP_ONLY)} are read at start-up only; restart the node to change them"
         return self._SetParametersResult(successful=not bad, reason=bad)
 
     # ------------------------------------------------------------------ input
-    def _on_sample(self, channel: int, raw: bytes) -> None:
-        try:
-            stamp, value = decode_imu(raw, self._axis)
-        except NifoError as err:
-            self._malformed += 1
-            self.get_logger().warning(f"{TOPICS[('spindle', 'body')[channel]]}: malformed message skipped "
-                                      f"({err}; {self._malformed} so far)", throttle_duration_sec=5.0)
-            return
+    def _drain(self) -> None:
+        """Take every waiting Imu message of both channels, decode them in one go, push in stamp order."""
+        stamps, values, chans = [], [], []
+        for ch, sub in enumerate(self._subs):
+            raws = take_raw(sub, _TAKE_MAX)
+            st, v, bad = decode_imu_batch(raws, self._axis)
+            for _, reason in bad:
+                self._malformed += 1
+                self.get_logger().warning(f"{TOPICS[('spindle', 'body')[ch]]}: malformed message skipped "
+                                          f"({reason}; {self._malformed} so far)", throttle_duration_sec=5.0)
+            stamps.append(st)
+            values.append(v)
+            chans.append(np.full(st.size, ch))
+        # interleave the channels by stamp, keeping each channel's arrival order (late samples stay late)
+        key = np.concatenate([np.maximum.accumulate(st) if st.size else st for st in stamps])
+        rank = np.concatenate([np.arange(st.size) for st in stamps])
+        order = np.lexsort((np.concatenate(chans), rank, key))
+        for ch, stamp, value in zip(np.concatenate(chans)[order].tolist(), np.concatenate(stamps)[order].tolist(),
+                                    np.concatenate(values)[order].tolist()):
+            self._on_sample(ch, stamp, value)
+
+    def _on_sample(self, channel: int, stamp: int, value: float) -> None:
         if self._aligner is None:
             self._infer(channel, stamp, value)
             return
@@ -198,6 +227,7 @@ class IntegratorNode(Node):
     def close(self) -> None:
         """Publish what is still buffered (end of a replay or shutdown)."""
         try:
+            self._drain()
             self._publish()
             self._end_segment()
         except Exception as err:  # shutting down: report, do not mask the shutdown

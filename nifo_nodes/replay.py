@@ -3,11 +3,23 @@
 The serialized messages go out exactly as stored (``Publisher.publish(bytes)``:
 no decode, no re-encode), so the stamps in their headers are the recorded
 ones and the live nodes cannot tell a replay from the vehicle. Topics keep
-their recorded (absolute) names; QoS is the sensor-data profile with a deep
-history. When the process falls behind schedule (descheduled on a loaded
-machine) it slips its clock rather than publishing a catch-up burst, which a
-best-effort transport would drop. ``ros2 bag play BAG`` is the vehicle-side
+their recorded (absolute) names. ``ros2 bag play BAG`` is the vehicle-side
 equivalent.
+
+Two QoS modes (matrix in :mod:`nifo_nodes.common`):
+
+* default — the sensor-data profile (best effort) with a deep history, as the
+  vehicle publishes. When the process falls behind schedule (descheduled on a
+  loaded machine) it slips its clock rather than publishing a catch-up burst,
+  which a best-effort transport would drop; samples can still be lost.
+* ``reliable=True`` (``nifo replay --reliable``) — for identification, where
+  losing samples is wrong: reliable, keep-all publishers
+  (:func:`common.reliable_input_qos`; subscribers must be reliable too, e.g.
+  the integrator with ``input_reliability: reliable``). A subscriber that
+  falls behind fills the histories and ``publish`` blocks
+  (:func:`common.publish_blocking`): the replay slows down, nothing is lost.
+  The replay catches up after such a pause, and before it returns waits until
+  every subscriber has acknowledged everything.
 """
 
 from __future__ import annotations
@@ -55,19 +67,21 @@ def _storage(path: Path) -> Path:
 
 def replay_bag(path: str | Path, *, rate: float = 1.0, loop: bool = False, start_s: float = 0.0,
                topics: list[str] | None = None, wait_s: float = 0.0, depth: int = 1000,
-               node_name: str = "nifo_replay", log: Callable[[str], None] = print,
+               reliable: bool = False, node_name: str = "nifo_replay", log: Callable[[str], None] = print,
                should_stop: Callable[[], bool] = lambda: False) -> ReplayStats:
     """Publish the bag's messages at ``rate`` × recorded speed (``rate=0``: as fast as possible).
 
     Needs ``rclpy.init()`` done by the caller. ``start_s`` skips the first
     seconds of the bag; ``wait_s`` waits up to that long for a subscriber on
-    every topic before starting; ``topics`` restricts what is published.
+    every topic before starting; ``topics`` restricts what is published;
+    ``reliable`` selects the lossless QoS (module docstring).
     """
     import rclpy
     from rclpy.node import Node
+    from rclpy.duration import Duration
     from rosbags.rosbag2 import Reader
 
-    from .common import sensor_qos
+    from .common import publish_blocking, reliable_input_qos, sensor_qos
 
     if rate < 0:
         raise ConfigError(f"{rate=} must be >= 0 (0: as fast as possible)", channel="--rate")
@@ -90,9 +104,10 @@ def replay_bag(path: str | Path, *, rate: float = 1.0, loop: bool = False, start
                 raise DataFileError("no matching topics in the bag", source=src,
                                     hint=f"the bag has {sorted({c.topic for c in reader.connections})}")
             pubs = {}
+            qos = reliable_input_qos() if reliable else sensor_qos(depth)
             for c in conns:
                 if c.topic not in pubs:
-                    pubs[c.topic] = node.create_publisher(message_class(c.msgtype), c.topic, sensor_qos(depth))
+                    pubs[c.topic] = node.create_publisher(message_class(c.msgtype), c.topic, qos)
             deadline = time.monotonic() + wait_s
             while wait_s > 0 and time.monotonic() < deadline and not should_stop():
                 if all(p.get_subscription_count() > 0 for p in pubs.values()):
@@ -110,11 +125,15 @@ def replay_bag(path: str | Path, *, rate: float = 1.0, loop: bool = False, start
                         delay = due - time.monotonic()
                         if delay > 0.0005:
                             time.sleep(delay)
-                        elif delay < -_MAX_BEHIND_S:
+                        elif delay < -_MAX_BEHIND_S and not reliable:
                             # descheduled: slip instead of catching up in a burst that best-effort
                             # transports drop (the stamps, not the wall clock, carry the time)
                             t_wall0 -= delay
-                    pubs[conn.topic].publish(bytes(raw))
+                    if reliable:
+                        if not publish_blocking(pubs[conn.topic], bytes(raw), should_stop=should_stop):
+                            return stats
+                    else:
+                        pubs[conn.topic].publish(bytes(raw))
                     stats.messages += 1
                     stats.by_topic[conn.topic] = stats.by_topic.get(conn.topic, 0) + 1
                     if should_stop():
@@ -122,6 +141,10 @@ def replay_bag(path: str | Path, *, rate: float = 1.0, loop: bool = False, start
                 stats.loops += 1
                 if not loop or not rclpy.ok() or should_stop():
                     break
+            if reliable:  # the history still holds what was not acknowledged: deliver it before leaving
+                for topic, pub in pubs.items():
+                    if not pub.wait_for_all_acked(Duration(seconds=30)):
+                        log(f"nifo replay: {topic}: not every sample was acknowledged within 30 s")
             return stats
         finally:
             reader.close()

@@ -12,7 +12,7 @@ from rclpy.serialization import deserialize_message, serialize_message  # noqa: 
 from nifo_core.errors import InputError  # noqa: E402
 from nifo_nodes.align import SampleAligner  # noqa: E402
 from nifo_nodes.messages import (Block, ImuEncoder, PointEncoder, block_from_msg, block_to_msg,  # noqa: E402
-                                 decode_imu, decode_point, table_from_msg, table_to_msg)
+                                 decode_imu, decode_imu_batch, decode_point, table_from_msg, table_to_msg)
 
 
 @pytest.mark.parametrize("frame_id", ["", "spindle", "body", "a_longer_frame_id"])
@@ -49,6 +49,18 @@ def test_point_encoder_round_trips():
 def test_decode_imu_rejects_malformed_bytes(raw):
     with pytest.raises(InputError):
         decode_imu(raw)
+
+
+def test_decode_imu_batch_equals_decode_imu_message_by_message_and_names_the_malformed():
+    enc, other = ImuEncoder("spindle"), ImuEncoder("")
+    raws = [enc.encode(1_700_000_000_000_000_000 + k * 1_666_667, 0.25 * k - 3) for k in range(50)]
+    raws[3], raws[7], raws[9] = b"", bytes(40), raws[9][:-8]
+    raws[11] = other.encode(5, 2.0)  # another frame_id length: still decodable
+    stamps, values, bad = decode_imu_batch(raws, "z")
+    good = [decode_imu(r) for i, r in enumerate(raws) if i not in (3, 7, 9)]
+    assert list(zip(stamps.tolist(), values.tolist())) == good
+    assert [i for i, _ in bad] == [3, 7, 9] and "expected layout" in bad[2][1]
+    assert decode_imu_batch([], "z")[0].size == 0
 
 
 def test_block_round_trips_through_float64multiarray():

@@ -14,6 +14,8 @@ Vehicle-side equivalent: ros2 bag play BAG [--rate R] [--loop].
 Examples:
   nifo replay run1.mcap                 real time
   nifo replay run1.mcap --rate 4 --wait 5
+  nifo replay run1.mcap --reliable      lossless, for identification (integrator
+                                        input_reliability: reliable)
   ROS_DOMAIN_ID=42 nifo replay bags/shaker --loop
 """
 
@@ -26,7 +28,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="publish only these topics")
     p.add_argument("--wait", type=float, default=0.0, metavar="S",
                    help="wait up to S seconds for a subscriber on every topic before starting")
-    p.add_argument("--depth", type=int, default=1000, help="publisher history depth (default 1000)")
+    p.add_argument("--depth", type=int, default=1000,
+                   help="best-effort publisher history depth (default 1000; --reliable keeps all)")
+    p.add_argument("--reliable", action="store_true",
+                   help="reliable keep-all publishers: a slow subscriber slows the replay down instead of losing "
+                        "samples (subscribers must be reliable: integrator input_reliability:=reliable)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -45,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     try:
         stats = replay_bag(args.bag, rate=args.rate, loop=args.loop, start_s=args.start, topics=args.topics,
-                           wait_s=args.wait, depth=args.depth)
+                           wait_s=args.wait, depth=args.depth, reliable=args.reliable)
     finally:
         rclpy.try_shutdown()
     per = ", ".join(f"{t} {n}" for t, n in stats.by_topic.items())
