@@ -90,14 +90,17 @@ class IntegratorNode(Node):
         depth = int(self.get_parameter("qos_depth").value)
         self._pub_accel = self.create_publisher(Float64MultiArray, TOPICS["accel"], block_qos())
         self._pub_motion = self.create_publisher(Float64MultiArray, TOPICS["motion"], block_qos())
+        # the slow one-off set-up (scipy import ≈ 1 s, FIR taps) happens here, before subscribing: done
+        # lazily in the first drain it stalled the input for a second and the best-effort history overflowed
+        import nifo_core.integrate  # noqa: F401
+        if self._fs > 0:
+            self._start(self._fs)
         qos, group = input_qos(str(self.get_parameter("input_reliability").value), depth), polled_group()
         self._subs = [self.create_subscription(Imu, TOPICS[role], lambda raw: None, qos, raw=True,
                                                callback_group=group)
                       for role in ("spindle", "body")]
         self._drain_timer = self.create_timer(float(self.get_parameter("drain_s").value), self._drain)
         self._timer = self.create_timer(float(self.get_parameter("flush_s").value), self._publish)
-        if self._fs > 0:
-            self._start(self._fs)
 
     # ------------------------------------------------------------------ parameters
     @staticmethod
@@ -178,6 +181,8 @@ class IntegratorNode(Node):
                                       log=lambda m: self.get_logger().warning(m))
         self.get_logger().info(f"sample rate {fs:g} Hz, blocks of {self._block_n} samples")
         early, self._early = self._early, []
+        for ig in self._new_integrators():  # computes (and caches) the FIR taps, warms the FFT path
+            ig.push(np.zeros(1))
         for ch, st, v in sorted(early, key=lambda e: e[1]):
             self._aligner.push(ch, st, v)
 
