@@ -10,6 +10,9 @@ pipeline.launch.py`` / ``analysis.launch.py``:
     python launch_scripts/run_pipeline.py --source simulator --model model.yaml
     # a CSV/MAT/bag file through the acquisition node
     python launch_scripts/run_pipeline.py --source file --path run1.csv --model model.yaml
+    # ... watched live in Rerun: spawn a viewer, connect to a running one, or save a recording
+    python launch_scripts/run_pipeline.py --bag run1.mcap --rerun spawn
+    python launch_scripts/run_pipeline.py --bag run1.mcap --rerun save=live.rrd --linger 5
 
 Ctrl-C (or SIGTERM) stops every process cleanly (SIGINT, then SIGTERM, then SIGKILL after
 timeouts); the identifier writes its checkpoint on the way out. With ``--bag`` and
@@ -47,7 +50,22 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--log-dir", help="write each node's output to DIR/<node>.log")
     p.add_argument("--linger", type=float, default=None, metavar="S",
                    help="with --bag: stop S seconds after the replay ended (default: run until Ctrl-C)")
+    p.add_argument("--rerun", default=None, metavar="spawn|connect[=URL]|save=PATH",
+                   help="also run the Rerun viewer node: spawn a viewer, connect to one (optionally at URL), "
+                        "or save a .rrd recording")
     return p.parse_args(argv)
+
+
+def rerun_args(mode: str) -> tuple[str, ...]:
+    """Rerun's own script options (rr.script_add_args) for a ``--rerun`` value."""
+    kind, _, value = mode.partition("=")
+    if kind == "spawn" and not value:
+        return ()
+    if kind == "connect":
+        return ("--connect",) + (("--url", value) if value else ())
+    if kind == "save" and value:
+        return ("--save", value)
+    raise SystemExit(f"run_pipeline: --rerun {mode!r}: use spawn, connect, connect=URL or save=PATH")
 
 
 def main(argv=None) -> int:
@@ -63,6 +81,8 @@ def main(argv=None) -> int:
         return NodeSpec(name, namespace=a.namespace, params_files=(str(cfg / f"{name}.yaml"),), params=params)
 
     specs = [spec("integrator"), spec("identifier", model_file=a.model, checkpoint_file=a.checkpoint)]
+    if a.rerun is not None:
+        specs.append(NodeSpec("rerun_viewer", namespace=a.namespace, args=rerun_args(a.rerun)))
     if a.bag is None:
         specs.insert(0, spec("acquisition", source=a.source or "simulator", path=a.path, speed=a.rate))
     procs: list[subprocess.Popen] = []

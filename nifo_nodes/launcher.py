@@ -22,7 +22,7 @@ __all__ = ["NodeSpec", "NODES", "command", "start", "stop", "CONFIG_DIR", "claim
 
 #: node name -> module that runs it
 NODES = {"acquisition": "nifo_nodes.acquisition", "integrator": "nifo_nodes.integrator",
-         "identifier": "nifo_nodes.identifier"}
+         "identifier": "nifo_nodes.identifier", "rerun_viewer": "nifo_nodes.rerun_viewer"}
 
 #: the YAML parameter files shipped with the ROS package (shared with ros2 launch)
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "ros2_ws" / "src" / "nifo_ros" / "config"
@@ -35,6 +35,8 @@ class NodeSpec:
     params_files: tuple[str, ...] = ()
     params: dict = field(default_factory=dict)
     remaps: dict = field(default_factory=dict)
+    #: arguments after the ROS arguments (``-- ...``), e.g. Rerun's ``--save live.rrd`` for the viewer
+    args: tuple[str, ...] = ()
 
 
 def _value(v) -> str:
@@ -58,6 +60,8 @@ def command(spec: NodeSpec) -> list[str]:
         cmd += ["-p", f"{k}:={_value(v)}"]
     for a, b in spec.remaps.items():
         cmd += ["-r", f"{a}:={b}"]
+    if spec.args:
+        cmd += ["--", *spec.args]
     return cmd
 
 

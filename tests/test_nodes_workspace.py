@@ -58,7 +58,7 @@ def test_colcon_build_installs_entry_points_that_run_the_nodes(tmp_path):
                        cwd=tmp_path, capture_output=True, text=True, timeout=240)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     inst = tmp_path / "install" / "nifo_ros"
-    for exe in ("acquisition", "integrator", "identifier"):
+    for exe in ("acquisition", "integrator", "identifier", "rerun_viewer"):
         assert (inst / "lib" / "nifo_ros" / exe).is_file()
     share = inst / "share" / "nifo_ros"
     assert (share / "launch" / "pipeline.launch.py").is_file() and (share / "config" / "integrator.yaml").is_file()
@@ -86,24 +86,32 @@ def test_colcon_build_installs_entry_points_that_run_the_nodes(tmp_path):
 
 
 @pytest.mark.ros
-def test_run_pipeline_replays_a_bag_through_the_nodes_and_stops_cleanly(tmp_path):
+def test_run_pipeline_replays_a_bag_through_the_nodes_into_a_live_rerun_recording(tmp_path):
     pytest.importorskip("rclpy")
+    from rerun.chunk import RrdReader
+
     from nifo.io.loader import save_record
     from nifo_core.simulate import SimConfig, simulate
+    from nifo_nodes.launcher import claim_domain_id
 
     save_record(tmp_path / "short.mcap", simulate(SimConfig(duration_s=6.0, fs_hz=200.0), rng=1).record)
-    ckpt = tmp_path / "id.npz"
-    p = subprocess.Popen([sys.executable, str(REPO / "launch_scripts" / "run_pipeline.py"), "--bag",
-                          str(tmp_path / "short.mcap"), "--rate", "3", "--domain-id", str(random.randint(100, 200)),
-                          "--log-dir", str(tmp_path / "logs"), "--checkpoint", str(ckpt), "--linger", "1"],
-                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
-    try:
-        out = p.communicate(timeout=90)[0].decode()
-    finally:
-        if p.poll() is None:
-            os.killpg(p.pid, signal.SIGKILL)
+    ckpt, rrd = tmp_path / "id.npz", tmp_path / "live.rrd"
+    with claim_domain_id() as domain:
+        p = subprocess.Popen([sys.executable, str(REPO / "launch_scripts" / "run_pipeline.py"), "--bag",
+                              str(tmp_path / "short.mcap"), "--rate", "3", "--domain-id", str(domain),
+                              "--log-dir", str(tmp_path / "logs"), "--checkpoint", str(ckpt), "--linger", "2",
+                              "--rerun", f"save={rrd}"],
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
+        try:
+            out = p.communicate(timeout=120)[0].decode()
+        finally:
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGKILL)
     assert p.returncode == 0, out
-    assert "replay finished (exit 0)" in out and "exit codes [0, 0, 0]" in out, out
+    assert "replay finished (exit 0)" in out and "exit codes [0, 0, 0, 0]" in out, out
     integ = (tmp_path / "logs" / "integrator.log").read_text()
     assert "sample rate 200 Hz" in integ
     assert ckpt.exists()  # the identifier wrote its checkpoint on the way out (clean SIGINT shutdown)
+    # the live view: the viewer node logged the replayed accelerations at the data's stamps
+    ents = {c.entity_path for c in RrdReader(rrd).stream().to_chunks()}
+    assert "/accel/live" in ents, sorted(ents)

@@ -31,6 +31,7 @@ setup(
             "acquisition = nifo_ros.entry:acquisition",
             "integrator = nifo_ros.entry:integrator",
             "identifier = nifo_ros.entry:identifier",
+            "rerun_viewer = nifo_ros.entry:rerun_viewer",
         ],
     },
 )

@@ -1,4 +1,4 @@
-"""ros2 launch nifo_ros pipeline.launch.py [source:=simulator|file] [path:=...] [model_file:=...]
+"""ros2 launch nifo_ros pipeline.launch.py [source:=simulator|file] [path:=...] [model_file:=...] [rerun:=true]
 
 acquisition -> integrator -> identifier in namespace /nifo, parameters from config/*.yaml
 (the same files launch_scripts/run_pipeline.py uses).
@@ -9,6 +9,7 @@ import os
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
+from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
@@ -22,6 +23,8 @@ def generate_launch_description():
         DeclareLaunchArgument("path", default_value=""),
         DeclareLaunchArgument("model_file", default_value=os.path.join(cfg, "model.yaml")),
         DeclareLaunchArgument("checkpoint_file", default_value=""),
+        DeclareLaunchArgument("rerun", default_value="false",
+                              description="also start the live Rerun viewer node (spawns a viewer)"),
     ]
     return LaunchDescription(args + [
         Node(package="nifo_ros", executable="acquisition", name="acquisition", namespace=ns,
@@ -35,4 +38,6 @@ def generate_launch_description():
                          {"model_file": LaunchConfiguration("model_file"),
                           "checkpoint_file": LaunchConfiguration("checkpoint_file")}],
              output="screen"),
+        Node(package="nifo_ros", executable="rerun_viewer", name="rerun_viewer", namespace=ns,
+             condition=IfCondition(LaunchConfiguration("rerun")), output="screen"),
     ])

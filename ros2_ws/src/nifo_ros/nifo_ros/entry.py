@@ -23,3 +23,7 @@ def integrator() -> int:
 
 def identifier() -> int:
     return _main("identifier")
+
+
+def rerun_viewer() -> int:
+    return _main("rerun_viewer")
