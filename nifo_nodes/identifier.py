@@ -7,12 +7,15 @@ identify``) runs, so the live estimate is the batch one. Every
 reliable + transient local (a late subscriber gets the latest):
 
 * ``identifier/transmissibility`` — ``Float64MultiArray`` table (layout in
-  :mod:`nifo_nodes.messages`), columns ``freq_hz|t21_re|t21_im|t21_h1_re|
-  t21_h1_im|coherence_h1|multiple_coherence|cond``: output-only T21 = X2/X1,
-  plain H1 and its ordinary coherence, the fit's multiple coherence, the
-  condition number of G_UU;
+  :mod:`nifo_nodes.messages`), columns ``freq_hz|t21_nominal_re|t21_nominal_im|
+  t21_re|t21_im|t21_h1_re|t21_h1_im|coherence_h1|multiple_coherence|cond``:
+  the nominal linear T21 (the pooled static fit, what ``nifo identify``
+  recommends; the per-line estimate when no term is declared), the per-line
+  output-only T21 = X2/X1 (paper Eq. 9), plain H1 and its ordinary coherence,
+  the fit's multiple coherence, the condition number of G_UU;
 * ``identifier/coefficients`` — columns ``freq_hz`` then, per term i,
-  ``c<i>_re|c<i>_im`` (c_i/M2, unit of c per kg, flat and real for a static
+  ``c<i>_pooled`` (the pooled constant c_i/M2, unit of c per kg),
+  ``c<i>_re|c<i>_im`` (per-line c_i/M2: flat and real for a static
   nonlinearity) and ``b<i>_re|b<i>_im`` (B_i of paper Eq. 8);
 * ``identifier/result`` — ``std_msgs/String``: ``NifoResult.to_dict()`` as JSON
   (term labels, settings, band, bounds' random errors: everything).
@@ -247,12 +250,16 @@ class IdentifierNode(Node):
             self.get_logger().warning(f"no estimate yet: {err}", throttle_duration_sec=30.0)
             return
         self._published_navg = r.n_avg
-        t = {"freq_hz": r.freq_hz, "t21_re": r.t21.real, "t21_im": r.t21.imag, "t21_h1_re": r.t21_h1.real,
+        nominal = r.static.t21 if r.static is not None else r.t21
+        t = {"freq_hz": r.freq_hz, "t21_nominal_re": nominal.real, "t21_nominal_im": nominal.imag,
+             "t21_re": r.t21.real, "t21_im": r.t21.imag, "t21_h1_re": r.t21_h1.real,
              "t21_h1_im": r.t21_h1.imag, "coherence_h1": r.coherence_h1,
              "multiple_coherence": r.multiple_coherence, "cond": r.cond}
         c = {"freq_hz": r.freq_hz}
         for i in range(len(r.terms)):
-            c.update({f"c{i}_re": r.c_over_m2[i].real, f"c{i}_im": r.c_over_m2[i].imag,
+            pooled = r.static.c_over_m2[i] if r.static is not None else np.nan
+            c.update({f"c{i}_pooled": np.full(r.freq_hz.shape, pooled, float),
+                      f"c{i}_re": r.c_over_m2[i].real, f"c{i}_im": r.c_over_m2[i].imag,
                       f"b{i}_re": r.b[i].real, f"b{i}_im": r.b[i].imag})
         self._pub_t.publish(table_to_msg(t, stamp_ns=self._last_ns, n_avg=r.n_avg))
         self._pub_c.publish(table_to_msg(c, stamp_ns=self._last_ns, n_avg=r.n_avg))

@@ -173,6 +173,10 @@ def assert_matches_batch(latest, ref):
     np.testing.assert_allclose(cols["coherence_h1"], ref.coherence_h1, rtol=RTOL, atol=1e-15)
     coef, _, _ = latest["coefficients"]
     band = ref.in_band
+    # the nominal (pooled static) estimate nifo identify recommends
+    np.testing.assert_allclose((cols["t21_nominal_re"] + 1j * cols["t21_nominal_im"])[band], ref.static.t21[band],
+                               rtol=RTOL)
+    np.testing.assert_allclose(coef["c0_pooled"], ref.static.c_over_m2[0], rtol=RTOL)
     np.testing.assert_allclose((coef["c0_re"] + 1j * coef["c0_im"])[band], ref.c_over_m2[0][band], rtol=RTOL)
     np.testing.assert_allclose((coef["b0_re"] + 1j * coef["b0_im"])[band], ref.b[0][band], rtol=RTOL)
     assert latest["result"]["n_avg"] == ref.n_avg
