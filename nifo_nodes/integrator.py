@@ -230,11 +230,20 @@ class IntegratorNode(Node):
         (self._pub_accel if what == "accel" else self._pub_motion).publish(block_to_msg(block))
 
     def close(self) -> None:
-        """Publish what is still buffered (end of a replay or shutdown)."""
+        """Publish what is still buffered (end of a replay or shutdown), and see it delivered.
+
+        The blocks are reliable: wait (bounded) until subscribers acknowledged them,
+        else destroying the node right after could drop the last ones on a busy machine.
+        """
+        from rclpy.duration import Duration
+
         try:
             self._drain()
             self._publish()
             self._end_segment()
+            for pub in (self._pub_accel, self._pub_motion):
+                if not pub.wait_for_all_acked(Duration(seconds=4.0)):
+                    self.get_logger().warning(f"{pub.topic_name}: last blocks not acknowledged on shutdown")
         except Exception as err:  # shutting down: report, do not mask the shutdown
             self.get_logger().warning(f"could not flush on shutdown: {err}")
 
