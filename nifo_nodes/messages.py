@@ -45,6 +45,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nifo.io.cdr import CDR_LE as _CDR_LE, IMU, IMU_BODY as _IMU_BODY
+from nifo.io.cdr import POINT_BODY as _POINT_BODY, POINT_STAMPED, header_size, payloads, value_offset
 from nifo_core.errors import InputError
 
 __all__ = ["Block", "block_to_msg", "block_from_msg", "decode_imu", "decode_imu_batch", "decode_point", "ImuEncoder",
@@ -54,12 +56,6 @@ __all__ = ["Block", "block_to_msg", "block_from_msg", "decode_imu", "decode_imu_
 BLOCK_PREAMBLE = 5
 RESULT_PREAMBLE = 3
 _NS = 1_000_000_000
-_CDR_LE = b"\x00\x01\x00\x00"
-#: Imu after the 8-aligned header: orientation(4) cov(9) angular_velocity(3) cov(9) -> linear_acceleration
-_IMU_ACCEL = 25 * 8
-_IMU_BODY = 37 * 8
-_POINT_BODY = 3 * 8
-_AXES = {"x": 0, "y": 1, "z": 2}
 
 
 def stamp_ns_of(stamp) -> int:
@@ -98,7 +94,7 @@ def decode_imu(raw: bytes, axis: str = "z") -> tuple[int, float]:
     Raises :class:`InputError` for bytes that are not a little-endian Imu
     (the caller logs and skips them).
     """
-    return _decode(raw, _IMU_BODY, _IMU_ACCEL + 8 * _AXES[axis])
+    return _decode(raw, _IMU_BODY, value_offset(IMU, axis))
 
 
 def decode_imu_batch(raws: list[bytes], axis: str = "z") -> tuple[np.ndarray, np.ndarray, list[tuple[int, str]]]:
@@ -128,7 +124,7 @@ def decode_imu_batch(raws: list[bytes], axis: str = "z") -> tuple[np.ndarray, np
     nsec = read(starts + 8, "<u4").astype(np.int64)
     ok &= (lens == end + _IMU_BODY) & (nsec < _NS)
     stamps = read(starts + 4, "<i4").astype(np.int64) * _NS + nsec
-    values = read(starts + end + _IMU_ACCEL + 8 * _AXES[axis], "<f8")
+    values = read(starts + end + value_offset(IMU, axis), "<f8")
     bad = []
     for i in np.flatnonzero(~ok).tolist():
         try:
@@ -141,23 +137,17 @@ def decode_imu_batch(raws: list[bytes], axis: str = "z") -> tuple[np.ndarray, np
 
 def decode_point(raw: bytes, axis: str = "z") -> tuple[int, float]:
     """``(stamp_ns, point.<axis>)`` of a serialized ``geometry_msgs/msg/PointStamped``."""
-    return _decode(raw, _POINT_BODY, 8 * _AXES[axis])
+    return _decode(raw, _POINT_BODY, value_offset(POINT_STAMPED, axis))
 
 
 class _Encoder:
-    """Serialized messages from a template: patch stamp and value into fixed offsets (≈1 µs)."""
+    """Serialized messages from a template (:func:`nifo.io.cdr.payloads` of one message): patch stamp
+    and value into their fixed offsets (≈1 µs, vs ≈20 µs for the numpy encoder on one message)."""
 
-    def __init__(self, frame_id: str, body: int, value: int, extra: dict[int, float]) -> None:
-        name = frame_id.encode() + b"\x00"
-        head = bytearray(4 + -(-(12 + len(name)) // 8) * 8)
-        head[0:4] = _CDR_LE
-        struct.pack_into("<I", head, 12, len(name))
-        head[16:16 + len(name)] = name
-        tail = bytearray(body)
-        for off, v in extra.items():
-            struct.pack_into("<d", tail, off, v)
-        self._template = bytes(head + tail)
-        self._value = len(head) + value
+    def __init__(self, frame_id: str, msgtype: str, axis: str) -> None:
+        self._template = payloads(np.zeros(1, np.int64), np.zeros(1), frame_id=frame_id, msgtype=msgtype,
+                                  axis=axis)[0].tobytes()
+        self._value = header_size(frame_id) + value_offset(msgtype, axis)
 
     def encode(self, stamp_ns: int, value: float) -> bytes:
         buf = bytearray(self._template)
@@ -171,14 +161,14 @@ class ImuEncoder(_Encoder):
     """Serialized ``sensor_msgs/msg/Imu`` with ``linear_acceleration.<axis>`` = value (REP-145 flags set)."""
 
     def __init__(self, frame_id: str, axis: str = "z") -> None:
-        super().__init__(frame_id, _IMU_BODY, _IMU_ACCEL + 8 * _AXES[axis], {4 * 8: -1.0, 16 * 8: -1.0})
+        super().__init__(frame_id, IMU, axis)
 
 
 class PointEncoder(_Encoder):
     """Serialized ``geometry_msgs/msg/PointStamped`` with ``point.<axis>`` = value."""
 
     def __init__(self, frame_id: str, axis: str = "z") -> None:
-        super().__init__(frame_id, _POINT_BODY, 8 * _AXES[axis], {})
+        super().__init__(frame_id, POINT_STAMPED, axis)
 
 
 # ----------------------------------------------------------------------------- sample blocks

@@ -60,15 +60,18 @@ import re
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from nifo_core.errors import (ConfigError, DataFileError, InputError, MissingChannelError, NifoError,
+from nifo_core.errors import (ConfigError, DataFileError, MissingChannelError, NifoError,
                               RecordTooShortError, TimestampError)
 from nifo_core.record import Record
 
 from .atomic import staged_file
+from .cdr import AXES as _AXES, CDR_LE as _CDR_LE, IMU, IMU_BODY as _IMU_BODY, IMU_VALUE as _IMU_VALUE
+from .cdr import POINT_BODY as _POINT_BODY, POINT_STAMPED, POINT_VALUE as _POINT_VALUE, Axis
+from .cdr import payloads as _payloads  # the message layout lives in nifo.io.cdr
 
 if TYPE_CHECKING:
     from rosbags.interfaces import Connection
@@ -76,11 +79,6 @@ if TYPE_CHECKING:
 __all__ = ["BagTopics", "TopicData", "read_bag", "iter_bag_chunks", "write_bag", "write_channels",
            "resolve_topics", "IMU", "POINT_STAMPED"]
 
-IMU = "sensor_msgs/msg/Imu"
-POINT_STAMPED = "geometry_msgs/msg/PointStamped"
-
-Axis = Literal["x", "y", "z"]
-_AXES = {"x": 0, "y": 1, "z": 2}
 
 #: rosbag2 metadata version written: 8 is read by Humble and Jazzy (9 is not read by Humble)
 BAG_VERSION = 8
@@ -88,17 +86,6 @@ BAG_VERSION = 8
 _SPINDLE_WORDS = ("spindle", "wheel", "unsprung")
 _BODY_WORDS = ("body", "sprung", "chassis")
 _TIRE_WORDS = ("tire", "tyre", "patch", "road")
-
-# --- CDR layout --------------------------------------------------------------
-# payload = 4-byte encapsulation header (00 01 00 00: CDR little endian) + body;
-# CDR alignment counts from the end of the encapsulation header.
-_CDR_LE = b"\x00\x01\x00\x00"
-#: bytes after the (8-aligned) end of std_msgs/Header, and where the value sits in them
-_IMU_BODY = 37 * 8  # orientation 4 + cov 9 + angular_velocity 3 + cov 9 + linear_acceleration 3 + cov 9
-_IMU_VALUE = 25 * 8  # offset of linear_acceleration.x in that block
-_POINT_BODY = 3 * 8
-_POINT_VALUE = 0
-
 
 _ROLE_ALIASES = {"spindle": "spindle", "spindle_accel": "spindle", "body": "body", "body_accel": "body",
                  "tire_patch": "tire_patch", "tire_patch_disp": "tire_patch"}
@@ -148,38 +135,6 @@ def _sensor_qos():
     zero = QosTime(0, 0)  # RMW_DURATION_UNSPECIFIED, as in qos_profile_sensor_data
     return Qos(QosHistory.KEEP_LAST, 5, QosReliability.BEST_EFFORT, QosDurability.VOLATILE,
                zero, zero, QosLiveliness.AUTOMATIC, zero, False)
-
-
-def _header(stamp_ns: np.ndarray, frame_id: str) -> np.ndarray:
-    """CDR bytes of encapsulation + std_msgs/Header per stamp, padded to 8: shape (n, h)."""
-    sec, nsec = np.divmod(stamp_ns, 1_000_000_000)
-    if stamp_ns.size and (sec.min() < -2**31 or sec.max() >= 2**31):
-        raise InputError("time stamps do not fit builtin_interfaces/Time (int32 seconds)",
-                         channel=frame_id, hint="use t0_ns between 1901 and 2038")
-    name = frame_id.encode() + b"\x00"
-    h = 4 + -(-(12 + len(name)) // 8) * 8
-    out = np.zeros((stamp_ns.size, h), np.uint8)
-    out[:, 0:4] = np.frombuffer(_CDR_LE, np.uint8)
-    out[:, 4:8] = sec.astype("<i4").view(np.uint8).reshape(-1, 4)
-    out[:, 8:12] = nsec.astype("<u4").view(np.uint8).reshape(-1, 4)
-    out[:, 12:16] = np.frombuffer(np.uint32(len(name)).astype("<u4").tobytes(), np.uint8)
-    out[:, 16:16 + len(name)] = np.frombuffer(name, np.uint8)
-    return out
-
-
-def _payloads(stamp_ns: np.ndarray, values: np.ndarray, *, frame_id: str, msgtype: str,
-              axis: Axis) -> np.ndarray:
-    """Serialized CDR messages, one row each (equal to rosbags' ``serialize_cdr``)."""
-    head = _header(stamp_ns, frame_id)
-    if msgtype == IMU:
-        body = np.zeros((values.size, _IMU_BODY // 8), "<f8")
-        body[:, 4] = -1.0  # orientation_covariance[0]: no orientation (REP-145)
-        body[:, 16] = -1.0  # angular_velocity_covariance[0]: no angular velocity (REP-145)
-        body[:, _IMU_VALUE // 8 + _AXES[axis]] = values
-    else:
-        body = np.zeros((values.size, _POINT_BODY // 8), "<f8")
-        body[:, _POINT_VALUE // 8 + _AXES[axis]] = values
-    return np.concatenate([head, body.view(np.uint8).reshape(values.size, body.shape[1] * 8)], axis=1)
 
 
 @dataclass(frozen=True)
