@@ -16,9 +16,7 @@ this long until both Imu topics have a subscriber; 0: start at once). The node e
 
 from __future__ import annotations
 
-from nifo_core.errors import NifoError
-
-from .common import TOPICS, run_node, sensor_qos
+from .common import TOPICS, declare_parameters, run_node, sensor_qos
 from .messages import ImuEncoder, PointEncoder
 
 __all__ = ["AcquisitionNode", "main"]
@@ -45,12 +43,7 @@ class AcquisitionNode(Node):
         defaults = {"source": "simulator", "path": "", "source_options": "", "speed": 1.0, "loop": False,
                     "fs_hz": 600.0, "seed": 0, "poll_s": 0.01, "axis": "z", "qos_depth": 100,
                     "wait_for_subscribers_s": 0.0}
-        for k, v in defaults.items():
-            self.declare_parameter(k, v)
-        v = {k: self.get_parameter(k).value for k in defaults}
-        bad = self._problems(v)
-        if bad:
-            raise NifoError(f"invalid parameters: {bad}", source="acquisition", hint="fix the parameter file")
+        v = declare_parameters(self, defaults, self._problems)
         self.add_on_set_parameters_callback(
             lambda ps: SetParametersResult(successful=False, reason="acquisition parameters are read at start-up"))
         self._source = source or make_source(v["source"], path=v["path"], speed=v["speed"], loop=v["loop"],

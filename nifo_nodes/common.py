@@ -36,7 +36,7 @@ import sys
 import time
 from typing import Callable
 
-__all__ = ["TOPICS", "sensor_qos", "reliable_input_qos", "input_qos", "block_qos", "result_qos", "run_node",
+__all__ = ["TOPICS", "sensor_qos", "reliable_input_qos", "input_qos", "block_qos", "result_qos", "run_node", "declare_parameters",
            "BLOCK_DEPTH", "RELIABILITIES", "polled_group", "take_raw", "publish_blocking"]
 
 #: values of the integrator's ``input_reliability`` parameter
@@ -171,6 +171,21 @@ def result_qos():
                       reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
+def declare_parameters(node, defaults: dict, problems: Callable[[dict], object]) -> dict:
+    """Declare ``defaults`` on ``node``, read the values back (parameter files and overrides applied)
+    and validate them with ``problems`` (returns what is wrong, empty when fine); raise
+    :class:`ConfigError` naming the node otherwise. Returns ``{name: value}``."""
+    from nifo_core.errors import ConfigError
+
+    for name, default in defaults.items():
+        node.declare_parameter(name, default)
+    values = {name: node.get_parameter(name).value for name in defaults}
+    bad = problems(values)
+    if bad:
+        raise ConfigError(f"invalid parameters: {bad}", source=node.get_name(), hint="fix the parameter file")
+    return values
+
+
 def run_node(factory: Callable[[], object], args: list[str] | None = None) -> int:
     """Jazzy's ``main``: ``rclpy.init()`` → spin → ``destroy_node()`` → ``rclpy.shutdown()``.
 
@@ -181,6 +196,8 @@ def run_node(factory: Callable[[], object], args: list[str] | None = None) -> in
 
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+    from nifo_core.errors import NifoError
     from rclpy.signals import SignalHandlerOptions
 
     def _interrupt(signum, frame):
@@ -193,7 +210,11 @@ def run_node(factory: Callable[[], object], args: list[str] | None = None) -> in
     signal.signal(signal.SIGINT, _interrupt)
     node = None
     try:
-        node = factory()
+        try:
+            node = factory()
+        except NifoError as err:  # a user's mistake (parameters, model file): one line, no traceback
+            print(f"[nifo] {err}", file=sys.stderr)
+            return err.exit_code
         ex = SingleThreadedExecutor()
         ex.add_node(node)
         ex.spin()

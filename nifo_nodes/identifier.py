@@ -52,7 +52,7 @@ import numpy as np
 
 from nifo_core.errors import ConfigError, NifoError
 
-from .common import TOPICS, block_qos, result_qos, run_node
+from .common import TOPICS, block_qos, declare_parameters, result_qos, run_node
 from .integrator import ACCEL_CHANNELS
 from .messages import block_from_msg, table_to_msg
 
@@ -105,12 +105,7 @@ class IdentifierNode(Node):
         defaults = {"model_file": "", "block": 0, "overlap": -1.0, "window": "", "f_lo_hz": 0.0, "f_hi_hz": 0.0,
                     "analysis_band_hz": [2.0, 30.0], "publish_period_s": 2.0, "checkpoint_file": "",
                     "checkpoint_period_s": 10.0, "reset": False}
-        for k, v in defaults.items():
-            self.declare_parameter(k, v)
-        p = {k: self.get_parameter(k).value for k in defaults}
-        bad = self._problems(p)
-        if bad:
-            raise ConfigError(f"invalid parameters: {bad}", source="identifier", hint="fix the parameter file")
+        p = declare_parameters(self, defaults, self._problems)
         self._terms, self._settings = self._model(p)
         self._analysis = tuple(float(x) for x in p["analysis_band_hz"])
         self._ckpt = Path(p["checkpoint_file"]) if p["checkpoint_file"] else None

@@ -43,7 +43,8 @@ import numpy as np
 from nifo_core.errors import NifoError
 
 from .align import SampleAligner
-from .common import RELIABILITIES, TOPICS, block_qos, input_qos, polled_group, run_node, take_raw
+from .common import (RELIABILITIES, TOPICS, block_qos, declare_parameters, input_qos, polled_group, run_node,
+                     take_raw)
 from .messages import Block, block_to_msg, decode_imu_batch
 
 __all__ = ["IntegratorNode", "main", "ACCEL_CHANNELS", "MOTION_CHANNELS"]
@@ -72,13 +73,8 @@ class IntegratorNode(Node):
         p = {"fs_hz": 0.0, "f_lo_hz": 0.0, "f_hi_hz": 0.0, "block_s": 0.1, "flush_s": 0.2,
              "max_lag_s": 0.25, "restart_s": 1.0, "qos_depth": 2000, "axis": "z",
              "input_reliability": "best_effort", "drain_s": 0.01}
-        for name, default in p.items():
-            self.declare_parameter(name, default)
+        declare_parameters(self, p, self._problems)
         self.add_on_set_parameters_callback(self._check_params)
-        bad = self._problems({n: self.get_parameter(n).value for n in p})
-        if bad:
-            raise NifoError(f"invalid parameters: {bad}", source="integrator",
-                            hint="fix the parameter file")
         self._fs = float(self.get_parameter("fs_hz").value)
         self._axis = str(self.get_parameter("axis").value)
         self._aligner: SampleAligner | None = None

@@ -183,3 +183,21 @@ def test_aligner_treats_stamps_jumping_back_as_a_restarted_publisher():
     assert runs[1].stamp_ns == restart[0]
     np.testing.assert_array_equal(runs[1].rows[:, 0], -np.arange(50.0))
     assert al.counts["restart"] == 1
+
+
+@pytest.mark.parametrize("node,param", [("integrator", "fs_hz:=-5.0"), ("identifier", "publish_period_s:=0.0")])
+def test_a_node_with_an_invalid_parameter_says_so_in_one_line_and_exits_with_the_config_code(node, param):
+    import os
+    import subprocess
+    import sys
+
+    pytest.importorskip("rclpy")
+    from nifo_nodes.launcher import claim_domain_id
+
+    with claim_domain_id() as domain:
+        out = subprocess.run([sys.executable, "-m", f"nifo_nodes.{node}", "--ros-args", "-p", param],
+                             capture_output=True, text=True, timeout=60,
+                             env={**os.environ, "ROS_DOMAIN_ID": str(domain)})
+    assert out.returncode == 9, out.stderr
+    assert "Traceback" not in out.stderr
+    assert f"{node}: invalid parameters:" in out.stderr and "Fix:" in out.stderr
