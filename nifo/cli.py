@@ -68,7 +68,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"nifo {args.command}: error: {err}", file=sys.stderr)
         return err.exit_code
     except KeyboardInterrupt:
-        print(f"nifo {args.command}: interrupted; nothing was written", file=sys.stderr)
+        from nifo.io.atomic import interrupt_note
+        print(f"nifo {args.command}: {interrupt_note()}", file=sys.stderr)
         return 130
 
 

@@ -311,7 +311,7 @@ def test_indexed_mcap_path_agrees_with_rosbags_iteration(tmp_path):
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_typestore
 
-    from nifo.io.bag import _iterate, _read_mcap_indexed
+    from nifo.io.bag_read import _iterate, _read_mcap_indexed
 
     ts = get_typestore(Stores.ROS2_JAZZY)
     n = 3000  # several 1 MiB chunks

@@ -86,8 +86,15 @@ def loop_available() -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
+    from nifo.io.atomic import staged_run
+
     data = [Path(p) for p in args.data] or sample_data()
-    out: Path = args.out
+    # all old or all new: the old --out is kept aside until the run succeeds (INCOMPLETE marks a killed run)
+    with staged_run(args.out) as out:
+        return _run(args, data, out)
+
+
+def _run(args: argparse.Namespace, data: list[Path], out: Path) -> int:
     t0 = time.monotonic()
     dirs = {k: out / k for k in ("characterize", "identify", "predict", "loop", "report", "recording")}
     do_loop = not args.no_loop and loop_available()

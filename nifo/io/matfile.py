@@ -30,6 +30,7 @@ import numpy as np
 from nifo_core.errors import DataFileError, MissingChannelError
 from nifo_core.record import CHANNELS, Record
 
+from .assemble import assemble_record, check_declared_rate
 from .atomic import staged_file
 
 __all__ = ["read_mat", "write_mat"]
@@ -112,8 +113,6 @@ def _load(path: Path) -> dict:
 def read_mat(path: str | os.PathLike, *, columns: Mapping[str, str] | None = None,
              fs_hz: float | None = None) -> Record:
     """Read a ``.mat`` file (layout in the module docstring) into a :class:`Record`."""
-    from .loader import assemble_record
-
     path = Path(path)
     src = str(path)
     data = _load(path)
@@ -162,8 +161,7 @@ def read_mat(path: str | os.PathLike, *, columns: Mapping[str, str] | None = Non
                                   source=src, channel="fs",
                                   hint="name the rate key with --columns fs=KEY, or give it with --fs HZ")
     if fs_hz is not None and fs_file is not None and stamps is None:
-        from .loader import _check_declared_rate
-        _check_declared_rate(fs_file, fs_hz, source=src)
+        check_declared_rate(fs_file, fs_hz, source=src)
     labels = {c: f"key {used[c]}" for c in chans}
     meta = {"format": "mat", "path": src, "columns": used}
     if stamps is not None:

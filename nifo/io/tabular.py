@@ -26,6 +26,7 @@ import numpy as np
 from nifo_core.errors import DataFileError, MissingChannelError
 from nifo_core.record import CHANNELS, Record
 
+from .assemble import assemble_record
 from .atomic import staged_file
 
 __all__ = ["read_csv", "write_csv"]
@@ -67,8 +68,6 @@ def _bad_cell(path: Path, delim: str, header: list[str], wanted: Mapping[str, in
 def read_csv(path: str | os.PathLike, *, columns: Mapping[str, str] | None = None,
              fs_hz: float | None = None) -> Record:
     """Read a CSV table (layout in the module docstring) into a :class:`Record`."""
-    from .loader import assemble_record
-
     path = Path(path)
     src = str(path)
     names = {"time": "time", **{c: c for c in CHANNELS}, **dict(columns or {})}

@@ -1,0 +1,146 @@
+"""Per-channel time stamps and values in, one uniformly sampled :class:`~nifo_core.record.Record` out.
+
+Shared by every reader (bag, CSV, MAT): :func:`assemble_record` checks the
+stamps (increasing, no gaps), the common rate, the common sample instants and
+finiteness, and names file, channel and fix in every error.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from nifo_core.errors import ConfigError, NifoError, NonFiniteError, SampleRateError, TimestampError
+from nifo_core.record import CHANNELS, Record
+from nifo_core.timebase import check_common_rate, sample_rate_from_stamps
+
+__all__ = ["assemble_record", "nominal_rate", "check_declared_rate"]
+
+def _check_declared_rate(rate: float, fs_hz: float, *, source: str) -> None:
+    if not (np.isfinite(fs_hz) and fs_hz > 0):
+        raise ConfigError(f"sample rate must be positive, got {fs_hz!r} Hz", source=source, channel="--fs",
+                          hint="give the sample rate in Hz")
+    if abs(rate - fs_hz) > 1e-3 * fs_hz:
+        raise SampleRateError(f"the time stamps give {rate:.6g} Hz but the sample rate was given as "
+                              f"{fs_hz:.6g} Hz", source=source, channel="--fs",
+                              hint="drop --fs (the stamps set the rate) or correct it")
+
+
+def nominal_rate(stamp_ns: np.ndarray, rate: float, tol_ns: float) -> float:
+    """``rate`` rounded to the fewest decimals (0..9) that still reproduces every stamp within ``tol_ns``.
+
+    Stamps written as ``t0 + round(i·1e9/fs)`` give back ``fs`` exactly; jittery
+    real stamps keep the least-squares rate.
+    """
+    rel = (stamp_ns - stamp_ns[0]).astype(np.float64)
+    i = np.arange(stamp_ns.size, dtype=np.float64)
+    for digits in range(10):
+        r = round(rate, digits)
+        if r > 0 and abs(r - rate) <= 1e-6 * rate and np.max(np.abs(rel - np.rint(i * (1e9 / r)))) <= tol_ns:
+            return r
+    return rate
+
+
+def _align(stamps: dict[str, np.ndarray], fs: float, *, labels: Mapping[str, str],
+           source: str) -> dict[str, slice]:
+    """The slice of each channel that covers the samples common to all (stamps equal within fs/4)."""
+    tol = 0.25e9 / fs
+    start = max(int(s[0]) for s in stamps.values())
+    stop = min(int(s[-1]) for s in stamps.values())
+    ref_name = next(iter(stamps))
+    if stop < start - tol:
+        spans = ", ".join(f"{labels[k]} {s[0] / 1e9:.3f}–{s[-1] / 1e9:.3f} s" for k, s in stamps.items())
+        raise TimestampError(f"channels do not overlap in time ({spans})", source=source,
+                             channel=", ".join(labels[k] for k in stamps),
+                             hint="give channels recorded at the same time")
+    cuts = {k: slice(int(np.searchsorted(s, start - tol, "left")), int(np.searchsorted(s, stop + tol, "right")))
+            for k, s in stamps.items()}
+    ref = stamps[ref_name][cuts[ref_name]]
+    for k, s in stamps.items():
+        part = s[cuts[k]]
+        m = min(part.size, ref.size)
+        if m == 0:
+            raise TimestampError("the channels share no sample instants", source=source,
+                                 channel=f"{labels[ref_name]}, {labels[k]}",
+                                 hint="give channels recorded at the same time on one clock")
+        dev = np.abs(part[:m] - ref[:m]) > tol
+        if part.size != ref.size or dev.any():
+            i = int(np.argmax(dev)) if dev.any() else 0
+            period = 1e9 / fs
+            lag = (float(part[i] - ref[i]) + period / 2) % period - period / 2  # nearest-sample offset
+            raise TimestampError(
+                f"the channels are not sampled at the same instants: at t={(ref[i] - ref[0]) / 1e9:.3f} s "
+                f"{labels[k]} is {lag / 1e6:+.3f} ms off {labels[ref_name]} (sample period {period / 1e6:.3f} ms)",
+                source=source, channel=f"{labels[ref_name]}, {labels[k]}",
+                hint="resample the channels onto one clock so that each sample has one stamp for all")
+    return cuts
+
+
+def assemble_record(channels: Mapping[str, tuple[np.ndarray | None, np.ndarray]], *,
+                    labels: Mapping[str, str], path: str | os.PathLike, meta: Mapping,
+                    fs_hz: float | None = None, t0_ns: int = 0, stamp_tol_ns: float = 1.0) -> Record:
+    """Build a :class:`Record` from ``{channel: (stamp_ns or None, values)}``.
+
+    With stamps: each channel's rate comes from its stamps
+    (:func:`~nifo_core.timebase.sample_rate_from_stamps`: increasing, no gaps),
+    the rates must agree (:func:`~nifo_core.timebase.check_common_rate`), and
+    the channels are trimmed to their common samples (stamps equal within a
+    quarter period, else :class:`TimestampError`); ``meta["trimmed"]`` says how
+    many samples were cut. The rate is snapped to its short decimal form when
+    that reproduces every stamp within ``stamp_tol_ns``. Without stamps
+    ``fs_hz`` is required. ``labels`` name channels in messages (topic, column or key).
+    """
+    src = str(path)
+    meta = dict(meta)
+    names = [c for c in CHANNELS if c in channels]
+    values = {c: np.asarray(channels[c][1], dtype=np.float64).ravel() for c in names}
+    stamps = {c: channels[c][0] for c in names}
+    if all(s is None for s in stamps.values()):
+        if fs_hz is None:
+            raise ConfigError("the file has no time stamps and no sample rate was given", source=src,
+                              channel="fs", hint="pass --fs HZ (fs_hz=...) or add a time column/key")
+        _check_declared_rate(fs_hz, fs_hz, source=src)
+        fs = float(fs_hz)
+        lengths = {labels[c]: v.size for c, v in values.items()}
+        if len(set(lengths.values())) != 1:
+            raise TimestampError(f"channels have different lengths {lengths} and no time stamps to align them",
+                                 source=src, channel=", ".join(lengths),
+                                 hint="trim the channels to the same samples")
+        t0 = int(t0_ns)
+    else:
+        st = {c: np.asarray(s, dtype=np.int64).ravel() for c, s in stamps.items()}
+        rates = {labels[c]: sample_rate_from_stamps(s, source=src, channel=labels[c]) for c, s in st.items()}
+        fs = check_common_rate(rates, source=src)
+        cuts = _align(st, fs, labels=labels, source=src)
+        trimmed = {labels[c]: [cuts[c].start, st[c].size - cuts[c].stop] for c in names
+                   if cuts[c].start or cuts[c].stop != st[c].size}
+        if trimmed:
+            meta["trimmed"] = trimmed  # samples cut at [start, end] to cover the same instants
+        values = {c: v[cuts[c]] for c, v in values.items()}
+        common = st[names[0]][cuts[names[0]]]
+        if common.size < 2:
+            fs = float(np.mean(list(rates.values())))
+        else:
+            fs = nominal_rate(common, float((common.size - 1) * 1e9 / (common[-1] - common[0])), stamp_tol_ns)
+        if fs_hz is not None:
+            _check_declared_rate(fs, fs_hz, source=src)
+        t0 = int(common[0]) if common.size else 0
+    for c, v in values.items():
+        bad = ~np.isfinite(v)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise NonFiniteError(f"{int(bad.sum())} of {v.size} samples are NaN or infinite "
+                                 f"(first at t={i / fs:.3f} s, sample {i})", source=src, channel=labels[c],
+                                 hint="cut the record before/after the bad stretch or repair the sensor data")
+    try:
+        return Record(fs, values["spindle_accel"], values["body_accel"], values.get("tire_patch_disp"),
+                      t0_ns=t0, source=Path(path).name, meta=meta)
+    except NifoError as err:
+        raise err.with_context(source=src) from None
+
+
+_nominal_rate = nominal_rate
+check_declared_rate = _check_declared_rate
