@@ -18,7 +18,7 @@ import scipy.io
 from nifo.io.bag import IMU, BagTopics, TopicData, write_channels
 from nifo.io.loader import load_record, save_record
 from nifo_core.errors import (ConfigError, DataFileError, MissingChannelError, NifoError, NonFiniteError,
-                              RecordTooShortError, SampleRateError, TimestampError)
+                              OutputError, RecordTooShortError, SampleRateError, TimestampError)
 from nifo_core.record import Record
 
 from conftest import REPO
@@ -325,7 +325,7 @@ def test_failed_bag_write_leaves_nothing(tmp_path, monkeypatch, name):
         return real_write(self, *a, **k)
 
     monkeypatch.setattr(Writer, "write", write)
-    with pytest.raises(DataFileError, match=r"cannot write the bag \(No space left on device\)"):
+    with pytest.raises(OutputError, match=r"cannot write the output \(the disk is full\)"):
         save_record(tmp_path / name, good_record())
     assert list(tmp_path.iterdir()) == []
 
@@ -341,14 +341,14 @@ def test_failed_file_write_leaves_nothing_and_keeps_the_old_file(tmp_path, monke
 
     module, func = target.rsplit(".", 1)
     monkeypatch.setattr(f"{module}.{func}", half_then_fail)
-    with pytest.raises(DataFileError, match=r"cannot write the file \(No space left on device\)"):
+    with pytest.raises(OutputError, match=r"cannot write the output \(the disk is full\)"):
         save_record(tmp_path / name, good_record())
     assert [p.name for p in tmp_path.iterdir()] == [name]
     assert old.read_bytes() == before
 
 
 def test_failed_bag_write_keeps_the_old_bag(tmp_path, monkeypatch):
-    from nifo.io import bag as bag_mod
+    from nifo.io import bag_write as bag_mod
 
     path = save_record(tmp_path / "run", good_record(40))
     real, fail = bag_mod._payloads, _fail_after(1, RuntimeError("boom"))
