@@ -4,6 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import time
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import yaml
@@ -52,7 +55,27 @@ def test_bag_round_trip_is_exact(tmp_path, name, tire):
 @pytest.mark.parametrize("fs", [600.0, 2441.40625, 1000.0, 97.5])
 def test_bag_round_trip_recovers_the_nominal_rate(tmp_path, fs):
     rec = make_record(n=777, fs=fs, t0_ns=0, tire=False)
-    assert_same(rec, read_bag(write_bag(tmp_path / "b", rec)))
+    assert_same(rec, read_bag(write_bag(tmp_path / "b", rec, start_ns=0)))
+    # by default a record without a start time (t0_ns 0) starts now, not in 1970
+    before = time.time_ns()
+    back = read_bag(write_bag(tmp_path / "c", rec))
+    assert before <= back.t0_ns <= time.time_ns()
+    assert_same(replace(rec, t0_ns=back.t0_ns), back)
+
+
+def test_bag_chunks_carry_crcs_and_an_honest_distro(tmp_path):
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader
+
+    bag = write_bag(tmp_path / "run", make_record(n=3000))
+    info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert info["ros_distro"] == "jazzy"
+    with (bag / "run.mcap").open("rb") as f:
+        records = list(StreamReader(f, skip_magic=False, emit_chunks=True).records)
+    chunks = [r for r in records if isinstance(r, Chunk)]
+    meta = {r.name: r.metadata for r in records if type(r).__name__ == "Metadata"}
+    assert chunks and all(c.uncompressed_crc != 0 for c in chunks)
+    assert yaml.safe_load(meta["rosbag2"]["serialized_metadata"])["ros_distro"] == "jazzy"
 
 
 def test_bag_with_other_axis_and_topics_round_trips(tmp_path):

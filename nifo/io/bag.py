@@ -27,7 +27,16 @@ Layout of the bags nifo writes (and expects by default)
   lists) and Jazzy both read. Message definitions are embedded in the MCAP
   schemas, and every topic records its offered QoS profile: the sensor-data
   profile (best effort, volatile, keep last 5), like ``qos_profile_sensor_data``.
-  ``custom_data`` holds ``generator: nifo <version>``.
+  ``custom_data`` holds ``generator: nifo <version>``; ``ros_distro`` is
+  ``jazzy``, the distro of the embedded message definitions (rosbags'
+  Jazzy typestore), not rosbags' placeholder ``rosbags``.
+* Every zstd chunk carries the CRC-32 of its uncompressed records (MCAP's
+  ``uncompressed_crc``); readers check it when present, so a damaged chunk
+  is a :class:`~nifo_core.errors.CorruptDataError` naming the file and byte
+  offset, never silently changed samples.
+* The first stamp is the record's ``t0_ns``; a record without one (``t0_ns``
+  0, e.g. simulated) starts at the time of writing (``write_bag(start_ns=...)``
+  sets it), so no bag claims to start in 1970.
 
 Reading
 -------

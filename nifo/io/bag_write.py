@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,7 @@ from .atomic import staged_file
 from .bag_topics import _DEFAULT_TOPICS, BagTopics
 from .cdr import AXES as _AXES, IMU, POINT_STAMPED, Axis
 from .cdr import payloads as _payloads  # the message layout lives in nifo.io.cdr
+from .mcap_chunks import write_chunk_crcs
 
 __all__ = ["TopicData", "write_bag", "write_channels", "BAG_VERSION"]
 
@@ -90,6 +92,31 @@ def _write_bag_dir(bagdir: Path, data: Sequence[TopicData], axis: Axis) -> None:
         write = writer.write
         for t, _, i, conn, raw, size in heapq.merge(*streams, key=lambda m: (m[0], m[1], m[2])):
             write(conn, t, raw[i * size:(i + 1) * size])
+    mcap = bagdir / f"{bagdir.name}.mcap"
+    write_chunk_crcs(mcap)
+    _honest_distro(bagdir / "metadata.yaml", mcap)
+
+
+#: the ROS distro whose message definitions (and type hashes) the bag embeds: rosbags' Jazzy typestore
+ROS_DISTRO = "jazzy"
+
+
+def _honest_distro(metadata: Path, mcap: Path) -> None:
+    """``ros_distro: rosbags`` (what rosbags writes) → the distro of the embedded message definitions.
+
+    In metadata.yaml it is rewritten; in the copy inside the MCAP file's
+    ``rosbag2`` metadata record it is replaced by the same number of bytes
+    (trailing blanks, which YAML drops) so no record offset moves.
+    """
+    old, new = b"ros_distro: rosbags", f"ros_distro: {ROS_DISTRO}".encode()
+    new = new.ljust(len(old))
+    metadata.write_bytes(metadata.read_bytes().replace(old, new.rstrip()))
+    blob = mcap.read_bytes()
+    at = blob.rfind(old)
+    if at >= 0:
+        with mcap.open("r+b") as f:
+            f.seek(at)
+            f.write(new)
 
 
 def write_channels(path: str | os.PathLike, data: Sequence[TopicData], *, axis: Axis = "z") -> Path:
@@ -129,14 +156,23 @@ def write_channels(path: str | os.PathLike, data: Sequence[TopicData], *, axis: 
 
 
 def write_bag(path: str | os.PathLike, record: Record, *, topics: BagTopics | None = None,
-              axis: Axis = "z") -> Path:
+              axis: Axis = "z", start_ns: int | None = None) -> Path:
     """Write ``record`` as a rosbag2 MCAP bag; atomic (nothing is left behind on failure).
 
     ``path`` ending in ``.mcap`` gives a single MCAP file (``ros2 bag info/play``
     read those directly); any other path gives a bag directory with
     ``metadata.yaml`` and ``<name>.mcap``. An existing bag at ``path`` is replaced.
     Returns ``path``.
+
+    ``start_ns`` is the stamp of the first sample [ns since the epoch]; by
+    default the record's ``t0_ns``, or the current time when the record has
+    none (``t0_ns == 0``, e.g. simulated data), so that a bag never claims to
+    start in 1970.
     """
+    if start_ns is None:
+        start_ns = record.t0_ns or time.time_ns()
+    if start_ns != record.t0_ns:
+        record = replace(record, t0_ns=int(start_ns))
     try:
         data = _topic_data(record, topics or _DEFAULT_TOPICS)
     except NifoError as err:

@@ -7,15 +7,20 @@ match is a :class:`~nifo_core.errors.CorruptDataError` naming the file offset.
 
 from __future__ import annotations
 
+import struct
+import zlib
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
+
+from nifo_core.errors import CorruptDataError
 
 from .cdr import AXES as _AXES, CDR_LE as _CDR_LE, IMU, IMU_BODY as _IMU_BODY, IMU_VALUE as _IMU_VALUE
 from .cdr import POINT_BODY as _POINT_BODY, POINT_VALUE as _POINT_VALUE, Axis
 
-__all__ = ["iter_mcap_indexed", "write_chunk_crcs", "decode_buffer", "decode"]
+__all__ = ["indexed_counts", "write_chunk_crcs"]
 
 _GATHER16 = np.arange(16)
 _GATHER8 = np.arange(8)
@@ -96,61 +101,124 @@ class _NoUsableIndex(Exception):
     """The MCAP file has no chunk/message index nifo can use: read it with rosbags instead."""
 
 
+def _corrupt(path: Path, offset: int, what: str) -> CorruptDataError:
+    return CorruptDataError(f"corrupt chunk at byte offset {offset}: {what}", source=str(path),
+                            hint="the file was damaged (copy, disk or transfer): re-copy it from the original "
+                                 "recording; 'mcap recover' can salvage the intact chunks")
+
+
+def _read_chunk(f: BinaryIO, path: Path, offset: int) -> bytes | None:
+    """The uncompressed records of the chunk at ``offset``, CRC and size checked; None: cannot decompress."""
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import Chunk
+
+    f.seek(offset)
+    head = f.read(9)
+    if len(head) < 9 or head[0] != 0x06:
+        raise _corrupt(path, offset, "no chunk record where the chunk index points")
+    try:
+        chunk = Chunk.read(ReadDataStream(f))
+    except Exception as err:
+        raise _corrupt(path, offset, f"unreadable chunk header ({type(err).__name__})") from err
+    if chunk.uncompressed_size > _MAX_CHUNK:
+        raise _corrupt(path, offset, f"chunk claims {chunk.uncompressed_size} bytes uncompressed")
+    try:
+        data = _decompress(chunk.data, chunk.compression, chunk.uncompressed_size)
+    except Exception as err:  # zstd/lz4 frame errors on damaged payloads
+        raise _corrupt(path, offset, f"the {chunk.compression} payload does not decompress ({err})") from err
+    if data is None:
+        return None
+    if len(data) != chunk.uncompressed_size:
+        raise _corrupt(path, offset, f"{len(data)} bytes uncompressed, the header says {chunk.uncompressed_size}")
+    if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+        raise _corrupt(path, offset, f"CRC-32 {zlib.crc32(data):08x} does not match the recorded "
+                                     f"{chunk.uncompressed_crc:08x}")
+    return data
+
+
+#: a chunk larger than this (uncompressed) is not one nifo or a recorder wrote: refuse, do not allocate
+_MAX_CHUNK = 1 << 31
+
+
+def _summary(f: BinaryIO):
+    from mcap.reader import make_reader
+
+    summary = make_reader(f).get_summary()
+    if summary is None or not summary.chunk_indexes:
+        raise _NoUsableIndex("no chunk index")
+    return summary
+
+
+def _message_index(f: BinaryIO, path: Path, offset: int, cid: int) -> np.ndarray:
+    f.seek(offset)
+    head = f.read(15)
+    if len(head) < 15:
+        raise _corrupt(path, offset, "message index cut short")
+    op, _, ch, nbytes = struct.unpack("<BQHI", head)
+    if op != 0x07 or ch != cid or nbytes % 16:
+        raise _corrupt(path, offset, "bad message index record")
+    raw = f.read(nbytes)
+    if len(raw) != nbytes:
+        raise _corrupt(path, offset, "message index cut short")
+    return np.frombuffer(raw, dtype=[("t", "<u8"), ("o", "<u8")])
+
+
+def indexed_counts(path: Path, wanted: Mapping[str, tuple[str, str]]) -> dict[str, int]:
+    """Messages of each ``wanted`` role as the file's own message indexes count them (not metadata.yaml)."""
+    with path.open("rb") as f:
+        summary = _summary(f)
+        ids = {role: {cid for cid, ch in summary.channels.items() if ch.topic == topic}
+               for role, (topic, _) in wanted.items()}
+        counts = dict.fromkeys(wanted, 0)
+        for ci in summary.chunk_indexes:
+            for role, cids in ids.items():
+                for cid in cids:
+                    if cid in ci.message_index_offsets:
+                        f.seek(ci.message_index_offsets[cid])
+                        head = f.read(15)
+                        if len(head) < 15:
+                            raise _corrupt(path, ci.message_index_offsets[cid], "message index cut short")
+                        counts[role] += struct.unpack("<BQHI", head)[3] // 16
+    return counts
+
+
 def _iter_mcap_indexed(path: Path, wanted: Mapping[str, tuple[str, str]], *, axis: Axis,
                        typestore) -> "Iterator[dict[str, _Decoded]]":
     """Per MCAP chunk (in file order): {role: (stamps, values, log_ns)} of the ``wanted`` roles.
 
-    The same index walk and numpy decoder as :func:`_read_mcap_indexed`, but
-    each chunk's messages are handed out (sorted by log time within the chunk)
-    instead of being collected, so memory stays about one chunk. Yields
-    nothing and returns early by raising :class:`_NoUsableIndex` when the file has
-    no usable index (the caller then reads the whole bag).
+    Each chunk is decompressed, its CRC checked when recorded, its messages
+    located by the message index (checked against the records: opcode,
+    channel, length, log time) and decoded; messages are handed out sorted by
+    log time within the chunk, so memory stays about one chunk. Raises
+    :class:`_NoUsableIndex` (before yielding) when the file has no usable
+    index, :class:`CorruptDataError` naming the byte offset on damage.
     """
-    import struct
-    import zlib
-
-    from mcap.data_stream import ReadDataStream
-    from mcap.reader import make_reader
-    from mcap.records import Chunk
-
     with path.open("rb") as f:
-        summary = make_reader(f).get_summary()
-        if summary is None or not summary.chunk_indexes:
-            raise _NoUsableIndex("no chunk index")
+        summary = _summary(f)
         ids = {role: {cid for cid, ch in summary.channels.items() if ch.topic == topic}
                for role, (topic, _) in wanted.items()}
         for ci in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
             present = {role: [c for c in cids if c in ci.message_index_offsets] for role, cids in ids.items()}
             if not any(present.values()):
                 continue
-            f.seek(ci.chunk_start_offset)
-            op, _ = struct.unpack("<BQ", f.read(9))
-            if op != 0x06:
-                raise ValueError(f"no chunk at offset {ci.chunk_start_offset}")
-            chunk = Chunk.read(ReadDataStream(f))
-            data = _decompress(chunk.data, chunk.compression, chunk.uncompressed_size)
+            off = ci.chunk_start_offset
+            data = _read_chunk(f, path, off)
             if data is None:
-                raise _NoUsableIndex(f"cannot decompress {chunk.compression!r} chunks")
-            if len(data) != chunk.uncompressed_size or (chunk.uncompressed_crc
-                                                        and zlib.crc32(data) != chunk.uncompressed_crc):
-                raise ValueError("chunk checksum or size mismatch")
+                raise _NoUsableIndex(f"cannot decompress {ci.compression!r} chunks")
             buf = np.frombuffer(data, np.uint8)
             out: dict[str, _Decoded] = {}
             for role, cids in present.items():
                 parts = []
                 for cid in cids:
-                    f.seek(ci.message_index_offsets[cid])
-                    op, _, ch, nbytes = struct.unpack("<BQHI", f.read(15))
-                    if op != 0x07 or ch != cid:
-                        raise ValueError("bad message index")
-                    idx = np.frombuffer(f.read(nbytes), dtype=[("t", "<u8"), ("o", "<u8")])
+                    idx = _message_index(f, path, ci.message_index_offsets[cid], cid)
                     o = idx["o"].astype(np.int64)
-                    if o.size and (o.max() + 31 > buf.size or (buf[o] != 0x05).any()):
-                        raise ValueError("message index points outside the messages")
+                    if o.size and (o.min() < 0 or o.max() + 31 > buf.size or (buf[o] != 0x05).any()):
+                        raise _corrupt(path, off, "the message index points outside the messages")
                     length = buf[(o + 1)[:, None] + _GATHER8].view("<u8")[:, 0].astype(np.int64)
+                    log = buf[(o + 15)[:, None] + _GATHER8].view("<u8")[:, 0]
                     if (buf[(o + 9)[:, None] + np.arange(2)].view("<u2")[:, 0] != cid).any() \
-                            or (o + 9 + length > buf.size).any() or (length < 22).any():
-                        raise ValueError("message records do not match their index")
+                            or (o + 9 + length > buf.size).any() or (length < 22).any() or (log != idx["t"]).any():
+                        raise _corrupt(path, off, "message records do not match their index")
                     stamps, values = _decode_buffer(buf, o + 31, length - 22, msgtype=wanted[role][1], axis=axis,
                                                     typestore=typestore)
                     parts.append((stamps, values, idx["t"].astype(np.int64)))
@@ -159,3 +227,24 @@ def _iter_mcap_indexed(path: Path, wanted: Mapping[str, tuple[str, str]], *, axi
                     order = np.argsort(t, kind="stable")
                     out[role] = (s[order], v[order], t[order])
             yield out
+
+
+def write_chunk_crcs(path: Path) -> int:
+    """Fill in the CRC-32 of every chunk of the MCAP file ``path`` (in place); returns the chunks done.
+
+    rosbags writes ``uncompressed_crc = 0`` ("not recorded"); the MCAP spec's
+    chunk CRC covers the uncompressed records, so any later change of a
+    sample is detected on read (:func:`_read_chunk`).
+    """
+    done = 0
+    with path.open("r+b") as f:
+        summary = _summary(f)
+        for ci in summary.chunk_indexes:
+            data = _read_chunk(f, path, ci.chunk_start_offset)
+            if data is None:
+                continue
+            # chunk record: opcode u8, length u64, start u64, end u64, uncompressed_size u64, uncompressed_crc u32
+            f.seek(ci.chunk_start_offset + 1 + 8 + 8 + 8 + 8)
+            f.write(struct.pack("<I", zlib.crc32(data)))
+            done += 1
+    return done
