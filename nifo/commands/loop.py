@@ -78,8 +78,11 @@ def run(args: argparse.Namespace) -> int:
     records = [load_record(p, **opts) for p in args.data]
     band = _band(args, spec, records)
     kinds = tuple(k.strip() for k in args.kinds.split(",")) if args.kinds else DEFAULT_KINDS
-    block = args.block or (spec.settings.get("block") if spec else None)
-    spectral = SpectralSettings(block=int(block)) if block else SpectralSettings()
+    fileset = dict(spec.settings) if spec else {}   # validated once, in nifo.io.modelfile
+    block = args.block or fileset.get("block")
+    spectral = SpectralSettings(**{k: v for k, v in (("block", int(block) if block else None),
+                                                     ("overlap", fileset.get("overlap")),
+                                                     ("window", fileset.get("window"))) if v is not None})
     settings = LoopSettings(max_rounds=args.max_rounds, fit_fraction=args.fit_fraction, kinds=kinds,
                             grid_points=args.grid, spectral=spectral, prediction=args.prediction,
                             retune=not args.no_retune, thresholds=Thresholds())

@@ -14,7 +14,7 @@ from .assemble import nominal_rate
 from .bag_read import _CHANNEL_OF_ROLE, _is_sqlite, _mcap_file, _open_checked, read_bag
 from .bag_topics import BagTopics, _topic_table, resolve_topics
 from .cdr import Axis
-from .mcap_chunks import _Decoded, _iter_mcap_indexed, _NoUsableIndex
+from .mcap_chunks import _Decoded, _iter_mcap_indexed, _NoUsableIndex, indexed_counts
 
 __all__ = ["iter_bag_chunks", "record_chunks"]
 
@@ -176,6 +176,15 @@ def iter_bag_chunks(path: str | os.PathLike, *, chunk_samples: int, topics: BagT
     except Exception as err:
         raise DataFileError(f"cannot read the bag ({str(err).rstrip('.') or type(err).__name__}); the file is "
                             "damaged or truncated", source=src, hint="re-copy the bag") from err
+    try:  # what the file's own message indexes hold, not metadata.yaml's counts (the band depends on it)
+        expected = indexed_counts(mcap_file, wanted)
+    except _NoUsableIndex:
+        pass
+    except NifoError:
+        raise
+    except Exception as err:
+        raise DataFileError(f"cannot read the bag's index ({str(err).rstrip('.') or type(err).__name__}); the file "
+                            "is damaged or truncated", source=src, hint="re-copy the bag") from err
     if expected.get("tire_patch", 1) == 0:
         del wanted["tire_patch"], expected["tire_patch"]
     for role in ("spindle", "body"):

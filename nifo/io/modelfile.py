@@ -32,21 +32,170 @@ identified coefficient functions::
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping
+from typing import Annotated, Any, Literal, Mapping
 
 import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from nifo_core.describing import Term, make_term
-from nifo_core.errors import ConfigError, DataFileError
+from nifo_core.describing import KINDS, Term, kind as _kind, make_term
+from nifo_core.errors import ConfigError, DataFileError, NifoError
 
 from .atomic import staged_file
 
-__all__ = ["ModelSpec", "Step", "load_model_spec", "write_model_spec", "SETTINGS_KEYS"]
+__all__ = ["ModelSpec", "Step", "load_model_spec", "parse_model_spec", "write_model_spec", "SETTINGS_KEYS",
+           "MAX_MODEL_BYTES", "MAX_BLOCK"]
 
 SETTINGS_KEYS = ("block", "overlap", "window", "band_hz", "freq_range_hz")
 
+#: a model file is a few hundred bytes; anything above this is not one
+MAX_MODEL_BYTES = 1 << 20
+#: YAML nodes (scalars, lists, maps) a model file may hold
+MAX_NODES = 20_000
+#: the largest spectral block accepted [samples] (2^22: 4.2 M; the paper uses 6144)
+MAX_BLOCK = 1 << 22
+#: the most nonlinearities per step / steps per file
+MAX_TERMS = 64
+
+_WINDOW = Literal["flattop", "hann", "hamming", "boxcar", "blackman", "blackmanharris", "nuttall"]
+_Text = Annotated[str, Field(max_length=10_000)]
+_Name = Annotated[str, Field(min_length=1, max_length=200)]
+_Hz = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+
+
+# -----------------------------------------------------------------------------
+# the one schema (pydantic 2, strict: a boolean is not a number, a string not a list)
+# -----------------------------------------------------------------------------
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+
+
+class Settings(_Strict):
+    """``settings:`` of a model file; the command line overrides each."""
+
+    block: Annotated[int, Field(ge=8, le=MAX_BLOCK)] | None = None
+    overlap: Annotated[float, Field(ge=0.0, lt=1.0, allow_inf_nan=False)] | None = None
+    window: _WINDOW | None = None
+    band_hz: tuple[_Hz, _Hz] | None = None
+    freq_range_hz: tuple[_Hz, _Hz] | None = None
+
+    @field_validator("band_hz", "freq_range_hz", mode="before")
+    @classmethod
+    def _list_pair(cls, v: Any) -> Any:
+        return tuple(v) if isinstance(v, list) else v
+
+    @model_validator(mode="after")
+    def _bands(self) -> "Settings":
+        for name in ("band_hz", "freq_range_hz"):
+            pair = getattr(self, name)
+            if pair is not None and not pair[0] < pair[1]:
+                raise ValueError(f"{name} [{pair[0]:g}, {pair[1]:g}] must be [LO, HI] with LO < HI")
+        if self.band_hz is not None and self.band_hz[0] <= 0:
+            raise ValueError(f"band_hz [{self.band_hz[0]:g}, {self.band_hz[1]:g}] needs LO > 0 "
+                             "(integration cannot reach 0 Hz)")
+        return self
+
+
+_Param = Any   # checked against the kind in TermSpec._typed_params (a boolean is not a number)
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _short(v: Any) -> str:
+    r = repr(v)
+    return r if len(r) <= 40 else r[:37] + "..."
+
+
+class TermSpec(_Strict):
+    """One nonlinearity: ``{kind: NAME, params: {...}}`` (short forms are normalised to this)."""
+
+    kind: _Name
+    params: Annotated[dict[Annotated[str, Field(max_length=100)], _Param], Field(max_length=16)] = \
+        Field(default_factory=dict)
+    coefficient: _Param | None = None
+    name: _Text | None = None
+    note: _Text | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _short_forms(cls, v: Any) -> Any:
+        if isinstance(v, str):
+            return {"kind": v}
+        if isinstance(v, dict) and "kind" not in v and len(v) == 1:
+            (name, params), = v.items()
+            return {"kind": name, "params": {} if params is None else params}
+        if isinstance(v, dict) and v.get("params", {}) is None:
+            return {**v, "params": {}}
+        return v
+
+    @model_validator(mode="after")
+    def _typed_params(self) -> "TermSpec":
+        try:
+            k = _kind(self.kind)
+        except ConfigError as err:
+            raise ValueError(f"{err.message}; {err.hint}") from None
+        for name, (default, unit) in k.params.items():
+            if default is None and name not in self.params:
+                raise ValueError(f"{k.name} needs parameter {name!r} [{unit}], e.g. {k.name}: {{{name}: ...}}")
+        if len(self.params) > len(k.params) or (self.coefficient is not None and not _is_number(self.coefficient)):
+            raise ValueError(f"{k.name} takes parameters {list(k.params) or 'none'}; coefficient must be a number")
+        for name, value in self.params.items():
+            if name not in k.params:
+                raise ValueError(f"{k.name} has no parameter {name!r}; it takes {list(k.params) or 'none'}")
+            default, unit = k.params[name]
+            if "|" in unit:   # a choice (side)
+                if not isinstance(value, str) or value not in unit.split("|"):
+                    raise ValueError(f"{k.name}.{name}={_short(value)} must be one of {unit.replace('|', ', ')}")
+            elif not _is_number(value):
+                raise ValueError(f"{k.name}.{name}={_short(value)} must be a number [{unit}]"
+                                 + (" (true/false is not a number)" if isinstance(value, bool) else ""))
+            elif abs(value) > 1e300 or not math.isfinite(value):
+                raise ValueError(f"{k.name}.{name}={value!r} must be finite [{unit}]")
+            elif name != "offset" and (value < 0 or (value == 0 and not (k.name == "bump_stop" and name == "gap"))):
+                raise ValueError(f"{k.name}.{name}={value!r} must be positive [{unit}]"
+                                 + (" (0 makes the term the linear one)" if value == 0 else ""))
+        return self
+
+
+class StepSpec(_Strict):
+    name: _Name | None = None
+    nonlinearities: Annotated[list[TermSpec], Field(max_length=MAX_TERMS)] | None = None
+    data: Annotated[list[Annotated[str, Field(min_length=1, max_length=4096)]], Field(max_length=1000)] = \
+        Field(default_factory=list)
+
+    @field_validator("data", mode="before")
+    @classmethod
+    def _one_path(cls, v: Any) -> Any:
+        if v is None:
+            return []
+        return [v] if isinstance(v, str) else v
+
+
+class ModelFile(_Strict):
+    """The whole document (``nifo_model: 1``)."""
+
+    nifo_model: Literal[1] = 1
+    nonlinearities: Annotated[list[TermSpec], Field(max_length=MAX_TERMS)] | None = None
+    steps: Annotated[list[StepSpec], Field(min_length=1, max_length=MAX_TERMS)] | None = None
+    settings: Settings | None = None
+    note: _Text | None = None
+    suggested_by: _Text | None = None
+
+    @model_validator(mode="after")
+    def _either(self) -> "ModelFile":
+        if self.steps is not None and self.nonlinearities is not None:
+            raise ValueError("give either 'nonlinearities' or 'steps', not both")
+        return self
+
+
+# -----------------------------------------------------------------------------
+# the parsed form the commands use
+# -----------------------------------------------------------------------------
 
 @dataclass(frozen=True)
 class Step:
@@ -57,7 +206,7 @@ class Step:
 
 @dataclass(frozen=True)
 class ModelSpec:
-    """A parsed model file."""
+    """A parsed, validated model file."""
 
     steps: tuple[Step, ...]
     settings: Mapping = field(default_factory=dict)
@@ -73,62 +222,125 @@ class ModelSpec:
         return len(self.steps) > 1
 
 
-def _terms(items, where: str, src: str) -> tuple[Term, ...]:
-    if items is None:
-        return ()
-    if not isinstance(items, list):
-        raise ConfigError(f"{where} must be a list of nonlinearities", source=src,
-                          hint="write '- kind: NAME' entries (see nifo identify --help)")
+_FIX = "see the model file format in 'nifo identify --help' (nifo_model: 1, nonlinearities: or steps:, settings:)"
+
+
+def _where(loc: tuple) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        elif part not in ("function-after[_typed_params(), TermSpec]",) and not str(part).startswith(
+                ("function-", "tagged-union", "constrained-")):
+            out += ("." if out else "") + str(part)
+    return out
+
+
+def _validation_error(err: ValidationError, src: str) -> ConfigError:
+    first = err.errors(include_url=False)[0]
+    where = _where(first["loc"])
+    msg = first["msg"].removeprefix("Value error, ")
+    value = first.get("input")
+    shown = repr(value) if isinstance(value, (bool, int, float)) or (isinstance(value, str) and len(value) < 60) \
+        else type(value).__name__
+    more = f" (and {err.error_count() - 1} more problem(s))" if err.error_count() > 1 else ""
+    text = f"{where}: {msg}" if where else msg
+    if first["type"] not in ("value_error", "assertion_error") and value is not None:
+        text += f", got {shown}"
+    return ConfigError(text + more, source=src, hint=_FIX)
+
+
+def _terms(items: list[TermSpec] | None, where: str, src: str) -> tuple[Term, ...]:
     out = []
-    for i, it in enumerate(items):
+    for i, t in enumerate(items or ()):
         try:
-            out.append(make_term(it))
+            out.append(make_term({"kind": t.kind, "params": dict(t.params)}))
         except ConfigError as err:
             raise ConfigError(f"{where}[{i}]: {err.message}", source=src, hint=err.hint) from None
     return tuple(out)
 
 
-def load_model_spec(path: str | Path) -> ModelSpec:
-    """Read and validate a model file; errors name the file and the entry."""
-    p = Path(path)
-    src = str(p)
+class _NoAliasLoader(yaml.SafeLoader):
+    """SafeLoader that refuses aliases (``*name``: a billion-laughs bomb expands them) and huge documents."""
+
+    def compose_node(self, parent, index):  # noqa: D102
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            raise yaml.composer.ComposerError(None, None, "YAML aliases (*name) are not accepted in a model file",
+                                              event.start_mark)
+        self._nodes = getattr(self, "_nodes", 0) + 1
+        if self._nodes > MAX_NODES:
+            raise yaml.composer.ComposerError(None, None, f"more than {MAX_NODES} YAML nodes",
+                                              self.peek_event().start_mark)
+        return super().compose_node(parent, index)
+
+
+def parse_model_spec(text: str, *, source: str = "model", base: Path | None = None) -> ModelSpec:
+    """Validate a model file's text against the schema; ``base`` resolves step data paths."""
+    src = source
     try:
-        doc = yaml.safe_load(p.read_text())
-    except FileNotFoundError:
-        raise DataFileError("model file not found", source=src, hint="check the --model path") from None
-    except (OSError, UnicodeDecodeError) as err:
-        raise DataFileError(f"cannot read model file ({err})", source=src) from err
+        doc = yaml.load(text, Loader=_NoAliasLoader)  # noqa: S506 - a SafeLoader subclass
     except yaml.YAMLError as err:
-        raise ConfigError(f"not valid YAML ({str(err).splitlines()[0]})", source=src,
-                          hint="check indentation and brackets") from err
+        first = str(err).replace("\n", " ")
+        raise ConfigError(f"not a valid model file ({first[:300]})", source=src,
+                          hint="check indentation and brackets; write values out instead of YAML aliases") from None
+    except RecursionError:
+        raise ConfigError("the YAML nests too deeply", source=src, hint=_FIX) from None
     if doc is None:
         doc = {}
     if not isinstance(doc, dict):
-        raise ConfigError("a model file must be a mapping with 'nonlinearities:' or 'steps:'", source=src)
-    unknown = set(doc) - {"nifo_model", "nonlinearities", "steps", "settings", "note", "suggested_by"}
-    if unknown:
-        raise ConfigError(f"unknown key(s) {sorted(unknown)}", source=src,
-                          hint="use nifo_model, nonlinearities or steps, settings, note")
-    settings = doc.get("settings") or {}
-    if not isinstance(settings, dict) or set(settings) - set(SETTINGS_KEYS):
-        raise ConfigError(f"settings may only hold {', '.join(SETTINGS_KEYS)}", source=src)
-    if "steps" in doc and "nonlinearities" in doc:
-        raise ConfigError("give either 'nonlinearities' or 'steps', not both", source=src)
-    if "steps" in doc:
-        steps = []
-        if not isinstance(doc["steps"], list) or not doc["steps"]:
-            raise ConfigError("'steps' must be a non-empty list", source=src)
-        for i, s in enumerate(doc["steps"]):
-            if not isinstance(s, dict):
-                raise ConfigError(f"steps[{i}] must be a mapping", source=src)
-            data = s.get("data") or []
-            if isinstance(data, str):
-                data = [data]
-            steps.append(Step(str(s.get("name") or f"step {i + 1}"),
-                              _terms(s.get("nonlinearities"), f"steps[{i}].nonlinearities", src),
-                              tuple((p.parent / d) for d in data)))
-        return ModelSpec(tuple(steps), dict(settings), src)
-    return ModelSpec((Step("all", _terms(doc.get("nonlinearities"), "nonlinearities", src)),), dict(settings), src)
+        raise ConfigError(f"a model file must be a mapping with 'nonlinearities:' or 'steps:', got a "
+                          f"{type(doc).__name__}", source=src, hint=_FIX)
+    try:
+        model = ModelFile.model_validate(doc)
+    except ValidationError as err:
+        raise _validation_error(err, src) from None
+    except RecursionError:
+        raise ConfigError("the YAML nests too deeply", source=src, hint=_FIX) from None
+    settings = model.settings.model_dump(exclude_none=True) if model.settings else {}
+    for k in ("band_hz", "freq_range_hz"):
+        if k in settings:
+            settings[k] = [float(v) for v in settings[k]]
+    base = base or Path(".")
+    if model.steps is not None:
+        steps = tuple(Step(s.name or f"step {i + 1}", _terms(s.nonlinearities, f"steps[{i}].nonlinearities", src),
+                           tuple(base / d for d in s.data)) for i, s in enumerate(model.steps))
+        return ModelSpec(steps, settings, src)
+    return ModelSpec((Step("all", _terms(model.nonlinearities, "nonlinearities", src)),), settings, src)
+
+
+def load_model_spec(path: str | Path) -> ModelSpec:
+    """Read and validate a model file (every command calls this); errors name the file and the entry.
+
+    The file must be a regular file of at most :data:`MAX_MODEL_BYTES`;
+    YAML aliases are refused; the document is checked against one schema
+    (:class:`ModelFile`): types (a boolean is not a number), ranges, known
+    kinds and parameters, ``nifo_model: 1``.
+    """
+    p = Path(path)
+    src = str(p)
+    try:
+        if not p.exists():
+            raise DataFileError("model file not found", source=src, hint="check the --model path")
+        if not p.is_file():
+            raise DataFileError("the model file is not a regular file (a directory, FIFO or device)", source=src,
+                                hint="give the path of a .yaml model file")
+        size = p.stat().st_size
+        if size > MAX_MODEL_BYTES:
+            raise ConfigError(f"the model file is {size} bytes; a model file is at most {MAX_MODEL_BYTES}",
+                              source=src, hint="give the .yaml model file, not a data file")
+        with p.open("rb") as f:
+            raw = f.read(MAX_MODEL_BYTES + 1)
+        text = raw.decode("utf-8-sig")
+    except NifoError:
+        raise
+    except UnicodeDecodeError:
+        raise ConfigError("the model file is not UTF-8 text", source=src,
+                          hint="give the .yaml model file, not a data file") from None
+    except OSError as err:
+        raise DataFileError(f"cannot read the model file ({err.strerror or err})", source=src,
+                            hint="check the path and the file's permissions") from err
+    return parse_model_spec(text, source=src, base=p.parent)
 
 
 def write_model_spec(path: str | Path, terms: list[Term] | tuple[Term, ...], *, settings: Mapping | None = None,
