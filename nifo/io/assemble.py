@@ -13,14 +13,16 @@ from pathlib import Path
 
 import numpy as np
 
-from nifo_core.errors import ConfigError, NifoError, NonFiniteError, SampleRateError, TimestampError
+from nifo_core.errors import ConfigError, DataFileError, NifoError, NonFiniteError, SampleRateError, TimestampError
 from nifo_core.record import CHANNELS, Record
 from nifo_core.timebase import check_common_rate, sample_rate_from_stamps
 
-__all__ = ["assemble_record", "nominal_rate", "check_declared_rate"]
+__all__ = ["assemble_record", "nominal_rate", "check_declared_rate", "check_rate_range", "check_values",
+           "seconds_to_ns"]
+
 
 def _check_declared_rate(rate: float, fs_hz: float, *, source: str) -> None:
-    if not (np.isfinite(fs_hz) and fs_hz > 0):
+    if isinstance(fs_hz, bool) or not (np.isfinite(fs_hz) and fs_hz > 0):
         raise ConfigError(f"sample rate must be positive, got {fs_hz!r} Hz", source=source, channel="--fs",
                           hint="give the sample rate in Hz")
     if abs(rate - fs_hz) > 1e-3 * fs_hz:
@@ -112,6 +114,11 @@ def assemble_record(channels: Mapping[str, tuple[np.ndarray | None, np.ndarray]]
         t0 = int(t0_ns)
     else:
         st = {c: np.asarray(s, dtype=np.int64).ravel() for c, s in stamps.items()}
+        for c in names:   # one stamp per sample: never drop (or invent) samples silently
+            if st[c].size != values[c].size:
+                raise TimestampError(f"{st[c].size} time stamps for {values[c].size} samples", source=src,
+                                     channel=labels[c],
+                                     hint="give one time value per sample (or drop the time vector and give fs)")
         rates = {labels[c]: sample_rate_from_stamps(s, source=src, channel=labels[c]) for c, s in st.items()}
         fs = check_common_rate(rates, source=src)
         cuts = _align(st, fs, labels=labels, source=src)
@@ -128,6 +135,7 @@ def assemble_record(channels: Mapping[str, tuple[np.ndarray | None, np.ndarray]]
         if fs_hz is not None:
             _check_declared_rate(fs, fs_hz, source=src)
         t0 = int(common[0]) if common.size else 0
+    check_rate_range(fs, source=src)
     for c, v in values.items():
         bad = ~np.isfinite(v)
         if bad.any():
@@ -135,11 +143,59 @@ def assemble_record(channels: Mapping[str, tuple[np.ndarray | None, np.ndarray]]
             raise NonFiniteError(f"{int(bad.sum())} of {v.size} samples are NaN or infinite "
                                  f"(first at t={i / fs:.3f} s, sample {i})", source=src, channel=labels[c],
                                  hint="cut the record before/after the bad stretch or repair the sensor data")
+    check_values(values, labels=labels, fs=fs, source=src)
     try:
         return Record(fs, values["spindle_accel"], values["body_accel"], values.get("tire_patch_disp"),
                       t0_ns=t0, source=Path(path).name, meta=meta)
     except NifoError as err:
         raise err.with_context(source=src) from None
+
+
+#: the sample rates accepted [Hz]: beyond these a "rate" is a unit or stamp error, not a measurement
+FS_RANGE_HZ = (1e-3, 1e8)
+#: the largest magnitude accepted in a channel: beyond it a value is a scale/unit error and would overflow spectra
+MAX_ABS_VALUE = 1e15
+
+
+def check_rate_range(fs: float, *, source: str, channel: str | None = None) -> None:
+    """Raise :class:`SampleRateError` unless ``FS_RANGE_HZ[0] <= fs <= FS_RANGE_HZ[1]``."""
+    lo, hi = FS_RANGE_HZ
+    if not (np.isfinite(fs) and lo <= fs <= hi):
+        raise SampleRateError(f"sample rate {fs:.3g} Hz is outside {lo:g}..{hi:g} Hz", source=source,
+                              channel=channel, hint="check the time unit (seconds) or the fs value/--fs")
+
+
+def check_values(values: Mapping[str, np.ndarray], *, labels: Mapping[str, str], fs: float, source: str,
+                 constant: bool = True) -> None:
+    """Refuse implausibly large values and (``constant=True``) an acceleration channel that never changes."""
+    for c, v in values.items():
+        big = np.abs(v) > MAX_ABS_VALUE
+        if big.any():
+            i = int(np.argmax(big))
+            raise DataFileError(f"{int(big.sum())} samples exceed {MAX_ABS_VALUE:.0e} in magnitude (first "
+                                f"{v[i]:.3g} at t={i / fs:.3f} s): not a measurement", source=source,
+                                channel=labels[c], hint="check the channel's unit/scale or repair the data")
+        if constant and c != "tire_patch_disp" and v.size > 1 and v[0] == v[-1] and not (v != v[0]).any():
+            raise DataFileError(f"all {v.size} samples are {v[0]:g}: the sensor recorded nothing", source=source,
+                                channel=labels[c], hint="check the channel mapping (--topics/--columns/--axis) and the sensor")
+
+
+#: the largest |time| [s] that int64 nanosecond stamps hold (year 2262)
+MAX_TIME_S = 9.2e9
+
+
+def seconds_to_ns(t: np.ndarray, *, source: str, channel: str) -> np.ndarray:
+    """Time values [s] to int64 stamps [ns]; raises rather than overflow or accept NaN."""
+    t = np.asarray(t, dtype=np.float64)
+    if not np.isfinite(t).all():
+        i = int(np.argmax(~np.isfinite(t)))
+        raise DataFileError(f"time value {i} (of {t.size}) is not finite", source=source, channel=channel,
+                            hint="repair or delete that row/sample, or drop the time vector and give fs")
+    if t.size and np.abs(t).max() > MAX_TIME_S:
+        raise DataFileError(f"time values reach {np.abs(t).max():.3g} s, beyond what nanosecond stamps hold "
+                            f"(±{MAX_TIME_S:.1e} s)", source=source, channel=channel,
+                            hint="give time in seconds (not ns or µs), or drop the time vector and give fs")
+    return np.rint(t * 1e9).astype(np.int64)
 
 
 _nominal_rate = nominal_rate

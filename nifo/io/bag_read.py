@@ -16,6 +16,7 @@ from nifo_core.record import Record
 from .assemble import assemble_record
 from .bag_topics import BagTopics, _topic_table, resolve_topics
 from .cdr import AXES as _AXES, Axis
+from .inputs import regular_input
 from .mcap_chunks import _Decoded, _decode, _iter_mcap_indexed, _NoUsableIndex
 
 if TYPE_CHECKING:
@@ -118,8 +119,7 @@ def _open_checked(path: str | os.PathLike, axis: Axis) -> tuple[Path, str, Path]
         raise ConfigError(f"{axis=} is not one of x, y, z", channel="--axis", hint="use --axis x, y or z")
     path = Path(path)
     src = str(path)
-    if not path.exists():
-        raise DataFileError("no such file or directory", source=src, hint="check the path")
+    regular_input(path)
     if path.is_file() and path.stat().st_size == 0:
         raise DataFileError("the file is empty (0 bytes)", source=src,
                             hint="re-copy the bag; the recording may not have started")

@@ -10,7 +10,7 @@ import numpy as np
 from nifo_core.errors import ConfigError, DataFileError, NifoError, RecordTooShortError, TimestampError
 from nifo_core.record import Record
 
-from .assemble import nominal_rate
+from .assemble import check_rate_range, check_values, nominal_rate
 from .bag_read import _CHANNEL_OF_ROLE, _is_sqlite, _mcap_file, _open_checked, read_bag
 from .bag_topics import BagTopics, _topic_table, resolve_topics
 from .cdr import Axis
@@ -87,6 +87,7 @@ class _ChunkAssembler:
                                               channel=self.labels[ref_role], hint="record at least a few seconds")
                 rate = sample_rate_from_stamps(ref, source=self.src, channel=self.labels[ref_role])
                 self.fs = nominal_rate(ref, rate, 1.0)
+                check_rate_range(self.fs, source=self.src, channel=self.labels[ref_role])
             period = 1e9 / self.fs
             for r in self.roles:
                 s = taken[r][0]
@@ -113,6 +114,8 @@ class _ChunkAssembler:
             meta = dict(self.meta)
             meta["chunk"] = {"index": self.index, "start": self.emitted, "total_samples": self.total}
             vals = {r: taken[r][1] for r in self.roles}
+            check_values({_CHANNEL_OF_ROLE[r]: v for r, v in vals.items()}, fs=self.fs, source=self.src, constant=False,
+                         labels={_CHANNEL_OF_ROLE[r]: self.labels[r] for r in self.roles})
             try:
                 rec = Record(self.fs, vals["spindle"], vals["body"], vals.get("tire_patch"), t0_ns=int(ref[0]),
                              source=self.name, meta=meta)

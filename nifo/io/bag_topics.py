@@ -105,6 +105,9 @@ def resolve_topics(available: Mapping[str, str], topics: BagTopics | None, *,
                                           source=source, channel=role, hint=fix)
             else:
                 out[role] = want
+        if out["spindle"] == out["body"]:
+            raise MissingChannelError(f"spindle and body are both {out['spindle']}", source=source,
+                                      channel="--topics", hint="give the spindle and the body their own topics")
         return out
 
     d = _DEFAULT_TOPICS

@@ -29,6 +29,7 @@ import numpy as np
 from nifo_core.errors import ConfigError, DataFileError
 from nifo_core.record import CHANNELS, Record
 
+from .inputs import regular_input
 from .assemble import _check_declared_rate, assemble_record  # noqa: F401  (assemble_record: public here too)
 
 if TYPE_CHECKING:
@@ -57,8 +58,7 @@ _MAT_SUFFIXES = {".mat"}
 def detect_format(path: str | os.PathLike) -> Format:
     """``"bag"``, ``"csv"`` or ``"mat"`` for an existing ``path``, else :class:`DataFileError`."""
     p = Path(path)
-    if not p.exists():
-        raise DataFileError("no such file or directory", source=str(p), hint="check the path")
+    regular_input(p)   # missing, FIFO, device: one line, never a reader blocked forever
     if p.is_dir():
         return "bag"
     suffix = p.suffix.lower()

@@ -27,11 +27,12 @@ from pathlib import Path
 
 import numpy as np
 
-from nifo_core.errors import DataFileError, MissingChannelError
+from nifo_core.errors import ConfigError, DataFileError, MissingChannelError
 from nifo_core.record import CHANNELS, Record
 
-from .assemble import assemble_record, check_declared_rate
+from .assemble import assemble_record, check_declared_rate, seconds_to_ns
 from .atomic import staged_file
+from .inputs import regular_input
 
 __all__ = ["read_mat", "write_mat"]
 
@@ -110,10 +111,19 @@ def _load(path: Path) -> dict:
                             hint="re-copy or re-export the file") from err
 
 
+def _scalar(arr: np.ndarray, key: str, src: str) -> float:
+    """The one number a key such as ``fs`` holds."""
+    if arr.size != 1 or not np.isfinite(arr.ravel()[0]):
+        raise DataFileError(f"key {key!r} should hold one finite number, it holds {arr.size} value(s)"
+                            + (f" ({arr.ravel()[0]!r})" if arr.size == 1 else ""), source=src, channel="fs",
+                            hint="store the sample rate as one number in Hz, or give it with --fs HZ")
+    return float(arr.ravel()[0])
+
+
 def read_mat(path: str | os.PathLike, *, columns: Mapping[str, str] | None = None,
              fs_hz: float | None = None) -> Record:
     """Read a ``.mat`` file (layout in the module docstring) into a :class:`Record`."""
-    path = Path(path)
+    path = regular_input(path)
     src = str(path)
     data = _load(path)
     cols = dict(columns or {})
@@ -125,6 +135,12 @@ def read_mat(path: str | os.PathLike, *, columns: Mapping[str, str] | None = Non
             continue
         chans[role] = _pick(data, spec, role=role, src=src)
         used[role] = spec
+    specs = [(r, used[r].replace(" ", "")) for r in used]
+    for i, (r, sp) in enumerate(specs):
+        for r2, sp2 in specs[i + 1:]:
+            if sp == sp2:
+                raise ConfigError(f"{r} and {r2} both read key {used[r]!r}", source=src, channel="--columns",
+                                  hint="give each role its own key (or row KEY[i])")
     fs_file: float | None = None
     fs_spec = cols.get("fs")
     if fs_spec is not None:
@@ -132,12 +148,12 @@ def read_mat(path: str | os.PathLike, *, columns: Mapping[str, str] | None = Non
             fs_file = float(fs_spec)
             used["fs"] = fs_spec
         except ValueError:
-            fs_file = float(_pick(data, fs_spec, role="fs", src=src).ravel()[0])
+            fs_file = _scalar(_pick(data, fs_spec, role="fs", src=src), fs_spec, src)
             used["fs"] = fs_spec
     else:
         key = next((k for k in _FS_KEYS if k in data), None)
         if key is not None:
-            fs_file = float(_pick(data, key, role="fs", src=src).ravel()[0])
+            fs_file = _scalar(_pick(data, key, role="fs", src=src), key, src)
             used["fs"] = key
     stamps = None
     time_spec = cols.get("time", "time")
@@ -146,7 +162,7 @@ def read_mat(path: str | os.PathLike, *, columns: Mapping[str, str] | None = Non
         if not np.isfinite(t).all():
             raise DataFileError("the time vector holds NaN or infinite values", source=src, channel=time_spec,
                                 hint="repair the time vector or drop it and give fs")
-        stamps = np.rint(t * 1e9).astype(np.int64)
+        stamps = seconds_to_ns(t, source=src, channel=f"key {time_spec}")
         used["time"] = time_spec
     t0_ns = 0
     t0_spec = cols.get("t0_ns", "t0_ns")
@@ -155,6 +171,9 @@ def read_mat(path: str | os.PathLike, *, columns: Mapping[str, str] | None = Non
         if raw_t0.size != 1 or raw_t0.dtype.kind not in "iuf":
             raise DataFileError(f"key {t0_spec!r} is not one number", source=src, channel="t0_ns",
                                 hint="store t0_ns as an int64 scalar, or drop it")
+        if not (np.isfinite(raw_t0[0]) and abs(float(raw_t0[0])) < 4e18):   # NaN, or past year 2096
+            raise DataFileError(f"key {t0_spec!r} is {raw_t0[0]!r}, not a time in ns", source=src, channel="t0_ns",
+                                hint="store t0_ns as an int64 scalar (ns since the epoch), or drop it")
         t0_ns = int(raw_t0[0])  # int64 kept exact (no float round trip)
     if stamps is None and fs_hz is None and fs_file is None:
         raise MissingChannelError(f"no sample rate: no key fs/Fs/time; the file holds {_listing(data)}",

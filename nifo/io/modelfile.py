@@ -155,9 +155,9 @@ class TermSpec(_Strict):
                 raise ValueError(f"{k.name}.{name}={_short(value)} must be a number [{unit}]"
                                  + (" (true/false is not a number)" if isinstance(value, bool) else ""))
             elif abs(value) > 1e300 or not math.isfinite(value):
-                raise ValueError(f"{k.name}.{name}={value!r} must be finite [{unit}]")
+                raise ValueError(f"{k.name}.{name}={_short(value)} must be finite [{unit}]")
             elif name != "offset" and (value < 0 or (value == 0 and not (k.name == "bump_stop" and name == "gap"))):
-                raise ValueError(f"{k.name}.{name}={value!r} must be positive [{unit}]"
+                raise ValueError(f"{k.name}.{name}={_short(value)} must be positive [{unit}]"
                                  + (" (0 makes the term the linear one)" if value == 0 else ""))
         return self
 

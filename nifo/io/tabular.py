@@ -23,11 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
-from nifo_core.errors import DataFileError, MissingChannelError
+from nifo_core.errors import ConfigError, DataFileError, MissingChannelError, NifoError
 from nifo_core.record import CHANNELS, Record
 
-from .assemble import assemble_record
+from .assemble import assemble_record, seconds_to_ns
 from .atomic import staged_file
+from .inputs import regular_input
 
 __all__ = ["read_csv", "write_csv"]
 
@@ -65,10 +66,34 @@ def _bad_cell(path: Path, delim: str, header: list[str], wanted: Mapping[str, in
     return DataFileError("cannot read the table", source=str(path), hint="check the file is a CSV table")
 
 
+def _ragged_row(path: Path, delim: str, width: int) -> DataFileError | None:
+    """The first data row whose cell count differs from the header's (np.loadtxt ignores extra cells)."""
+    with path.open("rb") as f:
+        raw = f.read()
+    d = delim.encode()
+    lines = raw.splitlines()
+    counts = np.fromiter((ln.count(d) for ln in lines), np.int64, count=len(lines))
+    if not (counts != width - 1).any():
+        return None
+    # a closer look (comments, blank lines, quoted cells) only when the quick count disagrees
+    with path.open(newline="", encoding="utf-8-sig") as f:
+        seen_header = False
+        for line_no, row in enumerate(csv.reader(f, delimiter=delim), start=1):
+            if not row or row[0].lstrip().startswith("#") or not any(c.strip() for c in row):
+                continue
+            if not seen_header:
+                seen_header = True
+                continue
+            if len(row) != width:
+                return DataFileError(f"row {line_no} has {len(row)} cells but the header has {width}",
+                                     source=str(path), hint=f"fix or delete row {line_no}")
+    return None
+
+
 def read_csv(path: str | os.PathLike, *, columns: Mapping[str, str] | None = None,
              fs_hz: float | None = None) -> Record:
     """Read a CSV table (layout in the module docstring) into a :class:`Record`."""
-    path = Path(path)
+    path = regular_input(path)
     src = str(path)
     names = {"time": "time", **{c: c for c in CHANNELS}, **dict(columns or {})}
     try:
@@ -93,6 +118,10 @@ def read_csv(path: str | os.PathLike, *, columns: Mapping[str, str] | None = Non
                     raise MissingChannelError(
                         f"no column {name!r}; the header has {', '.join(map(repr, header))}", source=src,
                         channel=role, hint=_FIX_COLUMNS)
+            shared = [r for r in wanted if list(wanted.values()).count(wanted[r]) > 1]
+            if shared:
+                raise ConfigError(f"roles {', '.join(shared)} all read column {header[wanted[shared[0]]]!r}",
+                                  source=src, channel="--columns", hint="give each role its own column")
             if "time" not in wanted and fs_hz is None:
                 raise MissingChannelError(
                     f"no time column {names['time']!r} and no sample rate; the header has "
@@ -104,7 +133,7 @@ def read_csv(path: str | os.PathLike, *, columns: Mapping[str, str] | None = Non
             except ValueError as err:
                 raise _bad_cell(path, delim, header,
                                 {header[j]: j for j in wanted.values()}) from err
-    except (DataFileError, MissingChannelError):
+    except NifoError:
         raise
     except UnicodeDecodeError as err:
         raise DataFileError("the file is not text (is it a CSV table?)", source=src,
@@ -112,6 +141,9 @@ def read_csv(path: str | os.PathLike, *, columns: Mapping[str, str] | None = Non
     except OSError as err:
         raise DataFileError(f"cannot read the file ({err.strerror or err})", source=src,
                             hint="check the path and the file's permissions") from err
+    ragged = _ragged_row(path, delim, len(header))
+    if ragged is not None:
+        raise ragged
     if data.shape[0] == 0:
         raise DataFileError("the table has a header but no data rows", source=src,
                             hint="check that the export finished")
@@ -121,9 +153,9 @@ def read_csv(path: str | os.PathLike, *, columns: Mapping[str, str] | None = Non
         t = col["time"]
         if not np.isfinite(t).all():
             i = int(np.argmax(~np.isfinite(t)))
-            raise DataFileError(f"time at row {i + 2} is not finite", source=src, channel=names["time"],
+            raise DataFileError(f"time at data row {i + 1} is not finite", source=src, channel=names["time"],
                                 hint="repair or delete that row")
-        stamps = np.rint(t * 1e9).astype(np.int64)
+        stamps = seconds_to_ns(t, source=src, channel=f"column {names['time']}")
         # seconds in a float: allow the rounding of t*1e9 to whole ns
         tol = 1.0 + 4 * float(np.spacing(np.max(np.abs(t)))) * 1e9
     chans = {c: (stamps, col[c]) for c in CHANNELS if c in col}
