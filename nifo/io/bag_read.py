@@ -17,7 +17,7 @@ from .assemble import assemble_record
 from .bag_topics import BagTopics, _topic_table, resolve_topics
 from .cdr import AXES as _AXES, Axis
 from .inputs import regular_input
-from .mcap_chunks import _Decoded, _decode, _iter_mcap_indexed, _NoUsableIndex
+from .mcap_chunks import check_structure, _Decoded, _decode, _iter_mcap_indexed, _NoUsableIndex
 
 if TYPE_CHECKING:
     from rosbags.interfaces import Connection
@@ -170,6 +170,9 @@ def _read_channels(storage: Path, topics: BagTopics | None, axis: Axis, src: str
                 alias = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="nifo-bag-"))) / "bag.mcap"
                 alias.symlink_to(storage.resolve())
                 storage = mcap_file = alias
+            for mcap in ([storage] if storage.suffix == ".mcap" else sorted(storage.glob("*.mcap"))
+                         if storage.is_dir() else []):
+                check_structure(mcap)   # before any library trusts its lengths and offsets
             with Reader(storage) as reader:  # validates metadata and gives the topics
                 conns = list(reader.connections)
                 if not conns or reader.message_count == 0:

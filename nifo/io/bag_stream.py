@@ -14,7 +14,7 @@ from .assemble import check_rate_range, check_values, nominal_rate
 from .bag_read import _CHANNEL_OF_ROLE, _is_sqlite, _mcap_file, _open_checked, read_bag
 from .bag_topics import BagTopics, _topic_table, resolve_topics
 from .cdr import Axis
-from .mcap_chunks import _Decoded, _iter_mcap_indexed, _NoUsableIndex, indexed_counts
+from .mcap_chunks import check_structure, _Decoded, _iter_mcap_indexed, _NoUsableIndex, indexed_counts
 
 __all__ = ["iter_bag_chunks", "record_chunks"]
 
@@ -166,6 +166,7 @@ def iter_bag_chunks(path: str | os.PathLike, *, chunk_samples: int, topics: BagT
 
     typestore = get_typestore(Stores.ROS2_JAZZY)
     try:
+        check_structure(mcap_file)
         with Reader(storage) as reader:
             conns = list(reader.connections)
             if not conns or reader.message_count == 0:

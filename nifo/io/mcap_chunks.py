@@ -20,7 +20,7 @@ from nifo_core.errors import CorruptDataError
 from .cdr import AXES as _AXES, CDR_LE as _CDR_LE, IMU, IMU_BODY as _IMU_BODY, IMU_VALUE as _IMU_VALUE
 from .cdr import POINT_BODY as _POINT_BODY, POINT_VALUE as _POINT_VALUE, Axis
 
-__all__ = ["indexed_counts", "write_chunk_crcs"]
+__all__ = ["indexed_counts", "write_chunk_crcs", "check_structure"]
 
 _GATHER16 = np.arange(16)
 _GATHER8 = np.arange(8)
@@ -229,6 +229,72 @@ def _iter_mcap_indexed(path: Path, wanted: Mapping[str, tuple[str, str]], *, axi
             yield out
 
 
+_MAGIC = b"\x89MCAP0\r\n"
+_FOOTER = 0x02
+_DATA_END = 0x0F
+
+
+def check_structure(path: Path) -> None:
+    """Walk the MCAP file's top-level records before any library reads it.
+
+    Every record must fit in the file (a damaged length would make a reader
+    allocate gigabytes or run off the end), the footer must sit at the end
+    and point inside the file, and the summary section's CRC must match when
+    recorded. Raises :class:`CorruptDataError` naming the byte offset.
+    """
+    size = path.stat().st_size
+    with path.open("rb") as f:
+        if f.read(8) != _MAGIC:
+            raise _corrupt(path, 0, "no MCAP magic at the start")
+        f.seek(size - 8)
+        if size < 8 + 8 + 9 + 20 or f.read(8) != _MAGIC:
+            raise _corrupt(path, max(size - 8, 0), "no MCAP magic at the end (the file was cut short)")
+        pos = 8
+        end = size - 8
+        footer = None
+        while pos < end:
+            f.seek(pos)
+            head = f.read(9)
+            if len(head) < 9:
+                raise _corrupt(path, pos, "record header cut short")
+            op, length = struct.unpack("<BQ", head)
+            if length > end - pos - 9:
+                raise _corrupt(path, pos, f"record 0x{op:02x} claims {length} bytes, past the end of the file")
+            if op == _FOOTER:
+                footer = pos
+                if pos + 9 + length != end:
+                    raise _corrupt(path, pos, "the footer is not at the end of the file")
+                break
+            pos += 9 + length
+        if footer is None:
+            raise _corrupt(path, pos, "no footer record")
+        f.seek(footer + 9)
+        summary_start, offset_start, crc = struct.unpack("<QQI", f.read(20))
+        if summary_start > footer or offset_start > footer:
+            raise _corrupt(path, footer, "the footer points outside the file")
+        if crc and summary_start:
+            f.seek(summary_start)
+            got = zlib.crc32(f.read(footer + 1 + 8 + 16 - summary_start))
+            if got != crc:
+                raise _corrupt(path, summary_start, f"summary CRC-32 {got:08x} does not match the recorded {crc:08x}")
+
+
+def _fill_summary_crc(f: BinaryIO, size: int) -> None:
+    """Fill in the footer's summary CRC (covers the summary up to the footer's summary_offset_start)."""
+    footer = size - 8 - 20 - 9
+    f.seek(footer)
+    op, length = struct.unpack("<BQ", f.read(9))
+    if op != _FOOTER or length != 20:
+        return
+    summary_start, _ = struct.unpack("<QQ", f.read(16))
+    if not summary_start:
+        return
+    f.seek(summary_start)
+    crc = zlib.crc32(f.read(footer + 1 + 8 + 16 - summary_start))
+    f.seek(footer + 9 + 16)
+    f.write(struct.pack("<I", crc))
+
+
 def write_chunk_crcs(path: Path) -> int:
     """Fill in the CRC-32 of every chunk of the MCAP file ``path`` (in place); returns the chunks done.
 
@@ -247,4 +313,5 @@ def write_chunk_crcs(path: Path) -> int:
             f.seek(ci.chunk_start_offset + 1 + 8 + 8 + 8 + 8)
             f.write(struct.pack("<I", zlib.crc32(data)))
             done += 1
+        _fill_summary_crc(f, path.stat().st_size)
     return done

@@ -1,0 +1,127 @@
+"""Kill ``nifo run`` and ``nifo identify`` at random points: the output is all old, all new, or marked incomplete.
+
+Each command first runs once to completion (the reference "new" file set).
+Then, 20 times each, the output directory is given an old content (the
+previous result plus ``sentinel.json``), the command is started as a real
+process and sent SIGINT, SIGTERM or SIGKILL after a random delay drawn
+uniformly over its full run time (fixed seed). After each kill the output
+must be exactly the old content, exactly the new file set (no sentinel), or
+hold the ``INCOMPLETE`` marker; a SIGINT/SIGTERM message saying "nothing was
+written" must be true. A last complete run must succeed and leave no
+``.partial-*``/``.old-*`` directory anywhere.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from nifo.io.atomic import INCOMPLETE
+from nifo.io.loader import save_record
+from nifo_core.simulate import SimConfig, simulate
+
+from conftest import REPO
+
+KILLS = 20
+SEED = 14
+
+
+def _env() -> dict:
+    return {**os.environ, "PYTHONPATH": str(REPO), "PYTHONUNBUFFERED": "1"}
+
+
+def _snapshot(out: Path) -> dict[str, str] | None:
+    if not out.exists():
+        return None
+    return {str(p.relative_to(out)): hashlib.sha1(p.read_bytes()).hexdigest()
+            for p in sorted(out.rglob("*")) if p.is_file()}
+
+
+def _leftovers(root: Path) -> list[Path]:
+    return [p for p in root.rglob(".*") if ".partial-" in p.name or ".old-" in p.name]
+
+
+def _nifo(argv: list[str], cwd: Path) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "nifo", *argv], cwd=cwd, env=_env(),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+
+def _full(argv: list[str], cwd: Path) -> float:
+    t = time.monotonic()
+    p = _nifo(argv, cwd)
+    _, err = p.communicate(timeout=900)
+    assert p.returncode == 0, err
+    return time.monotonic() - t
+
+
+def _records(tmp: Path) -> list[Path]:
+    from nifo_core.simulate import RandomRoad, preset
+
+    paths = []
+    for k, rms in enumerate((1.0e-3, 2.5e-3)):
+        sim = simulate(SimConfig(strut=preset("paper_deadzone"), duration_s=60.0, road=RandomRoad(rms)), rng=k + 1)
+        paths.append(save_record(tmp / f"road{k}.mcap", sim.record))
+    return paths
+
+
+def _kill_trials(argv: list[str], out: Path, cwd: Path, t_full: float, rng: random.Random) -> dict[str, int]:
+    reference = set(_snapshot(out) or {})
+    assert reference and INCOMPLETE not in reference
+    outcomes = {"old": 0, "new": 0, "incomplete": 0}
+    for k in range(KILLS):
+        if not (out / INCOMPLETE).exists():
+            (out / "sentinel.json").write_text(f'{{"trial": {k}}}')
+        before = _snapshot(out)
+        sig = rng.choice([signal.SIGINT, signal.SIGTERM, signal.SIGKILL])
+        delay = rng.uniform(0.0, t_full)
+        p = _nifo(argv, cwd)
+        try:
+            p.wait(timeout=delay)
+        except subprocess.TimeoutExpired:
+            p.send_signal(sig)
+        _, err = p.communicate(timeout=120)
+        after = _snapshot(out)
+        where = f"trial {k}: {sig.name} after {delay:.1f} s, exit {p.returncode}: {err.strip()[-300:]}"
+        if after == before:
+            outcomes["old"] += 1
+        elif after is not None and INCOMPLETE in after:
+            outcomes["incomplete"] += 1
+        else:
+            assert after is not None and set(after) == reference, f"mixed output after {where}"
+            outcomes["new"] += 1
+        if "nothing was written" in err:
+            assert after == before, f"the message says nothing was written, but the output changed: {where}"
+        if p.returncode not in (0, -signal.SIGKILL):
+            assert "interrupted" in err and "Traceback" not in err, where
+    return outcomes
+
+
+@pytest.mark.slow
+def test_run_and_identify_killed_at_random_points_leave_old_new_or_marked_output(tmp_path):
+    rng = random.Random(SEED)
+    data = _records(tmp_path)
+    run_out = tmp_path / "res"
+    run_argv = [*map(str, data), "--no-loop", "--no-recording", "--out", str(run_out)]
+    t_run = _full(["run", *run_argv], tmp_path)
+    model = run_out / "characterize" / "suggested_model.yaml"
+    (tmp_path / "model.yaml").write_bytes(model.read_bytes())
+    id_out = tmp_path / "ident"
+    id_argv = [str(data[1]), "--model", str(tmp_path / "model.yaml"), "--out", str(id_out), "--quiet"]
+    t_id = _full(["identify", *id_argv], tmp_path)
+
+    run = _kill_trials(["run", *run_argv], run_out, tmp_path, t_run, rng)
+    ident = _kill_trials(["identify", *id_argv], id_out, tmp_path, t_id, rng)
+    print(f"nifo run killed {KILLS}x: {run}; nifo identify killed {KILLS}x: {ident}")
+    # the next complete runs succeed and leave nothing behind
+    _full(["run", *run_argv], tmp_path)
+    _full(["identify", *id_argv], tmp_path)
+    assert not (run_out / INCOMPLETE).exists() and not (run_out / "sentinel.json").exists()
+    assert not _leftovers(tmp_path), _leftovers(tmp_path)
