@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nifo.io.atomic import staged_dir
+from nifo.io.atomic import check_output, staged_dir
 from nifo.io.loader import add_input_arguments, input_options, load_record
 from nifo.io.modelfile import write_model_spec
 from nifo.io.results import write_json
@@ -88,6 +88,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 # ---------------------------------------------------------------------------------------------
 def run(args: argparse.Namespace) -> int:
+    check_output(args.out)   # refuse a file or a foreign directory before any work
     opts = input_options(args)
     records = [load_record(p, **opts) for p in args.data]
     rates = {r.fs_hz for r in records}

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nifo.io.atomic import staged_dir
+from nifo.io.atomic import check_output, staged_dir
 from nifo.io.loader import add_input_arguments, input_options
 from nifo.progress import Progress
 from nifo_core.errors import ConfigError, IllConditionedError, InputError, RecordTooShortError, SampleRateError
@@ -378,6 +378,8 @@ def run(args: argparse.Namespace) -> int:
     from nifo.io.results import IDENTIFY_JSON, MODEL_JSON, identify_document, write_json, write_model
     from nifo_core.model import IdentifiedModel
     from nifo_core.nifo import IllConditionedWarning
+
+    check_output(args.out)   # refuse a file or a foreign directory before any work
 
     spec = load_model_spec(args.model)
     cfg = resolve_settings(args, spec.settings)

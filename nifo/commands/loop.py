@@ -20,7 +20,7 @@ import argparse
 from pathlib import Path
 
 
-from nifo.io.atomic import staged_dir
+from nifo.io.atomic import check_output, staged_dir
 from nifo.io.loader import add_input_arguments, input_options, load_record
 from nifo.io.modelfile import load_model_spec, write_model_spec
 from nifo.io.results import write_json
@@ -72,6 +72,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output(args.out)   # refuse a file or a foreign directory before any work
     spec = load_model_spec(args.model) if args.model else None
     declared = list(spec.terms) if spec else []
     opts = input_options(args)

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nifo.io.atomic import staged_dir
+from nifo.io.atomic import check_output, staged_dir
 from nifo.io.loader import add_input_arguments, input_options
 from nifo_core.errors import ConfigError, InputError
 
@@ -183,6 +183,7 @@ def _linear_part(model):
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output(args.out)   # refuse a file or a foreign directory before any work
     from nifo.io.loader import load_record
     from nifo.io.results import PREDICT_JSON, read_model, write_json
 

@@ -28,8 +28,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from nifo.io.atomic import check_output
     from nifo.viz.report_html import write_report
     from nifo.viz.results import read_results
+
+    check_output(args.out, kind="file")   # refuse a directory before any work
 
     results = read_results(args.results)
     out = write_report(results, args.out, title=args.title, levels=not args.no_levels)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import csv
 import os
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -128,8 +129,10 @@ def read_csv(path: str | os.PathLike, *, columns: Mapping[str, str] | None = Non
                     f"{', '.join(map(repr, header))}", source=src, channel="time",
                     hint="map the time column with --columns time=NAME, or pass --fs HZ")
             try:
-                data = np.loadtxt(f, delimiter=delim, usecols=list(wanted.values()), ndmin=2,
-                                  dtype=np.float64, comments="#")
+                with warnings.catch_warnings():   # "input contained no data": reported below as an error
+                    warnings.simplefilter("ignore", UserWarning)
+                    data = np.loadtxt(f, delimiter=delim, usecols=list(wanted.values()), ndmin=2,
+                                      dtype=np.float64, comments="#")
             except ValueError as err:
                 raise _bad_cell(path, delim, header,
                                 {header[j]: j for j in wanted.values()}) from err
