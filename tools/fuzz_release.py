@@ -1,0 +1,110 @@
+"""The larger fuzz run for release checks (the CI suite runs a fixed, bounded slice of the same fuzzers).
+
+1. The bag mutation fuzzer (``tests/fuzz_engine.py``) on lone ``.mcap`` files
+   of several lengths, ``--cases`` mutants per seed and ``--seeds`` seeds; every
+   10th case also through ``nifo info``.
+2. Mutations of a bag directory's ``metadata.yaml`` (bit flips, wrong message
+   counts, truncation): a read that succeeds must give the original record.
+3. The hypothesis property tests of ``tests/test_fuzz_files.py`` (CSV, MAT,
+   model files, output paths) with ``--examples`` examples each (CI: 150).
+
+Prints the counts (cases, clear errors, tracebacks, hangs, wrong-with-exit-0,
+errors not naming file and fix) and exits 1 if any of the last four is not 0::
+
+    PYTHONPATH=. .venv/bin/python tools/fuzz_release.py [--cases 2000] [--seeds 3] [--examples 2000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tests"))
+
+from fuzz_engine import Tally, classify, fuzz_bag, guarded, same_record  # noqa: E402
+
+
+def _record(n: int, seed: int):
+    from nifo_core.record import Record
+
+    rng = np.random.default_rng(seed)
+    return Record(600.0, rng.standard_normal(n), 0.1 * rng.standard_normal(n), 1e-3 * rng.standard_normal(n),
+                  t0_ns=1_700_000_000_000_000_000 + seed, source="fuzz")
+
+
+def fuzz_metadata(work: Path, *, cases: int, seed: int) -> Tally:
+    from nifo.io.loader import load_record, save_record
+
+    bag = save_record(work / "bag", _record(3000, seed))
+    truth = load_record(bag)
+    meta = (bag / "metadata.yaml").read_bytes()
+    rng = random.Random(seed)
+    tally = Tally()
+    for _ in range(cases):
+        b = bytearray(meta)
+        kind = rng.choice(["flip", "count", "truncate"])
+        if kind == "flip":
+            i = rng.randrange(len(b))
+            b[i] ^= 1 << rng.randrange(8)
+        elif kind == "count":
+            text = b.decode()
+            k = rng.choice([0, 1, 2999, 3001, 10**6, -5])
+            text = text.replace("message_count: 3000", f"message_count: {k}", rng.randint(1, 3))
+            b = bytearray(text.encode())
+        else:
+            del b[rng.randrange(len(b)):]
+        (bag / "metadata.yaml").write_bytes(bytes(b))
+        outcome, value = guarded(lambda: load_record(bag), limit_s=20)
+        classify(tally, f"metadata.yaml {kind}", bag, outcome, value,
+                 lambda rec: None if same_record(rec, truth) else "the record read differs from the original")
+    (bag / "metadata.yaml").write_bytes(meta)
+    return tally
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--cases", type=int, default=2000, help="bag mutants per seed and record length")
+    p.add_argument("--seeds", type=int, default=3)
+    p.add_argument("--examples", type=int, default=2000, help="hypothesis examples per property test")
+    p.add_argument("--no-hypothesis", action="store_true")
+    args = p.parse_args(argv)
+    t0 = time.monotonic()
+    total = Tally()
+    with tempfile.TemporaryDirectory(prefix="nifo-fuzz-") as tmp:
+        for seed in range(args.seeds):
+            for n in (1500, 20000):
+                t = fuzz_bag(_record(n, seed), Path(tmp) / f"bag{seed}-{n}", cases=args.cases, seed=1000 + seed,
+                             via_cli_every=10)
+                print(f"bag  seed {seed}, {n} samples: {t.line()}", flush=True)
+                total.counts.update(t.counts)
+                total.failures += t.failures
+            t = fuzz_metadata(Path(tmp) / f"meta{seed}", cases=max(args.cases // 4, 50), seed=seed)
+            print(f"metadata.yaml seed {seed}: {t.line()}", flush=True)
+            total.counts.update(t.counts)
+            total.failures += t.failures
+    print(f"bags total: {total.line()}")
+    for case, what in total.failures[:20]:
+        print(f"  FAIL {case}: {what}")
+    code = 1 if total.bad else 0
+    if not args.no_hypothesis:
+        env = {**os.environ, "NIFO_FUZZ_EXAMPLES": str(args.examples), "PYTHONPATH": str(REPO)}
+        r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                            str(REPO / "tests" / "test_fuzz_files.py")], env=env, cwd=REPO)
+        print(f"hypothesis properties with {args.examples} examples each: "
+              + ("passed" if r.returncode == 0 else "FAILED"))
+        code |= r.returncode != 0
+    print(f"fuzz_release: {'OK' if code == 0 else 'FAILURES'} in {time.monotonic() - t0:.0f} s")
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())
