@@ -56,7 +56,8 @@ __all__ = ["staged_dir", "staged_file", "staged_run", "check_output", "clean_lef
 INCOMPLETE = "INCOMPLETE"
 
 #: file suffixes nifo writes into its output directories (a directory of only these may be replaced)
-NIFO_SUFFIXES = frozenset({".json", ".png", ".svg", ".pdf", ".yaml", ".yml", ".html", ".rrd", ".npz", ".txt"})
+NIFO_SUFFIXES = frozenset({".json", ".png", ".svg", ".pdf", ".yaml", ".yml", ".html", ".rrd", ".npz", ".txt",
+                           ".parquet", ".arrow", ".feather", ".log", ".md", ".tex"})
 
 _LEFTOVER = re.compile(r"^\.(?P<name>.+)\.(?:partial|old)-(?P<pid>\d+)(?:-.*)?$")
 
