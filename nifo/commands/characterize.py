@@ -122,7 +122,8 @@ def run(args: argparse.Namespace) -> int:
                          note=_model_note(char), suggested_by=f"nifo characterize {__version__}")
     print(_table(char, args.top, [str(p) for p in args.data], len(rates) > 1))
     print(f"wrote {args.out}/ (characterize.json, suggested_model.yaml, {', '.join(figures)})")
-    return 0
+    return {"out": str(args.out), "band_hz": [band.f_lo_hz, band.f_hi_hz], "nothing_found": char.nothing_found,
+            "suggested": [c.term.label for c in char.suggested], "figures": figures}
 
 
 def _band(args: argparse.Namespace, records) -> IntegrationBand:

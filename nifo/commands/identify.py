@@ -79,7 +79,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--chunk-samples", type=int, default=CHUNK_SAMPLES, metavar="N",
                    help=f"streaming chunk length [samples] (default {CHUNK_SAMPLES})")
     p.add_argument("--no-plots", action="store_true", help="write the JSON files only")
-    p.add_argument("--quiet", action="store_true", help="no progress output")
     add_input_arguments(p)
 
 
@@ -390,7 +389,7 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("no data files given", hint="nifo identify DATA... --model MODEL.yaml --out DIR")
         terms = spec.terms
         acc, data, per_file = accumulate(list(args.data), terms, cfg, opts=opts, chunk_samples=args.chunk_samples,
-                                         quiet=args.quiet)
+                                         quiet=getattr(args, "quiet", False))
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             res = acc.result()
@@ -423,7 +422,8 @@ def run(args: argparse.Namespace) -> int:
             linear = replace(linear, provenance={**dict(linear.provenance), **prov})
             write_model(tmp / MODEL_JSON, model, linear=linear, atomic=False)
     print(format_summary(summary, warn, out=args.out, files=files, model_written=model is not None))
-    return 0
+    return {"out": str(args.out), "model_written": model is not None, "figures": figures, "warnings": warn,
+            "summary": summary}
 
 
 def _settings_doc(cfg: dict, res) -> dict:

@@ -65,7 +65,7 @@ def describe(rec: Record, *, block: int | None = None) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     opts = input_options(args)
-    first_code = 0
+    first_code, files = 0, []
     for path in args.data:
         try:
             rec = load_record(path, **opts)
@@ -73,7 +73,10 @@ def run(args: argparse.Namespace) -> int:
         except NifoError as err:
             print(f"nifo info: error: {err}", file=sys.stderr)
             first_code = first_code or err.exit_code
+            files.append({"path": str(path), "error": str(err), "exit_code": err.exit_code})
             continue
         print(path)
         print("\n".join(lines))
-    return first_code
+        files.append({"path": str(path), "format": rec.meta.get("format"), "fs_hz": rec.fs_hz, "n_samples": rec.n,
+                      "duration_s": rec.duration_s, "tire_patch": rec.has_tire_patch})
+    return {"files": files, "exit_code": first_code}

@@ -106,7 +106,8 @@ def run(args: argparse.Namespace) -> int:
                          note=_note(res), suggested_by=f"nifo loop {__version__}")
     print(res.report())
     print(f"wrote {args.out}/ (loop.json, refined_model.yaml, {', '.join(figures)})")
-    return 0
+    return {"out": str(args.out), "added": [c.term.label for c in res.added], "figures": figures,
+            **{k: doc[k] for k in ("errors_before", "errors_after") if k in doc}}
 
 
 def _band(args, spec, records) -> IntegrationBand | None:

@@ -207,7 +207,8 @@ def run(args: argparse.Namespace) -> int:
                "method": args.method, "freq_range_hz": [lo, hi], "records": results}
         write_json(tmp / PREDICT_JSON, doc, atomic=False)
     print(_summary(results, (lo, hi), args.out))
-    return 0
+    return {"out": str(args.out), "freq_range_hz": [lo, hi], "figures": figures,
+            "records": [{k: r[k] for k in ("name", "path", "model", "linear") if k in r} for r in results]}
 
 
 def _pct(x) -> str:

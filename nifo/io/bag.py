@@ -156,7 +156,8 @@ def _topic_data(record: Record, topics: BagTopics) -> list[TopicData]:
     if record.tire_patch_disp is not None:
         if not topics.tire_patch:
             raise ConfigError("the record has a tire-patch displacement but no topic was given for it",
-                              channel="tire_patch", hint="set BagTopics(tire_patch=...)")
+                              channel="tire_patch",
+                              hint="name a tire-patch topic (--topics ...,tire_patch=/topic) or drop the tire patch")
         out.append(TopicData(topics.tire_patch, POINT_STAMPED, "tire_patch", stamps, record.tire_patch_disp))
     return out
 
@@ -293,7 +294,7 @@ def resolve_topics(available: Mapping[str, str], topics: BagTopics | None, *,
     imus = sorted(t for t, ty in available.items() if ty == IMU)
     points = sorted(t for t, ty in available.items() if ty == POINT_STAMPED)
     listing = ", ".join(imus) or "none"
-    fix = "name the topics, e.g. --topics spindle=/a,body=/b (topics=BagTopics(spindle=..., body=...))"
+    fix = "name the topics, e.g. --topics spindle=/a,body=/b"
 
     def missing(role: str, what: str) -> MissingChannelError:
         return MissingChannelError(f"{what}; Imu topics in the bag: {listing}", source=source,
