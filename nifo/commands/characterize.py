@@ -25,6 +25,7 @@ import numpy as np
 from nifo.io.atomic import staged_dir
 from nifo.io.loader import add_input_arguments, input_options, load_record
 from nifo.io.modelfile import write_model_spec
+from nifo.io.provenance import add_system_argument, input_provenance, system_of
 from nifo.io.results import write_json
 from nifo.progress import Progress
 from nifo_core import __version__
@@ -66,6 +67,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("data", nargs="+", metavar="DATA", help="data files (several: several excitation levels)")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory (replaced atomically)")
     add_input_arguments(p)
+    add_system_argument(p)
     g = p.add_argument_group("analysis")
     g.add_argument("--band", nargs=2, type=float, metavar=("LO", "HI"),
                    help="integration band [Hz] (default: from the data, where z rises 10 dB out of the noise)")
@@ -285,7 +287,8 @@ def _label(t) -> str:
 
 def _document(args, records, rfs, tracks, char: Characterization, figures, *, band_source: dict) -> dict:
     doc = {"nifo_characterize": 1, "nifo_version": __version__, "inputs": [str(p) for p in args.data],
-           "band_choice": band_source, "freq_window_hz": args.freq_window, "figures": figures, **char.to_dict()}
+           "band_choice": band_source, "freq_window_hz": args.freq_window, "figures": figures, **char.to_dict(),
+           "input": input_provenance(args), "system": system_of(args)}
     for rec_doc, path, tr in zip(doc["records"], args.data, tracks):
         rec_doc["path"] = str(path)
         rec_doc["sweep"] = {"detected": tr.is_sweep, "range_hz": list(tr.range_hz),

@@ -20,6 +20,7 @@ import numpy as np
 
 from nifo.io.atomic import staged_dir
 from nifo.io.loader import add_input_arguments, input_options
+from nifo.io.provenance import add_system_argument, input_provenance, system_of
 from nifo.progress import Progress
 from nifo_core.errors import ConfigError, IllConditionedError, InputError, RecordTooShortError, SampleRateError
 
@@ -80,6 +81,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"streaming chunk length [samples] (default {CHUNK_SAMPLES})")
     p.add_argument("--no-plots", action="store_true", help="write the JSON files only")
     add_input_arguments(p)
+    add_system_argument(p)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -416,6 +418,7 @@ def run(args: argparse.Namespace) -> int:
         figures = [] if args.no_plots else write_figures(tmp, res, per_file, cfg["cond_limit"])
         doc = identify_document(res, data=data, summary=summary, warnings=warn, settings=settings_doc,
                                 model_file=model_file, figures=figures)
+        doc.update(input=input_provenance(args), system=system_of(args))
         write_json(tmp / IDENTIFY_JSON, doc, atomic=False)
         if model is not None:
             model = replace(model, provenance={**dict(model.provenance), **prov})

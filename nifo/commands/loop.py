@@ -23,6 +23,7 @@ from pathlib import Path
 from nifo.io.atomic import staged_dir
 from nifo.io.loader import add_input_arguments, input_options, load_record
 from nifo.io.modelfile import load_model_spec, write_model_spec
+from nifo.io.provenance import add_system_argument, input_provenance, system_of
 from nifo.io.results import write_json
 from nifo.progress import Progress
 from nifo_core import __version__
@@ -54,6 +55,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="declared model file (default: a linear strut)")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory (replaced atomically)")
     add_input_arguments(p)
+    add_system_argument(p)
     g = p.add_argument_group("loop")
     g.add_argument("--max-rounds", type=int, default=4, metavar="N", help="most effects added (default 4)")
     g.add_argument("--m2", type=float, metavar="KG", help="sprung mass [kg]: coefficients in newtons")
@@ -96,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
     doc["nifo_version"] = __version__
     doc["data"] = [str(p) for p in args.data]
     doc["model_file"] = None if args.model is None else str(args.model)
+    doc.update(input=input_provenance(args), system=system_of(args))
     with staged_dir(args.out) as tmp:
         figures = _figures(tmp, doc, args.m2)
         doc["figures"] = figures

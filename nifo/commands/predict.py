@@ -30,6 +30,7 @@ import numpy as np
 
 from nifo.io.atomic import staged_dir
 from nifo.io.loader import add_input_arguments, input_options
+from nifo.io.provenance import add_system_argument, input_provenance, system_of
 from nifo_core.errors import ConfigError, InputError
 
 HELP = "predict the body response of other data with an identified model and compare with the measurement"
@@ -49,6 +50,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="linear responses from the fitted body model (default) or the identified T21(ω), B_i(ω)")
     p.add_argument("--no-plots", action="store_true", help="write predict.json only")
     add_input_arguments(p)
+    add_system_argument(p)
 
 
 def truth_for(path: Path) -> Path | None:
@@ -204,7 +206,8 @@ def run(args: argparse.Namespace) -> int:
             results.append(numbers)
         doc = {"nifo_predict": 1, "model": str(args.model), "model_terms": [t.to_dict() for t in model.terms],
                "model_c_over_m2": model.c_over_m2.tolist(), "linear_model": linear.source,
-               "method": args.method, "freq_range_hz": [lo, hi], "records": results}
+               "method": args.method, "freq_range_hz": [lo, hi], "records": results,
+               "input": input_provenance(args), "system": system_of(args)}
         write_json(tmp / PREDICT_JSON, doc, atomic=False)
     print(_summary(results, (lo, hi), args.out))
     return {"out": str(args.out), "freq_range_hz": [lo, hi], "figures": figures,

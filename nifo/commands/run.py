@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 
 from nifo.io.loader import add_input_arguments
+from nifo.io.provenance import add_system_argument
 from nifo_core.errors import InputError, NifoError
 
 HELP = "the whole job on the bundled sample (or given data): characterize, identify, predict, loop, report"
@@ -40,6 +41,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-loop", action="store_true", help="skip the loop step")
     p.add_argument("--no-recording", action="store_true", help="skip the Rerun recording")
     add_input_arguments(p)   # passed through to every step that reads data
+    add_system_argument(p)
 
 
 def sample_data() -> list[Path]:
@@ -56,10 +58,10 @@ def _command(name: str):
 
 
 def _input_dests() -> list[str]:
-    """The attribute names :func:`add_input_arguments` defines (whatever options it has)."""
+    """The attribute names :func:`add_input_arguments` defines (whatever options it has), and --system's."""
     p = argparse.ArgumentParser(add_help=False)
     add_input_arguments(p)
-    return [a.dest for a in p._actions]
+    return [a.dest for a in p._actions] + ["system"]
 
 
 def _call(name: str, argv: list[str], given: argparse.Namespace | None = None) -> dict:
