@@ -94,7 +94,8 @@ class Progress:
         if self._task is None:
             return
         prog = _live["progress"]
-        prog.update(self._task, description=self.desc)
+        prog.update(self._task, description=self.desc,
+                    **({"completed": self.total} if exc_type is None and self.total else {}))
         _live["depth"] -= 1
         if _live["depth"] > 0 or exc_type is not None:  # a finished inner step leaves no line behind
             prog.remove_task(self._task)

@@ -132,6 +132,12 @@ def run(args: argparse.Namespace) -> int:
 
     results = [dirs["characterize"], dirs["identify"]]
     pred_on = others or ([] if len(data) < 2 else ordered[:-1])
+    if pred_on and not (dirs["identify"] / "model.json").is_file():
+        why = ("identify wrote no model.json (no physical body model fits its T21; see its warnings), so the "
+               "other level(s) cannot be predicted: the predict step was skipped")
+        notes.append(why[0].upper() + why[1:] + ".")
+        print(f"nifo run: {why}", file=sys.stderr)
+        pred_on, total = [], total - 1
     if pred_on:
         t = begin(f"predict {', '.join(p.name for p in pred_on)} with the identified model")
         _call("predict", [*map(str, pred_on), "--model", str(dirs["identify"]), "--out", str(dirs["predict"])],
