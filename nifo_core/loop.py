@@ -730,8 +730,9 @@ def _round_text(i: int, trial: Trial, before: Errors, ev: Evidence | None, m2: f
               f"in the analysis band, {100 * ev.fraction_lines_above_level:.0f} % of lines above it")
     return (f"Round {i}: added {_effect_words(c, m2)}. It explains {100 * c.err:.0f} % of the remaining "
             f"body-acceleration residual ({100 * c.err_cv:.0f} % on alternate held-out blocks), "
-            f"{_p_text(c.p_value)}{pc}, {_stability_words(c, n_records)}, and is not an artefact of the "
-            f"tire's impacts (coefficient moves {100 * trial.tire_shift:.0f} % without them); "
+            f"{_p_text(c.p_value)}{pc}, {_stability_words(c, n_records)}, and is not an artefact of impacts "
+            f"on the input side (coefficient moves {100 * trial.tire_shift:.0f} % without the samples around "
+            f"them); "
             f"held-out NMSE {nm0:.2f} % → {nm1:.2f} %, equation error {before.equation_nmse_pct:.2f} % → "
             f"{after.equation_nmse_pct:.2f} %.{alt}")
 
@@ -823,9 +824,9 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
             failed = []
             shift, frac = _tire_check(ev, terms, c.term, s)
             if not shift <= s.max_tire_shift:
-                failed.append(f"tire check: the coefficient moves {100 * shift:.0f} % without the samples near the "
-                              f"spindle's impacts (> {100 * s.max_tire_shift:.0f} %): an artefact of tire events, "
-                              f"not a strut effect")
+                failed.append(f"impact check: the coefficient moves {100 * shift:.0f} % without the samples near "
+                              f"the input side's impacts (> {100 * s.max_tire_shift:.0f} %): an artefact of impacts "
+                              f"(tire events on a vehicle), not an effect of the nonlinear element")
             after = ev.errors([*terms, c.term])
             gain = 1 - after.equation_nmse_pct / current.equation_nmse_pct if current.equation_nmse_pct > 0 else 0.0
             if not gain >= s.min_heldout_gain:

@@ -191,7 +191,8 @@ def _figures(out: Path, args, rfs: list[RestoringForce], tracks: list[FrequencyT
                           f"z peak {1e3 * np.max(np.abs(rfs[i].z[s.index])):.3g} mm") for s in sl]
         fname = "restoring_frequency.png" if len(sweeps) == 1 else f"restoring_frequency_{i + 1}_{names[i]}.png"
         plot_restoring_slices(rows, out / fname, title=f"{names[i]}: restoring force by frequency ({band})",
-                              m2_kg=args.m2, subtitle=fitted)
+                              m2_kg=args.m2, subtitle=fitted,
+                              units=system_of(args)["units"])
         written.append(fname)
     # amplitude slices (paper Fig. 4): one row per file, or bins of one random record
     rows = []
@@ -215,14 +216,15 @@ def _figures(out: Path, args, rfs: list[RestoringForce], tracks: list[FrequencyT
                                   model_at(0, s.index), False))
     if rows:
         plot_restoring_slices(rows, out / "restoring_amplitude.png",
-                              title=f"restoring force by amplitude ({band})", m2_kg=args.m2, subtitle=fitted)
+                              title=f"restoring force by amplitude ({band})", m2_kg=args.m2, subtitle=fitted,
+                              units=system_of(args)["units"])
         written.append("restoring_amplitude.png")
     # characteristics of the suggested terms (or, if none, of the two best candidates)
     panels = _characteristics(char, rfs, masks, CharacteristicPlot)
     if panels:
         what = "suggested terms" if char.suggested else "best candidates (below threshold: not present)"
         plot_characteristics(panels, out / "characteristic.png", title=f"stiffness and damping characteristics: {what}",
-                             m2_kg=args.m2)
+                             m2_kg=args.m2, units=system_of(args)["units"])
         written.append("characteristic.png")
     cands = char.to_dict()["candidates"]
     plot_ranking(cands, out / "ranking.png", min_err=char.thresholds.min_err,
@@ -266,7 +268,7 @@ def _panels_for(model, char: Characterization, rfs, masks, CharacteristicPlot, e
     out = []
     for v in variables:
         xs, meas, fit, split, refs = (np.concatenate(a) for a in parts[v])
-        terms = [f"{_label(t)} θ={th:.3g}" for t, th in model.terms if t.variable == v]
+        terms = [f"{_label(t)} θ={th:.3g} ({t.spec.coef_unit})/kg" for t, th in model.terms if t.variable == v]
         what = "stiffness" if v == "z" else "damping"
         title = f"{what}: linear + " + "\n+ ".join(terms) + extra
         out.append(CharacteristicPlot(title, v, xs, meas, fit, split if v == "z" else None, refs))

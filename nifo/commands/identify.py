@@ -309,21 +309,26 @@ def format_summary(summary: dict, warn: list[str], *, out: Path, files: int, mod
 # ---------------------------------------------------------------------------------------------
 # figures
 # ---------------------------------------------------------------------------------------------
-def write_figures(out: Path, res, per_file, cond_limit: float) -> list[str]:
+def write_figures(out: Path, res, per_file, cond_limit: float, *, paths=(), system: dict | None = None) -> list[str]:
+    from nifo.io.provenance import true_t21
     from nifo.plots.nifo import plot_coefficients, plot_conditioning, plot_tire, plot_transmissibility
 
     f = res.freq_hz
     curves = [(f"measured H1 {name}", fq, h, {"lw": 0.9, "alpha": 0.8}) for name, fq, h in per_file]
+    truth = next((t for t in (true_t21(p, f) for p in paths) if t is not None), None)
+    if truth is not None:   # simulated data: the truth file beside it gives the true nominal linear T21
+        curves.append(("true nominal linear T21 (simulator)", f, truth, {"color": "k", "lw": 0.9, "ls": ":"}))
+    sides = ("spindle → body" if (system or {}).get("vehicle", True) else "input → output")
     if res.terms:
         curves.append(("NIFO nominal T21, per line (Eq. 9)", f, res.t21, {"color": "C0", "lw": 0.8, "ls": ":"}))
         curves.append(("NIFO nominal T21, pooled (recommended)", f, res.static.t21,
                        {"color": "C3", "lw": 1.6, "ls": "--"}))
     plot_transmissibility(out / "transmissibility.png", curves, band_hz=res.analysis_band_hz,
-                          title="spindle → body transmissibility: measured and NIFO nominal linear (cf. Fig. 9b/12b)")
+                          title=f"{sides} transmissibility: measured and NIFO nominal linear (cf. Fig. 9b/12b)")
     names = ["transmissibility.png"]
     if res.terms:
         plot_coefficients(out / "coefficients.png", res,
-                          title="coefficient functions μ_i(ω)/K2 (cf. paper Fig. 10/13)")
+                          title=r"coefficient functions $\mu_i(\omega)/K_2$ (cf. paper Fig. 10/13)")
         names.append("coefficients.png")
     plot_conditioning(out / "conditioning.png", res, cond_limit=cond_limit)
     names.append("conditioning.png")
@@ -415,7 +420,9 @@ def run(args: argparse.Namespace) -> int:
     model_file = {"path": str(args.model), "steps": [{"name": s.name, "terms": [t.to_dict() for t in s.terms]}
                                                     for s in spec.steps]}
     with staged_dir(args.out) as tmp:
-        figures = [] if args.no_plots else write_figures(tmp, res, per_file, cfg["cond_limit"])
+        figures = [] if args.no_plots else write_figures(tmp, res, per_file, cfg["cond_limit"],
+                                                         paths=[d["path"] for d in _entries(data)],
+                                                         system=system_of(args))
         doc = identify_document(res, data=data, summary=summary, warnings=warn, settings=settings_doc,
                                 model_file=model_file, figures=figures)
         doc.update(input=input_provenance(args), system=system_of(args))
@@ -427,6 +434,11 @@ def run(args: argparse.Namespace) -> int:
     print(format_summary(summary, warn, out=args.out, files=files, model_written=model is not None))
     return {"out": str(args.out), "model_written": model is not None, "figures": figures, "warnings": warn,
             "summary": summary}
+
+
+def _entries(data) -> list[dict]:
+    """Data provenance entries of a single- or two-step identification."""
+    return data if isinstance(data, list) else [e for s in data["steps"] for e in s["data"]]
 
 
 def _settings_doc(cfg: dict, res) -> dict:

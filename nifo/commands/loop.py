@@ -100,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
     doc["model_file"] = None if args.model is None else str(args.model)
     doc.update(input=input_provenance(args), system=system_of(args))
     with staged_dir(args.out) as tmp:
-        figures = _figures(tmp, doc, args.m2)
+        figures = _figures(tmp, doc, args.m2, units=doc["system"]["units"])
         doc["figures"] = figures
         write_json(tmp / "loop.json", doc, atomic=False, indent=2)
         model_settings = {k: v for k, v in (spec.settings.items() if spec else []) if k != "band_hz"}
@@ -129,7 +129,7 @@ def _note(res: LoopResult) -> str:
     return "nifo loop added: " + ", ".join(f"{c.term.label} ({c.describe()})" for c in res.added)
 
 
-def _figures(out: Path, doc: dict, m2: float | None) -> list[str]:
+def _figures(out: Path, doc: dict, m2: float | None, *, units: str = "m/s²") -> list[str]:
     from nifo.plots.loop import plot_errors, plot_round_evidence
 
     names = []
@@ -138,7 +138,7 @@ def _figures(out: Path, doc: dict, m2: float | None) -> list[str]:
     for r in doc["rounds"]:
         if r.get("added") and r.get("evidence"):
             n = f"loop_round{r['round']}.png"
-            plot_round_evidence(r, out / n, m2_kg=m2)
+            plot_round_evidence(r, out / n, m2_kg=m2, units=units)
             names.append(n)
     return names
 

@@ -147,7 +147,7 @@ def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._") or "record"
 
 
-def _figures(out: Path, name: str, arr: dict, band_hz, model) -> list[str]:
+def _figures(out: Path, name: str, arr: dict, band_hz, model, *, system: dict | None = None) -> list[str]:
     from nifo.plots.nifo import plot_time_excerpt, plot_transmissibility
 
     f = arr["f"]
@@ -172,8 +172,16 @@ def _figures(out: Path, name: str, arr: dict, band_hz, model) -> list[str]:
                                                                                      "ls": "--"}),
                                           ("linear model", arr["a2_linear"][sl], {"color": "C0", "lw": 0.8,
                                                                                   "ls": ":"})],
-                      title=f"{name}: body acceleration, measured vs predicted from the measured spindle")
+                      title=f"{name}: {_words(system)[1]}, measured vs predicted from the measured {_words(system)[0]}",
+                      ylabel=f"{_words(system)[1]} [{(system or {}).get('units', 'm/s²')}]")
     return names
+
+
+def _words(system: dict | None) -> tuple[str, str]:
+    """(input, output) signal names: spindle and body acceleration on a vehicle, else neutral."""
+    if system is None or system.get("vehicle", True):
+        return "spindle", "body acceleration"
+    return "input side", "output-side signal"
 
 
 def _linear_part(model):
@@ -201,7 +209,7 @@ def run(args: argparse.Namespace) -> int:
         for path, rec in records:
             numbers, arrays = predict_one(path, rec, model, linear, band_hz=(lo, hi), method=args.method)
             if not args.no_plots:
-                numbers["figures"] = _figures(tmp, path.name, arrays, (lo, hi), model)
+                numbers["figures"] = _figures(tmp, path.name, arrays, (lo, hi), model, system=system_of(args))
                 figures += numbers["figures"]
             results.append(numbers)
         doc = {"nifo_predict": 1, "model": str(args.model), "model_terms": [t.to_dict() for t in model.terms],

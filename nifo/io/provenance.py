@@ -8,6 +8,8 @@ Commands store, in their JSON document,
 - ``"system"``: ``--system "DESCRIPTION [UNIT]"``, what was measured and the unit of the two
   acceleration channels (default: a vehicle suspension in m/s²), so figures and the report
   use the record's units and no quarter-car words on other structures (:func:`system_of`).
+
+:func:`true_t21` reads the simulator's truth beside a data file, for the true curve in figures.
 """
 
 from __future__ import annotations
@@ -18,7 +20,8 @@ from collections.abc import Mapping
 
 from nifo_core.errors import ConfigError
 
-__all__ = ["input_provenance", "reader_options", "add_system_argument", "system_of", "System", "QUARTER_CAR"]
+__all__ = ["input_provenance", "reader_options", "add_system_argument", "system_of", "System", "QUARTER_CAR",
+           "true_t21"]
 
 #: the default system: what nifo is made for
 QUARTER_CAR = {"description": "", "units": "m/s²", "vehicle": True}
@@ -74,3 +77,21 @@ def system_of(args_or_doc) -> dict:
         raise ConfigError(f"--system {text!r} says nothing", channel="--system",
                           hint="e.g. --system 'F-16 wing-payload interface [m/s²]'")
     return {"description": desc, "units": (unit or "m/s²").strip(), "vehicle": False}
+
+
+def true_t21(path, freq_hz):
+    """The true nominal linear T21 at ``freq_hz`` [Hz] from the simulator's truth file beside data ``path``
+    (``<name>.truth.json``, see ``nifo simulate``); None when there is none or it cannot be read."""
+    import json
+    from pathlib import Path
+
+    from nifo.commands.predict import truth_for
+    from nifo_core.vehicle import QuarterCar
+
+    tp = truth_for(Path(path))
+    if tp is None:
+        return None
+    try:
+        return QuarterCar(**json.loads(tp.read_text())["vehicle"]).t21(freq_hz)
+    except (OSError, ValueError, KeyError, TypeError):
+        return None

@@ -2,7 +2,8 @@
 
 Every function takes plain arrays or core results and writes one PNG.
 Forces are per unit sprung mass (-ẍ2 [m/s²]) unless ``m2_kg`` is given, then
-in newtons (-M2·ẍ2).
+in newtons (-M2·ẍ2). Signals in other units (``units="V"``: an electrical
+analogue) are labelled in those units: force [V], z [V·s²], ż [V·s].
 """
 
 from __future__ import annotations
@@ -64,8 +65,20 @@ class CharacteristicPlot:
     reference: np.ndarray | None = None
 
 
-def _force_scale(m2_kg: float | None) -> tuple[float, str]:
-    return (m2_kg, "strut force −M2·ẍ2 [N]") if m2_kg else (1.0, "−ẍ2 [m/s²]")
+SI = "m/s²"
+
+
+def _force_scale(m2_kg: float | None, units: str = SI) -> tuple[float, str]:
+    if units != SI:
+        return 1.0, f"−ẍ2 [{units}]"
+    return (m2_kg, "force −M2·ẍ2 [N]") if m2_kg else (1.0, "−ẍ2 [m/s²]")
+
+
+def _xscale(variable: str, peak: float, units: str = SI) -> tuple[float, str]:
+    """Scale and axis label of z or ż: mm/µm and m/s or mm/s for m/s², else the integrated unit."""
+    if units != SI:
+        return 1.0, (f"z [{units}·s²]" if variable == "z" else f"ż [{units}·s]")
+    return _z_scale(peak) if variable == "z" else _v_scale(peak)
 
 
 def _z_scale(z_peak: float) -> tuple[float, str]:
@@ -81,7 +94,7 @@ def _thin(n: int, most: int) -> np.ndarray:
 
 
 def plot_restoring_slices(rows: Sequence[SlicePlot], path: str | Path, *, title: str,
-                          m2_kg: float | None = None, subtitle: str = "") -> Path:
+                          m2_kg: float | None = None, subtitle: str = "", units: str = SI) -> Path:
     """Grid of restoring-force plots: one row per slice, velocity view left, displacement view right.
 
     As the paper's Figs. 3 (frequency slices), 4 (amplitude slices) and 7
@@ -92,9 +105,9 @@ def plot_restoring_slices(rows: Sequence[SlicePlot], path: str | Path, *, title:
     plt = pyplot()
     if not rows:
         raise ValueError("no slices to plot")
-    fsc, flabel = _force_scale(m2_kg)
-    zsc, zlabel = _z_scale(max(float(np.max(np.abs(r.z))) for r in rows))
-    vsc, vlabel = _v_scale(max(float(np.max(np.abs(r.zdot))) for r in rows))
+    fsc, flabel = _force_scale(m2_kg, units)
+    zsc, zlabel = _xscale("z", max(float(np.max(np.abs(r.z))) for r in rows), units)
+    vsc, vlabel = _xscale("zdot", max(float(np.max(np.abs(r.zdot))) for r in rows), units)
     n = len(rows)
     fig, axes = plt.subplots(n, 2, figsize=(9.0, 2.35 * n + 0.9), squeeze=False)
     letters = "abcdefghijklmnopqrstuvwxyz"
@@ -172,7 +185,7 @@ def _unit(label: str) -> str:
 
 
 def plot_characteristics(panels: Sequence[CharacteristicPlot], path: str | Path, *, title: str,
-                         m2_kg: float | None = None) -> Path:
+                         m2_kg: float | None = None, units: str = SI) -> Path:
     """Stiffness / damping characteristics, one column per term (the paper's classic slices, cleaned).
 
     Top row: the characteristic; data as binned medians with their
@@ -184,13 +197,13 @@ def plot_characteristics(panels: Sequence[CharacteristicPlot], path: str | Path,
     plt = pyplot()
     if not panels:
         raise ValueError("no characteristics to plot")
-    fsc, flabel = _force_scale(m2_kg)
+    fsc, flabel = _force_scale(m2_kg, units)
     n = len(panels)
     fig, axes = plt.subplots(2, n, figsize=(4.4 * n, 6.4), squeeze=False, sharex="col")
     for col, p in enumerate(panels):
         top, bot = axes[0, col], axes[1, col]
         peak = float(np.quantile(np.abs(p.x), 0.995)) or 1.0
-        sc, xl = _z_scale(peak) if p.variable == "z" else _v_scale(peak)
+        sc, xl = _xscale(p.variable, peak, units)
         edges = np.linspace(-peak, peak, 41)
         ref = p.reference if p.reference is not None else np.zeros_like(p.x)
         groups = [("", np.ones(p.x.size, bool), _MEASURED)]
@@ -263,7 +276,8 @@ def plot_ranking(candidates: Sequence[dict], path: str | Path, *, title: str, mi
             txt += ": " + c["failed"][0].replace("coefficient ", "")[:34]
         ax.text(1.02, yi, txt, transform=ax.get_yaxis_transform(), fontsize=7.5, va="center", ha="left",
                 color=_STATUS_COLOURS.get(c["status"], "0.3") if c["status"] != "weak" else "0.45")
-    ax.set_xlabel("error reduction ratio: share of the linear fit's residual variance explained", fontsize=8)
+    ax.set_xlabel("error reduction ratio ERR: share of the linear fit's residual variance explained [–]",
+                  fontsize=8)
     ax.set_ylim(-0.7, n - 0.3 + 0.6)
     ax.grid(True, axis="x", lw=0.3, alpha=0.5, which="both")
     ax.set_title(title, fontsize=10)

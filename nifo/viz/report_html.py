@@ -367,6 +367,7 @@ def _provenance(results: Sequence[ResultDir]) -> dict:
 def levels_figure(results: Sequence[ResultDir], out_png: Path) -> Path | None:
     """Plain H1 at every level found in the results' provenance, with the NIFO nominal T21 and (simulated
     data) the true linear T21, as one PNG; None when there is no identify result or no data is reachable."""
+    from nifo.io.provenance import true_t21
     from nifo.io.results import read_identify
     from nifo.plots.nifo import plot_transmissibility
     from nifo_core.spectral import cross_spectra, h1
@@ -392,7 +393,8 @@ def levels_figure(results: Sequence[ResultDir], out_png: Path) -> Path | None:
         rms = float(np.std(rec.spindle_accel))
         curves.append((f"measured H1, {p.name} ({words['input']} RMS {rms:.2g} {units})", spec.freq_hz,
                        h1(spec, 0, 1), {"lw": 1.0, "alpha": 0.85}))
-        truth = truth or _truth_t21(p, spec.freq_hz)
+        if truth is None and (t := true_t21(p, spec.freq_hz)) is not None:
+            truth = (spec.freq_hz, t)
     if not curves:
         return None
     curves.sort(key=lambda c: c[0])
@@ -403,19 +405,6 @@ def levels_figure(results: Sequence[ResultDir], out_png: Path) -> Path | None:
                        {"color": "k", "lw": 0.9, "ls": ":"}))
     return plot_transmissibility(out_png, curves, band_hz=res.analysis_band_hz,
                                  title="transmissibility across levels and the NIFO nominal estimate")
-
-
-def _truth_t21(path: Path, f: np.ndarray):
-    from nifo.commands.predict import truth_for
-    from nifo_core.vehicle import QuarterCar
-
-    tp = truth_for(path)
-    if tp is None:
-        return None
-    try:
-        return f, QuarterCar(**json.loads(tp.read_text())["vehicle"]).t21(f)
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
 
 
 # ------------------------------------------------------------------------------------ the document
