@@ -29,12 +29,16 @@ VECTOR_SUFFIXES = (".svg",)
 
 def save_figure(fig, path: str | Path, *, dpi: int = 130) -> Path:
     """Write ``fig`` as PNG at ``path`` and as SVG beside it (same stem), close it; the PNG's path."""
+    import matplotlib
+
     plt = pyplot()
     p = Path(path)
     try:
         fig.savefig(p, dpi=dpi, bbox_inches="tight")
-        for suffix in VECTOR_SUFFIXES:   # dense point clouds are rasterized inside (rasterized=True)
-            fig.savefig(p.with_suffix(suffix), dpi=dpi, bbox_inches="tight", metadata={"Date": None})
+        # text stays text in the SVG (editable, searchable); dense point clouds are rasterized inside
+        with matplotlib.rc_context({"svg.fonttype": "none"}):
+            for suffix in VECTOR_SUFFIXES:
+                fig.savefig(p.with_suffix(suffix), dpi=dpi, bbox_inches="tight", metadata={"Date": None})
     finally:
         plt.close(fig)
     return p
