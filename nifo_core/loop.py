@@ -359,7 +359,7 @@ class LoopResult:
 
     def report(self) -> str:
         """The report a test engineer reads: one paragraph per round, then the verdict."""
-        lines = [f"Declared model: linear strut{''.join(' + ' + t.label for t in self.declared)}.",
+        lines = [f"Declared model: linear element{''.join(' + ' + t.label for t in self.declared)}.",
                  f"Data: {len(self.sources)} record(s); fitted on the first "
                  f"{100 * self.settings.fit_fraction:.0f} % of each, errors on the last "
                  f"{100 * (1 - self.settings.fit_fraction):.0f} % (held out); integration band "
@@ -701,7 +701,7 @@ def _effect_words(c: Candidate, m2: float | None) -> str:
     if c.coefficient is not None:
         size = f"{c.coefficient:.3g} {unit} (θ = {c.theta:.3g} {unit}/kg × M2 = {m2:g} kg)"
     else:
-        size = f"{c.theta:.3g} {unit} per kg of sprung mass (give M2 for newtons)"
+        size = f"{c.theta:.3g} {unit} per kg of the output-side mass M2 (give --m2 for newtons)"
     if c.kind == "coulomb":
         return f"Coulomb friction of {size}"
     return f"{c.describe()}{where}: {c.term.label}, coefficient {size}"

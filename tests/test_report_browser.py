@@ -167,3 +167,26 @@ def test_report_of_sample_and_f16_loads_every_figure_and_fills_every_provenance_
     else:                       # the truth files beside the bundled sample are found and compared with
         pred = json.loads((report.parents[1] / "predict" / "predict.json").read_text())
         assert all(r["truth"]["model_nominal_t21_vs_true"]["median"] is not None for r in pred["records"])
+
+
+def test_report_command_rereads_data_made_with_columns(f16_report, tmp_path, capsys):
+    """``nifo report`` on F-16 results (MAT files read with --columns) re-reads them with the same column
+    map (stored in the results): the levels figure is computed, the exit code is 0."""
+    runs = f16_report.parents[1]
+    doc = json.loads((runs / "identify" / "identify.json").read_text())
+    assert doc["input"]["columns"] == F16_COLUMNS
+    out = tmp_path / "f16.html"
+    assert main(["report", str(runs / "characterize"), str(runs / "identify"), "--out", str(out)]) == 0
+    text = out.read_text()
+    assert 'alt="levels"' in text and "Acceleration[2]" in text
+
+
+def test_report_of_an_identification_without_nonlinear_terms(tmp_path, capsys):
+    from nifo.commands.run import sample_data
+
+    model = tmp_path / "linear.yaml"
+    model.write_text("nifo_model: 1\nnonlinearities: []\n")
+    data = str(sample_data()[0])
+    assert main(["-q", "identify", data, "--model", str(model), "--out", str(tmp_path / "i")]) == 0
+    assert main(["-q", "report", str(tmp_path / "i"), "--out", str(tmp_path / "r.html")]) == 0
+    assert "No nonlinear terms declared" in (tmp_path / "r.html").read_text()
