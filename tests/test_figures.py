@@ -110,8 +110,9 @@ def test_coefficient_labels_do_not_overlap_ticks_and_loop_errors_has_no_log_axis
             assert not any(_overlap(leg.get_window_extent(r), b) for b in bars)
 
 
-def test_true_transmissibility_is_drawn_when_a_truth_file_is_beside_the_data(ran):
+def test_true_curves_are_drawn_when_a_truth_file_is_beside_the_data(ran):
     assert "true nominal linear T21" in _svg_text(ran / "identify" / "transmissibility.svg")
+    assert "true (simulator)" in _svg_text(ran / "characterize" / "characteristic.svg")
 
 
 def test_record_units_and_system_words_carry_into_the_figures(tmp_path):

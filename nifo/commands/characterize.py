@@ -25,7 +25,7 @@ import numpy as np
 from nifo.io.atomic import staged_dir
 from nifo.io.loader import add_input_arguments, input_options, load_record
 from nifo.io.modelfile import write_model_spec
-from nifo.io.provenance import add_system_argument, input_provenance, system_of
+from nifo.io.provenance import add_system_argument, input_provenance, system_of, true_strut_model
 from nifo.io.results import write_json
 from nifo.progress import Progress
 from nifo_core import __version__
@@ -220,7 +220,9 @@ def _figures(out: Path, args, rfs: list[RestoringForce], tracks: list[FrequencyT
                               units=system_of(args)["units"])
         written.append("restoring_amplitude.png")
     # characteristics of the suggested terms (or, if none, of the two best candidates)
-    panels = _characteristics(char, rfs, masks, CharacteristicPlot)
+    truths = [true_strut_model(p) for p in args.data]   # simulated data: the truth file beside each
+    panels = _characteristics(char, rfs, masks, CharacteristicPlot,
+                              truths=truths if all(t is not None for t in truths) else None)
     if panels:
         what = "suggested terms" if char.suggested else "best candidates (below threshold: not present)"
         plot_characteristics(panels, out / "characteristic.png", title=f"stiffness and damping characteristics: {what}",
@@ -234,44 +236,56 @@ def _figures(out: Path, args, rfs: list[RestoringForce], tracks: list[FrequencyT
     return written
 
 
-def _characteristics(char: Characterization, rfs, masks, CharacteristicPlot) -> list:
+def _characteristics(char: Characterization, rfs, masks, CharacteristicPlot, *, truths=None) -> list:
     """A stiffness and/or damping characteristic of the suggested model (one panel per variable its terms
     act on); with nothing suggested, of the best candidate fitted alone."""
     from nifo_core.characterize import FittedModel
 
     if char.suggested:
-        return _panels_for(char.model, char, rfs, masks, CharacteristicPlot)
+        return _panels_for(char.model, char, rfs, masks, CharacteristicPlot, truths=truths)
     c = char.candidates[0]
     m = FittedModel(char.linear["k_per_kg"], char.linear["c_per_kg"], ((c.term, c.theta),), char.linear["r2"])
-    return _panels_for(m, char, rfs, masks, CharacteristicPlot, extra=" (best candidate, not present)")
+    return _panels_for(m, char, rfs, masks, CharacteristicPlot, extra=" (best candidate, not present)",
+                       truths=truths)
 
 
-def _panels_for(model, char: Characterization, rfs, masks, CharacteristicPlot, extra: str = "") -> list:
-    """Per variable (z, ż): data = -ẍ2 minus the other variable's fitted part; fitted = this variable's part."""
+def _own_parts(model, rf) -> dict:
+    """Each variable's part of ``model``'s force along ``rf``'s motion: k·z + its z-terms, c·ż + its ż-terms."""
+    _, per = model.contributions(rf.z, rf.zdot, fs_hz=rf.fs_hz, band=rf.band)
+    on = {v: sum((per[j] for j, (t, _) in enumerate(model.terms) if t.variable == v), np.zeros(rf.n))
+          for v in ("z", "zdot")}
+    return {"z": model.k_per_kg * rf.z + on["z"], "zdot": model.c_per_kg * rf.zdot + on["zdot"]}
+
+
+def _panels_for(model, char: Characterization, rfs, masks, CharacteristicPlot, extra: str = "", *,
+                truths=None) -> list:
+    """Per variable (z, ż): data = -ẍ2 minus the other variable's fitted part; fitted = this variable's part;
+    with ``truths`` (one true model per record, simulated data) the true part of that variable too."""
     variables = [v for v in ("z", "zdot") if any(t.variable == v for t, _ in model.terms)]
-    parts = {v: ([], [], [], [], []) for v in variables}  # x, measured, fitted, split, reference
+    parts = {v: ([], [], [], [], [], []) for v in variables}  # x, measured, fitted, split, reference, truth
     for i, rf in enumerate(rfs):
-        _, per = model.contributions(rf.z, rf.zdot, fs_hz=rf.fs_hz, band=rf.band)
         sel = np.ones(rf.n, bool) if masks is None or masks[i] is None else masks[i]
-        on = {v: sum((per[j] for j, (t, _) in enumerate(model.terms) if t.variable == v), np.zeros(rf.n))
-              for v in ("z", "zdot")}
-        own = {"z": model.k_per_kg * rf.z + on["z"], "zdot": model.c_per_kg * rf.zdot + on["zdot"]}
+        own = _own_parts(model, rf)
+        true = _own_parts(truths[i], rf) if truths else None
         ref = {"z": char.linear["k_per_kg"] * rf.z, "zdot": char.linear["c_per_kg"] * rf.zdot}
         for v in variables:
             other = "zdot" if v == "z" else "z"
-            xs, meas, fit, split, refs = parts[v]
+            xs, meas, fit, split, refs, tru = parts[v]
             xs.append((rf.z if v == "z" else rf.zdot)[sel])
             meas.append((rf.force - own[other])[sel])
             fit.append(own[v][sel])
             split.append(rf.zdot[sel])
             refs.append(ref[v][sel])
+            if true is not None:
+                tru.append(true[v][sel])
     out = []
     for v in variables:
-        xs, meas, fit, split, refs = (np.concatenate(a) for a in parts[v])
-        terms = [f"{_label(t)} θ={th:.3g} ({t.spec.coef_unit})/kg" for t, th in model.terms if t.variable == v]
+        xs, meas, fit, split, refs = (np.concatenate(a) for a in parts[v][:5])
+        tru = np.concatenate(parts[v][5]) if parts[v][5] else None
+        terms = [f"{_label(t)},\nθ={th:.3g} ({t.spec.coef_unit})/kg" for t, th in model.terms if t.variable == v]
         what = "stiffness" if v == "z" else "damping"
         title = f"{what}: linear + " + "\n+ ".join(terms) + extra
-        out.append(CharacteristicPlot(title, v, xs, meas, fit, split if v == "z" else None, refs))
+        out.append(CharacteristicPlot(title, v, xs, meas, fit, split if v == "z" else None, refs, tru))
     return out
 
 

@@ -9,7 +9,8 @@ Commands store, in their JSON document,
   acceleration channels (default: a vehicle suspension in m/s²), so figures and the report
   use the record's units and no quarter-car words on other structures (:func:`system_of`).
 
-:func:`true_t21` reads the simulator's truth beside a data file, for the true curve in figures.
+:func:`true_t21` and :func:`true_strut_model` read the simulator's truth beside a data file, for the
+true curves in figures.
 """
 
 from __future__ import annotations
@@ -18,10 +19,10 @@ import argparse
 import re
 from collections.abc import Mapping
 
-from nifo_core.errors import ConfigError
+from nifo_core.errors import ConfigError, NifoError
 
 __all__ = ["input_provenance", "reader_options", "add_system_argument", "system_of", "System", "QUARTER_CAR",
-           "true_t21"]
+           "true_t21", "true_strut_model"]
 
 #: the default system: what nifo is made for
 QUARTER_CAR = {"description": "", "units": "m/s²", "vehicle": True}
@@ -94,4 +95,27 @@ def true_t21(path, freq_hz):
     try:
         return QuarterCar(**json.loads(tp.read_text())["vehicle"]).t21(freq_hz)
     except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def true_strut_model(path):
+    """The simulator's true strut (linear K2, C2 and its nonlinear terms), per unit sprung mass, as a
+    :class:`nifo_core.characterize.FittedModel`, from the truth file beside data ``path``; None without one."""
+    import json
+    from pathlib import Path
+
+    from nifo.commands.predict import truth_for
+    from nifo_core.characterize import FittedModel
+    from nifo_core.describing import make_term
+
+    tp = truth_for(Path(path))
+    if tp is None:
+        return None
+    try:
+        doc = json.loads(tp.read_text())
+        m2 = float(doc["vehicle"]["m2"])
+        terms = tuple((make_term({"kind": s["kind"], "params": s.get("params") or {}}), float(s["coefficient"]) / m2)
+                      for s in doc.get("strut") or [])
+        return FittedModel(float(doc["vehicle"]["k2"]) / m2, float(doc["vehicle"]["c2"]) / m2, terms, float("nan"))
+    except (OSError, ValueError, KeyError, TypeError, NifoError):
         return None

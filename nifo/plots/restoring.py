@@ -52,7 +52,8 @@ class CharacteristicPlot:
     term (the other variable's linear part, the other terms); ``fitted``: this
     variable's linear part plus θ·g (band-passed like the data);
     ``reference``: the plain linear fit's part (what a linear strut would
-    give). ``x`` is z [m] or ż [m/s] (``variable``); ``split`` (e.g. ż for
+    give); ``truth``: the true part of this variable (simulated data, from the
+    truth file). ``x`` is z [m] or ż [m/s] (``variable``); ``split`` (e.g. ż for
     a z-term) separates loading from unloading so hysteresis shows.
     """
 
@@ -63,6 +64,7 @@ class CharacteristicPlot:
     fitted: np.ndarray
     split: np.ndarray | None = None
     reference: np.ndarray | None = None
+    truth: np.ndarray | None = None
 
 
 SI = "m/s²"
@@ -227,6 +229,10 @@ def plot_characteristics(panels: Sequence[CharacteristicPlot], path: str | Path,
         if p.reference is not None:
             xr, mr, _, _ = _binned(p.x, p.reference, edges)
             top.plot(xr * sc, mr * fsc, ":", color="0.3", lw=1.2, label="linear fit")
+        if p.truth is not None:   # the simulator's strut, band-passed like the data
+            for ax, sub in ((top, np.zeros_like(ref)), (bot, ref)):
+                xt, mt, _, _ = _binned(p.x, p.truth - sub, edges)
+                ax.plot(xt * sc, mt * fsc, "-.", color="k", lw=1.1, label="true (simulator)" if ax is top else None)
         lim = np.quantile(np.abs(p.measured), 0.99) * fsc or 1.0
         top.set_ylim(-1.3 * lim, 1.3 * lim)
         dev = p.fitted - ref
