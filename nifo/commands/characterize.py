@@ -167,7 +167,7 @@ def _figures(out: Path, args, rfs: list[RestoringForce], tracks: list[FrequencyT
     names = [_short(p) for p in args.data]
     written: list[str] = []
     models = [_model_force(char, rf) for rf in rfs]
-    fitted = ("fitted model: linear + " + " + ".join(_label(t) for t in char.suggested_terms) if char.suggested
+    fitted = ("fitted model: linear + " + " + ".join(_label(t, system_of(args)["units"]) for t in char.suggested_terms) if char.suggested
               else "fitted model: linear only (nothing nonlinear found)")
     if args.freq_window:
         fitted += f" (fitted on {args.freq_window[0]:g}-{args.freq_window[1]:g} Hz, drawn there only)"
@@ -229,7 +229,7 @@ def _figures(out: Path, args, rfs: list[RestoringForce], tracks: list[FrequencyT
                              m2_kg=args.m2, units=system_of(args)["units"])
         written.append("characteristic.png")
     cands = char.to_dict()["candidates"]
-    plot_ranking(cands, out / "ranking.png", min_err=char.thresholds.min_err,
+    plot_ranking(cands, out / "ranking.png", min_err=char.thresholds.min_err, units=system_of(args)["units"],
                  title="each kind's best form: suggested terms first (scored given the ones above), "
                        "then the rest by the variance they explain beyond linear")
     written.append("ranking.png")
@@ -289,11 +289,10 @@ def _panels_for(model, char: Characterization, rfs, masks, CharacteristicPlot, e
     return out
 
 
-def _label(t) -> str:
-    p = {k: v for k, v in t.params.items() if not (k == "offset" and v == 0)}
-    if not p:
-        return t.kind
-    return t.kind + "(" + ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in p.items()) + ")"
+def _label(t, units: str = "m/s²") -> str:
+    from nifo.plots.restoring import term_label
+
+    return term_label(t.kind, dict(t.params), units=units)
 
 
 # ---------------------------------------------------------------------------------------------

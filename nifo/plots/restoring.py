@@ -16,7 +16,8 @@ import numpy as np
 
 from . import pyplot, save_figure
 
-__all__ = ["SlicePlot", "CharacteristicPlot", "plot_restoring_slices", "plot_characteristics", "plot_ranking"]
+__all__ = ["SlicePlot", "CharacteristicPlot", "plot_restoring_slices", "plot_characteristics", "plot_ranking",
+           "term_label"]
 
 _MEASURED = "#1f4e79"
 _MODEL = "#c0392b"
@@ -249,14 +250,31 @@ def plot_characteristics(panels: Sequence[CharacteristicPlot], path: str | Path,
     return save_figure(fig, path)
 
 
-def _short_label(c: dict) -> str:
-    p = {k: v for k, v in c["params"].items() if not (k == "offset" and v == 0)}
+def term_label(kind: str, params: dict, *, units: str = SI) -> str:
+    """``clearance(gap=0.135 mm)``: a describing function with its parameters in units (a parameter is in
+    the unit of the variable the term acts on: z in mm, ż in m/s; z in UNIT·s² for other signal units)."""
+    from nifo_core.describing import make_term
+
+    p = {k: v for k, v in params.items() if not (k == "offset" and v == 0)}
     if not p:
-        return c["kind"]
-    return c["kind"] + "(" + ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in p.items()) + ")"
+        return kind
+    try:
+        variable = make_term({"kind": kind, "params": params}).variable
+    except (ValueError, KeyError, TypeError):
+        variable = None
+
+    def text(v) -> str:
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or variable is None:
+            return str(v)
+        if units != SI:
+            return f"{v:.3g} {units}·s²" if variable == "z" else f"{v:.3g} {units}·s"
+        return f"{1e3 * v:.3g} mm" if variable == "z" else f"{v:.3g} m/s"
+
+    return kind + "(" + ", ".join(f"{k}={text(v)}" for k, v in p.items()) + ")"
 
 
-def plot_ranking(candidates: Sequence[dict], path: str | Path, *, title: str, min_err: float) -> Path:
+def plot_ranking(candidates: Sequence[dict], path: str | Path, *, title: str, min_err: float,
+                 units: str = SI) -> Path:
     """Horizontal bars: each kind's error reduction ratio, coloured by its status; the threshold dashed.
 
     ``candidates`` as in ``Characterization.to_dict()["candidates"]`` (ranked).
@@ -273,7 +291,7 @@ def plot_ranking(candidates: Sequence[dict], path: str | Path, *, title: str, mi
     ax.axvline(min_err, color="k", ls="--", lw=0.9)
     ax.text(min_err, n - 0.45, f" present above {min_err:g}", fontsize=7.5, va="bottom")
     ax.set_yticks(y)
-    ax.set_yticklabels([_short_label(c) for c in candidates], fontsize=7.5)
+    ax.set_yticklabels([term_label(c["kind"], c["params"], units=units) for c in candidates], fontsize=7.5)
     for yi, c in zip(y, candidates):
         txt = c["status"]
         if c.get("alternative_to"):
