@@ -167,7 +167,8 @@ def _figures(out: Path, args, rfs: list[RestoringForce], tracks: list[FrequencyT
     names = [_short(p) for p in args.data]
     written: list[str] = []
     models = [_model_force(char, rf) for rf in rfs]
-    fitted = ("fitted model: linear + " + " + ".join(_label(t, system_of(args)["units"]) for t in char.suggested_terms) if char.suggested
+    units = system_of(args)["units"]
+    fitted = ("fitted model: linear + " + " + ".join(_label(t, units) for t in char.suggested_terms) if char.suggested
               else "fitted model: linear only (nothing nonlinear found)")
     if args.freq_window:
         fitted += f" (fitted on {args.freq_window[0]:g}-{args.freq_window[1]:g} Hz, drawn there only)"
