@@ -172,6 +172,15 @@ def _units(system: Mapping) -> tuple[str, float, str, float]:
     return ("mm", 1e3, "m/s", 1.0) if u == "m/s²" else (f"{u}·s²", 1.0, f"{u}·s", 1.0)
 
 
+def _term_text(c: Mapping, system: Mapping) -> str:
+    """A candidate's label with its parameters in units (gap=0.135 mm), else as stored."""
+    from nifo.plots.restoring import term_label
+
+    if isinstance(c.get("params"), Mapping) and c.get("kind"):
+        return term_label(c["kind"], dict(c["params"]), units=system.get("units", "m/s²"))
+    return str(c.get("label", c.get("kind", "?")))
+
+
 def _characterize(r: ResultDir, system: Mapping) -> tuple[dict, list]:
     d = r.doc
     zu, zs, vu, vs = _units(system)
@@ -181,7 +190,7 @@ def _characterize(r: ResultDir, system: Mapping) -> tuple[dict, list]:
         coef = (f"{_num(c['coefficient'])} {unit}" if c.get("coefficient") is not None
                 else f"{_num(c.get('theta_per_kg'))} ({unit})/kg")
         status = c.get("status", "") + (f" (≈ {c['alternative_to']})" if c.get("alternative_to") else "")
-        cands.append([c.get("label", c.get("kind")), coef, _num(c.get("err"), ".3f"), _num(c.get("p_value"), ".1e"),
+        cands.append([_term_text(c, system), coef, _num(c.get("err"), ".3f"), _num(c.get("p_value"), ".1e"),
                       status, c.get("meaning", "")])
         classes.append("suggested" if c.get("status") == "suggested" else "")
     levels = [[Path(x.get("path", x.get("source", ""))).name, _num(x.get("duration_s"), ".1f"),
@@ -190,14 +199,15 @@ def _characterize(r: ResultDir, system: Mapping) -> tuple[dict, list]:
                _num(x.get("linear_r2"), ".4f")] for x in d.get("records", [])]
     sug = d.get("suggested") or []
     lines = ([{"text": "linear (nothing found)"}] if d.get("nothing_found") else
-             [{"text": s.get("label"), "small": s.get("meaning", "")} for s in sug])
-    return ({"candidates": cands, "candidate_classes": classes, "levels": levels, "z_unit": zu, "v_unit": vu},
+             [{"text": _term_text(s, system), "small": s.get("meaning", "")} for s in sug])
+    return ({"candidates": cands, "candidate_classes": classes, "levels": levels, "z_unit": zu, "v_unit": vu,
+             "suggested": [f"{_term_text(x, system)}: {x.get('meaning', '')}" for x in sug]},
             [{"key": "suggested model", "lines": lines}])
 
 
-def _identify(r: ResultDir) -> tuple[dict, list]:
+def _identify(r: ResultDir, system: Mapping) -> tuple[dict, list]:
     s = r.doc.get("summary", {})
-    terms = s.get("terms", [])
+    terms = [{**t, "label": _term_text(t.get("term") or t, system)} for t in s.get("terms", [])]
     rows = [[t.get("label"), _num(t.get("c_over_m2")), t.get("unit", ""),
              "held fixed" if t.get("fixed") else
              f"{_num(t.get('per_line_mean_re'))} {_num(t.get('per_line_mean_im'), '+.3g')}j"] for t in terms]
@@ -418,7 +428,7 @@ def build_report(results: Sequence[ResultDir], *, title: str = "nifo report", no
         if r.kind == "characterize":
             view, g = _characterize(r, system)
         elif r.kind == "identify":
-            view, g = _identify(r)
+            view, g = _identify(r, system)
             if levels_png is not None:
                 view["levels_figure"] = _figure(levels_png, words, _caption("levels", words))
         elif r.kind == "predict":
