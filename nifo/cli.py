@@ -1,20 +1,29 @@
-"""The ``nifo`` command: argument parsing, error reporting and exit codes.
+"""The ``nifo`` command: argument parsing, output conventions, error reporting and exit codes.
 
-Sub-commands live in :mod:`nifo.commands` (one module each). Errors derived
-from :class:`nifo_core.errors.NifoError` print one line and exit with the
-error's code; anything else is a bug and keeps its traceback.
+Sub-commands live in :mod:`nifo.commands` (one module each); ``run(args)``
+returns a summary dict (or an exit code). Global options, before or after the
+command: ``--json`` prints one JSON document on stdout summarising the result
+(the human text goes to stderr), ``--quiet`` keeps only warnings and errors,
+``--verbose`` shows progress for short work too and a traceback with errors.
+Errors derived from :class:`nifo_core.errors.NifoError` print one line and
+exit with the error's code; anything else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import io
+import json
+import os
 import sys
+import traceback
 
 from nifo_core import __version__
-from nifo_core.errors import EXIT_CODES, NifoError
+from nifo_core.errors import EXIT_CODES, USAGE_EXIT_CODE, NifoError
 
-__all__ = ["main", "build_parser", "COMMANDS"]
+__all__ = ["main", "build_parser", "add_common_arguments", "COMMANDS"]
 
 #: order shown in ``nifo --help``
 COMMANDS = ("run", "simulate", "info", "characterize", "identify", "predict", "loop",
@@ -30,16 +39,39 @@ def _load(name: str):
         raise
 
 
+def add_common_arguments(p: argparse.ArgumentParser, *, top: bool = False) -> None:
+    """``--json``, ``--quiet``, ``--verbose``: on the top parser with defaults, on each command's parser
+    without (so ``nifo --json identify ...`` and ``nifo identify ... --json`` both work)."""
+    g = p.add_argument_group("output")
+    kw = {} if top else {"default": argparse.SUPPRESS}
+    g.add_argument("--json", action="store_true", help="print one JSON document summarising the result on stdout "
+                   "(human-readable text goes to stderr)", **kw)
+    v = g.add_mutually_exclusive_group()
+    v.add_argument("-q", "--quiet", action="store_true", help="no progress and no summary text; warnings and "
+                   "errors only", **kw)
+    v.add_argument("-v", "--verbose", action="store_true", help="progress for short work too, debug log, "
+                   "tracebacks with errors", **kw)
+
+
+def exit_code_help() -> str:
+    """The exit-code table of ``nifo --help``."""
+    rows = [(0, "success", "")]
+    rows.append((USAGE_EXIT_CODE, "usage", "The command line does not parse (argparse)"))
+    rows += [(code, name, what) for name, (code, what) in EXIT_CODES.items()]
+    return "\n".join(f"  {code:>3}  {name:<24} {what}" for code, name, what in sorted(rows)) + \
+        "\n  130  interrupted              Ctrl-C; nothing was written"
+
+
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     """The full parser; with ``only``, import just that command's module (fast start-up)."""
-    codes = "\n".join(f"  {code:>2}  {name}" for name, code in sorted(EXIT_CODES.items(), key=lambda kv: kv[1]))
     p = argparse.ArgumentParser(
         prog="nifo",
         description="Identify nonlinear suspension models from spindle and body accelerations "
                     "(restoring force + output-only NIFO).",
-        epilog=f"Exit codes:\n   0  success\n{codes}\n\nRun 'nifo COMMAND --help' for a command's options.",
+        epilog=f"Exit codes:\n{exit_code_help()}\n\nRun 'nifo COMMAND --help' for a command's options.",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"nifo {__version__}")
+    add_common_arguments(p, top=True)
     sub = p.add_subparsers(dest="command", metavar="COMMAND", title="commands")
     for name in COMMANDS:
         if only is not None and name != only:
@@ -50,27 +82,70 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         sp = sub.add_parser(name, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP),
                             formatter_class=argparse.RawDescriptionHelpFormatter)
         mod.add_arguments(sp)
+        add_common_arguments(sp)
         sp.set_defaults(_run=mod.run)
     return p
 
 
+def _jsonable(x):
+    """Paths, numpy scalars and tuples as JSON values."""
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, os.PathLike):
+        return os.fspath(x)
+    if hasattr(x, "item") and callable(x.item):
+        return x.item()
+    return x
+
+
+def _error_doc(err: BaseException, code: int) -> dict:
+    if isinstance(err, NifoError):
+        return {"type": type(err).__name__, "exit_code": code, "message": err.message, "source": err.source,
+                "channel": err.channel, "hint": err.hint, "text": str(err)}
+    return {"type": type(err).__name__, "exit_code": code, "message": str(err)}
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
-    first = argv[0] if argv else None
+    first = next((a for a in argv if not a.startswith("-")), None)
     parser = build_parser(first if first in COMMANDS else None)
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):
         parser.print_help()
         return 0
+    from nifo.progress import configure
+
+    configure(quiet=args.quiet, verbose=args.verbose)
+    # --json: stdout carries the JSON document only (the commands' text goes to stderr); --quiet: no text
+    target = io.StringIO() if args.quiet else (sys.stderr if args.json else None)
+    summary, err, code = None, None, 0
     try:
-        return int(args._run(args) or 0)
-    except NifoError as err:
-        print(f"nifo {args.command}: error: {err}", file=sys.stderr)
-        return err.exit_code
-    except KeyboardInterrupt:
+        with contextlib.redirect_stdout(target) if target is not None else contextlib.nullcontext():
+            result = args._run(args)
+        if isinstance(result, dict):
+            summary = result
+            code = int(result.get("exit_code", 0))
+        else:
+            code = int(result or 0)
+    except NifoError as e:
+        err, code = e, e.exit_code
+        print(f"nifo {args.command}: error: {e}", file=sys.stderr)
+        if args.verbose:
+            traceback.print_exc()
+    except KeyboardInterrupt as e:
         from nifo.io.atomic import interrupt_note
+
+        err, code = e, 130
         print(f"nifo {args.command}: {interrupt_note()}", file=sys.stderr)
-        return 130
+    if args.json:
+        doc = {"command": args.command, "ok": code == 0, "exit_code": code,
+               **{k: v for k, v in (summary or {}).items() if k != "exit_code"}}
+        if err is not None:
+            doc["error"] = _error_doc(err, code)
+        print(json.dumps(_jsonable(doc), ensure_ascii=False, allow_nan=False, default=str))
+    return code
 
 
 if __name__ == "__main__":  # pragma: no cover

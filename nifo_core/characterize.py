@@ -727,11 +727,11 @@ def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None
                      "linear fit leaves")
     if lin["r2"] < 0.9:
         notes.append(f"the linear fit explains only {100 * lin['r2']:.0f} % of the force: the rest is noise or "
-                     f"dynamics outside the one-mass body equation (another mode, a second load path), "
-                     f"which no strut nonlinearity models")
+                     f"dynamics outside the one-mass equation of the output side (another mode, a second load "
+                     f"path), which no nonlinearity of the element models")
     if rfs[0].band.f_lo_hz > 1.0:
         notes.append(f"the integration band starts at {rfs[0].band.f_lo_hz:g} Hz: motion below it is only partly "
-                     f"in z, ż (a quarter car's body bounce is at ≈ 1-1.5 Hz)")
+                     f"in z, ż: the lowest mode of interest must lie above it")
     return Characterization(candidates=tuple(out), suggested=tuple(chosen), band=rfs[0].band,
                             thresholds=thresholds, records=tuple(_summary(rf, data, i) for i, rf in enumerate(rfs)),
                             linear=lin, model=model, m2_kg=m2_kg,

@@ -23,6 +23,7 @@ __all__ = [
     "ConfigError",
     "IllConditionedError",
     "EXIT_CODES",
+    "USAGE_EXIT_CODE",
 ]
 
 
@@ -55,7 +56,7 @@ class NifoError(Exception):
 class InputError(NifoError, ValueError):
     """Input data or arguments that cannot be used as given."""
 
-    exit_code = 2
+    exit_code = 11  # 2 is argparse's: a command line that does not parse
 
 
 class DataFileError(InputError):
@@ -109,6 +110,14 @@ class IllConditionedError(NifoError, ArithmeticError):
     exit_code = 10
 
 
-EXIT_CODES = {cls.__name__: cls.exit_code for cls in (
-    NifoError, InputError, DataFileError, MissingChannelError, NonFiniteError,
-    TimestampError, SampleRateError, RecordTooShortError, ConfigError, IllConditionedError)}
+#: exit code of ``nifo`` for a command line argparse cannot parse (argparse's own)
+USAGE_EXIT_CODE = 2
+
+#: error class name -> (exit code, what it means), as ``nifo --help`` lists them; unique per class.
+#: ``PredictionDivergedError`` lives in :mod:`nifo_core.model` (heavy to import) and is listed here by name.
+EXIT_CODES: dict[str, tuple[int, str]] = {
+    **{cls.__name__: (cls.exit_code, (cls.__doc__ or "").strip().splitlines()[0].split(". ")[0].rstrip("."))
+       for cls in (NifoError, InputError, DataFileError, MissingChannelError, NonFiniteError, TimestampError,
+                   SampleRateError, RecordTooShortError, ConfigError, IllConditionedError)},
+    "PredictionDivergedError": (12, "The model's prediction diverged for this input"),
+}

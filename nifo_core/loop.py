@@ -359,7 +359,7 @@ class LoopResult:
 
     def report(self) -> str:
         """The report a test engineer reads: one paragraph per round, then the verdict."""
-        lines = [f"Declared model: linear strut{''.join(' + ' + t.label for t in self.declared)}.",
+        lines = [f"Declared model: linear element{''.join(' + ' + t.label for t in self.declared)}.",
                  f"Data: {len(self.sources)} record(s); fitted on the first "
                  f"{100 * self.settings.fit_fraction:.0f} % of each, errors on the last "
                  f"{100 * (1 - self.settings.fit_fraction):.0f} % (held out); integration band "
@@ -701,7 +701,7 @@ def _effect_words(c: Candidate, m2: float | None) -> str:
     if c.coefficient is not None:
         size = f"{c.coefficient:.3g} {unit} (θ = {c.theta:.3g} {unit}/kg × M2 = {m2:g} kg)"
     else:
-        size = f"{c.theta:.3g} {unit} per kg of sprung mass (give M2 for newtons)"
+        size = f"{c.theta:.3g} {unit} per kg of the output-side mass M2 (give --m2 for newtons)"
     if c.kind == "coulomb":
         return f"Coulomb friction of {size}"
     return f"{c.describe()}{where}: {c.term.label}, coefficient {size}"
@@ -730,8 +730,9 @@ def _round_text(i: int, trial: Trial, before: Errors, ev: Evidence | None, m2: f
               f"in the analysis band, {100 * ev.fraction_lines_above_level:.0f} % of lines above it")
     return (f"Round {i}: added {_effect_words(c, m2)}. It explains {100 * c.err:.0f} % of the remaining "
             f"body-acceleration residual ({100 * c.err_cv:.0f} % on alternate held-out blocks), "
-            f"{_p_text(c.p_value)}{pc}, {_stability_words(c, n_records)}, and is not an artefact of the "
-            f"tire's impacts (coefficient moves {100 * trial.tire_shift:.0f} % without them); "
+            f"{_p_text(c.p_value)}{pc}, {_stability_words(c, n_records)}, and is not an artefact of impacts "
+            f"on the input side (coefficient moves {100 * trial.tire_shift:.0f} % without the samples around "
+            f"them); "
             f"held-out NMSE {nm0:.2f} % → {nm1:.2f} %, equation error {before.equation_nmse_pct:.2f} % → "
             f"{after.equation_nmse_pct:.2f} %.{alt}")
 
@@ -823,9 +824,9 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
             failed = []
             shift, frac = _tire_check(ev, terms, c.term, s)
             if not shift <= s.max_tire_shift:
-                failed.append(f"tire check: the coefficient moves {100 * shift:.0f} % without the samples near the "
-                              f"spindle's impacts (> {100 * s.max_tire_shift:.0f} %): an artefact of tire events, "
-                              f"not a strut effect")
+                failed.append(f"impact check: the coefficient moves {100 * shift:.0f} % without the samples near "
+                              f"the input side's impacts (> {100 * s.max_tire_shift:.0f} %): an artefact of impacts "
+                              f"(tire events on a vehicle), not an effect of the nonlinear element")
             after = ev.errors([*terms, c.term])
             gain = 1 - after.equation_nmse_pct / current.equation_nmse_pct if current.equation_nmse_pct > 0 else 0.0
             if not gain >= s.min_heldout_gain:

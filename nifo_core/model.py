@@ -61,6 +61,8 @@ Method = Literal["parametric", "nonparametric"]
 class PredictionDivergedError(IllConditionedError):
     """The feedback x2 = T21·x1 + Σ B_i·G_i(x2 - x1) could not be solved for this input."""
 
+    exit_code = 12
+
 
 def _ro(a) -> np.ndarray:
     a = np.array(a)

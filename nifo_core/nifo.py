@@ -172,7 +172,8 @@ class InputMeasured:
 
     @classmethod
     def from_dict(cls, d: Mapping) -> "InputMeasured":
-        return cls(t1b=_uncplx(d["t1b"]), e=np.array([_uncplx(x) for x in d["e"]]).reshape(len(d["e"]), -1),
+        nf = len(d["t1b"]["re"])   # e is (0, nf) with no terms
+        return cls(t1b=_uncplx(d["t1b"]), e=np.array([_uncplx(x) for x in d["e"]], complex).reshape(len(d["e"]), nf),
                    t1b_h1=_uncplx(d["t1b_h1"]), coherence_h1=np.asarray(d["coherence_h1"], float),
                    multiple_coherence=np.asarray(d["multiple_coherence"], float),
                    cond=np.asarray(d["cond"], float), random_error=np.asarray(d["random_error"], float),
@@ -234,9 +235,10 @@ class StaticFit:
     @classmethod
     def from_dict(cls, d: Mapping) -> "StaticFit":
         nt = len(d["c_over_m2"])
-        return cls(c_over_m2=np.asarray(d["c_over_m2"], float), t21=_uncplx(d["t21"]),
-                   b=np.array([_uncplx(x) for x in d["b"]]).reshape(nt, -1),
-                   mu_over_k2=np.array([_uncplx(x) for x in d["mu_over_k2"]]).reshape(nt, -1),
+        t21 = _uncplx(d["t21"])
+        return cls(c_over_m2=np.asarray(d["c_over_m2"], float), t21=t21,   # (0, nf) with no terms
+                   b=np.array([_uncplx(x) for x in d["b"]], complex).reshape(nt, t21.size),
+                   mu_over_k2=np.array([_uncplx(x) for x in d["mu_over_k2"]], complex).reshape(nt, t21.size),
                    coherence=np.asarray(d["coherence"], float), random_error=np.asarray(d["random_error"], float))
 
 

@@ -21,7 +21,9 @@ DURATION_S = 60
 
 @functools.lru_cache(maxsize=None)
 def pipeline(base: Path) -> tuple[Path, int, str]:
-    """Simulate two levels and ``nifo run`` them into ``base/out``: (out, exit code, stdout)."""
+    """Simulate two levels and ``nifo --json run`` them into ``base/out``: (out, exit code, the human text).
+
+    The human text goes to stderr under --json; the JSON summary (stdout) is kept in ``base/run.json``."""
     import contextlib
     import io
 
@@ -32,10 +34,11 @@ def pipeline(base: Path) -> tuple[Path, int, str]:
         assert main(["simulate", "--out", str(p), "--preset", "paper", "--road-rms", rms, "--duration",
                      str(DURATION_S), "--noise", "0.02", "--seed", str(seed)]) == 0
         data.append(str(p))
-    buf = io.StringIO()
-    with contextlib.redirect_stdout(buf):
-        code = main(["run", *data, "--out", str(base / "out")])
-    return base / "out", code, buf.getvalue()
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(["--json", "run", *data, "--out", str(base / "out")])
+    (base / "run.json").write_text(out.getvalue())   # --json: the summary document alone on stdout
+    return base / "out", code, err.getvalue()
 
 
 @pytest.fixture(scope="module")
@@ -90,3 +93,12 @@ def test_run_defaults_to_the_bundled_sample():
     from nifo.commands.run import sample_data
 
     assert [p.name for p in sample_data()] == ["road_1mm", "road_2p5mm"]
+
+
+def test_run_json_is_one_document_naming_every_result(ran):
+    out, code, _ = ran
+    doc = json.loads((out.parent / "run.json").read_text())
+    assert doc["command"] == "run" and doc["ok"] is True and doc["exit_code"] == code == 0
+    assert doc["report"] == str(out / "report" / "report.html")
+    assert set(doc["results"]) >= {"characterize", "identify", "predict"}
+    assert set(doc["timings_s"]) >= {"characterize", "identify", "report"}

@@ -16,3 +16,21 @@ nifo_bootstrap() {
     touch "$stamp"
   fi
 }
+
+# Headless Chromium renders the HTML report in tests/test_report_browser.py (Debian's package).
+# Installed when missing and root (apt-get, quiet); otherwise fail with the one command to run.
+nifo_need_chromium() {
+  if command -v chromium >/dev/null 2>&1; then
+    return 0
+  fi
+  if [ "$(id -u)" -ne 0 ]; then
+    echo "nifo: headless Chromium is missing (the report's browser test needs it). Run:" >&2
+    echo "  sudo apt-get update && sudo apt-get install -y chromium" >&2
+    return 1
+  fi
+  echo "nifo: installing Debian's chromium (headless browser for the report test; first run only)" >&2
+  DEBIAN_FRONTEND=noninteractive apt-get update -qq >&2 \
+    && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium >/dev/null \
+    || { echo "nifo: apt-get could not install chromium; run: apt-get update && apt-get install -y chromium" >&2; return 1; }
+  command -v chromium >/dev/null 2>&1 || { echo "nifo: chromium still not on PATH after apt-get" >&2; return 1; }
+}

@@ -25,6 +25,7 @@ import numpy as np
 from nifo.io.atomic import check_output, staged_dir
 from nifo.io.loader import add_input_arguments, input_options, load_record
 from nifo.io.modelfile import write_model_spec
+from nifo.io.provenance import add_system_argument, input_provenance, system_of, true_strut_model
 from nifo.io.results import write_json
 from nifo.progress import Progress
 from nifo_core import __version__
@@ -66,6 +67,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("data", nargs="+", metavar="DATA", help="data files (several: several excitation levels)")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory (replaced atomically)")
     add_input_arguments(p)
+    add_system_argument(p)
     g = p.add_argument_group("analysis")
     g.add_argument("--band", nargs=2, type=float, metavar=("LO", "HI"),
                    help="integration band [Hz] (default: from the data, where z rises 10 dB out of the noise)")
@@ -123,7 +125,8 @@ def run(args: argparse.Namespace) -> int:
                          note=_model_note(char), suggested_by=f"nifo characterize {__version__}")
     print(_table(char, args.top, [str(p) for p in args.data], len(rates) > 1))
     print(f"wrote {args.out}/ (characterize.json, suggested_model.yaml, {', '.join(figures)})")
-    return 0
+    return {"out": str(args.out), "band_hz": [band.f_lo_hz, band.f_hi_hz], "nothing_found": char.nothing_found,
+            "suggested": [c.term.label for c in char.suggested], "figures": figures}
 
 
 def _band(args: argparse.Namespace, records) -> IntegrationBand:
@@ -165,7 +168,8 @@ def _figures(out: Path, args, rfs: list[RestoringForce], tracks: list[FrequencyT
     names = [_short(p) for p in args.data]
     written: list[str] = []
     models = [_model_force(char, rf) for rf in rfs]
-    fitted = ("fitted model: linear + " + " + ".join(_label(t) for t in char.suggested_terms) if char.suggested
+    units = system_of(args)["units"]
+    fitted = ("fitted model: linear + " + " + ".join(_label(t, units) for t in char.suggested_terms) if char.suggested
               else "fitted model: linear only (nothing nonlinear found)")
     if args.freq_window:
         fitted += f" (fitted on {args.freq_window[0]:g}-{args.freq_window[1]:g} Hz, drawn there only)"
@@ -189,7 +193,8 @@ def _figures(out: Path, args, rfs: list[RestoringForce], tracks: list[FrequencyT
                           f"z peak {1e3 * np.max(np.abs(rfs[i].z[s.index])):.3g} mm") for s in sl]
         fname = "restoring_frequency.png" if len(sweeps) == 1 else f"restoring_frequency_{i + 1}_{names[i]}.png"
         plot_restoring_slices(rows, out / fname, title=f"{names[i]}: restoring force by frequency ({band})",
-                              m2_kg=args.m2, subtitle=fitted)
+                              m2_kg=args.m2, subtitle=fitted,
+                              units=system_of(args)["units"])
         written.append(fname)
     # amplitude slices (paper Fig. 4): one row per file, or bins of one random record
     rows = []
@@ -213,69 +218,83 @@ def _figures(out: Path, args, rfs: list[RestoringForce], tracks: list[FrequencyT
                                   model_at(0, s.index), False))
     if rows:
         plot_restoring_slices(rows, out / "restoring_amplitude.png",
-                              title=f"restoring force by amplitude ({band})", m2_kg=args.m2, subtitle=fitted)
+                              title=f"restoring force by amplitude ({band})", m2_kg=args.m2, subtitle=fitted,
+                              units=system_of(args)["units"])
         written.append("restoring_amplitude.png")
     # characteristics of the suggested terms (or, if none, of the two best candidates)
-    panels = _characteristics(char, rfs, masks, CharacteristicPlot)
+    truths = [true_strut_model(p) for p in args.data]   # simulated data: the truth file beside each
+    panels = _characteristics(char, rfs, masks, CharacteristicPlot,
+                              truths=truths if all(t is not None for t in truths) else None)
     if panels:
         what = "suggested terms" if char.suggested else "best candidates (below threshold: not present)"
         plot_characteristics(panels, out / "characteristic.png", title=f"stiffness and damping characteristics: {what}",
-                             m2_kg=args.m2)
+                             m2_kg=args.m2, units=system_of(args)["units"])
         written.append("characteristic.png")
     cands = char.to_dict()["candidates"]
-    plot_ranking(cands, out / "ranking.png", min_err=char.thresholds.min_err,
+    plot_ranking(cands, out / "ranking.png", min_err=char.thresholds.min_err, units=system_of(args)["units"],
                  title="each kind's best form: suggested terms first (scored given the ones above), "
                        "then the rest by the variance they explain beyond linear")
     written.append("ranking.png")
     return written
 
 
-def _characteristics(char: Characterization, rfs, masks, CharacteristicPlot) -> list:
+def _characteristics(char: Characterization, rfs, masks, CharacteristicPlot, *, truths=None) -> list:
     """A stiffness and/or damping characteristic of the suggested model (one panel per variable its terms
     act on); with nothing suggested, of the best candidate fitted alone."""
     from nifo_core.characterize import FittedModel
 
     if char.suggested:
-        return _panels_for(char.model, char, rfs, masks, CharacteristicPlot)
+        return _panels_for(char.model, char, rfs, masks, CharacteristicPlot, truths=truths)
     c = char.candidates[0]
     m = FittedModel(char.linear["k_per_kg"], char.linear["c_per_kg"], ((c.term, c.theta),), char.linear["r2"])
-    return _panels_for(m, char, rfs, masks, CharacteristicPlot, extra=" (best candidate, not present)")
+    return _panels_for(m, char, rfs, masks, CharacteristicPlot, extra=" (best candidate, not present)",
+                       truths=truths)
 
 
-def _panels_for(model, char: Characterization, rfs, masks, CharacteristicPlot, extra: str = "") -> list:
-    """Per variable (z, ż): data = -ẍ2 minus the other variable's fitted part; fitted = this variable's part."""
+def _own_parts(model, rf) -> dict:
+    """Each variable's part of ``model``'s force along ``rf``'s motion: k·z + its z-terms, c·ż + its ż-terms."""
+    _, per = model.contributions(rf.z, rf.zdot, fs_hz=rf.fs_hz, band=rf.band)
+    on = {v: sum((per[j] for j, (t, _) in enumerate(model.terms) if t.variable == v), np.zeros(rf.n))
+          for v in ("z", "zdot")}
+    return {"z": model.k_per_kg * rf.z + on["z"], "zdot": model.c_per_kg * rf.zdot + on["zdot"]}
+
+
+def _panels_for(model, char: Characterization, rfs, masks, CharacteristicPlot, extra: str = "", *,
+                truths=None) -> list:
+    """Per variable (z, ż): data = -ẍ2 minus the other variable's fitted part; fitted = this variable's part;
+    with ``truths`` (one true model per record, simulated data) the true part of that variable too."""
     variables = [v for v in ("z", "zdot") if any(t.variable == v for t, _ in model.terms)]
-    parts = {v: ([], [], [], [], []) for v in variables}  # x, measured, fitted, split, reference
+    parts = {v: ([], [], [], [], [], []) for v in variables}  # x, measured, fitted, split, reference, truth
     for i, rf in enumerate(rfs):
-        _, per = model.contributions(rf.z, rf.zdot, fs_hz=rf.fs_hz, band=rf.band)
         sel = np.ones(rf.n, bool) if masks is None or masks[i] is None else masks[i]
-        on = {v: sum((per[j] for j, (t, _) in enumerate(model.terms) if t.variable == v), np.zeros(rf.n))
-              for v in ("z", "zdot")}
-        own = {"z": model.k_per_kg * rf.z + on["z"], "zdot": model.c_per_kg * rf.zdot + on["zdot"]}
+        own = _own_parts(model, rf)
+        true = _own_parts(truths[i], rf) if truths else None
         ref = {"z": char.linear["k_per_kg"] * rf.z, "zdot": char.linear["c_per_kg"] * rf.zdot}
         for v in variables:
             other = "zdot" if v == "z" else "z"
-            xs, meas, fit, split, refs = parts[v]
+            xs, meas, fit, split, refs, tru = parts[v]
             xs.append((rf.z if v == "z" else rf.zdot)[sel])
             meas.append((rf.force - own[other])[sel])
             fit.append(own[v][sel])
             split.append(rf.zdot[sel])
             refs.append(ref[v][sel])
+            if true is not None:
+                tru.append(true[v][sel])
     out = []
     for v in variables:
-        xs, meas, fit, split, refs = (np.concatenate(a) for a in parts[v])
-        terms = [f"{_label(t)} θ={th:.3g}" for t, th in model.terms if t.variable == v]
+        xs, meas, fit, split, refs = (np.concatenate(a) for a in parts[v][:5])
+        tru = np.concatenate(parts[v][5]) if parts[v][5] else None
+        terms = [f"{_label(t)},\nθ={th:.3g} ({t.spec.coef_unit})/kg" for t, th in model.terms if t.variable == v]
         what = "stiffness" if v == "z" else "damping"
         title = f"{what}: linear + " + "\n+ ".join(terms) + extra
-        out.append(CharacteristicPlot(title, v, xs, meas, fit, split if v == "z" else None, refs))
+        out.append(CharacteristicPlot(title, v, xs, meas, fit, split if v == "z" else None, refs, tru))
     return out
 
 
-def _label(t) -> str:
-    p = {k: v for k, v in t.params.items() if not (k == "offset" and v == 0)}
-    if not p:
-        return t.kind
-    return t.kind + "(" + ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in p.items()) + ")"
+def _label(t, units: str = "m/s²") -> str:
+    from nifo.plots.restoring import term_label
+
+    return term_label(t.kind, dict(t.params), units=units)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -285,7 +304,8 @@ def _label(t) -> str:
 
 def _document(args, records, rfs, tracks, char: Characterization, figures, *, band_source: dict) -> dict:
     doc = {"nifo_characterize": 1, "nifo_version": __version__, "inputs": [str(p) for p in args.data],
-           "band_choice": band_source, "freq_window_hz": args.freq_window, "figures": figures, **char.to_dict()}
+           "band_choice": band_source, "freq_window_hz": args.freq_window, "figures": figures, **char.to_dict(),
+           "input": input_provenance(args), "system": system_of(args)}
     for rec_doc, path, tr in zip(doc["records"], args.data, tracks):
         rec_doc["path"] = str(path)
         rec_doc["sweep"] = {"detected": tr.is_sweep, "range_hz": list(tr.range_hz),

@@ -20,6 +20,7 @@ import numpy as np
 
 from nifo.io.atomic import check_output, staged_dir
 from nifo.io.loader import add_input_arguments, input_options
+from nifo.io.provenance import add_system_argument, input_provenance, system_of
 from nifo.progress import Progress
 from nifo_core.errors import ConfigError, IllConditionedError, InputError, RecordTooShortError, SampleRateError
 
@@ -79,8 +80,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--chunk-samples", type=int, default=CHUNK_SAMPLES, metavar="N",
                    help=f"streaming chunk length [samples] (default {CHUNK_SAMPLES})")
     p.add_argument("--no-plots", action="store_true", help="write the JSON files only")
-    p.add_argument("--quiet", action="store_true", help="no progress output")
     add_input_arguments(p)
+    add_system_argument(p)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -308,21 +309,26 @@ def format_summary(summary: dict, warn: list[str], *, out: Path, files: int, mod
 # ---------------------------------------------------------------------------------------------
 # figures
 # ---------------------------------------------------------------------------------------------
-def write_figures(out: Path, res, per_file, cond_limit: float) -> list[str]:
+def write_figures(out: Path, res, per_file, cond_limit: float, *, paths=(), system: dict | None = None) -> list[str]:
+    from nifo.io.provenance import true_t21
     from nifo.plots.nifo import plot_coefficients, plot_conditioning, plot_tire, plot_transmissibility
 
     f = res.freq_hz
     curves = [(f"measured H1 {name}", fq, h, {"lw": 0.9, "alpha": 0.8}) for name, fq, h in per_file]
+    truth = next((t for t in (true_t21(p, f) for p in paths) if t is not None), None)
+    if truth is not None:   # simulated data: the truth file beside it gives the true nominal linear T21
+        curves.append(("true nominal linear T21 (simulator)", f, truth, {"color": "k", "lw": 0.9, "ls": ":"}))
+    sides = ("spindle → body" if (system or {}).get("vehicle", True) else "input → output")
     if res.terms:
         curves.append(("NIFO nominal T21, per line (Eq. 9)", f, res.t21, {"color": "C0", "lw": 0.8, "ls": ":"}))
         curves.append(("NIFO nominal T21, pooled (recommended)", f, res.static.t21,
                        {"color": "C3", "lw": 1.6, "ls": "--"}))
     plot_transmissibility(out / "transmissibility.png", curves, band_hz=res.analysis_band_hz,
-                          title="spindle → body transmissibility: measured and NIFO nominal linear (cf. Fig. 9b/12b)")
+                          title=f"{sides} transmissibility: measured and NIFO nominal linear (cf. Fig. 9b/12b)")
     names = ["transmissibility.png"]
     if res.terms:
         plot_coefficients(out / "coefficients.png", res,
-                          title="coefficient functions μ_i(ω)/K2 (cf. paper Fig. 10/13)")
+                          title=r"coefficient functions $\mu_i(\omega)/K_2$ (cf. paper Fig. 10/13)")
         names.append("coefficients.png")
     plot_conditioning(out / "conditioning.png", res, cond_limit=cond_limit)
     names.append("conditioning.png")
@@ -392,7 +398,7 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("no data files given", hint="nifo identify DATA... --model MODEL.yaml --out DIR")
         terms = spec.terms
         acc, data, per_file = accumulate(list(args.data), terms, cfg, opts=opts, chunk_samples=args.chunk_samples,
-                                         quiet=args.quiet)
+                                         quiet=getattr(args, "quiet", False))
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             res = acc.result()
@@ -416,16 +422,25 @@ def run(args: argparse.Namespace) -> int:
     model_file = {"path": str(args.model), "steps": [{"name": s.name, "terms": [t.to_dict() for t in s.terms]}
                                                     for s in spec.steps]}
     with staged_dir(args.out) as tmp:
-        figures = [] if args.no_plots else write_figures(tmp, res, per_file, cfg["cond_limit"])
+        figures = [] if args.no_plots else write_figures(tmp, res, per_file, cfg["cond_limit"],
+                                                         paths=[d["path"] for d in _entries(data)],
+                                                         system=system_of(args))
         doc = identify_document(res, data=data, summary=summary, warnings=warn, settings=settings_doc,
                                 model_file=model_file, figures=figures)
+        doc.update(input=input_provenance(args), system=system_of(args))
         write_json(tmp / IDENTIFY_JSON, doc, atomic=False)
         if model is not None:
             model = replace(model, provenance={**dict(model.provenance), **prov})
             linear = replace(linear, provenance={**dict(linear.provenance), **prov})
             write_model(tmp / MODEL_JSON, model, linear=linear, atomic=False)
     print(format_summary(summary, warn, out=args.out, files=files, model_written=model is not None))
-    return 0
+    return {"out": str(args.out), "model_written": model is not None, "figures": figures, "warnings": warn,
+            "summary": summary}
+
+
+def _entries(data) -> list[dict]:
+    """Data provenance entries of a single- or two-step identification."""
+    return data if isinstance(data, list) else [e for s in data["steps"] for e in s["data"]]
 
 
 def _settings_doc(cfg: dict, res) -> dict:

@@ -11,6 +11,7 @@ from nifo_core.errors import NifoError
 from nifo_core.record import Record
 
 from nifo.io.loader import add_input_arguments, input_options, load_record
+from nifo.io.provenance import add_system_argument, system_of
 
 HELP = "show format, channels, sample rate, duration and RMS of data files"
 DESCRIPTION = """\
@@ -26,6 +27,7 @@ of N samples (exit code 8 if not)."""
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("data", nargs="+", metavar="DATA", help="data files or bag directories")
     add_input_arguments(parser)
+    add_system_argument(parser)
     parser.add_argument("--block", type=int, metavar="N",
                         help="spectral block length [samples] the record must hold at least once")
 
@@ -37,8 +39,8 @@ def _mapping(rec: Record) -> str:
     return ", ".join(f"{k}={v}" for k, v in m.get("columns", {}).items())
 
 
-def describe(rec: Record, *, block: int | None = None) -> list[str]:
-    """Lines describing ``rec`` (without the file name)."""
+def describe(rec: Record, *, block: int | None = None, units: str = "m/s²") -> list[str]:
+    """Lines describing ``rec`` (without the file name); ``units``: of the two signals (--system)."""
     m = rec.meta
     fmt = m.get("format", "?") + (f" ({m['storage']})" if "storage" in m else "")
     kind = "topics" if "topics" in m else "columns"
@@ -51,7 +53,7 @@ def describe(rec: Record, *, block: int | None = None) -> list[str]:
     if "trimmed" in m:
         cut = "; ".join(f"{k}: {a} at start, {b} at end" for k, (a, b) in m["trimmed"].items())
         lines.append(f"  trimmed      {cut} (to samples common to all channels)")
-    rms = {"spindle_accel": (rec.spindle_accel, "m/s²"), "body_accel": (rec.body_accel, "m/s²")}
+    rms = {"spindle_accel": (rec.spindle_accel, units), "body_accel": (rec.body_accel, units)}
     if rec.tire_patch_disp is not None:
         rms["tire_patch_disp"] = (rec.tire_patch_disp, "m")
     for name, (x, unit) in rms.items():
@@ -65,15 +67,18 @@ def describe(rec: Record, *, block: int | None = None) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     opts = input_options(args)
-    first_code = 0
+    first_code, files = 0, []
     for path in args.data:
         try:
             rec = load_record(path, **opts)
-            lines = describe(rec, block=args.block)
+            lines = describe(rec, block=args.block, units=system_of(args)["units"])
         except NifoError as err:
             print(f"nifo info: error: {err}", file=sys.stderr)
             first_code = first_code or err.exit_code
+            files.append({"path": str(path), "error": str(err), "exit_code": err.exit_code})
             continue
         print(path)
         print("\n".join(lines))
-    return first_code
+        files.append({"path": str(path), "format": rec.meta.get("format"), "fs_hz": rec.fs_hz, "n_samples": rec.n,
+                      "duration_s": rec.duration_s, "tire_patch": rec.has_tire_patch})
+    return {"files": files, "exit_code": first_code}

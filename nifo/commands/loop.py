@@ -23,6 +23,7 @@ from pathlib import Path
 from nifo.io.atomic import check_output, staged_dir
 from nifo.io.loader import add_input_arguments, input_options, load_record
 from nifo.io.modelfile import load_model_spec, write_model_spec
+from nifo.io.provenance import add_system_argument, input_provenance, system_of
 from nifo.io.results import write_json
 from nifo.progress import Progress
 from nifo_core import __version__
@@ -54,6 +55,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="declared model file (default: a linear strut)")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory (replaced atomically)")
     add_input_arguments(p)
+    add_system_argument(p)
     g = p.add_argument_group("loop")
     g.add_argument("--max-rounds", type=int, default=4, metavar="N", help="most effects added (default 4)")
     g.add_argument("--m2", type=float, metavar="KG", help="sprung mass [kg]: coefficients in newtons")
@@ -100,8 +102,9 @@ def run(args: argparse.Namespace) -> int:
     doc["nifo_version"] = __version__
     doc["data"] = [str(p) for p in args.data]
     doc["model_file"] = None if args.model is None else str(args.model)
+    doc.update(input=input_provenance(args), system=system_of(args))
     with staged_dir(args.out) as tmp:
-        figures = _figures(tmp, doc, args.m2)
+        figures = _figures(tmp, doc, args.m2, units=doc["system"]["units"])
         doc["figures"] = figures
         write_json(tmp / "loop.json", doc, atomic=False, indent=2)
         model_settings = {k: v for k, v in (spec.settings.items() if spec else []) if k != "band_hz"}
@@ -110,7 +113,8 @@ def run(args: argparse.Namespace) -> int:
                          note=_note(res), suggested_by=f"nifo loop {__version__}")
     print(res.report())
     print(f"wrote {args.out}/ (loop.json, refined_model.yaml, {', '.join(figures)})")
-    return 0
+    return {"out": str(args.out), "added": [c.term.label for c in res.added], "figures": figures,
+            **{k: doc[k] for k in ("errors_before", "errors_after") if k in doc}}
 
 
 def _band(args, spec, records) -> IntegrationBand | None:
@@ -129,7 +133,7 @@ def _note(res: LoopResult) -> str:
     return "nifo loop added: " + ", ".join(f"{c.term.label} ({c.describe()})" for c in res.added)
 
 
-def _figures(out: Path, doc: dict, m2: float | None) -> list[str]:
+def _figures(out: Path, doc: dict, m2: float | None, *, units: str = "m/s²") -> list[str]:
     from nifo.plots.loop import plot_errors, plot_round_evidence
 
     names = []
@@ -138,7 +142,7 @@ def _figures(out: Path, doc: dict, m2: float | None) -> list[str]:
     for r in doc["rounds"]:
         if r.get("added") and r.get("evidence"):
             n = f"loop_round{r['round']}.png"
-            plot_round_evidence(r, out / n, m2_kg=m2)
+            plot_round_evidence(r, out / n, m2_kg=m2, units=units)
             names.append(n)
     return names
 

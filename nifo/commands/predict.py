@@ -30,6 +30,7 @@ import numpy as np
 
 from nifo.io.atomic import check_output, staged_dir
 from nifo.io.loader import add_input_arguments, input_options
+from nifo.io.provenance import add_system_argument, input_provenance, system_of
 from nifo_core.errors import ConfigError, InputError
 
 HELP = "predict the body response of other data with an identified model and compare with the measurement"
@@ -49,6 +50,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="linear responses from the fitted body model (default) or the identified T21(ω), B_i(ω)")
     p.add_argument("--no-plots", action="store_true", help="write predict.json only")
     add_input_arguments(p)
+    add_system_argument(p)
 
 
 def truth_for(path: Path) -> Path | None:
@@ -145,7 +147,7 @@ def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._") or "record"
 
 
-def _figures(out: Path, name: str, arr: dict, band_hz, model) -> list[str]:
+def _figures(out: Path, name: str, arr: dict, band_hz, model, *, system: dict | None = None) -> list[str]:
     from nifo.plots.nifo import plot_time_excerpt, plot_transmissibility
 
     f = arr["f"]
@@ -170,8 +172,16 @@ def _figures(out: Path, name: str, arr: dict, band_hz, model) -> list[str]:
                                                                                      "ls": "--"}),
                                           ("linear model", arr["a2_linear"][sl], {"color": "C0", "lw": 0.8,
                                                                                   "ls": ":"})],
-                      title=f"{name}: body acceleration, measured vs predicted from the measured spindle")
+                      title=f"{name}: {_words(system)[1]}, measured vs predicted from the measured {_words(system)[0]}",
+                      ylabel=f"{_words(system)[1]} [{(system or {}).get('units', 'm/s²')}]")
     return names
+
+
+def _words(system: dict | None) -> tuple[str, str]:
+    """(input, output) signal names: spindle and body acceleration on a vehicle, else neutral."""
+    if system is None or system.get("vehicle", True):
+        return "spindle", "body acceleration"
+    return "input side", "output-side signal"
 
 
 def _linear_part(model):
@@ -200,15 +210,17 @@ def run(args: argparse.Namespace) -> int:
         for path, rec in records:
             numbers, arrays = predict_one(path, rec, model, linear, band_hz=(lo, hi), method=args.method)
             if not args.no_plots:
-                numbers["figures"] = _figures(tmp, path.name, arrays, (lo, hi), model)
+                numbers["figures"] = _figures(tmp, path.name, arrays, (lo, hi), model, system=system_of(args))
                 figures += numbers["figures"]
             results.append(numbers)
         doc = {"nifo_predict": 1, "model": str(args.model), "model_terms": [t.to_dict() for t in model.terms],
                "model_c_over_m2": model.c_over_m2.tolist(), "linear_model": linear.source,
-               "method": args.method, "freq_range_hz": [lo, hi], "records": results}
+               "method": args.method, "freq_range_hz": [lo, hi], "records": results,
+               "input": input_provenance(args), "system": system_of(args)}
         write_json(tmp / PREDICT_JSON, doc, atomic=False)
     print(_summary(results, (lo, hi), args.out))
-    return 0
+    return {"out": str(args.out), "freq_range_hz": [lo, hi], "figures": figures,
+            "records": [{k: r[k] for k in ("name", "path", "model", "linear") if k in r} for r in results]}
 
 
 def _pct(x) -> str:

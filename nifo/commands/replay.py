@@ -56,4 +56,4 @@ def run(args: argparse.Namespace) -> int:
         rclpy.try_shutdown()
     per = ", ".join(f"{t} {n}" for t, n in stats.by_topic.items())
     print(f"nifo replay: published {stats.messages} messages ({per}) in {stats.wall_s:.1f} s", file=sys.stderr)
-    return 0
+    return {"messages": stats.messages, "by_topic": dict(stats.by_topic), "wall_s": stats.wall_s}

@@ -37,4 +37,4 @@ def run(args: argparse.Namespace) -> int:
     results = read_results(args.results)
     out = write_report(results, args.out, title=args.title, levels=not args.no_levels)
     print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB, self-contained: open it in any browser)")
-    return 0
+    return {"out": str(out), "size_bytes": out.stat().st_size, "results": [str(r.path) for r in results]}

@@ -21,6 +21,8 @@ import sys
 import time
 from pathlib import Path
 
+from nifo.io.loader import add_input_arguments
+from nifo.io.provenance import add_system_argument
 from nifo_core.errors import InputError, NifoError
 
 HELP = "the whole job on the bundled sample (or given data): characterize, identify, predict, loop, report"
@@ -38,6 +40,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="identify on the highest level and predict the others (default), or on all levels")
     p.add_argument("--no-loop", action="store_true", help="skip the loop step")
     p.add_argument("--no-recording", action="store_true", help="skip the Rerun recording")
+    add_input_arguments(p)   # passed through to every step that reads data
+    add_system_argument(p)
 
 
 def sample_data() -> list[Path]:
@@ -53,12 +57,26 @@ def _command(name: str):
     return importlib.import_module(f"nifo.commands.{name}")
 
 
-def _call(name: str, argv: list[str]) -> int:
-    """Run one command's own ``run`` on its own parser (same defaults as its command line)."""
+def _input_dests() -> list[str]:
+    """The attribute names :func:`add_input_arguments` defines (whatever options it has), and --system's."""
+    p = argparse.ArgumentParser(add_help=False)
+    add_input_arguments(p)
+    return [a.dest for a in p._actions] + ["system"]
+
+
+def _call(name: str, argv: list[str], given: argparse.Namespace | None = None) -> dict:
+    """Run one command's own ``run`` on its own parser (same defaults as its command line), with the input
+    options of ``given`` (``nifo run``'s own --columns, --topics, ...) passed through; its summary dict."""
     mod = _command(name)
     parser = argparse.ArgumentParser(prog=f"nifo {name}")
     mod.add_arguments(parser)
-    return int(mod.run(parser.parse_args(argv)) or 0)
+    args = parser.parse_args(argv)
+    if given is not None:
+        for dest in _input_dests():
+            if hasattr(args, dest) and hasattr(given, dest):
+                setattr(args, dest, getattr(given, dest))
+    out = mod.run(args)
+    return out if isinstance(out, dict) else {"exit_code": int(out or 0)}
 
 
 def _banner(step: int, total: int, text: str) -> None:
@@ -108,7 +126,7 @@ def _run(args: argparse.Namespace, data: list[Path], out: Path) -> int:
         return time.monotonic()
 
     t = begin(f"characterize {len(data)} record(s): restoring force, suggested model")
-    _call("characterize", [*map(str, data), "--out", str(dirs["characterize"])])
+    _call("characterize", [*map(str, data), "--out", str(dirs["characterize"])], args)
     timings["characterize"] = time.monotonic() - t
     model = dirs["characterize"] / "suggested_model.yaml"
     ordered = _levels(dirs["characterize"], data)
@@ -116,21 +134,28 @@ def _run(args: argparse.Namespace, data: list[Path], out: Path) -> int:
     others = [p for p in ordered if p not in ident]
 
     t = begin(f"identify (NIFO) on {', '.join(p.name for p in ident)} with the suggested model")
-    _call("identify", [*map(str, ident), "--model", str(model), "--out", str(dirs["identify"])])
+    _call("identify", [*map(str, ident), "--model", str(model), "--out", str(dirs["identify"])], args)
     timings["identify"] = time.monotonic() - t
 
     results = [dirs["characterize"], dirs["identify"]]
     pred_on = others or ([] if len(data) < 2 else ordered[:-1])
+    if pred_on and not (dirs["identify"] / "model.json").is_file():
+        why = ("identify wrote no model.json (no physical body model fits its T21; see its warnings), so the "
+               "other level(s) cannot be predicted: the predict step was skipped")
+        notes.append(why[0].upper() + why[1:] + ".")
+        print(f"nifo run: {why}", file=sys.stderr)
+        pred_on, total = [], total - 1
     if pred_on:
         t = begin(f"predict {', '.join(p.name for p in pred_on)} with the identified model")
-        _call("predict", [*map(str, pred_on), "--model", str(dirs["identify"]), "--out", str(dirs["predict"])])
+        _call("predict", [*map(str, pred_on), "--model", str(dirs["identify"]), "--out", str(dirs["predict"])],
+              args)
         timings["predict"] = time.monotonic() - t
         results.append(dirs["predict"])
 
     if do_loop:
         t = begin("loop: search the residual for what the model lacks, error before and after")
         try:
-            _call("loop", [*map(str, ordered), "--model", str(model), "--out", str(dirs["loop"])])
+            _call("loop", [*map(str, ordered), "--model", str(model), "--out", str(dirs["loop"])], args)
             results.append(dirs["loop"])
         except NifoError as err:   # the report still shows everything else; the exit code says it failed
             print(f"nifo run: loop failed: {err}", file=sys.stderr)
@@ -166,6 +191,6 @@ def _run(args: argparse.Namespace, data: list[Path], out: Path) -> int:
     print(f"  {'report':<13} {report}   <- open in a browser")
     if not args.no_recording:
         print(f"  {'recording':<13} {rrd}   <- rerun {rrd}")
-    if failed is not None:
-        return failed.exit_code
-    return 0
+    return {"out": str(out), "took_s": took, "timings_s": timings, "notes": notes, "report": str(report),
+            "recording": None if args.no_recording else str(rrd), "results": {r.kind: str(r.path) for r in read},
+            "exit_code": 0 if failed is None else failed.exit_code}

@@ -135,4 +135,5 @@ def run(args: argparse.Namespace) -> int:
     save_record(args.out, sim.record)
     _write_truth(sim, truth_path(args.out), args.out)
     print(_summary(sim, args.out))
-    return 0
+    return {"out": str(args.out), "truth": str(truth_path(args.out)), "fs_hz": sim.record.fs_hz,
+            "duration_s": sim.record.duration_s, "seed": sim.truth.seed}

@@ -42,9 +42,9 @@ def run(args: argparse.Namespace) -> int:
     if args.save and not (args.connect or args.serve or args.stdout):
         out = save_recording(results, args.save, with_data=not args.no_data)   # atomic, no global state
         print(f"wrote {out} (open it with: rerun {out})")
-        return 0
+        return {"out": str(out)}
     rec = rr.script_setup(args, rl.APP_ID, default_blueprint=rl.blueprint())
     rl.use_data_stamps(rec)
     log_results(results, recording=rec, with_data=not args.no_data)
     rr.script_teardown(args)
-    return 0
+    return {"out": None, "results": [str(r.path) for r in results]}

@@ -83,7 +83,7 @@ def resolve_topics(available: Mapping[str, str], topics: BagTopics | None, *,
     imus = sorted(t for t, ty in available.items() if ty == IMU)
     points = sorted(t for t, ty in available.items() if ty == POINT_STAMPED)
     listing = ", ".join(imus) or "none"
-    fix = "name the topics, e.g. --topics spindle=/a,body=/b (topics=BagTopics(spindle=..., body=...))"
+    fix = "name the topics, e.g. --topics spindle=/a,body=/b"
 
     def missing(role: str, what: str) -> MissingChannelError:
         return MissingChannelError(f"{what}; Imu topics in the bag: {listing}", source=source,

@@ -52,7 +52,8 @@ def _topic_data(record: Record, topics: BagTopics) -> list[TopicData]:
     if record.tire_patch_disp is not None:
         if not topics.tire_patch:
             raise ConfigError("the record has a tire-patch displacement but no topic was given for it",
-                              channel="tire_patch", hint="set BagTopics(tire_patch=...)")
+                              channel="tire_patch",
+                              hint="name a tire-patch topic (--topics ...,tire_patch=/topic) or drop the tire patch")
         out.append(TopicData(topics.tire_patch, POINT_STAMPED, "tire_patch", stamps, record.tire_patch_disp))
     return out
 

@@ -52,7 +52,7 @@ def _view(f: np.ndarray, band_hz: tuple[float, float], pad: float = 0.6) -> np.n
 
 
 def plot_transmissibility(path: str | Path, curves: Sequence[Curve], *, band_hz: tuple[float, float],
-                          title: str, ylabel: str = "|T21| = |X2/X1|", phase: bool = True) -> Path:
+                          title: str, ylabel: str = "|T21| = |X2/X1| [–]", phase: bool = True) -> Path:
     """Magnitude (log-log) and optionally phase of complex transmissibilities."""
     plt = pyplot()
     fig, axes = plt.subplots(2 if phase else 1, 1, figsize=(7.5, 6.2 if phase else 4.2), sharex=True,
@@ -78,11 +78,24 @@ def plot_transmissibility(path: str | Path, curves: Sequence[Curve], *, band_hz:
     return save_figure(fig, path)
 
 
+#: unit of g_i (the describing function's output) from the unit of its coefficient c_i (force per unit of g_i)
+_G_UNIT = {"N/m": "m", "N/m³": "m³", "N·s/m": "m/s", "N·s²/m²": "m²/s²", "N": ""}
+#: unit of μ_i/K2 = B_i/T21 [m of x2 per unit of g_i] (paper Eq. 8), by the unit of g_i
+_MU_UNIT = {"m": "m/m", "m³": "1/m²", "m/s": "s", "m²/s²": "s²/m", "": "m"}
+
+
+def mu_unit(term) -> str:
+    """Unit of μ_i/K2 for ``term`` (mathtext): X2 [m] = B_i·G_i, B_i = (μ_i/K2)·T21 with T21 [m/m]."""
+    g = _G_UNIT.get(getattr(term.spec, "coef_unit", None), None)
+    return _MU_UNIT.get(g, "m per unit of g") if g is not None else "m per unit of g"
+
+
 def plot_coefficients(path: str | Path, result: NifoResult, *, title: str = "") -> Path:
-    """Re and Im of μ_i(ω)/K2 (paper Fig. 10/13): per line (Eq. 9) and the pooled static fit."""
+    """Re and Im of μ_i(ω)/K2 (paper Fig. 10/13): per line (Eq. 9) and the pooled static fit, with units."""
     plt = pyplot()
     nt = len(result.terms)
-    fig, axes = plt.subplots(max(nt, 1), 2, figsize=(10, 2.8 * max(nt, 1) + 0.6), squeeze=False, sharex=True)
+    fig, axes = plt.subplots(max(nt, 1), 2, figsize=(10, 2.8 * max(nt, 1) + 0.8), squeeze=False, sharex=True,
+                             layout="constrained")
     f = result.freq_hz
     m = _view(f, result.analysis_band_hz, pad=0.2)
     for i, term in enumerate(result.terms):
@@ -94,8 +107,9 @@ def plot_coefficients(path: str | Path, result: NifoResult, *, title: str = "") 
             ax.semilogx(f[m], part(result.static.mu_over_k2[i][m]), color="C3", lw=1.4, ls="--",
                         label="pooled constant c/M2" + (" (held fixed)" if result.fixed[i] else ""))
             ax.axhline(0, color="0.5", lw=0.6)
-            ax.set_ylabel(f"{name} μ{i + 1}/K2")
-            ax.set_title(term.label, fontsize=9)
+            ax.set_ylabel(rf"$\mathrm{{{name}}}\,\mu_{{{i + 1}}}/K_2$ [{mu_unit(term)}]")
+            ax.ticklabel_format(axis="y", style="sci", scilimits=(-3, 4), useMathText=True)
+            ax.set_title(f"{term.label}: {'real' if name == 'Re' else 'imaginary'} part", fontsize=9)
             ax.grid(True, which="both", alpha=0.3)
             _robust_ylim(ax, part(result.mu_over_k2[i][result.in_band]), part(result.static.mu_over_k2[i][m]))
             if i == 0 and j == 0:
@@ -106,7 +120,7 @@ def plot_coefficients(path: str | Path, result: NifoResult, *, title: str = "") 
         ax.set_xlabel("frequency [Hz]")
     for ax in axes.ravel():
         _freq_axis(ax)
-    fig.suptitle(title or "coefficient functions μ_i(ω)/K2 (units of g per m of z)", fontsize=10)
+    fig.suptitle(title or r"coefficient functions $\mu_i(\omega)/K_2$ (paper Eq. 8-9)", fontsize=10)
     return save_figure(fig, path)
 
 
@@ -136,13 +150,13 @@ def plot_conditioning(path: str | Path, result: NifoResult, *, cond_limit: float
             a1.semilogx(f[m], result.partial_coherence[1 + i][m], lw=0.8, color=f"C{4 + i}",
                         label=f"partial γ² {term.label}")
     a1.set_ylim(0, 1.05)
-    a1.set_ylabel("coherence")
+    a1.set_ylabel("coherence γ² [–]")
     a1.grid(True, which="both", alpha=0.3)
     a1.legend(fontsize=7, loc="lower left")
     _band(a2, result.analysis_band_hz)
     a2.loglog(f[m], result.cond[m], color="C2", lw=1.0, label="scaled cond(G_UU)")
     a2.axhline(cond_limit, color="C3", ls=":", label=f"limit {cond_limit:.3g}")
-    a2.set_ylabel("condition number")
+    a2.set_ylabel("scaled cond(G_UU) [–]")
     a2.set_xlabel("frequency [Hz]")
     a2.grid(True, which="both", alpha=0.3)
     a2.legend(fontsize=8)
@@ -160,7 +174,7 @@ def plot_tire(path: str | Path, result: NifoResult) -> Path:
                            ("NIFO Eq. 10 per line", f, im.t1b, {"color": "C0", "lw": 0.8, "alpha": 0.7})]
     if im.t1b_nominal is not None:
         curves.append(("nominal (mass sum + NIFO T21)", f, im.t1b_nominal, {"color": "C3", "lw": 1.4, "ls": "--"}))
-    return plot_transmissibility(path, curves, band_hz=result.analysis_band_hz, ylabel="|X1/Xb|",
+    return plot_transmissibility(path, curves, band_hz=result.analysis_band_hz, ylabel="|X1/Xb| [–]",
                                  title="tire patch → spindle: H11·(K1 + jωC1), nominal vs measured")
 
 

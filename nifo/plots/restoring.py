@@ -2,7 +2,8 @@
 
 Every function takes plain arrays or core results and writes one PNG.
 Forces are per unit sprung mass (-ẍ2 [m/s²]) unless ``m2_kg`` is given, then
-in newtons (-M2·ẍ2).
+in newtons (-M2·ẍ2). Signals in other units (``units="V"``: an electrical
+analogue) are labelled in those units: force [V], z [V·s²], ż [V·s].
 """
 
 from __future__ import annotations
@@ -15,7 +16,8 @@ import numpy as np
 
 from . import pyplot, save_figure
 
-__all__ = ["SlicePlot", "CharacteristicPlot", "plot_restoring_slices", "plot_characteristics", "plot_ranking"]
+__all__ = ["SlicePlot", "CharacteristicPlot", "plot_restoring_slices", "plot_characteristics", "plot_ranking",
+           "term_label"]
 
 _MEASURED = "#1f4e79"
 _MODEL = "#c0392b"
@@ -51,7 +53,8 @@ class CharacteristicPlot:
     term (the other variable's linear part, the other terms); ``fitted``: this
     variable's linear part plus θ·g (band-passed like the data);
     ``reference``: the plain linear fit's part (what a linear strut would
-    give). ``x`` is z [m] or ż [m/s] (``variable``); ``split`` (e.g. ż for
+    give); ``truth``: the true part of this variable (simulated data, from the
+    truth file). ``x`` is z [m] or ż [m/s] (``variable``); ``split`` (e.g. ż for
     a z-term) separates loading from unloading so hysteresis shows.
     """
 
@@ -62,10 +65,23 @@ class CharacteristicPlot:
     fitted: np.ndarray
     split: np.ndarray | None = None
     reference: np.ndarray | None = None
+    truth: np.ndarray | None = None
 
 
-def _force_scale(m2_kg: float | None) -> tuple[float, str]:
-    return (m2_kg, "strut force −M2·ẍ2 [N]") if m2_kg else (1.0, "−ẍ2 [m/s²]")
+SI = "m/s²"
+
+
+def _force_scale(m2_kg: float | None, units: str = SI) -> tuple[float, str]:
+    if units != SI:
+        return 1.0, f"−ẍ2 [{units}]"
+    return (m2_kg, "force −M2·ẍ2 [N]") if m2_kg else (1.0, "−ẍ2 [m/s²]")
+
+
+def _xscale(variable: str, peak: float, units: str = SI) -> tuple[float, str]:
+    """Scale and axis label of z or ż: mm/µm and m/s or mm/s for m/s², else the integrated unit."""
+    if units != SI:
+        return 1.0, (f"z [{units}·s²]" if variable == "z" else f"ż [{units}·s]")
+    return _z_scale(peak) if variable == "z" else _v_scale(peak)
 
 
 def _z_scale(z_peak: float) -> tuple[float, str]:
@@ -81,7 +97,7 @@ def _thin(n: int, most: int) -> np.ndarray:
 
 
 def plot_restoring_slices(rows: Sequence[SlicePlot], path: str | Path, *, title: str,
-                          m2_kg: float | None = None, subtitle: str = "") -> Path:
+                          m2_kg: float | None = None, subtitle: str = "", units: str = SI) -> Path:
     """Grid of restoring-force plots: one row per slice, velocity view left, displacement view right.
 
     As the paper's Figs. 3 (frequency slices), 4 (amplitude slices) and 7
@@ -92,9 +108,9 @@ def plot_restoring_slices(rows: Sequence[SlicePlot], path: str | Path, *, title:
     plt = pyplot()
     if not rows:
         raise ValueError("no slices to plot")
-    fsc, flabel = _force_scale(m2_kg)
-    zsc, zlabel = _z_scale(max(float(np.max(np.abs(r.z))) for r in rows))
-    vsc, vlabel = _v_scale(max(float(np.max(np.abs(r.zdot))) for r in rows))
+    fsc, flabel = _force_scale(m2_kg, units)
+    zsc, zlabel = _xscale("z", max(float(np.max(np.abs(r.z))) for r in rows), units)
+    vsc, vlabel = _xscale("zdot", max(float(np.max(np.abs(r.zdot))) for r in rows), units)
     n = len(rows)
     fig, axes = plt.subplots(n, 2, figsize=(9.0, 2.35 * n + 0.9), squeeze=False)
     letters = "abcdefghijklmnopqrstuvwxyz"
@@ -172,7 +188,7 @@ def _unit(label: str) -> str:
 
 
 def plot_characteristics(panels: Sequence[CharacteristicPlot], path: str | Path, *, title: str,
-                         m2_kg: float | None = None) -> Path:
+                         m2_kg: float | None = None, units: str = SI) -> Path:
     """Stiffness / damping characteristics, one column per term (the paper's classic slices, cleaned).
 
     Top row: the characteristic; data as binned medians with their
@@ -184,13 +200,13 @@ def plot_characteristics(panels: Sequence[CharacteristicPlot], path: str | Path,
     plt = pyplot()
     if not panels:
         raise ValueError("no characteristics to plot")
-    fsc, flabel = _force_scale(m2_kg)
+    fsc, flabel = _force_scale(m2_kg, units)
     n = len(panels)
     fig, axes = plt.subplots(2, n, figsize=(4.4 * n, 6.4), squeeze=False, sharex="col")
     for col, p in enumerate(panels):
         top, bot = axes[0, col], axes[1, col]
         peak = float(np.quantile(np.abs(p.x), 0.995)) or 1.0
-        sc, xl = _z_scale(peak) if p.variable == "z" else _v_scale(peak)
+        sc, xl = _xscale(p.variable, peak, units)
         edges = np.linspace(-peak, peak, 41)
         ref = p.reference if p.reference is not None else np.zeros_like(p.x)
         groups = [("", np.ones(p.x.size, bool), _MEASURED)]
@@ -214,6 +230,10 @@ def plot_characteristics(panels: Sequence[CharacteristicPlot], path: str | Path,
         if p.reference is not None:
             xr, mr, _, _ = _binned(p.x, p.reference, edges)
             top.plot(xr * sc, mr * fsc, ":", color="0.3", lw=1.2, label="linear fit")
+        if p.truth is not None:   # the simulator's strut, band-passed like the data
+            for ax, sub in ((top, np.zeros_like(ref)), (bot, ref)):
+                xt, mt, _, _ = _binned(p.x, p.truth - sub, edges)
+                ax.plot(xt * sc, mt * fsc, "-.", color="k", lw=1.1, label="true (simulator)" if ax is top else None)
         lim = np.quantile(np.abs(p.measured), 0.99) * fsc or 1.0
         top.set_ylim(-1.3 * lim, 1.3 * lim)
         dev = p.fitted - ref
@@ -230,14 +250,31 @@ def plot_characteristics(panels: Sequence[CharacteristicPlot], path: str | Path,
     return save_figure(fig, path)
 
 
-def _short_label(c: dict) -> str:
-    p = {k: v for k, v in c["params"].items() if not (k == "offset" and v == 0)}
+def term_label(kind: str, params: dict, *, units: str = SI) -> str:
+    """``clearance(gap=0.135 mm)``: a describing function with its parameters in units (a parameter is in
+    the unit of the variable the term acts on: z in mm, ż in m/s; z in UNIT·s² for other signal units)."""
+    from nifo_core.describing import make_term
+
+    p = {k: v for k, v in params.items() if not (k == "offset" and v == 0)}
     if not p:
-        return c["kind"]
-    return c["kind"] + "(" + ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in p.items()) + ")"
+        return kind
+    try:
+        variable = make_term({"kind": kind, "params": params}).variable
+    except (ValueError, KeyError, TypeError):
+        variable = None
+
+    def text(v) -> str:
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or variable is None:
+            return str(v)
+        if units != SI:
+            return f"{v:.3g} {units}·s²" if variable == "z" else f"{v:.3g} {units}·s"
+        return f"{1e3 * v:.3g} mm" if variable == "z" else f"{v:.3g} m/s"
+
+    return kind + "(" + ", ".join(f"{k}={text(v)}" for k, v in p.items()) + ")"
 
 
-def plot_ranking(candidates: Sequence[dict], path: str | Path, *, title: str, min_err: float) -> Path:
+def plot_ranking(candidates: Sequence[dict], path: str | Path, *, title: str, min_err: float,
+                 units: str = SI) -> Path:
     """Horizontal bars: each kind's error reduction ratio, coloured by its status; the threshold dashed.
 
     ``candidates`` as in ``Characterization.to_dict()["candidates"]`` (ranked).
@@ -254,7 +291,7 @@ def plot_ranking(candidates: Sequence[dict], path: str | Path, *, title: str, mi
     ax.axvline(min_err, color="k", ls="--", lw=0.9)
     ax.text(min_err, n - 0.45, f" present above {min_err:g}", fontsize=7.5, va="bottom")
     ax.set_yticks(y)
-    ax.set_yticklabels([_short_label(c) for c in candidates], fontsize=7.5)
+    ax.set_yticklabels([term_label(c["kind"], c["params"], units=units) for c in candidates], fontsize=7.5)
     for yi, c in zip(y, candidates):
         txt = c["status"]
         if c.get("alternative_to"):
@@ -263,7 +300,8 @@ def plot_ranking(candidates: Sequence[dict], path: str | Path, *, title: str, mi
             txt += ": " + c["failed"][0].replace("coefficient ", "")[:34]
         ax.text(1.02, yi, txt, transform=ax.get_yaxis_transform(), fontsize=7.5, va="center", ha="left",
                 color=_STATUS_COLOURS.get(c["status"], "0.3") if c["status"] != "weak" else "0.45")
-    ax.set_xlabel("error reduction ratio: share of the linear fit's residual variance explained", fontsize=8)
+    ax.set_xlabel("error reduction ratio ERR: share of the linear fit's residual variance explained [–]",
+                  fontsize=8)
     ax.set_ylim(-0.7, n - 0.3 + 0.6)
     ax.grid(True, axis="x", lw=0.3, alpha=0.5, which="both")
     ax.set_title(title, fontsize=10)

@@ -42,6 +42,7 @@ def _band(results: Sequence[ResultDir]):
 
 def _records(results: Sequence[ResultDir]) -> list[tuple[Path, object]]:
     from nifo.io.loader import load_record
+    from nifo.io.provenance import reader_options
 
     seen, out = set(), []
     for r in results:
@@ -50,7 +51,7 @@ def _records(results: Sequence[ResultDir]) -> list[tuple[Path, object]]:
             if q is None or q.resolve() in seen:
                 continue
             seen.add(q.resolve())
-            out.append((q, load_record(q)))
+            out.append((q, load_record(q, **reader_options(r.doc))))   # the same --columns/--topics
     return out
 
 

@@ -1,36 +1,44 @@
 """The HTML report: one self-contained file a test engineer can read, forward and print.
 
 :func:`build_report` turns result directories (:mod:`nifo.viz.results`) into
-one HTML document: every PNG embedded as base64 (no external assets, no
-JavaScript), tables of the numbers, the loop's before/after, the settings and
-where the data came from. :func:`levels_figure` adds the paper-style
-"transmissibility across levels with the NIFO estimate" when the data are
-reachable.
+one HTML document rendered from the Jinja2 templates in ``nifo/viz/templates``
+(``report.html.j2`` is the page; one template per kind of result, one for the
+provenance; ``_macros.html.j2`` the table and figure blocks; ``report.css``
+inlined): every PNG embedded as base64 (no external assets, no JavaScript),
+tables of the numbers, the loop's before/after, the settings and where the
+data came from. This module only prepares the values the templates show.
+:func:`levels_figure` adds the paper-style "transmissibility across levels
+with the NIFO estimate" when the data are reachable; the data are re-read with
+the input options stored in each result (``--columns``, ``--topics``, ...).
 """
 
 from __future__ import annotations
 
 import base64
 import datetime as _dt
-import html
 import json
 import tempfile
+from functools import lru_cache
 from pathlib import Path
-from typing import Iterable, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
+from jinja2 import ChainableUndefined, Environment, PackageLoader, Undefined, select_autoescape
+from markupsafe import Markup
 
 from nifo_core import __version__
+from nifo_core.errors import NifoError
 
 from .results import ResultDir, data_paths, resolve_data
 
-__all__ = ["build_report", "write_report", "levels_figure", "CAPTIONS"]
+__all__ = ["build_report", "write_report", "levels_figure", "CAPTIONS", "system_words"]
 
-#: figure file name (prefix or suffix) -> caption; first match wins
+#: figure file name (prefix, or suffix when it starts with "_") -> caption; first match wins.
+#: {input}, {output}, {element}, {mass} are the system's words (:func:`system_words`).
 CAPTIONS: tuple[tuple[str, str], ...] = (
-    ("restoring_frequency", "Restoring force by frequency slice (cf. paper Fig. 3): the strut force per unit "
-                            "sprung mass −ẍ2 against the relative velocity ż (damping, left) and displacement z "
-                            "(stiffness, right). A linear strut gives ellipses; kinks and flat spots are "
+    ("restoring_frequency", "Restoring force by frequency slice (cf. paper Fig. 3): the {element} force per unit "
+                            "{mass} −ẍ2 against the relative velocity ż (damping, left) and displacement z "
+                            "(stiffness, right). A linear {element} gives ellipses; kinks and flat spots are "
                             "nonlinearities."),
     ("restoring_amplitude", "Restoring force by amplitude (cf. paper Fig. 4): one row per excitation level or "
                             "amplitude bin. Shapes that change with amplitude are nonlinear; the fitted model "
@@ -39,12 +47,12 @@ CAPTIONS: tuple[tuple[str, str], ...] = (
                        "interquartile band, the fitted characteristic, and (bottom) the same minus the linear fit."),
     ("ranking", "Every kind of nonlinearity in the library, scored by how much of the linear fit's residual it "
                 "explains; the dashed line is the 'present' threshold."),
-    ("levels", "Spindle → body transmissibility at every excitation level (plain H1) with the NIFO estimate of "
-               "the nominal linear T21 (cf. paper Fig. 9b/12b). The measured curves move with level because "
-               "the strut is nonlinear; the NIFO estimate is what is left when the nonlinearity is taken out."),
+    ("levels", "{Input} → {output} transmissibility at every excitation level (plain H1) with the NIFO estimate "
+               "of the nominal linear T21 (cf. paper Fig. 9b/12b). The measured curves move with level because "
+               "the {element} is nonlinear; the NIFO estimate is what is left when the nonlinearity is taken out."),
     ("_transmissibility", "Predicted vs measured transmissibility at this level: the identified nonlinear model "
                           "against the linear model identified at the other level."),
-    ("transmissibility", "Spindle → body transmissibility: measured H1 and the NIFO nominal linear T21 "
+    ("transmissibility", "{Input} → {output} transmissibility: measured H1 and the NIFO nominal linear T21 "
                          "(cf. paper Fig. 9b/12b); shaded: the analysis band."),
     ("coefficients", "Coefficient functions μᵢ(ω)/K2, real and imaginary parts (cf. paper Fig. 10/13): per line "
                      "(Eq. 9) and from the pooled constant-coefficient fit. A static nonlinearity gives flat, "
@@ -55,7 +63,7 @@ CAPTIONS: tuple[tuple[str, str], ...] = (
     ("loop_errors", "Held-out NMSE and per-band residual before and after each round of the loop."),
     ("loop_round", "Evidence for the added effect: the residual against the effect's variable, before and after "
                    "adding it."),
-    ("_time", "Body acceleration, measured vs predicted from the measured spindle acceleration (an excerpt)."),
+    ("_time", "{Output} signal, measured vs predicted from the measured {input} signal (an excerpt)."),
 )
 
 _SECTION_TITLES = {"characterize": "Characterization: which nonlinearities, how strong",
@@ -63,97 +71,71 @@ _SECTION_TITLES = {"characterize": "Characterization: which nonlinearities, how 
                    "predict": "Prediction at the other level(s)",
                    "loop": "Closing the loop: what the model lacked, error before and after"}
 
-_CSS = """
-:root { --ink: #1d2733; --muted: #5b6775; --rule: #d8dee6; --accent: #1f4e79; --good: #2e7d32; --warn: #a15c00; }
-* { box-sizing: border-box; }
-body { font: 15px/1.5 -apple-system, "Segoe UI", Roboto, "Helvetica Neue", Arial, sans-serif; color: var(--ink);
-       margin: 0; background: #f5f7fa; }
-main { max-width: 1040px; margin: 0 auto; padding: 28px 36px 60px; background: #fff; }
-h1 { font-size: 26px; margin: 0 0 4px; color: var(--accent); }
-h2 { font-size: 20px; margin: 36px 0 10px; padding-bottom: 4px; border-bottom: 2px solid var(--accent); }
-h3 { font-size: 16px; margin: 22px 0 8px; }
-p.meta, .muted { color: var(--muted); font-size: 13px; }
-nav ol { margin: 6px 0 0; padding-left: 20px; columns: 2; font-size: 14px; }
-a { color: var(--accent); }
-.glance { display: grid; grid-template-columns: repeat(auto-fit, minmax(220px, 1fr)); gap: 12px; margin: 18px 0; }
-.card { border: 1px solid var(--rule); border-left: 4px solid var(--accent); border-radius: 4px; padding: 10px 12px; }
-.card .k { font-size: 12px; color: var(--muted); text-transform: uppercase; letter-spacing: .04em; }
-.card { min-width: 0; }
-.card .v { font-size: 15px; font-weight: 600; overflow-wrap: anywhere; }
-.card .v small { font-weight: 400; color: var(--muted); }
-table { border-collapse: collapse; width: 100%; margin: 8px 0 14px; font-size: 13.5px; }
-th, td { text-align: left; padding: 5px 8px; border-bottom: 1px solid var(--rule); vertical-align: top; }
-th { background: #eef2f7; font-weight: 600; }
-td.num, th.num { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
-tr.suggested td { background: #eef7ee; }
-.good { color: var(--good); font-weight: 600; }
-.warn { color: var(--warn); }
-ul.warnings li { color: var(--warn); margin-bottom: 4px; }
-figure { margin: 16px 0 22px; text-align: center; }
-figure img { max-width: 100%; height: auto; border: 1px solid var(--rule); }
-figcaption { font-size: 13px; color: var(--muted); text-align: left; margin-top: 6px; }
-code, pre { font: 12.5px/1.4 ui-monospace, Menlo, Consolas, monospace; }
-pre { background: #f3f5f8; padding: 8px 10px; overflow-x: auto; white-space: pre-wrap; }
-footer { margin-top: 40px; font-size: 12px; color: var(--muted); border-top: 1px solid var(--rule); padding-top: 8px; }
-@media print {
-  body { background: #fff; font-size: 11pt; }
-  main { max-width: none; padding: 0; }
-  nav { display: none; }
-  h2 { break-before: page; }
-  h2:first-of-type { break-before: auto; }
-  figure, table, .card { break-inside: avoid; }
-  a { color: inherit; text-decoration: none; }
-}
-"""
+_NMSE_KEYS = ("heldout_nmse_pct", "nmse_percent", "nmse", "held_out_nmse_percent")
+_SETTING_KEYS = ("settings", "band", "band_choice", "thresholds", "freq_window_hz", "freq_range_hz", "method",
+                 "model_file", "model", "linear_model", "input", "system")
 
 
-# ------------------------------------------------------------------------------------ small pieces
-def _e(x) -> str:
-    return html.escape(str(x), quote=True)
-
-
+# ------------------------------------------------------------------------------------ formatting
 def _num(x, fmt: str = ".4g") -> str:
-    if x is None:
+    if x is None or isinstance(x, Undefined):
         return "–"
     try:
         v = float(x)
     except (TypeError, ValueError):
-        return _e(x)
+        return str(x)
     return "–" if not np.isfinite(v) else format(v, fmt)
 
 
 def _pct(x, fmt: str = ".1f") -> str:
-    return "–" if x is None else f"{100 * float(x):{fmt}} %"
+    if x is None or isinstance(x, Undefined):
+        return "–"
+    return f"{100 * float(x):{fmt}} %"
 
 
-def _table(header: Sequence[str], rows: Iterable[Sequence], *, numeric: Sequence[int] = (),
-           row_class: Sequence[str] | None = None) -> str:
-    th = "".join(f'<th class="num">{_e(h)}</th>' if i in numeric else f"<th>{_e(h)}</th>"
-                 for i, h in enumerate(header))
-    body = []
-    for k, r in enumerate(rows):
-        cls = f' class="{row_class[k]}"' if row_class and row_class[k] else ""
-        tds = "".join(f'<td class="num">{c}</td>' if i in numeric else f"<td>{c}</td>" for i, c in enumerate(r))
-        body.append(f"<tr{cls}>{tds}</tr>")
-    return f"<table><thead><tr>{th}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+@lru_cache(maxsize=1)
+def _env() -> Environment:
+    env = Environment(loader=PackageLoader("nifo.viz", "templates"), autoescape=select_autoescape(["j2", "html"]),
+                      undefined=ChainableUndefined, trim_blocks=True, lstrip_blocks=True)
+    env.filters.update(num=_num, pct=_pct)
+    return env
 
 
-def _caption(name: str) -> str:
+def system_words(system: Mapping) -> dict:
+    """Words for the two sides of the nonlinear element: quarter-car words only for a vehicle."""
+    if system.get("vehicle", True):
+        w = {"input": "spindle", "output": "body", "element": "strut", "mass": "sprung mass"}
+    else:
+        w = {"input": "input-side", "output": "output-side", "element": "nonlinear element",
+             "mass": "output-side mass"}
+    return {**w, **{k.capitalize(): v[:1].upper() + v[1:] for k, v in w.items()}}
+
+
+def _system(results: Sequence[ResultDir]) -> dict:
+    from nifo.io.provenance import system_of
+
+    doc = next((r.doc for r in results if isinstance(r.doc.get("system"), Mapping)), {})
+    return system_of(doc)
+
+
+def _caption(name: str, words: Mapping) -> str:
     stem = Path(name).stem
     for key, text in CAPTIONS:
         if (key.startswith("_") and stem.endswith(key)) or (not key.startswith("_") and stem.startswith(key)):
-            return text
+            return text.format(**words)
     return stem.replace("_", " ")
 
 
-def _png_data_uri(path: Path) -> str:
-    return "data:image/png;base64," + base64.b64encode(Path(path).read_bytes()).decode("ascii")
+def _figure(path: Path, words: Mapping, caption: str | None = None) -> dict:
+    p = Path(path)
+    vector = next((p.with_suffix(s).name for s in (".svg", ".pdf") if p.with_suffix(s).is_file()), None)
+    uri = "data:image/png;base64," + base64.b64encode(p.read_bytes()).decode("ascii")
+    return {"uri": uri, "name": p.name, "alt": p.stem.replace("_", " "), "vector": vector,
+            "caption": caption or _caption(p.name, words)}
 
 
-def _figure(path: Path, caption: str | None = None) -> str:
-    cap = caption or _caption(path.name)
-    return (f'<figure><img src="{_png_data_uri(path)}" alt="{_e(path.stem.replace("_", " "))}">'
-            f"<figcaption><b>{_e(path.name)}</b> — {_e(cap)}</figcaption></figure>")
+def _code(text) -> Markup:
+    return Markup("<code>{}</code>").format(text)
 
 
 def _flatten(d: Mapping, prefix: str = "") -> list[tuple[str, str]]:
@@ -169,104 +151,89 @@ def _flatten(d: Mapping, prefix: str = "") -> list[tuple[str, str]]:
     return out
 
 
-def _card(k: str, v: str) -> str:
-    return f'<div class="card"><div class="k">{_e(k)}</div><div class="v">{v}</div></div>'
+# ------------------------------------------------------------------------------------ data, read once
+@lru_cache(maxsize=32)
+def _load(path: str, options: str):
+    """A record read with the stored input options (JSON of the result's ``"input"``), cached per report."""
+    from nifo.io.loader import load_record
+    from nifo.io.provenance import reader_options
+
+    return load_record(path, **reader_options({"input": json.loads(options)}))
+
+
+def _record(path: Path, r: ResultDir):
+    return _load(str(path), json.dumps(r.doc.get("input") or {}, sort_keys=True))
 
 
 # ------------------------------------------------------------------------------------ sections
-def _characterize(r: ResultDir) -> tuple[str, list[tuple[str, str]]]:
+def _units(system: Mapping) -> tuple[str, float, str, float]:
+    """(z unit, scale from the stored SI value, ż unit, scale): mm and m/s for accelerations in m/s²."""
+    u = system.get("units", "m/s²")
+    return ("mm", 1e3, "m/s", 1.0) if u == "m/s²" else (f"{u}·s²", 1.0, f"{u}·s", 1.0)
+
+
+def _term_text(c: Mapping, system: Mapping) -> str:
+    """A candidate's label with its parameters in units (gap=0.135 mm), else as stored."""
+    from nifo.plots.restoring import term_label
+
+    if isinstance(c.get("params"), Mapping) and c.get("kind"):
+        return term_label(c["kind"], dict(c["params"]), units=system.get("units", "m/s²"))
+    return str(c.get("label", c.get("kind", "?")))
+
+
+def _characterize(r: ResultDir, system: Mapping) -> tuple[dict, list]:
     d = r.doc
-    band = d.get("band", {})
-    cands = d.get("candidates", [])
-    rows, classes = [], []
-    for c in cands[:8]:
-        coef = c.get("coefficient")
-        coef_txt = (f"{_num(coef)} {_e(c.get('coefficient_unit', ''))}" if coef is not None
-                    else f"{_num(c.get('theta_per_kg'))} ({_e(c.get('coefficient_unit', ''))})/kg")
-        status = c.get("status", "")
-        if c.get("alternative_to"):
-            status += f" (≈ {c['alternative_to']})"
-        rows.append([_e(c.get("label", c.get("kind"))), coef_txt, _num(c.get("err"), ".3f"),
-                     _num(c.get("p_value"), ".1e"), _e(status), _e(c.get("meaning", ""))])
+    zu, zs, vu, vs = _units(system)
+    cands, classes = [], []
+    for c in (d.get("candidates") or [])[:8]:
+        unit = c.get("coefficient_unit", "")
+        coef = (f"{_num(c['coefficient'])} {unit}" if c.get("coefficient") is not None
+                else f"{_num(c.get('theta_per_kg'))} ({unit})/kg")
+        status = c.get("status", "") + (f" (≈ {c['alternative_to']})" if c.get("alternative_to") else "")
+        cands.append([_term_text(c, system), coef, _num(c.get("err"), ".3f"), _num(c.get("p_value"), ".1e"),
+                      status, c.get("meaning", "")])
         classes.append("suggested" if c.get("status") == "suggested" else "")
+    levels = [[Path(x.get("path", x.get("source", ""))).name, _num(x.get("duration_s"), ".1f"),
+               _num(None if x.get("z_rms_m") is None else zs * x["z_rms_m"], ".3g"),
+               _num(None if x.get("zdot_rms_m_s") is None else vs * x["zdot_rms_m_s"], ".3g"),
+               _num(x.get("linear_r2"), ".4f")] for x in d.get("records", [])]
     sug = d.get("suggested") or []
-    verdict = ("no nonlinearity above the thresholds: a linear strut suffices" if d.get("nothing_found")
-               else "; ".join(f"{s.get('label')}: {s.get('meaning', '')}" for s in sug))
-    recs = [[_e(Path(x.get("path", x.get("source", ""))).name), _num(x.get("duration_s"), ".1f"),
-             _num(1e3 * x["z_rms_m"], ".3g") if x.get("z_rms_m") is not None else "–",
-             _num(x.get("zdot_rms_m_s"), ".3g"), _num(x.get("linear_r2"), ".4f")] for x in d.get("records", [])]
-    parts = [f"<p><b>Suggested model:</b> {_e(verdict)}</p>",
-             f"<p class='muted'>Integration band {_num(band.get('f_lo_hz'))}–{_num(band.get('f_hi_hz'))} Hz; "
-             f"linear fit R² {_num(d.get('linear', {}).get('r2'), '.4f')}.</p>",
-             "<h3>Levels</h3>",
-             _table(["record", "duration [s]", "z RMS [mm]", "ż RMS [m/s]", "linear R²"], recs, numeric=(1, 2, 3, 4)),
-             "<h3>Candidates (suggested first)</h3>",
-             _table(["candidate", "coefficient", "ERR", "p", "status", "meaning"], rows, numeric=(1, 2, 3),
-                    row_class=classes)]
-    if d.get("notes"):
-        parts.append("<ul class='warnings'>" + "".join(f"<li>{_e(n)}</li>" for n in d["notes"]) + "</ul>")
-    parts += [_figure(f) for f in r.figures]
-    glance = [("suggested model", "linear strut (nothing found)" if d.get("nothing_found") else "<br>".join(
-        f"{_e(s.get('label'))} <small>{_e(s.get('meaning', ''))}</small>" for s in sug))]
-    return "\n".join(parts), glance
+    lines = ([{"text": "linear (nothing found)"}] if d.get("nothing_found") else
+             [{"text": _term_text(s, system), "small": s.get("meaning", "")} for s in sug])
+    return ({"candidates": cands, "candidate_classes": classes, "levels": levels, "z_unit": zu, "v_unit": vu,
+             "suggested": [f"{_term_text(x, system)}: {x.get('meaning', '')}" for x in sug]},
+            [{"key": "suggested model", "lines": lines}])
 
 
-def _identify(r: ResultDir, levels_png: Path | None) -> tuple[str, list[tuple[str, str]]]:
-    d = r.doc
-    s = d.get("summary", {})
-    terms = s.get("terms", [])
-    rows = [[_e(t.get("label")), _num(t.get("c_over_m2")), _e(t.get("unit", "")),
-             "held fixed" if t.get("fixed") else f"{_num(t.get('per_line_mean_re'))} {_num(t.get('per_line_mean_im'), '+.3g')}j"]
-            for t in terms]
-    lo, hi = s.get("analysis_band_hz", [None, None])
-    dh = s.get("t21_static_vs_h1_rel_diff", {})
-    parts = [f"<p>{s.get('n_avg', '–')} spectral averages over {_num(s.get('duration_used_s'), '.1f')} s of data; "
-             f"analysis band {_num(lo)}–{_num(hi)} Hz. The nominal (near-zero-level) T21 differs from the plain H1 "
-             f"at this level by a median {_pct(dh.get('median'))}: that is the nonlinearity's share.</p>"]
-    if rows:
-        parts += ["<h3>Pooled coefficients c/M2 (constant over the band)</h3>",
-                  _table(["term", "c/M2", "unit", "per-line band mean"], rows, numeric=(1, 3))]
-    else:
-        parts.append("<p>No nonlinear terms declared: T21 is the plain H1.</p>")
-    parts.append(_table(["coherence (plain H1), median", "scaled cond(G_UU), median", "max", "ill-conditioned lines"],
-                        [[_num(s.get("coherence_h1_median"), ".3f"), _num(s.get("cond_median"), ".3g"),
-                          _num(s.get("cond_max"), ".3g"), _pct(s.get("ill_conditioned_fraction"), ".0f")]],
-                        numeric=(0, 1, 2, 3)))
-    if d.get("warnings"):
-        parts.append("<ul class='warnings'>" + "".join(f"<li>{_e(w)}</li>" for w in d["warnings"]) + "</ul>")
-    if levels_png is not None:
-        parts.append(_figure(levels_png, _caption("levels")))
-    parts += [_figure(f) for f in r.figures]
-    glance = [("pooled coefficients", "<br>".join(f"{_e(t.get('label'))}: {_num(t.get('c_over_m2'))} {_e(t.get('unit'))}"
-                                                   for t in terms) or "none (linear)"),
-              ("coherence, median", _num(s.get("coherence_h1_median"), ".3f"))]
-    return "\n".join(parts), glance
+def _identify(r: ResultDir, system: Mapping) -> tuple[dict, list]:
+    s = r.doc.get("summary", {})
+    terms = [{**t, "label": _term_text(t.get("term") or t, system)} for t in s.get("terms", [])]
+    rows = [[t.get("label"), _num(t.get("c_over_m2")), t.get("unit", ""),
+             "held fixed" if t.get("fixed") else
+             f"{_num(t.get('per_line_mean_re'))} {_num(t.get('per_line_mean_im'), '+.3g')}j"] for t in terms]
+    lines = [{"text": f"{t.get('label')}: {_num(t.get('c_over_m2'))} {t.get('unit', '')}"} for t in terms]
+    return {"terms": rows}, [{"key": "pooled coefficients", "lines": lines or [{"text": "none (linear)"}]},
+                             {"key": "coherence, median",
+                              "lines": [{"text": _num(s.get("coherence_h1_median"), ".3f")}]}]
 
 
-def _predict(r: ResultDir) -> tuple[str, list[tuple[str, str]]]:
-    d = r.doc
-    lo, hi = d.get("freq_range_hz", [None, None])
-    rows = []
-    for rec in d.get("records", []):
+def _predict(r: ResultDir) -> tuple[dict, list]:
+    rows, glance = [], []
+    for rec in r.doc.get("records", []):
         m, li = rec.get("model", {}), rec.get("linear", {})
+        nm = _num(m.get("nmse_percent"), ".2f") + " %"
         better = (m.get("nmse_percent") is not None and li.get("nmse_percent") is not None
                   and m["nmse_percent"] < li["nmse_percent"])
-        nm = _num(m.get("nmse_percent"), ".2f") + " %"
-        rows.append([_e(rec.get("name")), f"<span class='good'>{nm}</span>" if better else nm,
+        rows.append([rec.get("name"), Markup('<span class="good">{}</span>').format(nm) if better else nm,
                      _num(li.get("nmse_percent"), ".2f") + " %",
                      _pct((m.get("transmissibility_error") or {}).get("median")),
                      _pct((li.get("transmissibility_error") or {}).get("median")),
                      _pct(((rec.get("truth") or {}).get("model_nominal_t21_vs_true") or {}).get("median"))])
-    parts = [f"<p>The identified model predicts the body acceleration from the measured spindle acceleration at "
-             f"each other level. NMSE in time (below 5 % good, below 1 % excellent) and the median transmissibility "
-             f"error over {_num(lo)}–{_num(hi)} Hz, for the identified model and for a linear model.</p>",
-             _table(["record", "NMSE model", "NMSE linear", "|T| error model", "|T| error linear",
-                     "nominal T21 vs truth"], rows, numeric=(1, 2, 3, 4, 5))]
-    parts += [_figure(f) for f in r.figures]
-    glance = [(f"NMSE at {rec.get('name')}", f"{_num(rec['model'].get('nmse_percent'), '.2f')} % "
-                                             f"<span class='muted'>(linear {_num(rec['linear'].get('nmse_percent'), '.2f')} %)</span>")
-              for rec in d.get("records", []) if "model" in rec and "linear" in rec]
-    return "\n".join(parts), glance
+        if m and li:
+            glance.append({"key": f"NMSE at {rec.get('name')}",
+                           "lines": [{"text": f"{_num(m.get('nmse_percent'), '.2f')} %",
+                                      "small": f"(linear {_num(li.get('nmse_percent'), '.2f')} %)"}]})
+    return {"rows": rows}, glance
 
 
 def _find(d, *keys):
@@ -283,126 +250,134 @@ def _find(d, *keys):
 
 
 def _effect_label(e) -> str:
-    if isinstance(e, str):
-        return e
     if isinstance(e, Mapping):
         if e.get("label"):
             return str(e["label"])
         term = e.get("term") if isinstance(e.get("term"), Mapping) else e
-        kind = term.get("kind", "?")
         params = term.get("params") or {}
-        return kind + ("(" + ", ".join(f"{k}={_num(v)}" for k, v in params.items()) + ")" if params else "")
+        return term.get("kind", "?") + ("(" + ", ".join(f"{k}={_num(v)}" for k, v in params.items()) + ")"
+                                        if params else "")
     return str(e)
 
 
-_NMSE_KEYS = ("heldout_nmse_pct", "nmse_percent", "nmse", "held_out_nmse_percent")
-
-
-def _terms_text(terms) -> str:
+def _terms_text(terms, element: str) -> str:
     if not isinstance(terms, list):
         return ""
-    return "linear strut" + "".join(" + " + _effect_label(t) for t in terms)
+    return f"linear {element}" + "".join(" + " + _effect_label(t) for t in terms)
 
 
-def _errors_table(before: Mapping, after: Mapping) -> str:
+def _errors_rows(before: Mapping, after: Mapping) -> list[list[str]]:
     """Metric | before | after, from the loop's error summaries (held-out NMSE, equation error, bands, T)."""
     rows = []
-    for key, label, fmt in (("heldout_nmse_pct", "held-out NMSE (body acceleration predicted) [%]", ".3g"),
+    for key, label, fmt in (("heldout_nmse_pct", "held-out NMSE (output predicted) [%]", ".3g"),
                             ("equation_nmse_pct", "equation error, held out (force balance) [%]", ".3g")):
         if key in before or key in after:
             rows.append([label, _num(before.get(key), fmt), _num(after.get(key), fmt)])
     bb, ba = before.get("band_residual_db") or {}, after.get("band_residual_db") or {}
     for band in bb or ba:
         rows.append([f"residual {band} Hz [dB]", _num(bb.get(band), ".1f"), _num(ba.get(band), ".1f")])
-    tb = {e.get("record"): e.get("error_pct") for e in before.get("transmissibility_error_pct") or []
-          if isinstance(e, Mapping)}
-    ta = {e.get("record"): e.get("error_pct") for e in after.get("transmissibility_error_pct") or []
-          if isinstance(e, Mapping)}
+
+    def per_record(e):
+        return {x.get("record"): x.get("error_pct") for x in e.get("transmissibility_error_pct") or []
+                if isinstance(x, Mapping)}
+    tb, ta = per_record(before), per_record(after)
     for rec in tb or ta:
         rows.append([f"transmissibility error at {rec} [%]", _num(tb.get(rec), ".2g"), _num(ta.get(rec), ".2g")])
-    return _table(["", "before", "after"], [[_e(a), b, c] for a, b, c in rows], numeric=(1, 2)) if rows else ""
+    return rows
 
 
-def _loop(r: ResultDir) -> tuple[str, list[tuple[str, str]]]:
+def _loop(r: ResultDir, words: Mapping) -> tuple[dict, list]:
     d = r.doc
     rounds = [x for x in (d.get("rounds") or []) if isinstance(x, Mapping)]
-    parts = []
-    verdict = d.get("verdict") or d.get("conclusion") or d.get("message")
-    if verdict:
-        cls = "good" if d.get("nothing_missing") else ""
-        parts.append(f"<p class='{cls}'><b>{_e(verdict)}</b></p>")
-    if d.get("declared_model") is not None:
-        parts.append(f"<p>Declared model: {_e(_terms_text(d.get('declared_model')))}"
-                     + (f"<br>Refined model: {_e(_terms_text(d['refined_model']))}" if "refined_model" in d else "")
-                     + "</p>")
-    if isinstance(d.get("report"), str):
-        parts.append("<h3>In words</h3>" + "".join(f"<p>{_e(line)}</p>" for line in d["report"].splitlines()
-                                                     if line.strip()))
-    eb, ea = d.get("errors_before"), d.get("errors_after")
-    if isinstance(eb, Mapping) and isinstance(ea, Mapping):
-        parts += ["<h3>Error before and after</h3>", _errors_table(eb, ea)]
     rows = []
     for i, rd in enumerate(rounds, 1):
         added = rd.get("added") or rd.get("effect")
         best = (rd.get("ranked") or [None])[0]
-        rows.append([str(rd.get("round", i)), _e(_effect_label(added)) if added else "<i>nothing</i>",
-                     _e(_effect_label(best)) if best else "–",
-                     _num(_find(best or {}, "err", "score"), ".3g"), _num(_find(best or {}, "p_value"), ".1e"),
+        rows.append([str(rd.get("round", i)), _effect_label(added) if added else Markup("<i>nothing</i>"),
+                     _effect_label(best) if best else "–", _num(_find(best or {}, "err", "score"), ".3g"),
+                     _num(_find(best or {}, "p_value"), ".1e"),
                      _num(_find(rd.get("before") or {}, *_NMSE_KEYS), ".3g"),
-                     _num(_find(rd.get("after") or {}, *_NMSE_KEYS), ".3g"), _e(rd.get("text", ""))])
-    if rows:
-        parts += ["<h3>Rounds</h3>",
-                  _table(["round", "added", "best candidate", "ERR", "p", "held-out NMSE before [%]",
-                          "after [%]", "why"], rows, numeric=(3, 4, 5, 6))]
-    if not parts:
-        parts.append("<pre>" + _e(json.dumps({k: v for k, v in d.items() if not isinstance(v, (list, dict))},
-                                             indent=1)) + "</pre>")
-    parts += [_figure(f) for f in r.figures]
+                     _num(_find(rd.get("after") or {}, *_NMSE_KEYS), ".3g"), rd.get("text", "")])
+    eb, ea = d.get("errors_before"), d.get("errors_after")
+    report = d.get("report")
+    view = {"verdict": d.get("verdict") or d.get("conclusion") or d.get("message"),
+            "declared": _terms_text(d.get("declared_model"), words["element"]) if "declared_model" in d else "",
+            "refined": _terms_text(d.get("refined_model"), words["element"]) if "refined_model" in d else "",
+            "report_lines": [ln for ln in report.splitlines() if ln.strip()] if isinstance(report, str) else [],
+            "errors": _errors_rows(eb, ea) if isinstance(eb, Mapping) and isinstance(ea, Mapping) else [],
+            "rounds": rows}
     added = [_effect_label(x.get("added") or x.get("effect")) for x in rounds if x.get("added") or x.get("effect")]
-    glance = [("loop", (_e(", ".join(added)) + " added") if added else "nothing significant missing")]
-    return "\n".join(parts), glance
+    return view, [{"key": "loop", "lines": [{"text": (", ".join(added) + " added") if added
+                                              else "nothing significant missing"}]}]
 
 
-def _provenance(results: Sequence[ResultDir]) -> str:
-    parts = []
-    seen: set[str] = set()
-    rows = []
+# ------------------------------------------------------------------------------------ provenance
+def _missing(text: str) -> dict:
+    return {"text": text, "cls": "missing"}
+
+
+def _data_row(path: str, e: Mapping | None, why: str = "") -> list:
+    if e is None:
+        return [_code(path)] + [_missing(why)] * 5
+    meta = e.get("meta") or {}
+    fmt = meta.get("format") or "?"
+    if meta.get("storage"):
+        fmt += f" ({meta['storage']})"
+    chans = meta.get("topics") or meta.get("columns") or {}
+    chan_txt = ", ".join(f"{k}={v}" for k, v in chans.items() if v) or "default names"
+    return [_code(path), fmt, _num(e.get("fs_hz"), "g"), _num(e.get("duration_s"), ".1f"),
+            _num((e.get("size_bytes") or 0) / 1e6, ".2f"), chan_txt]
+
+
+def _data_rows(results: Sequence[ResultDir]) -> list[list]:
+    """One row per data file: the identify result's entries first (they hold the reader's metadata), then
+    every other path, described by reading the file again with the result's input options."""
+    from nifo.io.results import data_entry
+
+    entries: dict[str, Mapping] = {}
     for r in results:
-        entries = []
         if r.kind == "identify":
             data = r.doc.get("data") or []
-            entries = data if isinstance(data, list) else [e for s in data.get("steps", []) for e in s.get("data", [])]
-        for e in entries:
-            if isinstance(e, Mapping) and e.get("path") not in seen:
-                seen.add(e.get("path"))
-                meta = e.get("meta") or {}
-                rows.append([f"<code>{_e(e.get('path'))}</code>", _e(meta.get("format", "")),
-                             _num(e.get("fs_hz"), "g"), _num(e.get("duration_s"), ".1f"),
-                             _num((e.get("size_bytes") or 0) / 1e6, ".2f"),
-                             _e(", ".join(f"{k}={v}" for k, v in (meta.get("topics") or {}).items()))])
+            flat = data if isinstance(data, list) else [e for s in data.get("steps", []) for e in s.get("data", [])]
+            for e in flat:
+                if isinstance(e, Mapping) and e.get("path") and e.get("meta"):
+                    entries.setdefault(str(e["path"]), e)
+    rows, done = [], set()
+    for r in results:
         for p in data_paths(r):
-            if p not in seen:
-                seen.add(p)
-                rows.append([f"<code>{_e(p)}</code>", "", "", "", "", ""])
-    parts.append("<h3>Data</h3>")
-    parts.append(_table(["path", "format", "fs [Hz]", "duration [s]", "size [MB]", "topics"], rows,
-                        numeric=(2, 3, 4)))
+            if p in done:
+                continue
+            done.add(p)
+            if p in entries:
+                rows.append(_data_row(p, entries[p]))
+                continue
+            q = resolve_data(p, r)
+            if q is None:
+                rows.append(_data_row(p, None, "not reachable from here"))
+                continue
+            try:
+                rows.append(_data_row(p, data_entry(q, _record(q, r))))
+            except NifoError as err:
+                rows.append(_data_row(p, None, f"unreadable: {err}"))
+    return rows
+
+
+def _provenance(results: Sequence[ResultDir]) -> dict:
+    settings = []
     for r in results:
         d = r.doc
-        settings = {k: d[k] for k in ("settings", "band", "band_choice", "thresholds", "freq_window_hz",
-                                      "freq_range_hz", "method", "model_file", "model", "linear_model")
-                    if k in d and d[k] is not None and not (r.kind == "loop" and k == "model")}
-        flat = _flatten(settings)
-        parts.append(f"<h3>{_e(r.kind)} — <code>{_e(r.path)}</code></h3>")
-        parts.append(_table(["setting", "value"], [[f"<code>{_e(k)}</code>", _e(v)] for k, v in flat]))
-    return "\n".join(parts)
+        chosen = {k: d[k] for k in _SETTING_KEYS
+                  if k in d and d[k] is not None and not (r.kind == "loop" and k == "model")}
+        settings.append({"kind": r.kind, "path": str(r.path),
+                         "rows": [[_code(k), v] for k, v in _flatten(chosen)]})
+    return {"data": _data_rows(results), "settings": settings}
 
 
 # ------------------------------------------------------------------------------------ levels figure
 def levels_figure(results: Sequence[ResultDir], out_png: Path) -> Path | None:
     """Plain H1 at every level found in the results' provenance, with the NIFO nominal T21 and (simulated
     data) the true linear T21, as one PNG; None when there is no identify result or no data is reachable."""
-    from nifo.io.loader import load_record
+    from nifo.io.provenance import true_t21
     from nifo.io.results import read_identify
     from nifo.plots.nifo import plot_transmissibility
     from nifo_core.spectral import cross_spectra, h1
@@ -411,25 +386,25 @@ def levels_figure(results: Sequence[ResultDir], out_png: Path) -> Path | None:
     if ident is None:
         return None
     res, _ = read_identify(ident.path)
-    paths: list[Path] = []
+    words = system_words(_system(results))
+    units = _system(results)["units"]
+    found: list[tuple[Path, ResultDir]] = []
     for r in results:
         for p in data_paths(r):
             q = resolve_data(p, r)
-            if q is not None and q.resolve() not in [x.resolve() for x in paths]:
-                paths.append(q)
-    if not paths:
-        return None
-    curves = []
-    truth = None
-    for p in paths:
-        rec = load_record(p)
+            if q is not None and q.resolve() not in [x.resolve() for x, _ in found]:
+                found.append((q, r))
+    curves, truth = [], None
+    for p, r in found:
+        rec = _record(p, r)
         if abs(rec.fs_hz - res.fs_hz) > 1e-6 * res.fs_hz:
             continue
         spec = cross_spectra(np.stack([rec.spindle_accel, rec.body_accel]), rec.fs_hz, res.settings)
         rms = float(np.std(rec.spindle_accel))
-        curves.append((f"measured H1, {p.name} (spindle RMS {rms:.2g} m/s²)", spec.freq_hz, h1(spec, 0, 1),
-                       {"lw": 1.0, "alpha": 0.85}))
-        truth = truth or _truth_t21(p, spec.freq_hz)
+        curves.append((f"measured H1, {p.name} ({words['input']} RMS {rms:.2g} {units})", spec.freq_hz,
+                       h1(spec, 0, 1), {"lw": 1.0, "alpha": 0.85}))
+        if truth is None and (t := true_t21(p, spec.freq_hz)) is not None:
+            truth = (spec.freq_hz, t)
     if not curves:
         return None
     curves.sort(key=lambda c: c[0])
@@ -442,65 +417,35 @@ def levels_figure(results: Sequence[ResultDir], out_png: Path) -> Path | None:
                                  title="transmissibility across levels and the NIFO nominal estimate")
 
 
-def _truth_t21(path: Path, f: np.ndarray):
-    from nifo.commands.predict import truth_for
-    from nifo_core.vehicle import QuarterCar
-
-    tp = truth_for(path)
-    if tp is None:
-        return None
-    try:
-        return f, QuarterCar(**json.loads(tp.read_text())["vehicle"]).t21(f)
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
-
-
 # ------------------------------------------------------------------------------------ the document
 def build_report(results: Sequence[ResultDir], *, title: str = "nifo report", notes: Sequence[str] = (),
                  levels_png: Path | None = None, recording: str | None = None) -> str:
-    """The whole HTML document (a string)."""
+    """The whole HTML document (a string), rendered from ``templates/report.html.j2``."""
+    system = _system(results)
+    words = system_words(system)
     sections, glance = [], []
     for r in results:
         if r.kind == "characterize":
-            body, g = _characterize(r)
+            view, g = _characterize(r, system)
         elif r.kind == "identify":
-            body, g = _identify(r, levels_png)
+            view, g = _identify(r, system)
+            if levels_png is not None:
+                view["levels_figure"] = _figure(levels_png, words, _caption("levels", words))
         elif r.kind == "predict":
-            body, g = _predict(r)
+            view, g = _predict(r)
         else:
-            body, g = _loop(r)
+            view, g = _loop(r, words)
         glance += g
-        anchor = f"{r.kind}-{len(sections) + 1}"
-        sections.append((anchor, f"{_SECTION_TITLES[r.kind]}", r.path, body))
+        sections.append({**view, "kind": r.kind, "anchor": f"{r.kind}-{len(sections) + 1}",
+                         "title": _SECTION_TITLES[r.kind], "path": str(r.path), "doc": r.doc,
+                         "figures": [_figure(f, words) for f in r.figures]})
     if not any(r.kind == "loop" for r in results) and not any("loop" in n for n in notes):
         notes = [*notes, "No loop result was given: the search for effects the model lacks is not in this report."]
-    nav = "".join(f'<li><a href="#{a}">{_e(t)}</a></li>' for a, t, _, _ in sections)
-    nav += '<li><a href="#provenance">Settings and data provenance</a></li>'
-    now = _dt.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z")
-    out = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
-           '<meta name="viewport" content="width=device-width, initial-scale=1">',
-           '<link rel="icon" href="data:,">',
-           f"<title>{_e(title)}</title><style>{_CSS}</style></head><body><main>",
-           f"<h1>{_e(title)}</h1>",
-           f"<p class='meta'>Nonlinear suspension identification from spindle and body accelerations "
-           f"(restoring force + output-only NIFO, Haroon &amp; Adams 2005). Generated {_e(now)} by nifo "
-           f"{_e(__version__)} from {len(results)} result director{'y' if len(results) == 1 else 'ies'}.</p>"]
-    if glance:
-        out.append('<div class="glance">' + "".join(_card(k, v) for k, v in glance) + "</div>")
-    if notes or recording:
-        items = [_e(n) for n in notes]
-        if recording:
-            items.append(f"Rerun recording of the same results: <code>{_e(recording)}</code> "
-                         f"(open with <code>rerun {_e(Path(recording).name)}</code>).")
-        out.append("<ul class='muted'>" + "".join(f"<li>{i}</li>" for i in items) + "</ul>")
-    out.append(f"<nav><b>Contents</b><ol>{nav}</ol></nav>")
-    for anchor, t, path, body in sections:
-        out.append(f'<section id="{anchor}"><h2>{_e(t)}</h2><p class="meta">from <code>{_e(path)}</code></p>'
-                   f"{body}</section>")
-    out.append(f'<section id="provenance"><h2>Settings and data provenance</h2>{_provenance(results)}</section>')
-    out.append(f"<footer>nifo {_e(__version__)} · self-contained report: figures are embedded, "
-               f"no external files needed.</footer></main></body></html>")
-    return "\n".join(out)
+    return _env().get_template("report.html.j2").render(
+        title=title, sections=sections, glance=glance, notes=list(notes), recording=recording,
+        recording_name=Path(recording).name if recording else None, system=system, words=words,
+        provenance=_provenance(results), version=__version__,
+        generated=_dt.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z"))
 
 
 def write_report(results: Sequence[ResultDir], out: Path, *, title: str = "nifo report", notes: Sequence[str] = (),
@@ -508,9 +453,13 @@ def write_report(results: Sequence[ResultDir], out: Path, *, title: str = "nifo 
     """Write the report to ``out`` atomically (with the levels figure when the data are reachable)."""
     from nifo.io.atomic import staged_file
 
-    with tempfile.TemporaryDirectory(prefix="nifo-report-") as tmp:
-        levels_png = levels_figure(results, Path(tmp) / "levels.png") if levels else None
-        text = build_report(results, title=title, notes=notes, levels_png=levels_png, recording=recording)
+    _load.cache_clear()
+    try:
+        with tempfile.TemporaryDirectory(prefix="nifo-report-") as tmp:
+            levels_png = levels_figure(results, Path(tmp) / "levels.png") if levels else None
+            text = build_report(results, title=title, notes=notes, levels_png=levels_png, recording=recording)
+    finally:
+        _load.cache_clear()   # records are large: keep none after the report
     with staged_file(out) as f:
         f.write_text(text, encoding="utf-8")
     return Path(out)

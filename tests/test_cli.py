@@ -1,0 +1,150 @@
+"""Command-line conventions: ``--json`` on every command, ``--quiet``/``--verbose``, exit codes, progress.
+
+The result directories come from :func:`test_run_cmd.pipeline` (one ``nifo run`` per session), so
+each command's ``--json`` is checked on real results in seconds.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import io
+import json
+import os
+import random
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from nifo.cli import COMMANDS, main
+from nifo_core.errors import EXIT_CODES, USAGE_EXIT_CODE, InputError, NifoError
+from test_run_cmd import pipeline
+
+REPO = Path(__file__).resolve().parents[1]
+SAMPLE = REPO / "bags" / "sample" / "road_1mm"
+
+
+@pytest.fixture(scope="module")
+def ran(tmp_path_factory):
+    out, code, _ = pipeline(tmp_path_factory.getbasetemp() / "nifo_run")
+    assert code == 0
+    return out
+
+
+def _json(argv: list[str]) -> tuple[int, dict, str]:
+    """Run ``nifo`` in-process: (exit code, the one JSON document on stdout, stderr)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(argv)
+    text = out.getvalue()
+    assert text.count("\n") == 1, f"stdout must be exactly one JSON document: {text[:500]!r}"
+    return code, json.loads(text), err.getvalue()
+
+
+def _all_errors() -> list[type]:
+    for mod in ("nifo_core.model", "nifo_core.nifo", "nifo_core.loop", "nifo.io.loader", "nifo.io.bag"):
+        importlib.import_module(mod)
+    found, todo = [], [NifoError]
+    while todo:
+        c = todo.pop()
+        found.append(c)
+        todo += c.__subclasses__()
+    return found
+
+
+def test_exit_codes_are_unique_per_class_listed_in_help_and_two_is_only_usage():
+    classes = _all_errors()
+    codes = {c.__name__: c.exit_code for c in classes}
+    assert len(set(codes.values())) == len(classes), codes
+    assert USAGE_EXIT_CODE == 2 and 2 not in codes.values() and InputError.exit_code != 2
+    for name, code in codes.items():
+        assert EXIT_CODES[name][0] == code, name
+    helptext = subprocess.run([sys.executable, "-m", "nifo", "--help"], capture_output=True, text=True,
+                              cwd=REPO, check=True).stdout
+    for name, (code, _) in EXIT_CODES.items():
+        assert f" {code}  {name}" in helptext, name
+    assert "  2  usage" in helptext
+
+
+def test_usage_error_exits_2_and_input_error_its_own_code(tmp_path, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["info", "--no-such-option", str(SAMPLE)])
+    assert e.value.code == 2
+    capsys.readouterr()
+    code, doc, err = _json(["--json", "info", str(tmp_path / "missing.mcap")])
+    assert code == doc["exit_code"] == 3 and doc["ok"] is False
+    assert doc["files"][0]["exit_code"] == 3 and "missing.mcap" in doc["files"][0]["error"]
+    code, doc, err = _json(["identify", str(tmp_path / "missing.mcap"), "--model", str(tmp_path / "m.yaml"),
+                            "--out", str(tmp_path / "o"), "--json"])
+    assert code == 3 and doc["error"]["type"] == "DataFileError" and doc["error"]["hint"]
+    assert err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_every_command_prints_one_json_document(ran, tmp_path):
+    sim = tmp_path / "sim.mcap"
+    checks = {
+        "simulate": (["simulate", "--out", str(sim), "--duration", "4", "--seed", "1"], ("out", "seed")),
+        "info": (["info", str(SAMPLE)], ("files",)),
+        "characterize": (["characterize", str(sim), "--out", str(tmp_path / "c"), "--grid", "6",
+                          "--kinds", "coulomb"], ("suggested", "band_hz")),
+        "identify": (["identify", str(SAMPLE), "--model", str(ran / "characterize" / "suggested_model.yaml"),
+                      "--out", str(tmp_path / "i"), "--no-plots"], ("summary", "warnings")),
+        "predict": (["predict", str(SAMPLE), "--model", str(ran / "identify"), "--out", str(tmp_path / "p"),
+                     "--no-plots"], ("records",)),
+        "loop": (["loop", str(SAMPLE), "--out", str(tmp_path / "l"), "--max-rounds", "1", "--grid", "6",
+                  "--kinds", "coulomb"], ("added", "errors_before")),
+        "report": (["report", str(ran / "identify"), "--out", str(tmp_path / "r.html"), "--no-levels"],
+                   ("out", "size_bytes")),
+        "view": (["view", str(ran / "identify"), "--save", str(tmp_path / "v.rrd"), "--no-data"], ("out",)),
+    }
+    seen = set()
+    for name, (argv, keys) in checks.items():
+        code, doc, err = _json([*argv, "--json"])
+        assert code == 0 and doc["ok"] and doc["command"] == name, (name, err[-2000:])
+        assert all(k in doc for k in keys), (name, doc.keys())
+        seen.add(name)
+    # run: tests/test_run_cmd.py (its pipeline runs with --json); replay: test_replay_json below
+    assert seen | {"run", "replay"} == set(COMMANDS)
+
+
+def test_replay_json_in_a_subprocess_on_its_own_ros_domain():
+    pytest.importorskip("rclpy")
+    env = {**os.environ, "ROS_DOMAIN_ID": str(random.randint(60, 100)), "PYTHONPATH": str(REPO)}
+    proc = subprocess.run([sys.executable, "-m", "nifo", "replay", str(SAMPLE), "--rate", "0", "--start", "118",
+                           "--json"], capture_output=True, text=True, cwd=REPO, env=env, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    doc = json.loads(proc.stdout)
+    assert doc["command"] == "replay" and doc["messages"] > 0
+
+
+def test_quiet_prints_nothing_on_stdout_and_verbose_shows_progress(tmp_path, capsys):
+    assert main(["-q", "simulate", "--out", str(tmp_path / "a.csv"), "--duration", "3", "--seed", "2"]) == 0
+    cap = capsys.readouterr()
+    assert cap.out == "" and cap.err == ""
+    assert main(["simulate", "--out", str(tmp_path / "b.csv"), "--duration", "3", "--seed", "2", "--verbose"]) == 0
+    cap = capsys.readouterr()
+    assert "wrote" in cap.out and "simulate" in cap.err      # progress even for 3 s of data
+    main(["simulate", "--out", str(tmp_path / "c.csv"), "--duration", "3", "--seed", "2"])   # back to normal
+
+
+def test_progress_off_a_terminal_writes_plain_lines_and_nests():
+    from nifo.progress import Progress, configure
+
+    configure()
+    buf = io.StringIO()
+    with Progress(4, "outer", stream=buf, min_interval_s=0.0) as outer:
+        for _ in range(2):
+            with Progress(2, "inner", stream=buf, min_interval_s=0.0) as inner:
+                inner.advance(2)
+            outer.advance(2)
+    text = buf.getvalue()
+    assert "outer:  50.0 %" in text and "inner: 100.0 %" in text
+    assert "\r" not in text and "\x1b[" not in text            # no terminal control codes in a log file
+    configure(quiet=True)
+    quiet = io.StringIO()
+    with Progress(1, "hidden", stream=quiet, min_interval_s=0.0) as p:
+        p.advance(1)
+    assert quiet.getvalue() == ""
+    configure()

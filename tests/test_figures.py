@@ -1,0 +1,131 @@
+"""Figures are publication-grade: units on every axis, mathtext (no literal ``μ_i``), no overlapping
+labels, no mixed log axis, an SVG beside every PNG, the true curve where a truth file is present,
+and the record's units (``--system '... [V]'``) instead of m/s².
+
+Result directories from :func:`test_run_cmd.pipeline` (simulated quarter car with truth files).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from test_run_cmd import pipeline
+
+
+@pytest.fixture(scope="module")
+def ran(tmp_path_factory):
+    out, code, _ = pipeline(tmp_path_factory.getbasetemp() / "nifo_run")
+    assert code == 0
+    return out
+
+
+def _captured(monkeypatch, module):
+    """Keep the figures ``module`` saves open (for their layout), still writing the files."""
+    from nifo import plots
+
+    figs = []
+
+    def keep(fig, path, **kw):
+        figs.append(fig)
+        fig.canvas.draw()
+        return Path(path)
+
+    monkeypatch.setattr(module, "save_figure", keep)
+    return figs
+
+
+def _overlap(a, b) -> bool:
+    return a.x0 < b.x1 and b.x0 < a.x1 and a.y0 < b.y1 and b.y0 < a.y1
+
+
+def _svg_text(path: Path) -> str:
+    """The text of an SVG written with svg.fonttype 'none': each <text> (mathtext: its <tspan>s) joined."""
+    blocks = re.findall(r"<text\b[^>]*>(.*?)</text>", path.read_text(), re.S)
+    return " ".join("".join(t.strip() for t in re.findall(r">([^<>]*)<", f">{b}<")) for b in blocks)
+
+
+def test_every_png_has_a_vector_svg_beside_it(ran):
+    pngs = [p for p in ran.rglob("*.png")]
+    assert len(pngs) >= 8
+    for p in pngs:
+        svg = p.with_suffix(".svg")
+        assert svg.is_file() and svg.read_text().lstrip().startswith("<?xml"), p
+
+
+def test_every_axis_label_has_a_unit_and_no_literal_mu_i(ran, tmp_path, monkeypatch):
+    from nifo.cli import main
+    from nifo.plots import loop, nifo, restoring
+
+    figs = []
+    for mod in (loop, nifo, restoring):
+        monkeypatch.setattr(mod, "save_figure", lambda fig, path, **kw: (figs.append(fig), Path(path))[1])
+    data = str(ran.parent / "road_hi")
+    assert main(["-q", "characterize", data, "--out", str(tmp_path / "c"), "--grid", "8"]) == 0
+    assert main(["-q", "identify", data, "--model", str(tmp_path / "c" / "suggested_model.yaml"),
+                 "--out", str(tmp_path / "i")]) == 0
+    assert main(["-q", "loop", data, "--out", str(tmp_path / "l"), "--max-rounds", "1", "--grid", "8"]) == 0
+    assert len(figs) >= 7
+    for fig in figs:
+        texts = [fig._suptitle.get_text() if fig._suptitle else ""]
+        for ax in fig.axes:
+            for label in (ax.get_xlabel(), ax.get_ylabel()):
+                assert not label or "[" in label, label
+            texts.append(ax.get_title())
+        assert not any("μ_i" in t or "μ{" in t for t in texts), texts
+    coef = _svg_text(ran / "identify" / "coefficients.svg")
+    assert "[s]" in coef            # μ/K2 of a velocity term (g in m/s) is in seconds
+
+
+def test_coefficient_labels_do_not_overlap_ticks_and_loop_errors_has_no_log_axis(ran, monkeypatch):
+    from nifo.io.results import read_identify
+    from nifo.plots import loop as ploop
+    from nifo.plots import nifo as pnifo
+
+    figs = _captured(monkeypatch, pnifo)
+    res, _ = read_identify(ran / "identify")
+    pnifo.plot_coefficients(ran / "unused.png", res)
+    fig = figs[-1]
+    r = fig.canvas.get_renderer()
+    for ax in fig.axes:
+        lab = ax.yaxis.label.get_window_extent(r)
+        assert "[" in ax.get_ylabel() and "\\mu" in ax.get_ylabel()
+        for t in ax.get_yticklabels():
+            if t.get_text():
+                assert not _overlap(lab, t.get_window_extent(r)), (ax.get_ylabel(), t.get_text())
+    figs = _captured(monkeypatch, ploop)
+    doc = json.loads((ran / "loop" / "loop.json").read_text())
+    ploop.plot_errors(doc, ran / "unused.png")
+    fig = figs[-1]
+    r = fig.canvas.get_renderer()
+    assert all(ax.get_yscale() == "linear" for ax in fig.axes)
+    bars = [p.get_window_extent(r) for ax in fig.axes for p in ax.patches]
+    for ax in fig.axes:
+        leg = ax.get_legend()
+        if leg is not None:
+            assert not any(_overlap(leg.get_window_extent(r), b) for b in bars)
+
+
+def test_true_curves_are_drawn_when_a_truth_file_is_beside_the_data(ran):
+    assert "true nominal linear T21" in _svg_text(ran / "identify" / "transmissibility.svg")
+    assert "true (simulator)" in _svg_text(ran / "characterize" / "characteristic.svg")
+
+
+def test_record_units_and_system_words_carry_into_the_figures(tmp_path):
+    from nifo.cli import main
+
+    volts = tmp_path / "v.csv"
+    assert main(["-q", "simulate", "--out", str(volts), "--duration", "60", "--seed", "3", "--preset",
+                 "paper"]) == 0
+    out = tmp_path / "c"
+    assert main(["-q", "characterize", str(volts), "--out", str(out), "--grid", "6", "--system",
+                 "Duffing circuit [V]"]) == 0
+    text = " ".join(_svg_text(p) for p in out.glob("*.svg"))
+    assert "[V]" in text and "V·s" in text and "m/s²" not in text
+    doc = json.loads((out / "characterize.json").read_text())
+    assert doc["system"] == {"description": "Duffing circuit", "units": "V", "vehicle": False}
+    assert not np.isnan(doc["linear"]["r2"])
