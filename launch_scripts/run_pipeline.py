@@ -6,6 +6,9 @@ pipeline.launch.py`` / ``analysis.launch.py``:
 
     # a recorded bag through integrator -> identifier (nifo replay plays it)
     python launch_scripts/run_pipeline.py --bag run1.mcap --model model.yaml --rate 2
+    # ... lossless (reliable, keep-all end to end; a slow node slows the replay): the live estimate
+    # then equals `nifo identify` on the same bag
+    python launch_scripts/run_pipeline.py --bag run1.mcap --model model.yaml --reliable --rate 0 --linger 3
     # the virtual test vehicle (acquisition node with the simulator) in real time
     python launch_scripts/run_pipeline.py --source simulator --model model.yaml
     # a CSV/MAT/bag file through the acquisition node
@@ -18,6 +21,10 @@ Ctrl-C (or SIGTERM) stops every process cleanly (SIGINT, then SIGTERM, then SIGK
 timeouts); the identifier writes its checkpoint on the way out. With ``--bag`` and
 ``--linger S`` the pipeline stops by itself S seconds after the replay ended.
 Node logs go to ``--log-dir`` (default: the terminal).
+
+Exit code: 0 when every node ended cleanly; otherwise the first failure's code
+(a node that died — e.g. killed, -9 → 1 — or exited non-zero, or a failed
+replay), each named on stderr.
 """
 
 from __future__ import annotations
@@ -42,7 +49,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     src.add_argument("--source", choices=["simulator", "file"], help="run the acquisition node with this source")
     p.add_argument("--path", default="", help="file for --source file")
     p.add_argument("--model", default=str(CONFIG_DIR / "model.yaml"), help="model file for the identifier")
-    p.add_argument("--rate", type=float, default=1.0, help="replay/acquisition speed (x real time)")
+    p.add_argument("--rate", type=float, default=1.0,
+                   help="replay/acquisition speed (x real time; with --bag --reliable, 0 = as fast as the graph goes)")
+    p.add_argument("--reliable", action="store_true",
+                   help="with --bag: lossless replay (reliable, keep-all publishers and integrator input); "
+                        "a slow node slows the replay instead of losing samples")
     p.add_argument("--checkpoint", default="", help="identifier checkpoint file (.npz)")
     p.add_argument("--config-dir", default=str(CONFIG_DIR), help="directory of the YAML parameter files")
     p.add_argument("--namespace", default="/nifo")
@@ -80,7 +91,10 @@ def main(argv=None) -> int:
     def spec(name, **params):
         return NodeSpec(name, namespace=a.namespace, params_files=(str(cfg / f"{name}.yaml"),), params=params)
 
-    specs = [spec("integrator"), spec("identifier", model_file=a.model, checkpoint_file=a.checkpoint)]
+    if a.reliable and a.bag is None:
+        raise SystemExit("run_pipeline: --reliable needs --bag (a live sensor stream stays best effort)")
+    integ = {"input_reliability": "reliable"} if a.reliable else {}
+    specs = [spec("integrator", **integ), spec("identifier", model_file=a.model, checkpoint_file=a.checkpoint)]
     if a.rerun is not None:
         specs.append(NodeSpec("rerun_viewer", namespace=a.namespace, args=rerun_args(a.rerun)))
     if a.bag is None:
@@ -94,34 +108,64 @@ def main(argv=None) -> int:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
+    failures: list[tuple[str, int]] = []
+    names: dict[int, str] = {}
+    codes: list = []
     try:
         for s in specs:
             procs.append(start(s, env=env, log_dir=a.log_dir))
+            names[procs[-1].pid] = s.node
             print(f"run_pipeline: started {s.node} (pid {procs[-1].pid})", file=sys.stderr)
         replay = None
         if a.bag is not None:
             cmd = [sys.executable, "-m", "nifo", "replay", a.bag, "--rate", str(a.rate), "--wait", "15"]
+            if a.reliable:  # only the sensor topics the integrator takes: nobody acknowledges the others
+                cmd += ["--reliable", "--topics", f"{a.namespace}/spindle/imu", f"{a.namespace}/body/imu"]
             replay = subprocess.Popen(cmd, env=env, start_new_session=True)
             procs.append(replay)
             print(f"run_pipeline: replaying {a.bag} (pid {replay.pid})", file=sys.stderr)
+            names[replay.pid] = "replay"
         ended_at = None
         while not stopping:
             time.sleep(0.2)
             dead = [p for p in procs if p is not replay and p.poll() is not None]
             if dead:
-                print(f"run_pipeline: a node exited (pid {dead[0].pid}, code {dead[0].returncode}); stopping",
-                      file=sys.stderr)
+                for p in dead:
+                    failures.append((names[p.pid], p.returncode))
+                    print(f"run_pipeline: node {names[p.pid]} (pid {p.pid}) died: {_how(p.returncode)}; "
+                          "stopping the others", file=sys.stderr)
                 break
             if replay is not None and replay.poll() is not None and ended_at is None:
                 ended_at = time.monotonic()
                 print(f"run_pipeline: replay finished (exit {replay.returncode})", file=sys.stderr)
+                if replay.returncode != 0:
+                    failures.append(("replay", replay.returncode))
             if ended_at is not None and a.linger is not None and time.monotonic() - ended_at >= a.linger:
                 break
     finally:
         codes = stop(procs)
         print(f"run_pipeline: stopped (exit codes {codes})", file=sys.stderr)
+    seen = {n for n, _ in failures}
+    for p, code in zip(procs, codes):  # a node that failed on the way out (not our own SIGINT ending it)
+        if names.get(p.pid) not in seen | {"replay"} and code not in (0, None):
+            failures.append((names.get(p.pid, str(p.pid)), code))
+            print(f"run_pipeline: node {names.get(p.pid)} ended badly: {_how(code)}", file=sys.stderr)
+    if failures:
+        name, code = failures[0]
+        print(f"run_pipeline: FAILED: {', '.join(f'{n} ({_how(c)})' for n, c in failures)}", file=sys.stderr)
+        return code if code and code > 0 else 1
     return 0
 
+
+def _how(code: int | None) -> str:
+    if code is None:
+        return "still running"
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name} ({code})"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit code {code}"
 
 if __name__ == "__main__":
     raise SystemExit(main())

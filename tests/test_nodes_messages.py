@@ -12,7 +12,7 @@ from rclpy.serialization import deserialize_message, serialize_message  # noqa: 
 from nifo_core.errors import InputError  # noqa: E402
 from nifo_nodes.align import SampleAligner  # noqa: E402
 from nifo_nodes.messages import (Block, ImuEncoder, PointEncoder, block_from_msg, block_to_msg,  # noqa: E402
-                                 decode_imu, decode_imu_batch, decode_point, table_from_msg, table_to_msg)
+                                 decode_imu, decode_imu_batch, decode_point)
 
 
 @pytest.mark.parametrize("frame_id", ["", "spindle", "body", "a_longer_frame_id"])
@@ -83,11 +83,52 @@ def test_block_from_msg_rejects_a_message_with_the_wrong_layout():
         block_from_msg(Float64MultiArray(data=[1.0, 2.0]))
 
 
-def test_result_table_round_trips():
-    cols = {"freq_hz": np.arange(4.0), "t21_re": np.ones(4)}
-    back, stamp, n_avg = table_from_msg(table_to_msg(cols, stamp_ns=5_000_000_001, n_avg=3))
-    assert stamp == 5_000_000_001 and n_avg == 3
-    np.testing.assert_array_equal(back["t21_re"], cols["t21_re"])
+def test_result_messages_are_typed_with_a_data_stamped_header_and_survive_serialization(tmp_path):
+    """nifo_msgs Transmissibility / Coefficients / LoopStatus carry the estimate exactly (float64), the
+    stream accounting, and a header stamped with the data; the full document goes to a file."""
+    import json
+
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    from nifo_core.describing import make_term
+    from nifo_core.integrate import IntegrationBand
+    from nifo_core.nifo import StreamingNifo
+    from nifo_core.simulate import SimConfig, preset, simulate
+    from nifo_core.spectral import SpectralSettings
+    from nifo_msgs.msg import Coefficients, LoopStatus, Transmissibility
+    from nifo_nodes.results import StreamStats, coefficients_msg, status_msg, transmissibility_msg, write_result_file
+
+    rec = simulate(SimConfig(strut=preset("paper_deadzone"), duration_s=20.0, fs_hz=200.0), rng=1).record
+    s = StreamingNifo(200.0, [make_term({"kind": "velocity_deadzone", "params": {"knee": 0.03}})],
+                      settings=SpectralSettings(block=512, overlap=0.5), band=IntegrationBand(2.0, 80.0),
+                      on_ill_conditioned="ignore")
+    s.push(rec.spindle_accel, rec.body_accel)
+    r = s.result()
+    stream = StreamStats(samples_received=rec.n, samples_lost=17, gaps=1)
+    stamp = 1_700_000_123_456_789_012
+    t = deserialize_message(serialize_message(transmissibility_msg(r, stamp_ns=stamp, frame_id="body",
+                                                                   stream=stream)), Transmissibility)
+    assert (t.header.stamp.sec, t.header.stamp.nanosec, t.header.frame_id) == (1_700_000_123, 456_789_012, "body")
+    assert (t.n_avg, t.samples_used, t.samples_lost, t.gaps) == (r.n_avg, r.n_samples, 17, 1)
+    np.testing.assert_array_equal(t.freq_hz, r.freq_hz)
+    np.testing.assert_array_equal(np.asarray(t.t21_re) + 1j * np.asarray(t.t21_im), r.t21)
+    np.testing.assert_array_equal(np.asarray(t.t21_nominal_re) + 1j * np.asarray(t.t21_nominal_im), r.static.t21)
+    np.testing.assert_array_equal(t.t21_nominal_abs, np.abs(r.static.t21))
+    np.testing.assert_array_equal(t.cond, r.cond)
+    c = deserialize_message(serialize_message(coefficients_msg(r, stamp_ns=stamp, frame_id="body")), Coefficients)
+    assert list(c.terms) == ["velocity_deadzone(knee=0.03)"]
+    np.testing.assert_array_equal(c.c_pooled, r.static.c_over_m2)
+    np.testing.assert_array_equal(np.asarray(c.c_re) + 1j * np.asarray(c.c_im), r.c_over_m2[0])
+    st = deserialize_message(serialize_message(status_msg(r, stamp_ns=stamp, frame_id="body", stream=stream,
+                                                          cond_limit=1e4, result_file="/x.json")), LoopStatus)
+    assert st.state in ("estimating", "ill_conditioned") and "1 stream gap" in st.message
+    assert st.result_file == "/x.json" and st.n_avg == r.n_avg
+    # the full document: to a file, with the stream section
+    f = tmp_path / "r.json"
+    write_result_file(f, r, stamp_ns=stamp, stream=stream)
+    doc = json.loads(f.read_text())
+    assert doc["stamp_ns"] == stamp and doc["stream"]["samples_lost"] == 17 and doc["n_avg"] == r.n_avg
+    assert len(serialize_message(transmissibility_msg(r, stamp_ns=stamp, frame_id="body", stream=stream))) < 200_000
 
 
 # ----------------------------------------------------------------------------- alignment
