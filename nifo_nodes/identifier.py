@@ -173,7 +173,7 @@ class IdentifierNode(Node):
         self._nifo = None
         self._next_ns: int | None = None
         self._last_ns = 0
-        self._published_navg = -1
+        self._published_navg = None
         self._result = None
         self._dirty = False
         self._stream = StreamStats()
@@ -308,14 +308,17 @@ class IdentifierNode(Node):
 
     # ------------------------------------------------------------------ output
     def _publish(self) -> None:
-        if self._nifo is None or self._nifo.n_avg == 0 or self._nifo.n_avg == self._published_navg:
+        # republish when anything changed (samples, gaps), not only n_avg: the tail of a stream adds samples
+        # (and the stream's accounting) without completing a block
+        mark = (self._nifo.n_avg if self._nifo is not None else 0, self._stream.samples_received, self._stream.gaps)
+        if self._nifo is None or self._nifo.n_avg == 0 or mark == self._published_navg:
             return
         try:
             r = self._nifo.result()
         except NifoError as err:
             self.get_logger().warning(f"no estimate yet: {err}", throttle_duration_sec=30.0)
             return
-        self._published_navg = r.n_avg
+        self._published_navg = mark
         self._result = r
         stamp, frame = self._last_ns, self._frame_id
         try:
@@ -360,7 +363,7 @@ class IdentifierNode(Node):
         """Drop everything accumulated (and the checkpoint's content on its next write)."""
         self._nifo = None
         self._next_ns = None
-        self._published_navg = -1
+        self._published_navg = None
         self._result = None
         self._stream = StreamStats()
         if self._ckpt is not None and self._ckpt.exists():
