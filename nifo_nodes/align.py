@@ -19,6 +19,15 @@ the callback ``log``):
   publisher restarted: new grid anchored there, new segment (``restart``);
 * a hole that stays open while another channel is ``max_lag`` samples past it
   → the hole is skipped, new segment from the next complete row (``gap``).
+
+``ordered=True`` is for a lossless, in-order transport (reliable keep-all: the
+lossless replay). Each channel's samples then arrive in order and none is
+dropped in transit, but the channels are separate streams and one may run far
+ahead of the other (thousands of samples when a replay goes as fast as the
+graph allows). A hole is then declared only when the channel lacking the sample
+has itself delivered a later one (the sample is missing at the source), or
+when another channel is ``max_wait`` samples past it (a channel that died); how
+far another channel is ahead alone is no evidence of loss.
 """
 
 from __future__ import annotations
@@ -48,6 +57,8 @@ class SampleAligner:
     restart_s: float = 1.0
     restart_count: int = 8
     log: Callable[[str], None] = print
+    ordered: bool = False
+    max_wait: int = 0  #: ordered: a hole other channels are this far past is skipped (0: 100·max_lag)
     counts: dict = field(default_factory=lambda: dict.fromkeys(
         ("nonfinite", "late", "duplicate", "restart", "gap", "samples"), 0))
 
@@ -56,6 +67,9 @@ class SampleAligner:
         self._t0: int | None = None
         self._head = 0
         self._newest = -1
+        self._newest_ch = [-1] * self.n_channels
+        if self.ordered and self.max_wait <= 0:
+            self.max_wait = 100 * self.max_lag
         self._store: list[dict[int, float]] = [{} for _ in range(self.n_channels)]
         self._stamps: dict[int, int] = {}
         self._back: list[tuple[int, int, float]] = []
@@ -95,6 +109,8 @@ class SampleAligner:
             return
         store[k] = value
         self._newest = max(self._newest, k)
+        if k > self._newest_ch[channel]:
+            self._newest_ch[channel] = k
         if channel == 0 or k not in self._stamps:
             self._stamps[k] = stamp_ns
         self._advance()
@@ -108,6 +124,7 @@ class SampleAligner:
         self._t0 = back[0][1]
         self._head = 0
         self._newest = -1
+        self._newest_ch = [-1] * self.n_channels
         self._store = [{} for _ in range(self.n_channels)]
         self._stamps = {}
         self.segment += 1
@@ -129,13 +146,21 @@ class SampleAligner:
                 h += 1
                 continue
             newest = self._newest
-            if newest - h < self.max_lag:
+            if self.ordered:
+                # in order, nothing dropped in transit: missing only if the lacking channel has moved past it
+                passed = all(self._newest_ch[c] > h for c, st in enumerate(stores) if h not in st)
+                if not passed and newest - h < self.max_wait:
+                    break
+            elif newest - h < self.max_lag:
                 break
             # the hole at h will not be filled: skip to the next complete row
             common = set(stores[0])
             for s in stores[1:]:
                 common &= set(s)
-            j = min(common) if common else newest - self.max_lag + 1
+            if common:
+                j = min(common)
+            else:  # ordered: step past the hole sample by sample (each checked as above)
+                j = h + 1 if self.ordered else newest - self.max_lag + 1
             for s in stores:
                 for k in [k for k in s if k < j]:
                     del s[k]

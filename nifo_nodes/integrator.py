@@ -207,7 +207,11 @@ class IntegratorNode(Node):
         self._fs = fs
         lag = max(2, int(round(float(self.get_parameter("max_lag_s").value) * fs)))
         self._block_n = max(1, int(round(float(self.get_parameter("block_s").value) * fs)))
-        self._aligner = SampleAligner(fs, 2, max_lag=lag, restart_s=float(self.get_parameter("restart_s").value),
+        # reliable input (lossless replay): in order and nothing dropped in transit, but one channel may run
+        # far ahead of the other; a hole is a gap only when the lacking channel itself moved past it
+        ordered = self.get_parameter("input_reliability").value == "reliable"
+        self._aligner = SampleAligner(fs, 2, max_lag=lag, ordered=ordered, max_wait=int(round(60 * fs)),
+                                      restart_s=float(self.get_parameter("restart_s").value),
                                       log=lambda m: self.get_logger().warning(m))
         self.get_logger().info(f"sample rate {fs:g} Hz, blocks of {self._block_n} samples")
         early, self._early = self._early, []

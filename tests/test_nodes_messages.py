@@ -169,6 +169,31 @@ def test_aligner_pairs_samples_whatever_the_interleaving_of_the_channels():
     assert al.counts["late"] == al.counts["gap"] == 0
 
 
+def test_ordered_aligner_waits_for_a_channel_far_behind_and_still_finds_a_real_hole():
+    """Lossless replay as fast as the graph goes: one channel thousands of samples ahead is no loss
+    (the best-effort rule would cut a gap every max_lag); a sample missing at the source is a gap as
+    soon as its own channel has moved past it."""
+    n, fs = 6000, 1000.0
+    stamps = 10**9 + np.arange(n) * 1_000_000
+    a, b = np.arange(n, dtype=float), -np.arange(n, dtype=float)
+    hole = set(range(4000, 4010))  # missing at the source on channel 0
+    for ordered, expect_gaps in ((True, 1), (False, None)):
+        al = SampleAligner(fs, 2, max_lag=50, ordered=ordered, max_wait=10 * n, log=lambda m: None)
+        for k in range(n):              # channel 0 entirely first, then channel 1: n samples apart
+            if k not in hole:
+                al.push(0, int(stamps[k]), a[k])
+        for k in range(n):
+            al.push(1, int(stamps[k]), b[k])
+        runs, rows = _rows(al)
+        if ordered:
+            assert al.counts["gap"] == expect_gaps and [r.segment for r in runs] == [0, 1]
+            keep = np.array([k not in hole for k in range(n)])
+            np.testing.assert_array_equal(rows, np.column_stack([a, b])[keep])
+            assert runs[1].stamp_ns == stamps[4010]
+        else:  # the vehicle's rule: the channel that fell behind is given up on
+            assert al.counts["gap"] >= 1 and rows.shape[0] < n - len(hole)
+
+
 def test_aligner_drops_late_and_duplicate_samples_without_a_new_segment():
     msgs = []
     al = SampleAligner(100.0, 2, max_lag=5, log=msgs.append)
