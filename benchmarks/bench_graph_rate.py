@@ -74,7 +74,7 @@ def _collector(dom: int):
         got["segments"].add(b.segment)
         got["blocks"] += 1
 
-    node.create_subscription(Float64MultiArray, "accel/block", on_block, block_qos())
+    node.create_subscription(Float64MultiArray, "accel/block", on_block, block_qos(keep_all=True))
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(node)
 

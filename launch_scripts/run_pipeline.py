@@ -16,6 +16,8 @@ pipeline.launch.py`` / ``analysis.launch.py``:
     # ... watched live in Rerun: spawn a viewer, connect to a running one, or save a recording
     python launch_scripts/run_pipeline.py --bag run1.mcap --rerun spawn
     python launch_scripts/run_pipeline.py --bag run1.mcap --rerun save=live.rrd --linger 5
+    # ... and the results (typed nifo_msgs + /diagnostics) recorded into a bag Foxglove opens
+    python launch_scripts/run_pipeline.py --bag run1.mcap --reliable --rate 0 --linger 3 --record results.mcap
 
 Ctrl-C (or SIGTERM) stops every process cleanly (SIGINT, then SIGTERM, then SIGKILL after
 timeouts); the identifier writes its checkpoint on the way out. With ``--bag`` and
@@ -61,6 +63,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--log-dir", help="write each node's output to DIR/<node>.log")
     p.add_argument("--linger", type=float, default=None, metavar="S",
                    help="with --bag: stop S seconds after the replay ended (default: run until Ctrl-C)")
+    p.add_argument("--record", default=None, metavar="OUT.mcap",
+                   help="record the identifier's results and /diagnostics into this bag (written on shutdown; "
+                        "Foxglove opens it)")
     p.add_argument("--rerun", default=None, metavar="spawn|connect[=URL]|save=PATH",
                    help="also run the Rerun viewer node: spawn a viewer, connect to one (optionally at URL), "
                         "or save a .rrd recording")
@@ -97,6 +102,8 @@ def main(argv=None) -> int:
     specs = [spec("integrator", **integ), spec("identifier", model_file=a.model, checkpoint_file=a.checkpoint)]
     if a.rerun is not None:
         specs.append(NodeSpec("rerun_viewer", namespace=a.namespace, args=rerun_args(a.rerun)))
+    if a.record is not None:  # first to stop (stop() signals in order): it still sees the last results
+        specs.append(NodeSpec("recorder", namespace=a.namespace, args=("--out", str(Path(a.record).resolve()))))
     if a.bag is None:
         specs.insert(0, spec("acquisition", source=a.source or "simulator", path=a.path, speed=a.rate))
     procs: list[subprocess.Popen] = []

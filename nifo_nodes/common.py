@@ -10,6 +10,8 @@ topic (relative)                   type                                QoS
                                                                        replay for identification: reliable, keep all
 ``tire_patch/displacement``        ``geometry_msgs/msg/PointStamped``  sensor data
 ``accel/block``                    ``std_msgs/msg/Float64MultiArray``  reliable, volatile, keep last ``BLOCK_DEPTH``
+                                                                       (keep all with reliable input; identifier
+                                                                       reads keep all)
 ``motion/block``                   ``std_msgs/msg/Float64MultiArray``  reliable, volatile, keep last ``BLOCK_DEPTH``
 ``identifier/transmissibility``    ``nifo_msgs/msg/Transmissibility``  reliable, transient local, depth 1
 ``identifier/coefficients``        ``nifo_msgs/msg/Coefficients``      reliable, transient local, depth 1
@@ -163,9 +165,19 @@ def publish_blocking(pub, data, *, timeout_s: float = 60.0, should_stop: Callabl
             time.sleep(0.002)
 
 
-def block_qos():
+def block_qos(*, keep_all: bool = False):
+    """Sample blocks between our nodes: reliable, volatile, keep last :data:`BLOCK_DEPTH` — or keep all.
+
+    Keep-all is what the lossless path needs on both ends (the integrator's writer in reliable mode, the
+    identifier's reader always): a keep-last writer overwrites blocks not yet acknowledged when the
+    identifier falls behind (measured: whole blocks lost when a replay runs as fast as the graph goes).
+    History is not part of QoS matching, so keep-all and keep-last ends still match.
+    """
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+    if keep_all:
+        return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.VOLATILE)
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=BLOCK_DEPTH,
                       reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
 

@@ -184,7 +184,9 @@ class IdentifierNode(Node):
         self._pub_t = self.create_publisher(Transmissibility, TOPICS["transmissibility"], result_qos())
         self._pub_c = self.create_publisher(Coefficients, TOPICS["coefficients"], result_qos())
         self._pub_s = self.create_publisher(LoopStatus, TOPICS["status"], result_qos())
-        self._sub = self.create_subscription(Float64MultiArray, TOPICS["accel"], self._on_block, block_qos())
+        # keep all: a block the identifier has not taken yet is never overwritten (lossless path)
+        self._sub = self.create_subscription(Float64MultiArray, TOPICS["accel"], self._on_block,
+                                             block_qos(keep_all=True))
         self._timer = self.create_timer(float(p["publish_period_s"]), self._publish)
         if self._ckpt is not None:
             self._ckpt_timer = self.create_timer(float(p["checkpoint_period_s"]), self._checkpoint)

@@ -44,7 +44,7 @@ from nifo_core.errors import NifoError
 
 from .align import SampleAligner
 from .common import (RELIABILITIES, TOPICS, Diagnostics, Param, block_qos, declare_parameters, input_qos,
-                     polled_group, run_node, take_raw)
+                     polled_group, publish_blocking, run_node, take_raw)
 from .messages import Block, block_to_msg, decode_imu_batch
 
 __all__ = ["IntegratorNode", "main", "ACCEL_CHANNELS", "MOTION_CHANNELS"]
@@ -98,7 +98,10 @@ class IntegratorNode(Node):
         self._segment: int | None = None
         self._integrators = None
         depth = int(self.get_parameter("qos_depth").value)
-        self._pub_accel = self.create_publisher(Float64MultiArray, TOPICS["accel"], block_qos())
+        # lossless input → lossless output: keep-all blocks, publish waits for a slow identifier (backpressure)
+        self._lossless = self.get_parameter("input_reliability").value == "reliable"
+        self._pub_accel = self.create_publisher(Float64MultiArray, TOPICS["accel"],
+                                                block_qos(keep_all=self._lossless))
         self._pub_motion = self.create_publisher(Float64MultiArray, TOPICS["motion"], block_qos())
         # the slow one-off set-up (scipy import ≈ 1 s, FIR taps) happens here, before subscribing: done
         # lazily in the first drain it stalled the input for a second and the best-effort history overflowed
@@ -209,8 +212,7 @@ class IntegratorNode(Node):
         self._block_n = max(1, int(round(float(self.get_parameter("block_s").value) * fs)))
         # reliable input (lossless replay): in order and nothing dropped in transit, but one channel may run
         # far ahead of the other; a hole is a gap only when the lacking channel itself moved past it
-        ordered = self.get_parameter("input_reliability").value == "reliable"
-        self._aligner = SampleAligner(fs, 2, max_lag=lag, ordered=ordered, max_wait=int(round(60 * fs)),
+        self._aligner = SampleAligner(fs, 2, max_lag=lag, ordered=self._lossless, max_wait=int(round(60 * fs)),
                                       restart_s=float(self.get_parameter("restart_s").value),
                                       log=lambda m: self.get_logger().warning(m))
         self.get_logger().info(f"sample rate {fs:g} Hz, blocks of {self._block_n} samples")
@@ -261,7 +263,11 @@ class IntegratorNode(Node):
 
         block = replace(block, seq=self._seq[what], segment=self._segment or 0)
         self._seq[what] += 1
-        (self._pub_accel if what == "accel" else self._pub_motion).publish(block_to_msg(block))
+        pub, msg = (self._pub_accel if what == "accel" else self._pub_motion), block_to_msg(block)
+        if self._lossless and what == "accel":
+            publish_blocking(pub, msg)
+        else:
+            pub.publish(msg)
 
     def close(self) -> None:
         """Publish what is still buffered (end of a replay or shutdown), and see it delivered.

@@ -22,7 +22,8 @@ __all__ = ["NodeSpec", "NODES", "command", "start", "stop", "CONFIG_DIR", "claim
 
 #: node name -> module that runs it
 NODES = {"acquisition": "nifo_nodes.acquisition", "integrator": "nifo_nodes.integrator",
-         "identifier": "nifo_nodes.identifier", "rerun_viewer": "nifo_nodes.rerun_viewer"}
+         "identifier": "nifo_nodes.identifier", "rerun_viewer": "nifo_nodes.rerun_viewer",
+         "recorder": "nifo_nodes.recorder"}
 
 #: the YAML parameter files shipped with the ROS package (shared with ros2 launch)
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "ros2_ws" / "src" / "nifo_ros" / "config"

@@ -125,7 +125,7 @@ class Collector:
                 pass
 
         for k in self.blocks:
-            self.node.create_subscription(Float64MultiArray, f"{k}/block", lambda m, k=k: keep(k, m), block_qos())
+            self.node.create_subscription(Float64MultiArray, f"{k}/block", lambda m, k=k: keep(k, m), block_qos(keep_all=True))
         for k, t in (("transmissibility", Transmissibility), ("coefficients", Coefficients), ("status", LoopStatus)):
             self.node.create_subscription(t, f"identifier/{k}", lambda m, k=k: self.latest.__setitem__(k, m),
                                           result_qos())
