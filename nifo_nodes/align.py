@@ -16,7 +16,8 @@ the callback ``log``):
 * index already emitted, up to ``restart_s`` back → dropped (``late``);
   duplicate of a waiting sample → dropped (``duplicate``);
 * ``restart_count`` consecutive samples more than ``restart_s`` back → the
-  publisher restarted: new grid anchored there, new segment (``restart``);
+  publisher restarted: new grid anchored there, new segment (``restart``;
+  ordered: ``restart_count`` on every channel);
 * a hole that stays open while another channel is ``max_lag`` samples past it
   → the hole is skipped, new segment from the next complete row (``gap``).
 
@@ -94,7 +95,7 @@ class SampleAligner:
         if k < self._head:
             if (self._head - k) * self._period_ns > self.restart_s * 1e9:
                 self._back.append((channel, stamp_ns, value))
-                if len(self._back) >= self.restart_count:
+                if self._restarted():
                     self._restart()
                 return
             self.counts["late"] += 1
@@ -102,7 +103,8 @@ class SampleAligner:
                 self.log(f"channel {channel}: late/out-of-order sample at stamp {stamp_ns} ns dropped "
                          f"({self.counts['late']} so far)")
             return
-        self._back.clear()
+        if not self.ordered:  # ordered: another channel may still be delivering the old stream's tail
+            self._back.clear()
         store = self._store[channel]
         if k in store:
             self.counts["duplicate"] += 1
@@ -114,6 +116,16 @@ class SampleAligner:
         if channel == 0 or k not in self._stamps:
             self._stamps[k] = stamp_ns
         self._advance()
+
+    def _restarted(self) -> bool:
+        """Enough samples went back to call it a restarted publisher. Ordered: every channel must have
+        gone back (a channel still delivering the old stream's tail would otherwise lose it)."""
+        if not self.ordered:
+            return len(self._back) >= self.restart_count
+        per = [0] * self.n_channels
+        for ch, _, _ in self._back:
+            per[ch] += 1
+        return min(per) >= self.restart_count
 
     def _restart(self) -> None:
         back, self._back = self._back, []

@@ -400,8 +400,12 @@ class IdentifierNode(Node):
 
     def close(self) -> None:
         """On the way out: publish (and write the result file of) the last estimate, then the checkpoint."""
+        from rclpy.duration import Duration
+
         try:
             self._publish()
+            for pub in (self._pub_t, self._pub_c, self._pub_s):  # delivered before the process goes (bounded)
+                pub.wait_for_all_acked(Duration(seconds=2.0))
         except Exception as err:  # shutting down: report, do not lose the checkpoint
             self.get_logger().warning(f"could not publish the last estimate on shutdown: {err}")
         self._checkpoint()

@@ -194,6 +194,29 @@ def test_ordered_aligner_waits_for_a_channel_far_behind_and_still_finds_a_real_h
             assert al.counts["gap"] >= 1 and rows.shape[0] < n - len(hole)
 
 
+def test_ordered_aligner_keeps_the_old_stream_tail_of_a_channel_behind_when_the_other_restarts():
+    """Replay started over while the body channel is still delivering the first pass's tail: that tail is
+    aligned (not lost), and the restart happens once every channel went back."""
+    n, fs = 2000, 1000.0
+    stamps = 10**9 + np.arange(n) * 1_000_000
+    a, b = np.arange(n, dtype=float), -np.arange(n, dtype=float)
+    al = SampleAligner(fs, 2, max_lag=50, ordered=True, restart_count=4, log=lambda m: None)
+    for k in range(n):
+        al.push(0, int(stamps[k]), a[k])
+    for k in range(n - 300):
+        al.push(1, int(stamps[k]), b[k])
+    for k in range(20):                  # channel 0 starts over ...
+        al.push(0, int(stamps[k]), a[k])
+    for k in range(n - 300, n):          # ... while channel 1's first pass still arrives
+        al.push(1, int(stamps[k]), b[k])
+    for k in range(20):
+        al.push(1, int(stamps[k]), b[k])
+    runs, rows = _rows(al)
+    assert [r.segment for r in runs] == [0, 1] and al.counts["restart"] == 1 and al.counts["gap"] == 0
+    np.testing.assert_array_equal(rows[:n], np.column_stack([a, b]))
+    np.testing.assert_array_equal(rows[n:], np.column_stack([a, b])[:20])
+
+
 def test_aligner_drops_late_and_duplicate_samples_without_a_new_segment():
     msgs = []
     al = SampleAligner(100.0, 2, max_lag=5, log=msgs.append)

@@ -172,6 +172,10 @@ class Collector:
         t = self.latest.get("transmissibility")
         return -1 if t is None else t.n_avg
 
+    def got(self) -> str:
+        t = self.latest.get("transmissibility")
+        return "nothing" if t is None else f"{t.n_avg} blocks, {t.samples_used} samples, {t.gaps} gaps"
+
     def close(self):
         self.ctx.try_shutdown()
         self.thread.join(2)
@@ -222,7 +226,7 @@ def test_replayed_bag_through_integrator_and_identifier_equals_the_batch_engine(
         rp = replay(sample["bag"], env)
         procs.append(rp)
         ref = batch_result(rec)
-        col.wait_for(lambda: col.done(ref), 90, f"n_avg={ref.n_avg} (got {col.navg()})\n{logs(tmp_path)}")
+        col.wait_for(lambda: col.done(ref), 90, f"n_avg={ref.n_avg}, {ref.n_samples} samples (got {col.got()})\n{logs(tmp_path)}")
         assert rp.wait(30) == 0, rp.stdout.read().decode()
         assert_matches_batch(col.latest, ref)
         # the aligned accelerations are the recorded samples, bit for bit
@@ -261,7 +265,7 @@ def test_identifier_killed_mid_run_resumes_from_its_checkpoint_to_the_same_estim
         col.wait_for(lambda: col.navg() >= 3 and ckpt.exists(), 60, f"a checkpoint\n{logs(tmp_path)}")
         os.killpg(first.pid, signal.SIGKILL)  # no chance to write a last checkpoint
         first.wait(5)
-        assert col.navg() < ref.n_avg
+        assert col.latest["transmissibility"].n_avg < ref.n_avg
         rp.wait(60)
         second = start(ident, env=env, log_dir=tmp_path)
         procs.append(second)
@@ -270,7 +274,7 @@ def test_identifier_killed_mid_run_resumes_from_its_checkpoint_to_the_same_estim
         time.sleep(1.0)
         procs.append(replay(sample["bag"], env))  # the bag again: the identifier skips what it already has
         col.wait_for(lambda: col.done(ref), 90,
-                     lambda: f"n_avg={ref.n_avg} (got {col.navg()}); accel blocks by segment "
+                     lambda: f"n_avg={ref.n_avg}, {ref.n_samples} samples (got {col.got()}); accel blocks by segment "
                      f"{np.unique([b.segment for b in col.blocks['accel']], return_counts=True)}\n{logs(tmp_path)}")
         time.sleep(1.0)  # nothing more may arrive: every sample is used once
         assert_matches_batch(col.latest, ref)
@@ -336,7 +340,7 @@ def test_malformed_late_nan_stalled_and_restarted_streams_are_logged_and_skipped
             if k % 50 == 0:
                 time.sleep(0.02)
         ref = batch_result([(a1[:nan0], a2[:nan0]), (a1[nan1:], a2[nan1:])])
-        col.wait_for(lambda: col.done(ref), 60, f"n_avg={ref.n_avg} (got {col.navg()})\n{logs(tmp_path)}")
+        col.wait_for(lambda: col.done(ref), 60, f"n_avg={ref.n_avg}, {ref.n_samples} samples (got {col.got()})\n{logs(tmp_path)}")
         time.sleep(1.5)
         assert integ.poll() is None and ident.poll() is None, logs(tmp_path)
         assert_matches_batch(col.latest, ref)
@@ -391,11 +395,11 @@ def test_bundled_bag_replayed_reliably_with_a_cpu_hog_equals_nifo_identify(domai
     try:
         col = Collector(dom)
         p = subprocess.run([sys.executable, str(REPO / "launch_scripts" / "run_pipeline.py"), "--bag", str(bag),
-                            "--model", str(model), "--reliable", "--rate", "0", "--linger", "2", "--domain-id",
+                            "--model", str(model), "--reliable", "--rate", "0", "--linger", "3", "--domain-id",
                             str(dom), "--log-dir", str(tmp_path), "--checkpoint", str(tmp_path / "id.npz")],
                            env=env, capture_output=True, text=True, timeout=400)
         assert p.returncode == 0, p.stderr + logs(tmp_path)
-        col.wait_for(lambda: col.done(ref), 20, lambda: f"the final estimate (got n_avg {col.navg()})\n{p.stderr}\n{logs(tmp_path)}")
+        col.wait_for(lambda: col.done(ref), 20, lambda: f"the final estimate (got {col.got()})\n{p.stderr}\n{logs(tmp_path)}")
         assert_matches_batch(col.latest, ref)
         t = col.latest["transmissibility"]
         assert (t.gaps, t.samples_lost) == (0, 0)
