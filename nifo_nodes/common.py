@@ -41,7 +41,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 __all__ = ["TOPICS", "sensor_qos", "reliable_input_qos", "input_qos", "block_qos", "result_qos", "run_node", "declare_parameters",
-           "BLOCK_DEPTH", "RELIABILITIES", "polled_group", "take_raw", "publish_blocking", "Param",
+           "BLOCK_DEPTH", "IDENTIFIER_BLOCK_DEPTH", "RELIABILITIES", "polled_group", "take_raw", "publish_blocking", "Param",
            "DIAGNOSTICS_TOPIC", "Diagnostics"]
 
 #: values of the integrator's ``input_reliability`` parameter
@@ -63,6 +63,9 @@ DIAGNOSTICS_TOPIC = "/diagnostics"
 
 #: blocks kept for a slow subscriber (at 10 blocks/s: 10 s of data)
 BLOCK_DEPTH = 100
+#: the identifier's block history: 10 000 s of data at 10 blocks/s (it never falls that far behind;
+#: if it did, the loss would be a counted gap)
+IDENTIFIER_BLOCK_DEPTH = 100_000
 
 
 def sensor_qos(depth: int = 5):
@@ -165,20 +168,21 @@ def publish_blocking(pub, data, *, timeout_s: float = 60.0, should_stop: Callabl
             time.sleep(0.002)
 
 
-def block_qos(*, keep_all: bool = False):
+def block_qos(*, keep_all: bool = False, depth: int = 0):
     """Sample blocks between our nodes: reliable, volatile, keep last :data:`BLOCK_DEPTH` — or keep all.
 
-    Keep-all is what the lossless path needs on both ends (the integrator's writer in reliable mode, the
-    identifier's reader always): a keep-last writer overwrites blocks not yet acknowledged when the
-    identifier falls behind (measured: whole blocks lost when a replay runs as fast as the graph goes).
-    History is not part of QoS matching, so keep-all and keep-last ends still match.
+    The lossless path needs the integrator's writer keep-all in reliable mode (a keep-last writer
+    overwrote blocks not yet acknowledged when the identifier fell behind: whole blocks lost when a
+    replay ran as fast as the graph goes) and the identifier's reader deep (``depth``: keep last that
+    many; a keep-all reader lost the tail of a stream under load with Fast DDS, measured). History is
+    not part of QoS matching, so all of these match each other.
     """
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     if keep_all:
         return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.VOLATILE)
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=BLOCK_DEPTH,
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=int(depth or BLOCK_DEPTH),
                       reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
 
 

@@ -56,7 +56,7 @@ import numpy as np
 
 from nifo_core.errors import ConfigError, NifoError
 
-from .common import TOPICS, Diagnostics, Param, block_qos, declare_parameters, result_qos, run_node
+from .common import IDENTIFIER_BLOCK_DEPTH, TOPICS, Diagnostics, Param, block_qos, declare_parameters, result_qos, run_node
 from .integrator import ACCEL_CHANNELS
 from .messages import block_from_msg
 from .results import StreamStats, coefficients_msg, conditioning, state_of, status_msg, transmissibility_msg, \
@@ -72,7 +72,7 @@ except ImportError:  # pragma: no cover
 _CKPT_VERSION = 1
 
 
-_STREAM_KEYS = ("samples_received", "samples_lost", "gaps", "samples_skipped")
+_STREAM_KEYS = ("samples_received", "samples_lost", "gaps", "samples_skipped", "blocks_missing")
 
 
 def save_checkpoint(path: str | Path, nifo, *, next_ns: int, stream: StreamStats | None = None) -> None:
@@ -178,15 +178,16 @@ class IdentifierNode(Node):
         self._dirty = False
         self._stream = StreamStats()
         self._blocks = 0
+        self._seq: int | None = None
         if self._ckpt is not None and self._ckpt.exists():
             self._resume()
         self.add_on_set_parameters_callback(self._on_params)
         self._pub_t = self.create_publisher(Transmissibility, TOPICS["transmissibility"], result_qos())
         self._pub_c = self.create_publisher(Coefficients, TOPICS["coefficients"], result_qos())
         self._pub_s = self.create_publisher(LoopStatus, TOPICS["status"], result_qos())
-        # keep all: a block the identifier has not taken yet is never overwritten (lossless path)
+        # deep: a block the identifier has not taken yet is not overwritten (lossless path; common.block_qos)
         self._sub = self.create_subscription(Float64MultiArray, TOPICS["accel"], self._on_block,
-                                             block_qos(keep_all=True))
+                                             block_qos(depth=IDENTIFIER_BLOCK_DEPTH))
         self._timer = self.create_timer(float(p["publish_period_s"]), self._publish)
         if self._ckpt is not None:
             self._ckpt_timer = self.create_timer(float(p["checkpoint_period_s"]), self._checkpoint)
@@ -277,6 +278,11 @@ class IdentifierNode(Node):
             self.get_logger().error(f"block at {b.fs_hz:g} Hz, the estimate is at {self._nifo.fs_hz:g} Hz: skipped "
                                     "(reset to start over at the new rate)", throttle_duration_sec=5.0)
             return
+        if self._seq is not None and b.seq != self._seq + 1 and b.seq != 0:  # 0: the integrator restarted
+            self._stream.blocks_missing += max(0, b.seq - self._seq - 1)
+            self.get_logger().warning(f"{TOPICS['accel']}: blocks {self._seq + 1}..{b.seq - 1} never arrived "
+                                      f"({self._stream.blocks_missing} so far); a later block's stamp shows the gap")
+        self._seq = b.seq
         rows = b.data
         period = 1e9 / b.fs_hz
         if self._next_ns is not None:
@@ -313,12 +319,18 @@ class IdentifierNode(Node):
         # republish when anything changed (samples, gaps), not only n_avg: the tail of a stream adds samples
         # (and the stream's accounting) without completing a block
         mark = (self._nifo.n_avg if self._nifo is not None else 0, self._stream.samples_received, self._stream.gaps)
-        if self._nifo is None or self._nifo.n_avg == 0 or mark == self._published_navg:
+        if self._nifo is None or mark == self._published_navg:
             return
-        try:
-            r = self._nifo.result()
-        except NifoError as err:
-            self.get_logger().warning(f"no estimate yet: {err}", throttle_duration_sec=30.0)
+        r = None
+        if self._nifo.n_avg:
+            try:
+                r = self._nifo.result()
+            except NifoError as err:
+                self.get_logger().warning(f"no estimate yet: {err}", throttle_duration_sec=30.0)
+        if r is None:  # samples but no estimate yet: the status still says how the stream is doing
+            self._published_navg = mark
+            self._pub_s.publish(status_msg(None, stamp_ns=self._last_ns, frame_id=self._frame_id,
+                                           stream=self._stream, cond_limit=self._cond_limit, result_file=""))
             return
         self._published_navg = mark
         self._result = r
@@ -347,6 +359,9 @@ class IdentifierNode(Node):
         if st.gaps:
             level = Diagnostics.WARN
             message += f"; {st.gaps} stream gap(s), {st.samples_lost} samples lost (not averaged)"
+        if st.blocks_missing:
+            level = Diagnostics.WARN
+            message += f"; {st.blocks_missing} sample block(s) never arrived"
         if state == "ill_conditioned":
             level = Diagnostics.WARN
         return level, message, values

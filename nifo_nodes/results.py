@@ -41,10 +41,11 @@ class StreamStats:
     samples_lost: int = 0      #: samples missing between blocks (by their stamps), never averaged
     gaps: int = 0              #: discontinuities: each closed the record (no spectral block spans one)
     samples_skipped: int = 0   #: samples received again (duplicates, a replay started over): used once
+    blocks_missing: int = 0    #: sample blocks that never arrived (gaps in the integrator's block counter)
 
     def as_dict(self) -> dict:
         return {"samples_received": self.samples_received, "samples_lost": self.samples_lost, "gaps": self.gaps,
-                "samples_skipped": self.samples_skipped}
+                "samples_skipped": self.samples_skipped, "blocks_missing": self.blocks_missing}
 
 
 def _header(msg, stamp_ns: int, frame_id: str):
@@ -119,6 +120,7 @@ def status_msg(r, *, stamp_ns: int, frame_id: str, stream: StreamStats, cond_lim
     if stream.gaps:
         m.message += f"; {stream.gaps} stream gap(s), {stream.samples_lost} samples lost (not averaged)"
     m.samples_lost, m.gaps = int(stream.samples_lost), int(stream.gaps)
+    m.samples_used = 0
     if r is not None:
         m.n_avg, m.samples_used = int(r.n_avg), int(r.n_samples)
         m.cond_median, m.cond_max, m.ill_conditioned_fraction = conditioning(r, cond_limit)

@@ -207,6 +207,14 @@ def assert_matches_batch(latest, ref, *, rtol=RTOL):
     assert doc["n_avg"] == ref.n_avg and doc["stream"]["samples_used"] == ref.n_samples
 
 
+def _by_segment(blocks) -> dict:
+    out: dict = {}
+    for b in blocks:
+        lo, n = out.get(b.segment, (b.stamp_ns, 0))
+        out[b.segment] = (min(lo, b.stamp_ns), n + b.n)
+    return out
+
+
 def logs(d: Path) -> str:
     return "\n".join(f"--- {p.name}\n{p.read_text(errors='replace')[-3000:]}" for p in sorted(d.glob("*.log")))
 
@@ -340,7 +348,9 @@ def test_malformed_late_nan_stalled_and_restarted_streams_are_logged_and_skipped
             if k % 50 == 0:
                 time.sleep(0.02)
         ref = batch_result([(a1[:nan0], a2[:nan0]), (a1[nan1:], a2[nan1:])])
-        col.wait_for(lambda: col.done(ref), 60, f"n_avg={ref.n_avg}, {ref.n_samples} samples (got {col.got()})\n{logs(tmp_path)}")
+        col.wait_for(lambda: col.done(ref), 60, lambda: f"n_avg={ref.n_avg}, {ref.n_samples} samples (got {col.got()}); "
+                     f"accel rows by segment {_by_segment(col.blocks['accel'])}; diagnostics {col.diagnostics}\n"
+                     f"{logs(tmp_path)}")
         time.sleep(1.5)
         assert integ.poll() is None and ident.poll() is None, logs(tmp_path)
         assert_matches_batch(col.latest, ref)

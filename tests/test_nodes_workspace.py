@@ -129,3 +129,5 @@ def test_run_pipeline_replays_a_bag_through_the_nodes_into_a_live_rerun_recordin
     # the live view: the viewer node logged the replayed accelerations at the data's stamps
     ents = {c.entity_path for c in RrdReader(rrd).stream().to_chunks()}
     assert "/accel/live" in ents, sorted(ents)
+    # the stream's health from the identifier's status (no estimate from 6 s: samples, no gap, no loss)
+    assert {"/stream/samples_lost", "/stream/gaps", "/summary"} <= ents, sorted(ents)
