@@ -25,9 +25,7 @@ sampled until just before it exits). Each rate runs on its own claimed ROS_DOMAI
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
-import signal
 import subprocess
 import sys
 import tempfile
@@ -39,7 +37,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from nifo_nodes.launcher import CONFIG_DIR, NodeSpec, claim_domain_id, start, stop  # noqa: E402
+from nifo_nodes.launcher import CONFIG_DIR, NodeSpec, busy_core, claim_domain_id, start, stop  # noqa: E402
 
 
 def cpu_s(pid: int) -> float:
@@ -134,26 +132,8 @@ def _run_rate(fs: float, seconds: float, tmp: Path, dom: int, a_poll_s: float) -
         cpu = {k: 100 * (c1[k] - c0[k]) / wall for k in ("integrator", "identifier")}
         cpu["acquisition"] = 100 * (a_cpu - c0["acquisition"]) / a_wall
     finally:
-        stop(list(procs.values()))
-        ctx.try_shutdown()
-        th.join(2)
-    lost = n - got["rows"]
-    return {"fs_hz": fs, "samples": n, "received": got["rows"], "lost": lost, "segments": len(got["segments"]),
-            "ok": lost == 0 and len(got["segments"]) == 1, "cpu_pct": cpu, "wall_s": wall}
-
-
-@contextlib.contextmanager
-def busy_core(on: bool):
-    """One process spinning a core (what another job on the vehicle PC does) while in the block."""
-    if not on:
-        yield None
-        return
-    hog = subprocess.Popen([sys.executable, "-c", "while True: pass"], start_new_session=True)
-    try:
-        yield hog
-    finally:
-        os.killpg(hog.pid, signal.SIGKILL)
-        hog.wait(5)
+        _finish(procs, ctx, th)
+    return {**_loss(n, got), "fs_hz": fs, "cpu_pct": cpu, "wall_s": wall}
 
 
 def run_reliable(fs: float, seconds: float, tmp: Path) -> dict:
@@ -191,13 +171,23 @@ def _run_reliable(fs: float, seconds: float, tmp: Path, dom: int) -> dict:
         while got["rows"] < n and time.monotonic() < end:
             time.sleep(0.1)
     finally:
-        stop(list(procs.values()))
-        ctx.try_shutdown()
-        th.join(2)
+        _finish(procs, ctx, th)
+    r = _loss(n, got)
+    return {**r, "ok": r["ok"] and replay.returncode == 0, "fs_hz": fs, "wall_s": wall, "rate_hz": n / wall,
+            "msgs_per_s": 2 * n / wall}
+
+
+def _finish(procs: dict, ctx, th) -> None:
+    stop(list(procs.values()))
+    ctx.try_shutdown()
+    th.join(2)
+
+
+def _loss(n: int, got: dict) -> dict:
+    """Samples sent vs. aligned rows collected: lossless means every row, in one segment (no gap)."""
     lost = n - got["rows"]
-    return {"fs_hz": fs, "samples": n, "received": got["rows"], "lost": lost, "segments": len(got["segments"]),
-            "ok": lost == 0 and len(got["segments"]) == 1 and replay.returncode == 0, "wall_s": wall,
-            "rate_hz": n / wall, "msgs_per_s": 2 * n / wall}
+    return {"samples": n, "received": got["rows"], "lost": lost, "segments": len(got["segments"]),
+            "ok": lost == 0 and len(got["segments"]) == 1}
 
 
 def main(argv=None) -> int:

@@ -18,7 +18,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["NodeSpec", "NODES", "command", "start", "stop", "CONFIG_DIR", "claim_domain_id"]
+__all__ = ["NodeSpec", "NODES", "command", "start", "stop", "CONFIG_DIR", "claim_domain_id", "busy_core"]
 
 #: node name -> module that runs it
 NODES = {"acquisition": "nifo_nodes.acquisition", "integrator": "nifo_nodes.integrator",
@@ -126,3 +126,17 @@ def claim_domain_id(*, lo: int = 1, hi: int = 99):
             f.close()
         return
     raise RuntimeError(f"every ROS_DOMAIN_ID in {lo}..{hi} is claimed (lock files in {d})")
+
+
+@contextlib.contextmanager
+def busy_core(on: bool = True):
+    """One process spinning a core (another job on the vehicle PC) while in the block; yields it (or None)."""
+    if not on:
+        yield None
+        return
+    hog = subprocess.Popen([sys.executable, "-c", "while True: pass"], start_new_session=True)
+    try:
+        yield hog
+    finally:
+        os.killpg(hog.pid, signal.SIGKILL)
+        hog.wait(5)

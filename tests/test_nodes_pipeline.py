@@ -27,7 +27,7 @@ import pytest
 pytest.importorskip("rclpy")
 pytestmark = pytest.mark.ros
 
-from nifo_nodes.launcher import CONFIG_DIR, NodeSpec, claim_domain_id, start, stop  # noqa: E402
+from nifo_nodes.launcher import CONFIG_DIR, NodeSpec, busy_core, claim_domain_id, start, stop  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 FS = 250.0
@@ -380,12 +380,8 @@ def test_malformed_late_nan_stalled_and_restarted_streams_are_logged_and_skipped
 @pytest.fixture
 def cpu_hog():
     """One core kept busy by another process for the whole test (the graph must not lose a sample)."""
-    hog = subprocess.Popen([sys.executable, "-c", "while True: pass"], start_new_session=True)
-    try:
+    with busy_core() as hog:
         yield hog
-    finally:
-        os.killpg(hog.pid, signal.SIGKILL)
-        hog.wait(5)
 
 
 @pytest.mark.slow
