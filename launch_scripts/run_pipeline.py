@@ -150,7 +150,12 @@ def main(argv=None) -> int:
             if ended_at is not None and a.linger is not None and time.monotonic() - ended_at >= a.linger:
                 break
     finally:
-        codes = stop(procs)
+        # upstream first (replay/acquisition, integrator, identifier, then viewer and recorder): each
+        # hands on what it still holds before the next one stops
+        order = ["replay", "acquisition", "integrator", "identifier", "rerun_viewer", "recorder"]
+        ranked = sorted(procs, key=lambda p: order.index(names.get(p.pid, "recorder")))
+        codes_by_pid = {p.pid: c for p, c in zip(ranked, stop(ranked, timeout_s=30.0, in_order=True))}
+        codes = [codes_by_pid[p.pid] for p in procs]
         print(f"run_pipeline: stopped (exit codes {codes})", file=sys.stderr)
     seen = {n for n, _ in failures}
     for p, code in zip(procs, codes):  # a node that failed on the way out (not our own SIGINT ending it)

@@ -413,11 +413,23 @@ class IdentifierNode(Node):
         response.message = "estimate reset"
         return response
 
+    def _take_pending(self) -> None:
+        """Blocks already delivered but not yet handed to :meth:`_on_block` (the executor stopped)."""
+        from rclpy.exceptions import InvalidHandle
+
+        try:
+            with self._sub.handle:
+                while (got := self._sub.handle.take_message(self._sub.msg_type, False)) is not None:
+                    self._on_block(got[0])
+        except InvalidHandle:
+            pass
+
     def close(self) -> None:
         """On the way out: publish (and write the result file of) the last estimate, then the checkpoint."""
         from rclpy.duration import Duration
 
         try:
+            self._take_pending()
             self._publish()
             for pub in (self._pub_t, self._pub_c, self._pub_s):  # delivered before the process goes (bounded)
                 pub.wait_for_all_acked(Duration(seconds=2.0))

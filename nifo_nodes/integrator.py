@@ -160,11 +160,14 @@ class IntegratorNode(Node):
         return Diagnostics.OK, f"{rates[0]:.0f} + {rates[1]:.0f} samples/s, no gaps", values
 
     # ------------------------------------------------------------------ input
-    def _drain(self) -> None:
-        """Take every waiting Imu message of both channels, decode them in one go, push in stamp order."""
+    def _drain(self) -> int:
+        """Take every waiting Imu message of both channels, decode them in one go, push in stamp order;
+        returns how many messages were taken (decodable or not)."""
         stamps, values, chans = [], [], []
+        taken = 0
         for ch, sub in enumerate(self._subs):
             raws = take_raw(sub, _TAKE_MAX)
+            taken += len(raws)
             st, v, bad = decode_imu_batch(raws, self._axis)
             for _, reason in bad:
                 self._malformed += 1
@@ -181,6 +184,7 @@ class IntegratorNode(Node):
         for ch, stamp, value in zip(np.concatenate(chans)[order].tolist(), np.concatenate(stamps)[order].tolist(),
                                     np.concatenate(values)[order].tolist()):
             self._on_sample(ch, stamp, value)
+        return taken
 
     def _on_sample(self, channel: int, stamp: int, value: float) -> None:
         if self._aligner is None:
@@ -278,7 +282,8 @@ class IntegratorNode(Node):
         from rclpy.duration import Duration
 
         try:
-            self._drain()
+            while self._drain():  # everything still waiting in the input histories
+                pass
             self._publish()
             self._end_segment()
             for pub in (self._pub_accel, self._pub_motion):

@@ -78,8 +78,15 @@ def start(spec: NodeSpec, *, env: dict | None = None, log_dir: str | Path | None
     return subprocess.Popen(command(spec), env=e, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
 
 
-def stop(procs, *, timeout_s: float = 5.0) -> list[int | None]:
-    """Stop processes like ``ros2 launch`` does; returns their exit codes."""
+def stop(procs, *, timeout_s: float = 5.0, in_order: bool = False) -> list[int | None]:
+    """Stop processes like ``ros2 launch`` does; returns their exit codes.
+
+    ``in_order``: one after the other, each given ``timeout_s`` after SIGINT to finish — upstream nodes
+    first, so each hands everything it still holds to the next before that one is stopped (the
+    integrator's last blocks reach the identifier, whose last estimate reaches the recorder).
+    """
+    if in_order:
+        return [stop([p], timeout_s=timeout_s)[0] if p is not None else None for p in procs]
     procs = [p for p in procs if p is not None]
     for sig, wait in ((signal.SIGINT, timeout_s), (signal.SIGTERM, timeout_s), (signal.SIGKILL, 5.0)):
         live = [p for p in procs if p.poll() is None]
