@@ -56,11 +56,12 @@ import numpy as np
 
 from nifo_core.errors import ConfigError, NifoError
 
-from .common import IDENTIFIER_BLOCK_DEPTH, TOPICS, Diagnostics, Param, block_qos, declare_parameters, result_qos, run_node
+from .common import (IDENTIFIER_BLOCK_DEPTH, TOPICS, Diagnostics, Param, block_qos, declare_parameters, result_qos,
+                     run_node)
 from .integrator import ACCEL_CHANNELS
 from .messages import block_from_msg
-from .results import StreamStats, coefficients_msg, conditioning, state_of, status_msg, transmissibility_msg, \
-    write_result_file
+from .results import (StreamStats, coefficients_msg, conditioning, msg_types, state_of, status_msg,
+                      transmissibility_msg, write_result_file)
 
 __all__ = ["IdentifierNode", "main", "load_checkpoint", "save_checkpoint"]
 
@@ -160,8 +161,7 @@ class IdentifierNode(Node):
         super().__init__("identifier", **kwargs)
         from rcl_interfaces.msg import SetParametersResult
         from std_msgs.msg import Float64MultiArray
-        from nifo_msgs.msg import Coefficients, LoopStatus, Transmissibility
-
+        Transmissibility, Coefficients, LoopStatus = msg_types()
         self._SetParametersResult = SetParametersResult
         p = declare_parameters(self, PARAMS, self._problems)
         self._terms, self._settings = self._model(p)

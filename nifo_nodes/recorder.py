@@ -94,7 +94,10 @@ class RecorderNode(Node):
     def __init__(self, out: str, **kwargs) -> None:
         super().__init__("recorder", **kwargs)
         from diagnostic_msgs.msg import DiagnosticArray
-        from nifo_msgs.msg import Coefficients, LoopStatus, Transmissibility
+
+        from .results import msg_types
+
+        Transmissibility, Coefficients, LoopStatus = msg_types()
 
         classes = {"nifo_msgs/msg/Transmissibility": Transmissibility, "nifo_msgs/msg/Coefficients": Coefficients,
                    "nifo_msgs/msg/LoopStatus": LoopStatus, "diagnostic_msgs/msg/DiagnosticArray": DiagnosticArray}

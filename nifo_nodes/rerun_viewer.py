@@ -68,7 +68,10 @@ def _stamps(b: Block) -> np.ndarray:
 class RerunViewerNode(Node):
     def __init__(self, recording, **kwargs) -> None:
         from std_msgs.msg import Float64MultiArray
-        from nifo_msgs.msg import LoopStatus
+
+        from .results import msg_types
+
+        LoopStatus = msg_types()[2]
 
         from nifo.viz import rerun_log as rl
 

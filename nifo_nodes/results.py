@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["StreamStats", "transmissibility_msg", "coefficients_msg", "status_msg", "write_result_file",
+__all__ = ["msg_types", "StreamStats", "transmissibility_msg", "coefficients_msg", "status_msg", "write_result_file",
            "STATES", "state_of"]
 
 #: ``LoopStatus.state`` values
@@ -46,6 +46,19 @@ class StreamStats:
     def as_dict(self) -> dict:
         return {"samples_received": self.samples_received, "samples_lost": self.samples_lost, "gaps": self.gaps,
                 "samples_skipped": self.samples_skipped, "blocks_missing": self.blocks_missing}
+
+
+def msg_types():
+    """``(Transmissibility, Coefficients, LoopStatus)`` from ``nifo_msgs``, or one :class:`ConfigError`
+    saying how to build them (a node started without them stops with one line, not a traceback)."""
+    try:
+        from nifo_msgs.msg import Coefficients, LoopStatus, Transmissibility
+    except ImportError as err:
+        from nifo_core.errors import ConfigError
+        raise ConfigError(f"the nifo_msgs result messages are not installed ({err})", source="nifo_msgs",
+                          hint="build them into the venv: ros2_ws/build_msgs.sh .venv (./test.sh and ./nifo.sh "
+                               "do it); with ROS 2: colcon build ros2_ws") from None
+    return Transmissibility, Coefficients, LoopStatus
 
 
 def _header(msg, stamp_ns: int, frame_id: str):
