@@ -178,7 +178,8 @@ def _run_reliable(fs: float, seconds: float, tmp: Path, dom: int) -> dict:
 
 
 def _finish(procs: dict, ctx, th) -> None:
-    stop(list(procs.values()))
+    # upstream first: the integrator publishes what it still holds before anything downstream stops
+    stop([procs[k] for k in ("acquisition", "integrator", "identifier") if k in procs], timeout_s=15.0, in_order=True)
     ctx.try_shutdown()
     th.join(2)
 
