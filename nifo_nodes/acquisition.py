@@ -16,13 +16,29 @@ this long until both Imu topics have a subscriber; 0: start at once). The node e
 
 from __future__ import annotations
 
-from .common import TOPICS, declare_parameters, run_node, sensor_qos
+from .common import TOPICS, Param, declare_parameters, run_node, sensor_qos
 from .messages import ImuEncoder, PointEncoder
 
 __all__ = ["AcquisitionNode", "main"]
 
 #: after both Imu topics have subscribers, wait this long for them to match us too
 _MATCH_GRACE_S = 0.5
+
+#: the acquisition node's parameters (all read at start-up; ``ros2 param describe``)
+PARAMS = {
+    "source": Param("simulator", "simulator | file | your_pkg.module:YourDaqSource", read_only=True),
+    "path": Param("", "for source: file, the CSV, MAT or bag file", read_only=True),
+    "source_options": Param("", "JSON keyword arguments for the source", read_only=True),
+    "speed": Param(1.0, "playback speed [x real time]", 1e-3, 1e3, read_only=True),
+    "loop": Param(False, "file source: start over at the end", read_only=True),
+    "fs_hz": Param(600.0, "simulator sample rate [Hz]", 1.0, 1e6, read_only=True),
+    "seed": Param(0, "simulator seed", 0, 2**31 - 1, read_only=True),
+    "poll_s": Param(0.01, "how often the source is polled [s]", 1e-4, 1.0, read_only=True),
+    "axis": Param("z", "Imu linear_acceleration axis carrying the value: x, y or z", read_only=True),
+    "qos_depth": Param(100, "publisher history (sensor-data QoS) [messages]", 1, 100_000, read_only=True),
+    "wait_for_subscribers_s": Param(0.0, "hold the source until the Imu topics have subscribers, up to [s]",
+                                    0.0, 3600.0, read_only=True),
+}
 
 try:
     from rclpy.node import Node
@@ -40,10 +56,7 @@ class AcquisitionNode(Node):
         from .sources import make_source
 
         self._SetParametersResult = SetParametersResult
-        defaults = {"source": "simulator", "path": "", "source_options": "", "speed": 1.0, "loop": False,
-                    "fs_hz": 600.0, "seed": 0, "poll_s": 0.01, "axis": "z", "qos_depth": 100,
-                    "wait_for_subscribers_s": 0.0}
-        v = declare_parameters(self, defaults, self._problems)
+        v = declare_parameters(self, PARAMS, self._problems)
         self.add_on_set_parameters_callback(
             lambda ps: SetParametersResult(successful=False, reason="acquisition parameters are read at start-up"))
         self._source = source or make_source(v["source"], path=v["path"], speed=v["speed"], loop=v["loop"],

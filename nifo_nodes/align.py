@@ -16,9 +16,19 @@ the callback ``log``):
 * index already emitted, up to ``restart_s`` back → dropped (``late``);
   duplicate of a waiting sample → dropped (``duplicate``);
 * ``restart_count`` consecutive samples more than ``restart_s`` back → the
-  publisher restarted: new grid anchored there, new segment (``restart``);
+  publisher restarted: new grid anchored there, new segment (``restart``;
+  ordered: ``restart_count`` on every channel);
 * a hole that stays open while another channel is ``max_lag`` samples past it
   → the hole is skipped, new segment from the next complete row (``gap``).
+
+``ordered=True`` is for a lossless, in-order transport (reliable keep-all: the
+lossless replay). Each channel's samples then arrive in order and none is
+dropped in transit, but the channels are separate streams and one may run far
+ahead of the other (thousands of samples when a replay goes as fast as the
+graph allows). A hole is then declared only when the channel lacking the sample
+has itself delivered a later one (the sample is missing at the source), or
+when another channel is ``max_wait`` samples past it (a channel that died); how
+far another channel is ahead alone is no evidence of loss.
 """
 
 from __future__ import annotations
@@ -48,6 +58,8 @@ class SampleAligner:
     restart_s: float = 1.0
     restart_count: int = 8
     log: Callable[[str], None] = print
+    ordered: bool = False
+    max_wait: int = 0  #: ordered: a hole other channels are this far past is skipped (0: 100·max_lag)
     counts: dict = field(default_factory=lambda: dict.fromkeys(
         ("nonfinite", "late", "duplicate", "restart", "gap", "samples"), 0))
 
@@ -56,6 +68,9 @@ class SampleAligner:
         self._t0: int | None = None
         self._head = 0
         self._newest = -1
+        self._newest_ch = [-1] * self.n_channels
+        if self.ordered and self.max_wait <= 0:
+            self.max_wait = 100 * self.max_lag
         self._store: list[dict[int, float]] = [{} for _ in range(self.n_channels)]
         self._stamps: dict[int, int] = {}
         self._back: list[tuple[int, int, float]] = []
@@ -80,7 +95,7 @@ class SampleAligner:
         if k < self._head:
             if (self._head - k) * self._period_ns > self.restart_s * 1e9:
                 self._back.append((channel, stamp_ns, value))
-                if len(self._back) >= self.restart_count:
+                if self._restarted():
                     self._restart()
                 return
             self.counts["late"] += 1
@@ -88,16 +103,29 @@ class SampleAligner:
                 self.log(f"channel {channel}: late/out-of-order sample at stamp {stamp_ns} ns dropped "
                          f"({self.counts['late']} so far)")
             return
-        self._back.clear()
+        if not self.ordered:  # ordered: another channel may still be delivering the old stream's tail
+            self._back.clear()
         store = self._store[channel]
         if k in store:
             self.counts["duplicate"] += 1
             return
         store[k] = value
         self._newest = max(self._newest, k)
+        if k > self._newest_ch[channel]:
+            self._newest_ch[channel] = k
         if channel == 0 or k not in self._stamps:
             self._stamps[k] = stamp_ns
         self._advance()
+
+    def _restarted(self) -> bool:
+        """Enough samples went back to call it a restarted publisher. Ordered: every channel must have
+        gone back (a channel still delivering the old stream's tail would otherwise lose it)."""
+        if not self.ordered:
+            return len(self._back) >= self.restart_count
+        per = [0] * self.n_channels
+        for ch, _, _ in self._back:
+            per[ch] += 1
+        return min(per) >= self.restart_count
 
     def _restart(self) -> None:
         back, self._back = self._back, []
@@ -108,6 +136,7 @@ class SampleAligner:
         self._t0 = back[0][1]
         self._head = 0
         self._newest = -1
+        self._newest_ch = [-1] * self.n_channels
         self._store = [{} for _ in range(self.n_channels)]
         self._stamps = {}
         self.segment += 1
@@ -129,13 +158,21 @@ class SampleAligner:
                 h += 1
                 continue
             newest = self._newest
-            if newest - h < self.max_lag:
+            if self.ordered:
+                # in order, nothing dropped in transit: missing only if the lacking channel has moved past it
+                passed = all(self._newest_ch[c] > h for c, st in enumerate(stores) if h not in st)
+                if not passed and newest - h < self.max_wait:
+                    break
+            elif newest - h < self.max_lag:
                 break
             # the hole at h will not be filled: skip to the next complete row
             common = set(stores[0])
             for s in stores[1:]:
                 common &= set(s)
-            j = min(common) if common else newest - self.max_lag + 1
+            if common:
+                j = min(common)
+            else:  # ordered: step past the hole sample by sample (each checked as above)
+                j = h + 1 if self.ordered else newest - self.max_lag + 1
             for s in stores:
                 for k in [k for k in s if k < j]:
                     del s[k]

@@ -10,10 +10,13 @@ topic (relative)                   type                                QoS
                                                                        replay for identification: reliable, keep all
 ``tire_patch/displacement``        ``geometry_msgs/msg/PointStamped``  sensor data
 ``accel/block``                    ``std_msgs/msg/Float64MultiArray``  reliable, volatile, keep last ``BLOCK_DEPTH``
+                                                                       (keep all with reliable input; identifier
+                                                                       reads keep all)
 ``motion/block``                   ``std_msgs/msg/Float64MultiArray``  reliable, volatile, keep last ``BLOCK_DEPTH``
-``identifier/transmissibility``    ``std_msgs/msg/Float64MultiArray``  reliable, transient local, depth 1
-``identifier/coefficients``        ``std_msgs/msg/Float64MultiArray``  reliable, transient local, depth 1
-``identifier/result``              ``std_msgs/msg/String`` (JSON)      reliable, transient local, depth 1
+``identifier/transmissibility``    ``nifo_msgs/msg/Transmissibility``  reliable, transient local, depth 1
+``identifier/coefficients``        ``nifo_msgs/msg/Coefficients``      reliable, transient local, depth 1
+``identifier/status``              ``nifo_msgs/msg/LoopStatus``        reliable, transient local, depth 1
+``/diagnostics`` (absolute)        ``diagnostic_msgs/DiagnosticArray`` reliable, volatile, depth 10 (every node, 1 Hz)
 =================================  ==================================  ==========================================
 
 QoS matrix of the per-sample input (the integrator's ``input_reliability``
@@ -34,10 +37,12 @@ from __future__ import annotations
 
 import sys
 import time
+from dataclasses import dataclass
 from typing import Callable
 
 __all__ = ["TOPICS", "sensor_qos", "reliable_input_qos", "input_qos", "block_qos", "result_qos", "run_node", "declare_parameters",
-           "BLOCK_DEPTH", "RELIABILITIES", "polled_group", "take_raw", "publish_blocking"]
+           "BLOCK_DEPTH", "IDENTIFIER_BLOCK_DEPTH", "RELIABILITIES", "polled_group", "take_raw", "publish_blocking", "Param",
+           "DIAGNOSTICS_TOPIC", "Diagnostics"]
 
 #: values of the integrator's ``input_reliability`` parameter
 RELIABILITIES = ("best_effort", "reliable")
@@ -50,11 +55,17 @@ TOPICS = {
     "motion": "motion/block",
     "transmissibility": "identifier/transmissibility",
     "coefficients": "identifier/coefficients",
-    "result": "identifier/result",
+    "status": "identifier/status",
 }
+
+#: where every node publishes its ``diagnostic_msgs/DiagnosticArray`` (rqt_robot_monitor, Foxglove)
+DIAGNOSTICS_TOPIC = "/diagnostics"
 
 #: blocks kept for a slow subscriber (at 10 blocks/s: 10 s of data)
 BLOCK_DEPTH = 100
+#: the identifier's block history: 10 000 s of data at 10 blocks/s (it never falls that far behind;
+#: if it did, the loss would be a counted gap)
+IDENTIFIER_BLOCK_DEPTH = 100_000
 
 
 def sensor_qos(depth: int = 5):
@@ -157,10 +168,21 @@ def publish_blocking(pub, data, *, timeout_s: float = 60.0, should_stop: Callabl
             time.sleep(0.002)
 
 
-def block_qos():
+def block_qos(*, keep_all: bool = False, depth: int = 0):
+    """Sample blocks between our nodes: reliable, volatile, keep last :data:`BLOCK_DEPTH` — or keep all.
+
+    The lossless path needs the integrator's writer keep-all in reliable mode (a keep-last writer
+    overwrote blocks not yet acknowledged when the identifier fell behind: whole blocks lost when a
+    replay ran as fast as the graph goes) and the identifier's reader deep (``depth``: keep last that
+    many; a keep-all reader lost the tail of a stream under load with Fast DDS, measured). History is
+    not part of QoS matching, so all of these match each other.
+    """
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=BLOCK_DEPTH,
+    if keep_all:
+        return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.VOLATILE)
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=int(depth or BLOCK_DEPTH),
                       reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
 
 
@@ -171,19 +193,88 @@ def result_qos():
                       reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-def declare_parameters(node, defaults: dict, problems: Callable[[dict], object]) -> dict:
-    """Declare ``defaults`` on ``node``, read the values back (parameter files and overrides applied)
-    and validate them with ``problems`` (returns what is wrong, empty when fine); raise
-    :class:`ConfigError` naming the node otherwise. Returns ``{name: value}``."""
+@dataclass(frozen=True)
+class Param:
+    """A node parameter: default, description (with unit) and the range ``ros2 param describe`` shows.
+
+    ``lo``/``hi`` become the descriptor's integer or floating-point range (enforced
+    by rclpy); ``read_only`` parameters are read at start-up only.
+    """
+
+    default: object
+    description: str
+    lo: float | None = None
+    hi: float | None = None
+    read_only: bool = False
+
+
+def _descriptor(name: str, p: Param):
+    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+
+    d = ParameterDescriptor(name=name, description=p.description, read_only=p.read_only)
+    if p.lo is not None and p.hi is not None:
+        if isinstance(p.default, bool):
+            pass
+        elif isinstance(p.default, int):
+            d.integer_range = [IntegerRange(from_value=int(p.lo), to_value=int(p.hi), step=0)]
+        elif isinstance(p.default, float):
+            d.floating_point_range = [FloatingPointRange(from_value=float(p.lo), to_value=float(p.hi), step=0.0)]
+    return d
+
+
+def declare_parameters(node, params: dict, problems: Callable[[dict], object]) -> dict:
+    """Declare ``params`` (name → :class:`Param`) with descriptors on ``node``, read the values back
+    (parameter files and overrides applied) and validate them with ``problems`` (returns what is wrong,
+    empty when fine); raise :class:`ConfigError` naming the node otherwise. Returns ``{name: value}``."""
+    from rclpy.exceptions import InvalidParameterValueException, ParameterException
+
     from nifo_core.errors import ConfigError
 
-    for name, default in defaults.items():
-        node.declare_parameter(name, default)
-    values = {name: node.get_parameter(name).value for name in defaults}
+    for name, p in params.items():
+        try:
+            node.declare_parameter(name, p.default, _descriptor(name, p))
+        except (InvalidParameterValueException, ParameterException, TypeError) as err:
+            why = f"{name} must be in {p.lo:g}..{p.hi:g}" if p.lo is not None else f"{name}: {err}"
+            raise ConfigError(f"invalid parameters: {why}", source=node.get_name(),
+                              hint="fix the parameter file") from None
+    values = {name: node.get_parameter(name).value for name in params}
     bad = problems(values)
     if bad:
         raise ConfigError(f"invalid parameters: {bad}", source=node.get_name(), hint="fix the parameter file")
     return values
+
+
+class Diagnostics:
+    """One ``DiagnosticStatus`` per node on :data:`DIAGNOSTICS_TOPIC`, what ``rqt_robot_monitor`` and
+    Foxglove's diagnostics panels show: name ``nifo/<node>``, level OK/WARN/ERROR, a one-line message
+    and key/value pairs (counters, rates)."""
+
+    OK, WARN, ERROR = 0, 1, 2
+
+    def __init__(self, node, period_s: float, collect: Callable[[], tuple[int, str, dict]]) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        self._node, self._collect = node, collect
+        self._pub = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
+        self._name = f"nifo/{node.get_name()}"
+        self._timer = node.create_timer(period_s, self.publish)
+
+    def publish(self) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+        level, message, values = self._collect()
+        st = DiagnosticStatus(level=bytes([level]), name=self._name, message=message,
+                              hardware_id=self._node.get_namespace().strip("/") or "nifo",
+                              values=[KeyValue(key=k, value=_fmt(v)) for k, v in values.items()])
+        msg = DiagnosticArray(status=[st])
+        msg.header.stamp = self._node.get_clock().now().to_msg()
+        self._pub.publish(msg)
+
+
+def _fmt(v) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    return str(v)
 
 
 def run_node(factory: Callable[[], object], args: list[str] | None = None) -> int:
@@ -200,11 +291,18 @@ def run_node(factory: Callable[[], object], args: list[str] | None = None) -> in
     from nifo_core.errors import NifoError
     from rclpy.signals import SignalHandlerOptions
 
-    def _interrupt(signum, frame):
-        raise KeyboardInterrupt
+    stopping = {"asked": False}
 
-    # Python's own handlers: SIGINT/SIGTERM raise KeyboardInterrupt inside spin, so close() still
-    # has a live context to publish the last block and write the checkpoint
+    def _interrupt(signum, frame):
+        # the first SIGINT/SIGTERM asks the spin loop to end between callbacks: raised inside one, it would
+        # throw away what the callback had taken (measured: the integrator lost 3211 samples taken from its
+        # input but not yet aligned when SIGINT arrived mid-drain). A second signal interrupts at once.
+        if stopping["asked"]:
+            raise KeyboardInterrupt
+        stopping["asked"] = True
+
+    # Python's own handlers, so close() still has a live context to publish the last block and write the
+    # checkpoint
     rclpy.init(args=args if args is not None else sys.argv, signal_handler_options=SignalHandlerOptions.NO)
     signal.signal(signal.SIGTERM, _interrupt)
     signal.signal(signal.SIGINT, _interrupt)
@@ -217,7 +315,8 @@ def run_node(factory: Callable[[], object], args: list[str] | None = None) -> in
             return err.exit_code
         ex = SingleThreadedExecutor()
         ex.add_node(node)
-        ex.spin()
+        while not stopping["asked"] and rclpy.ok():
+            ex.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -4,21 +4,22 @@ Subscribes ``accel/block`` (from the integrator node) and feeds the samples to
 :class:`nifo_core.nifo.StreamingNifo` — the code path ``identify_nifo`` (``nifo
 identify``) runs, so the live estimate is the batch one. Every
 ``publish_period_s`` (when new spectral blocks were averaged) it publishes,
-reliable + transient local (a late subscriber gets the latest):
+reliable + transient local (a late subscriber gets the latest), typed
+``nifo_msgs`` messages with a ``std_msgs/Header`` (stamp = source stamp of the
+newest sample used, frame id ``frame_id``; fields in :mod:`nifo_nodes.results`):
 
-* ``identifier/transmissibility`` — ``Float64MultiArray`` table (layout in
-  :mod:`nifo_nodes.messages`), columns ``freq_hz|t21_nominal_re|t21_nominal_im|
-  t21_re|t21_im|t21_h1_re|t21_h1_im|coherence_h1|multiple_coherence|cond``:
-  the nominal linear T21 (the pooled static fit, what ``nifo identify``
-  recommends; the per-line estimate when no term is declared), the per-line
-  output-only T21 = X2/X1 (paper Eq. 9), plain H1 and its ordinary coherence,
-  the fit's multiple coherence, the condition number of G_UU;
-* ``identifier/coefficients`` — columns ``freq_hz`` then, per term i,
-  ``c<i>_pooled`` (the pooled constant c_i/M2, unit of c per kg),
-  ``c<i>_re|c<i>_im`` (per-line c_i/M2: flat and real for a static
-  nonlinearity) and ``b<i>_re|b<i>_im`` (B_i of paper Eq. 8);
-* ``identifier/result`` — ``std_msgs/String``: ``NifoResult.to_dict()`` as JSON
-  (term labels, settings, band, bounds' random errors: everything).
+* ``identifier/transmissibility`` — ``nifo_msgs/Transmissibility``: nominal T21
+  (pooled static fit, what ``nifo identify`` recommends), per-line T21 = X2/X1
+  (paper Eq. 9), plain H1, coherences, cond(G_UU), samples used / lost, gaps;
+* ``identifier/coefficients`` — ``nifo_msgs/Coefficients``: pooled and per-line
+  c_i/M2, B_i (paper Eq. 8);
+* ``identifier/status`` — ``nifo_msgs/LoopStatus``: state, counters,
+  conditioning, and ``result_file``: the full ``NifoResult`` JSON (with a
+  ``stream`` section), written atomically to ``result_file`` (large documents
+  go to a file, not onto a topic).
+
+and once a second ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``: WARN
+with stream gaps or an ill-conditioned estimate).
 
 Stream bookkeeping: samples are identified by their stamps and each stamp is
 used once. A block continuing the previous one is pushed; one that starts
@@ -31,9 +32,11 @@ data again, reset first.
 Parameters: ``model_file`` (YAML model file, ``nifo_model: 1``; its
 ``settings`` give the defaults of the next four), ``block``, ``overlap``,
 ``window``, ``f_lo_hz``/``f_hi_hz`` (integration band; 0: default),
-``analysis_band_hz``, ``publish_period_s``, ``checkpoint_file`` (``""``: none),
-``checkpoint_period_s``, ``reset`` (set true to drop everything accumulated;
-reads back false). With ``std_srvs`` installed there is also the service
+``analysis_band_hz``, ``cond_limit``, ``publish_period_s``, ``checkpoint_file``
+(``""``: none), ``checkpoint_period_s``, ``result_file`` (``""``: beside the
+checkpoint, else ``$ROS_HOME/nifo/identifier_result.json``), ``frame_id``,
+``reset`` (set true to drop everything accumulated; reads back false). Every
+parameter has a descriptor (description, range; ``ros2 param describe``). With ``std_srvs`` installed there is also the service
 ``~/reset`` (``std_srvs/srv/Trigger``).
 
 Checkpoint: an ``.npz`` of ``StreamingNifo.state_dict()`` plus the newest stamp
@@ -45,16 +48,20 @@ in place and the node refuses to start (delete it or point elsewhere).
 
 from __future__ import annotations
 
-import json
+import os
+import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from nifo_core.errors import ConfigError, NifoError
 
-from .common import TOPICS, block_qos, declare_parameters, result_qos, run_node
+from .common import (IDENTIFIER_BLOCK_DEPTH, TOPICS, Diagnostics, Param, block_qos, declare_parameters, result_qos,
+                     run_node)
 from .integrator import ACCEL_CHANNELS
-from .messages import block_from_msg, table_to_msg
+from .messages import block_from_msg
+from .results import (StreamStats, coefficients_msg, conditioning, msg_types, state_of, status_msg,
+                      transmissibility_msg, write_result_file)
 
 __all__ = ["IdentifierNode", "main", "load_checkpoint", "save_checkpoint"]
 
@@ -66,68 +73,127 @@ except ImportError:  # pragma: no cover
 _CKPT_VERSION = 1
 
 
-def save_checkpoint(path: str | Path, nifo, *, next_ns: int) -> None:
-    """Write ``nifo``'s state and the stream position atomically (``.npz``)."""
+_STREAM_KEYS = ("samples_received", "samples_lost", "gaps", "samples_skipped", "blocks_missing")
+
+
+def save_checkpoint(path: str | Path, nifo, *, next_ns: int, stream: StreamStats | None = None) -> None:
+    """Write ``nifo``'s state, the stream position and its accounting atomically (``.npz``)."""
     from nifo.io.atomic import staged_file
 
     state = nifo.state_dict()
     state["node.version"] = np.array(_CKPT_VERSION)
     state["node.next_ns"] = np.array(int(next_ns), np.int64)
+    for k, v in (stream or StreamStats()).as_dict().items():
+        state[f"node.stream.{k}"] = np.array(int(v), np.int64)
     with staged_file(path) as tmp:
         with open(tmp, "wb") as f:
             np.savez(f, **state)
 
 
 def load_checkpoint(path: str | Path):
-    """``(StreamingNifo, next_ns)`` from :func:`save_checkpoint`'s file."""
+    """``(StreamingNifo, next_ns, stream)`` from :func:`save_checkpoint`'s file (``stream``: the
+    :class:`StreamStats` fields as a dict).
+
+    Anything else — a truncated or corrupt file, another program's ``.npz``, an
+    older layout — raises one :class:`ConfigError` naming the file and the fix.
+    """
     from nifo_core.nifo import StreamingNifo
+
+    def bad(why: str) -> ConfigError:
+        return ConfigError(f"not a usable nifo identifier checkpoint ({why})", source=str(path),
+                           hint="delete it (or set another checkpoint_file) to start afresh")
 
     try:
         with np.load(path, allow_pickle=False) as z:
             state = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as err:
-        raise ConfigError(f"cannot read checkpoint ({err})", source=str(path),
-                          hint="delete it to start afresh") from err
-    if int(state.pop("node.version", -1)) != _CKPT_VERSION:
-        raise ConfigError("not a nifo identifier checkpoint (or another version)", source=str(path),
-                          hint="delete it to start afresh")
-    next_ns = int(state.pop("node.next_ns"))
-    return StreamingNifo.from_state(state), next_ns
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as err:
+        raise bad(f"cannot read it: {type(err).__name__}: {err}") from None
+    try:
+        version = int(state.pop("node.version", -1))
+    except (TypeError, ValueError):
+        version = -1
+    if version != _CKPT_VERSION or "node.next_ns" not in state:
+        raise bad(f"layout version {version}, expected {_CKPT_VERSION}")
+    try:
+        next_ns = int(state.pop("node.next_ns"))
+        stream = {k: int(state.pop(f"node.stream.{k}", 0)) for k in _STREAM_KEYS}
+        return StreamingNifo.from_state(state), next_ns, stream
+    except NifoError as err:
+        raise bad(str(err)) from None
+    except (KeyError, ValueError, TypeError, IndexError) as err:
+        raise bad(f"incomplete state: {type(err).__name__}: {err}") from None
+
+
+def _default_result_file(checkpoint: str) -> Path:
+    if checkpoint:
+        c = Path(checkpoint)
+        return c.with_name(c.stem + ".result.json")
+    home = Path(os.environ.get("ROS_HOME") or Path.home() / ".ros")
+    return home / "nifo" / "identifier_result.json"
+
+
+#: the identifier's parameters (descriptors: ``ros2 param describe /nifo/identifier <name>``)
+PARAMS = {
+    "model_file": Param("", "YAML model file (nifo_model: 1): nonlinear terms; its settings give the defaults of "
+                        "block, overlap, window, band", read_only=True),
+    "block": Param(0, "spectral block [samples]; 0: model file, else 6144 (paper Table 2)", 0, 1 << 22,
+                   read_only=True),
+    "overlap": Param(-1.0, "block overlap fraction; -1: model file, else 0.52", -1.0, 0.99, read_only=True),
+    "window": Param("", "spectral window; '': model file, else flattop", read_only=True),
+    "f_lo_hz": Param(0.0, "integration band low edge for z, zdot [Hz]; 0: default 0.5 Hz", 0.0, 1e5, read_only=True),
+    "f_hi_hz": Param(0.0, "integration band high edge [Hz]; 0: default min(200, fs/2.5)", 0.0, 1e5, read_only=True),
+    "analysis_band_hz": Param([2.0, 30.0], "[lo, hi] band of the pooled fit, conditioning and summary [Hz]",
+                              read_only=True),
+    "cond_limit": Param(1e4, "scaled cond(G_UU) counted as ill-conditioned [-]", 1.0, 1e300, read_only=True),
+    "publish_period_s": Param(2.0, "how often the estimate is published when it changed [s]", 0.01, 3600.0),
+    "checkpoint_file": Param("", "checkpoint (.npz) resumed at start-up and written periodically; '': none",
+                             read_only=True),
+    "checkpoint_period_s": Param(10.0, "how often the checkpoint is written [s]", 0.01, 86400.0),
+    "result_file": Param("", "full result document (JSON); '': beside the checkpoint, else "
+                         "$ROS_HOME/nifo/identifier_result.json", read_only=True),
+    "frame_id": Param("body", "header.frame_id of the result messages (the body sensor's frame)", read_only=True),
+    "reset": Param(False, "set true to drop the accumulated estimate (reads back false)"),
+}
 
 
 class IdentifierNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("identifier", **kwargs)
         from rcl_interfaces.msg import SetParametersResult
-        from std_msgs.msg import Float64MultiArray, String
-
+        from std_msgs.msg import Float64MultiArray
+        Transmissibility, Coefficients, LoopStatus = msg_types()
         self._SetParametersResult = SetParametersResult
-        defaults = {"model_file": "", "block": 0, "overlap": -1.0, "window": "", "f_lo_hz": 0.0, "f_hi_hz": 0.0,
-                    "analysis_band_hz": [2.0, 30.0], "publish_period_s": 2.0, "checkpoint_file": "",
-                    "checkpoint_period_s": 10.0, "reset": False}
-        p = declare_parameters(self, defaults, self._problems)
+        p = declare_parameters(self, PARAMS, self._problems)
         self._terms, self._settings = self._model(p)
         self._analysis = tuple(float(x) for x in p["analysis_band_hz"])
+        self._cond_limit = float(p["cond_limit"])
+        self._frame_id = str(p["frame_id"])
         self._ckpt = Path(p["checkpoint_file"]) if p["checkpoint_file"] else None
+        self._result_file = Path(p["result_file"] or _default_result_file(p["checkpoint_file"]))
         self._nifo = None
         self._next_ns: int | None = None
         self._last_ns = 0
-        self._published_navg = -1
+        self._published_navg = None
+        self._result = None
         self._dirty = False
-        self._skipped = 0
+        self._stream = StreamStats()
+        self._blocks = 0
+        self._seq: int | None = None
         if self._ckpt is not None and self._ckpt.exists():
             self._resume()
         self.add_on_set_parameters_callback(self._on_params)
-        self._pub_t = self.create_publisher(Float64MultiArray, TOPICS["transmissibility"], result_qos())
-        self._pub_c = self.create_publisher(Float64MultiArray, TOPICS["coefficients"], result_qos())
-        self._pub_r = self.create_publisher(String, TOPICS["result"], result_qos())
-        self._String = String
-        self._sub = self.create_subscription(Float64MultiArray, TOPICS["accel"], self._on_block, block_qos())
+        self._pub_t = self.create_publisher(Transmissibility, TOPICS["transmissibility"], result_qos())
+        self._pub_c = self.create_publisher(Coefficients, TOPICS["coefficients"], result_qos())
+        self._pub_s = self.create_publisher(LoopStatus, TOPICS["status"], result_qos())
+        # deep: a block the identifier has not taken yet is not overwritten (lossless path; common.block_qos)
+        self._sub = self.create_subscription(Float64MultiArray, TOPICS["accel"], self._on_block,
+                                             block_qos(depth=IDENTIFIER_BLOCK_DEPTH))
         self._timer = self.create_timer(float(p["publish_period_s"]), self._publish)
         if self._ckpt is not None:
             self._ckpt_timer = self.create_timer(float(p["checkpoint_period_s"]), self._checkpoint)
         self._reset_pending = False
         self._reset_timer = self.create_timer(0.1, self._reset_param_back)
+        self._diag = Diagnostics(self, 1.0, self._diagnostics)
         self._service = None
         try:
             from std_srvs.srv import Trigger
@@ -147,6 +213,8 @@ class IdentifierNode(Node):
         for k in ("publish_period_s", "checkpoint_period_s"):
             if k in p and not p[k] > 0:
                 bad.append(f"{k}={p[k]} must be > 0")
+        if "cond_limit" in p and not p["cond_limit"] > 1:
+            bad.append(f"cond_limit={p['cond_limit']} must be > 1")
         if "analysis_band_hz" in p:
             ab = list(p["analysis_band_hz"])
             if len(ab) != 2 or not 0 <= ab[0] < ab[1]:
@@ -185,13 +253,14 @@ class IdentifierNode(Node):
                              analysis_band_hz=self._analysis, on_ill_conditioned="ignore")
 
     def _resume(self) -> None:
-        nifo, next_ns = load_checkpoint(self._ckpt)
+        nifo, next_ns, stream = load_checkpoint(self._ckpt)
         fresh = self._new_nifo(nifo.fs_hz)
-        if not fresh._same_setup(nifo):
+        if not fresh.same_setup(nifo):
             raise ConfigError("the checkpoint was made with other terms, spectral settings or band",
                               source=str(self._ckpt), hint="delete it (or set another checkpoint_file) to start afresh")
         self._nifo, self._next_ns = nifo, next_ns
         self._last_ns = next_ns
+        self._stream = StreamStats(**stream)
         self.get_logger().info(f"resumed from {self._ckpt}: {nifo.n_avg} blocks, stream at stamp {next_ns} ns")
 
     # ------------------------------------------------------------------ input
@@ -209,18 +278,26 @@ class IdentifierNode(Node):
             self.get_logger().error(f"block at {b.fs_hz:g} Hz, the estimate is at {self._nifo.fs_hz:g} Hz: skipped "
                                     "(reset to start over at the new rate)", throttle_duration_sec=5.0)
             return
+        if self._seq is not None and b.seq != self._seq + 1 and b.seq != 0:  # 0: the integrator restarted
+            self._stream.blocks_missing += max(0, b.seq - self._seq - 1)
+            self.get_logger().warning(f"{TOPICS['accel']}: blocks {self._seq + 1}..{b.seq - 1} never arrived "
+                                      f"({self._stream.blocks_missing} so far); a later block's stamp shows the gap")
+        self._seq = b.seq
         rows = b.data
         period = 1e9 / b.fs_hz
         if self._next_ns is not None:
             off = int(round((b.stamp_ns - self._next_ns) / period))
             if off < 0:  # samples already used: keep only the new ones
                 rows = rows[-off:]
-                self._skipped += min(-off, b.n)
+                self._stream.samples_skipped += min(-off, b.n)
                 if rows.shape[0] == 0:
                     return
             elif off > 0:
+                self._stream.gaps += 1
+                self._stream.samples_lost += off
                 self.get_logger().warning(f"stream gap of {off} samples before stamp {b.stamp_ns} ns: "
-                                          "closing the record (no spectral block spans a gap)")
+                                          "closing the record (no spectral block spans a gap); "
+                                          f"{self._stream.gaps} gap(s), {self._stream.samples_lost} samples lost")
                 self._nifo.end_record()
             start_ns = b.stamp_ns + int(round(max(0, -off) * period))
         else:
@@ -231,42 +308,69 @@ class IdentifierNode(Node):
             self.get_logger().warning(f"block at stamp {b.stamp_ns} ns skipped ({err}); closing the record")
             self._nifo.end_record()
             return
+        self._stream.samples_received += rows.shape[0]
+        self._blocks += 1
         self._next_ns = start_ns + int(round(rows.shape[0] * period))
         self._last_ns = self._next_ns - int(round(period))
         self._dirty = True
 
     # ------------------------------------------------------------------ output
     def _publish(self) -> None:
-        if self._nifo is None or self._nifo.n_avg == 0 or self._nifo.n_avg == self._published_navg:
+        # republish when anything changed (samples, gaps), not only n_avg: the tail of a stream adds samples
+        # (and the stream's accounting) without completing a block
+        mark = (self._nifo.n_avg if self._nifo is not None else 0, self._stream.samples_received, self._stream.gaps)
+        if self._nifo is None or mark == self._published_navg:
             return
+        r = None
+        if self._nifo.n_avg:
+            try:
+                r = self._nifo.result()
+            except NifoError as err:
+                self.get_logger().warning(f"no estimate yet: {err}", throttle_duration_sec=30.0)
+        if r is None:  # samples but no estimate yet: the status still says how the stream is doing
+            self._published_navg = mark
+            self._pub_s.publish(status_msg(None, stamp_ns=self._last_ns, frame_id=self._frame_id,
+                                           stream=self._stream, cond_limit=self._cond_limit, result_file=""))
+            return
+        self._published_navg = mark
+        self._result = r
+        stamp, frame = self._last_ns, self._frame_id
         try:
-            r = self._nifo.result()
-        except NifoError as err:
-            self.get_logger().warning(f"no estimate yet: {err}", throttle_duration_sec=30.0)
-            return
-        self._published_navg = r.n_avg
-        nominal = r.static.t21 if r.static is not None else r.t21
-        t = {"freq_hz": r.freq_hz, "t21_nominal_re": nominal.real, "t21_nominal_im": nominal.imag,
-             "t21_re": r.t21.real, "t21_im": r.t21.imag, "t21_h1_re": r.t21_h1.real,
-             "t21_h1_im": r.t21_h1.imag, "coherence_h1": r.coherence_h1,
-             "multiple_coherence": r.multiple_coherence, "cond": r.cond}
-        c = {"freq_hz": r.freq_hz}
-        for i in range(len(r.terms)):
-            pooled = r.static.c_over_m2[i] if r.static is not None else np.nan
-            c.update({f"c{i}_pooled": np.full(r.freq_hz.shape, pooled, float),
-                      f"c{i}_re": r.c_over_m2[i].real, f"c{i}_im": r.c_over_m2[i].imag,
-                      f"b{i}_re": r.b[i].real, f"b{i}_im": r.b[i].imag})
-        self._pub_t.publish(table_to_msg(t, stamp_ns=self._last_ns, n_avg=r.n_avg))
-        self._pub_c.publish(table_to_msg(c, stamp_ns=self._last_ns, n_avg=r.n_avg))
-        doc = r.to_dict()
-        doc["stamp_ns"] = int(self._last_ns)
-        self._pub_r.publish(self._String(data=json.dumps(doc)))
+            write_result_file(self._result_file, r, stamp_ns=stamp, stream=self._stream)
+            path = str(self._result_file)
+        except OSError as err:
+            self.get_logger().error(f"cannot write the result file {self._result_file}: {err}",
+                                    throttle_duration_sec=30.0)
+            path = ""
+        self._pub_t.publish(transmissibility_msg(r, stamp_ns=stamp, frame_id=frame, stream=self._stream))
+        self._pub_c.publish(coefficients_msg(r, stamp_ns=stamp, frame_id=frame))
+        self._pub_s.publish(status_msg(r, stamp_ns=stamp, frame_id=frame, stream=self._stream,
+                                       cond_limit=self._cond_limit, result_file=path))
+
+    def _diagnostics(self) -> tuple[int, str, dict]:
+        r, st = self._result, self._stream
+        state, message = state_of(r, self._cond_limit)
+        values = {"state": state, "blocks_received": self._blocks, **st.as_dict(),
+                  "n_avg": r.n_avg if r is not None else 0, "samples_used": r.n_samples if r is not None else 0}
+        if r is not None:
+            med, mx, ill = conditioning(r, self._cond_limit)
+            values.update(cond_median=med, cond_max=mx, ill_conditioned_fraction=ill)
+        level = Diagnostics.OK
+        if st.gaps:
+            level = Diagnostics.WARN
+            message += f"; {st.gaps} stream gap(s), {st.samples_lost} samples lost (not averaged)"
+        if st.blocks_missing:
+            level = Diagnostics.WARN
+            message += f"; {st.blocks_missing} sample block(s) never arrived"
+        if state == "ill_conditioned":
+            level = Diagnostics.WARN
+        return level, message, values
 
     def _checkpoint(self) -> None:
         if self._ckpt is None or self._nifo is None or not self._dirty or self._next_ns is None:
             return
         try:
-            save_checkpoint(self._ckpt, self._nifo, next_ns=self._next_ns)
+            save_checkpoint(self._ckpt, self._nifo, next_ns=self._next_ns, stream=self._stream)
             self._dirty = False
         except OSError as err:
             self.get_logger().error(f"cannot write checkpoint {self._ckpt}: {err}", throttle_duration_sec=30.0)
@@ -276,13 +380,15 @@ class IdentifierNode(Node):
         """Drop everything accumulated (and the checkpoint's content on its next write)."""
         self._nifo = None
         self._next_ns = None
-        self._published_navg = -1
+        self._published_navg = None
+        self._result = None
+        self._stream = StreamStats()
         if self._ckpt is not None and self._ckpt.exists():
             self._ckpt.unlink()
         self.get_logger().info("reset: the estimate starts afresh")
 
     def _on_params(self, params):
-        fixed = [q.name for q in params if q.name not in ("reset", "publish_period_s", "checkpoint_period_s")]
+        fixed = [q.name for q in params if PARAMS.get(q.name) is None or PARAMS[q.name].read_only]
         if fixed:
             return self._SetParametersResult(successful=False,
                                              reason=f"{fixed} are read at start-up; restart the node to change them")
@@ -307,7 +413,28 @@ class IdentifierNode(Node):
         response.message = "estimate reset"
         return response
 
+    def _take_pending(self) -> None:
+        """Blocks already delivered but not yet handed to :meth:`_on_block` (the executor stopped)."""
+        from rclpy.exceptions import InvalidHandle
+
+        try:
+            with self._sub.handle:
+                while (got := self._sub.handle.take_message(self._sub.msg_type, False)) is not None:
+                    self._on_block(got[0])
+        except InvalidHandle:
+            pass
+
     def close(self) -> None:
+        """On the way out: publish (and write the result file of) the last estimate, then the checkpoint."""
+        from rclpy.duration import Duration
+
+        try:
+            self._take_pending()
+            self._publish()
+            for pub in (self._pub_t, self._pub_c, self._pub_s):  # delivered before the process goes (bounded)
+                pub.wait_for_all_acked(Duration(seconds=2.0))
+        except Exception as err:  # shutting down: report, do not lose the checkpoint
+            self.get_logger().warning(f"could not publish the last estimate on shutdown: {err}")
         self._checkpoint()
 
 

@@ -43,8 +43,8 @@ import numpy as np
 from nifo_core.errors import NifoError
 
 from .align import SampleAligner
-from .common import (RELIABILITIES, TOPICS, block_qos, declare_parameters, input_qos, polled_group, run_node,
-                     take_raw)
+from .common import (RELIABILITIES, TOPICS, Diagnostics, Param, block_qos, declare_parameters, input_qos,
+                     polled_group, publish_blocking, run_node, take_raw)
 from .messages import Block, block_to_msg, decode_imu_batch
 
 __all__ = ["IntegratorNode", "main", "ACCEL_CHANNELS", "MOTION_CHANNELS"]
@@ -55,6 +55,23 @@ _INFER_N = 64
 _STARTUP_ONLY = ("fs_hz", "f_lo_hz", "f_hi_hz", "axis", "qos_depth", "input_reliability", "drain_s")
 #: most messages taken per channel per drain (bounds one timer callback)
 _TAKE_MAX = 20_000
+
+#: the integrator's parameters (descriptors: ``ros2 param describe /nifo/integrator <name>``)
+PARAMS = {
+    "fs_hz": Param(0.0, "sample rate [Hz]; 0: infer from the first 64 spindle stamps", 0.0, 1e6, read_only=True),
+    "f_lo_hz": Param(0.0, "integration band low edge [Hz]; 0: default 0.5 Hz", 0.0, 1e5, read_only=True),
+    "f_hi_hz": Param(0.0, "integration band high edge [Hz]; 0: default min(200, fs/2.5)", 0.0, 1e5, read_only=True),
+    "block_s": Param(0.1, "samples per published block [s of data]", 1e-4, 60.0),
+    "flush_s": Param(0.2, "publish a partial block after this long without a full one [s, wall]", 1e-3, 60.0),
+    "max_lag_s": Param(0.25, "how long a missing sample is waited for before a gap is declared [s of data]",
+                       1e-4, 60.0),
+    "restart_s": Param(1.0, "stamps going back further than this: the publisher restarted [s]", 1e-3, 3600.0),
+    "qos_depth": Param(2000, "Imu subscription history (best effort input) [messages]", 1, 100_000, read_only=True),
+    "axis": Param("z", "Imu linear_acceleration axis: x, y or z", read_only=True),
+    "input_reliability": Param("best_effort", "best_effort (vehicle, sensor-data QoS) or reliable (lossless "
+                               "replay: nifo replay --reliable, keep all)", read_only=True),
+    "drain_s": Param(0.01, "how often the Imu subscriptions are drained [s]", 1e-4, 0.1, read_only=True),
+}
 
 try:
     from rclpy.node import Node
@@ -70,10 +87,7 @@ class IntegratorNode(Node):
         from std_msgs.msg import Float64MultiArray
 
         self._SetParametersResult = SetParametersResult
-        p = {"fs_hz": 0.0, "f_lo_hz": 0.0, "f_hi_hz": 0.0, "block_s": 0.1, "flush_s": 0.2,
-             "max_lag_s": 0.25, "restart_s": 1.0, "qos_depth": 2000, "axis": "z",
-             "input_reliability": "best_effort", "drain_s": 0.01}
-        declare_parameters(self, p, self._problems)
+        declare_parameters(self, PARAMS, self._problems)
         self.add_on_set_parameters_callback(self._check_params)
         self._fs = float(self.get_parameter("fs_hz").value)
         self._axis = str(self.get_parameter("axis").value)
@@ -84,7 +98,10 @@ class IntegratorNode(Node):
         self._segment: int | None = None
         self._integrators = None
         depth = int(self.get_parameter("qos_depth").value)
-        self._pub_accel = self.create_publisher(Float64MultiArray, TOPICS["accel"], block_qos())
+        # lossless input → lossless output: keep-all blocks, publish waits for a slow identifier (backpressure)
+        self._lossless = self.get_parameter("input_reliability").value == "reliable"
+        self._pub_accel = self.create_publisher(Float64MultiArray, TOPICS["accel"],
+                                                block_qos(keep_all=self._lossless))
         self._pub_motion = self.create_publisher(Float64MultiArray, TOPICS["motion"], block_qos())
         # the slow one-off set-up (scipy import ≈ 1 s, FIR taps) happens here, before subscribing: done
         # lazily in the first drain it stalled the input for a second and the best-effort history overflowed
@@ -95,6 +112,9 @@ class IntegratorNode(Node):
         self._subs = [self.create_subscription(Imu, TOPICS[role], lambda raw: None, qos, raw=True,
                                                callback_group=group)
                       for role in ("spindle", "body")]
+        self._received = [0, 0]
+        self._rates = _Rates()
+        self._diag = Diagnostics(self, 1.0, self._diagnostics)
         self._drain_timer = self.create_timer(float(self.get_parameter("drain_s").value), self._drain)
         self._timer = self.create_timer(float(self.get_parameter("flush_s").value), self._publish)
 
@@ -123,17 +143,37 @@ class IntegratorNode(Node):
             bad = f"{', '.join(_STARTUP_ONLY)} are read at start-up only; restart the node to change them"
         return self._SetParametersResult(successful=not bad, reason=bad)
 
+    def _diagnostics(self) -> tuple[int, str, dict]:
+        counts = dict(self._aligner.counts) if self._aligner is not None else {}
+        rates = self._rates.update(self._received)
+        values = {"fs_hz": self._fs, "input_reliability": self.get_parameter("input_reliability").value,
+                  "spindle_msgs": self._received[0], "body_msgs": self._received[1],
+                  "spindle_rate_hz": rates[0], "body_rate_hz": rates[1], "malformed": self._malformed,
+                  "segment": self._segment or 0, **{f"aligned_{k}": v for k, v in counts.items()}}
+        if self._aligner is None:
+            return Diagnostics.OK, "waiting for samples (sample rate not known yet)", values
+        bad = {k: counts.get(k, 0) for k in ("gap", "restart", "nonfinite", "late", "duplicate")}
+        bad["malformed"] = self._malformed
+        if any(bad.values()):
+            what = ", ".join(f"{v} {k}" for k, v in bad.items() if v)
+            return Diagnostics.WARN, f"stream problems so far: {what} (gaps start a new segment)", values
+        return Diagnostics.OK, f"{rates[0]:.0f} + {rates[1]:.0f} samples/s, no gaps", values
+
     # ------------------------------------------------------------------ input
-    def _drain(self) -> None:
-        """Take every waiting Imu message of both channels, decode them in one go, push in stamp order."""
+    def _drain(self) -> int:
+        """Take every waiting Imu message of both channels, decode them in one go, push in stamp order;
+        returns how many messages were taken (decodable or not)."""
         stamps, values, chans = [], [], []
+        taken = 0
         for ch, sub in enumerate(self._subs):
             raws = take_raw(sub, _TAKE_MAX)
+            taken += len(raws)
             st, v, bad = decode_imu_batch(raws, self._axis)
             for _, reason in bad:
                 self._malformed += 1
                 self.get_logger().warning(f"{TOPICS[('spindle', 'body')[ch]]}: malformed message skipped "
                                           f"({reason}; {self._malformed} so far)", throttle_duration_sec=5.0)
+            self._received[ch] += len(raws)
             stamps.append(st)
             values.append(v)
             chans.append(np.full(st.size, ch))
@@ -144,6 +184,7 @@ class IntegratorNode(Node):
         for ch, stamp, value in zip(np.concatenate(chans)[order].tolist(), np.concatenate(stamps)[order].tolist(),
                                     np.concatenate(values)[order].tolist()):
             self._on_sample(ch, stamp, value)
+        return taken
 
     def _on_sample(self, channel: int, stamp: int, value: float) -> None:
         if self._aligner is None:
@@ -173,7 +214,10 @@ class IntegratorNode(Node):
         self._fs = fs
         lag = max(2, int(round(float(self.get_parameter("max_lag_s").value) * fs)))
         self._block_n = max(1, int(round(float(self.get_parameter("block_s").value) * fs)))
-        self._aligner = SampleAligner(fs, 2, max_lag=lag, restart_s=float(self.get_parameter("restart_s").value),
+        # reliable input (lossless replay): in order and nothing dropped in transit, but one channel may run
+        # far ahead of the other; a hole is a gap only when the lacking channel itself moved past it
+        self._aligner = SampleAligner(fs, 2, max_lag=lag, ordered=self._lossless, max_wait=int(round(60 * fs)),
+                                      restart_s=float(self.get_parameter("restart_s").value),
                                       log=lambda m: self.get_logger().warning(m))
         self.get_logger().info(f"sample rate {fs:g} Hz, blocks of {self._block_n} samples")
         early, self._early = self._early, []
@@ -223,7 +267,11 @@ class IntegratorNode(Node):
 
         block = replace(block, seq=self._seq[what], segment=self._segment or 0)
         self._seq[what] += 1
-        (self._pub_accel if what == "accel" else self._pub_motion).publish(block_to_msg(block))
+        pub, msg = (self._pub_accel if what == "accel" else self._pub_motion), block_to_msg(block)
+        if self._lossless and what == "accel":
+            publish_blocking(pub, msg)
+        else:
+            pub.publish(msg)
 
     def close(self) -> None:
         """Publish what is still buffered (end of a replay or shutdown), and see it delivered.
@@ -234,7 +282,8 @@ class IntegratorNode(Node):
         from rclpy.duration import Duration
 
         try:
-            self._drain()
+            while self._drain():  # everything still waiting in the input histories
+                pass
             self._publish()
             self._end_segment()
             for pub in (self._pub_accel, self._pub_motion):
@@ -242,6 +291,23 @@ class IntegratorNode(Node):
                     self.get_logger().warning(f"{pub.topic_name}: last blocks not acknowledged on shutdown")
         except Exception as err:  # shutting down: report, do not mask the shutdown
             self.get_logger().warning(f"could not flush on shutdown: {err}")
+
+
+class _Rates:
+    """Messages per second per channel since the previous call (wall clock: a rate is a wall-clock matter)."""
+
+    def __init__(self) -> None:
+        import time
+
+        self._clock = time.monotonic
+        self._t, self._n = self._clock(), [0, 0]
+
+    def update(self, counts: list[int]) -> list[float]:
+        t = self._clock()
+        dt = max(t - self._t, 1e-9)
+        rates = [(c - n) / dt for c, n in zip(counts, self._n)]
+        self._t, self._n = t, list(counts)
+        return rates
 
 
 def main(args: list[str] | None = None) -> int:

@@ -18,11 +18,12 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["NodeSpec", "NODES", "command", "start", "stop", "CONFIG_DIR", "claim_domain_id"]
+__all__ = ["NodeSpec", "NODES", "command", "start", "stop", "CONFIG_DIR", "claim_domain_id", "busy_core"]
 
 #: node name -> module that runs it
 NODES = {"acquisition": "nifo_nodes.acquisition", "integrator": "nifo_nodes.integrator",
-         "identifier": "nifo_nodes.identifier", "rerun_viewer": "nifo_nodes.rerun_viewer"}
+         "identifier": "nifo_nodes.identifier", "rerun_viewer": "nifo_nodes.rerun_viewer",
+         "recorder": "nifo_nodes.recorder"}
 
 #: the YAML parameter files shipped with the ROS package (shared with ros2 launch)
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "ros2_ws" / "src" / "nifo_ros" / "config"
@@ -77,8 +78,15 @@ def start(spec: NodeSpec, *, env: dict | None = None, log_dir: str | Path | None
     return subprocess.Popen(command(spec), env=e, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
 
 
-def stop(procs, *, timeout_s: float = 5.0) -> list[int | None]:
-    """Stop processes like ``ros2 launch`` does; returns their exit codes."""
+def stop(procs, *, timeout_s: float = 5.0, in_order: bool = False) -> list[int | None]:
+    """Stop processes like ``ros2 launch`` does; returns their exit codes.
+
+    ``in_order``: one after the other, each given ``timeout_s`` after SIGINT to finish — upstream nodes
+    first, so each hands everything it still holds to the next before that one is stopped (the
+    integrator's last blocks reach the identifier, whose last estimate reaches the recorder).
+    """
+    if in_order:
+        return [stop([p], timeout_s=timeout_s)[0] if p is not None else None for p in procs]
     procs = [p for p in procs if p is not None]
     for sig, wait in ((signal.SIGINT, timeout_s), (signal.SIGTERM, timeout_s), (signal.SIGKILL, 5.0)):
         live = [p for p in procs if p.poll() is None]
@@ -125,3 +133,17 @@ def claim_domain_id(*, lo: int = 1, hi: int = 99):
             f.close()
         return
     raise RuntimeError(f"every ROS_DOMAIN_ID in {lo}..{hi} is claimed (lock files in {d})")
+
+
+@contextlib.contextmanager
+def busy_core(on: bool = True):
+    """One process spinning a core (another job on the vehicle PC) while in the block; yields it (or None)."""
+    if not on:
+        yield None
+        return
+    hog = subprocess.Popen([sys.executable, "-c", "while True: pass"], start_new_session=True)
+    try:
+        yield hog
+    finally:
+        os.killpg(hog.pid, signal.SIGKILL)
+        hog.wait(5)

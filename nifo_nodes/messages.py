@@ -1,6 +1,7 @@
 """Our standard-message conventions, and conversions between them and numpy.
 
-No compiled interface package: everything travels in standard types.
+Samples travel in standard types; the identifier's results are the typed
+``nifo_msgs`` messages (:mod:`nifo_nodes.results`).
 
 Per-sample input (acquisition, replay, ``ros2 bag play``)
 ---------------------------------------------------------
@@ -30,12 +31,7 @@ blocks from 0 per publisher (a gap in seq = a lost block). ``segment`` counts
 stream discontinuities: a new segment starts after a gap, a NaN burst or a
 restarted publisher, and a receiver must not join samples across it.
 
-Results (reliable, transient-local, depth 1)
---------------------------------------------
-``Float64MultiArray`` with ``dim[0]="freq"`` (F rows), ``dim[1]`` the
-``|``-joined column names, preamble ``[stamp_sec, stamp_nanosec, n_avg]``
-(``data_offset=3``, stamp of the newest sample in the estimate). See
-:func:`result_to_msgs`.
+Results: see :mod:`nifo_nodes.results` (``nifo_msgs``).
 """
 
 from __future__ import annotations
@@ -50,11 +46,9 @@ from nifo.io.cdr import POINT_BODY as _POINT_BODY, POINT_STAMPED, header_size, p
 from nifo_core.errors import InputError
 
 __all__ = ["Block", "block_to_msg", "block_from_msg", "decode_imu", "decode_imu_batch", "decode_point", "ImuEncoder",
-           "PointEncoder", "stamp_ns_of", "table_to_msg", "table_from_msg", "BLOCK_PREAMBLE",
-           "RESULT_PREAMBLE"]
+           "PointEncoder", "stamp_ns_of", "BLOCK_PREAMBLE"]
 
 BLOCK_PREAMBLE = 5
-RESULT_PREAMBLE = 3
 _NS = 1_000_000_000
 
 
@@ -228,33 +222,3 @@ def block_from_msg(msg) -> Block:
         raise InputError(f"sample block preamble is invalid (stamp {sec}/{nsec}, fs {fs})")
     return Block(int(sec) * _NS + int(nsec), float(fs), channels, data[BLOCK_PREAMBLE:].reshape(n, c),
                  int(seq), int(seg))
-
-
-# ----------------------------------------------------------------------------- result tables
-def table_to_msg(columns: dict[str, np.ndarray], *, stamp_ns: int, n_avg: int):
-    """Named equal-length real columns to ``Float64MultiArray`` (``dim[0]="freq"``)."""
-    from std_msgs.msg import Float64MultiArray, MultiArrayDimension
-
-    names = list(columns)
-    table = np.column_stack([np.asarray(columns[k], np.float64) for k in names])
-    f, c = table.shape
-    sec, nsec = _split(stamp_ns)
-    msg = Float64MultiArray()
-    msg.layout.dim = [MultiArrayDimension(label="freq", size=f, stride=f * c),
-                      MultiArrayDimension(label="|".join(names), size=c, stride=c)]
-    msg.layout.data_offset = RESULT_PREAMBLE
-    msg.data = np.concatenate([[sec, nsec, n_avg], table.ravel()])
-    return msg
-
-
-def table_from_msg(msg) -> tuple[dict[str, np.ndarray], int, int]:
-    """Inverse of :func:`table_to_msg`: ``(columns, stamp_ns, n_avg)``."""
-    dims = msg.layout.dim
-    if len(dims) != 2 or dims[0].label != "freq" or msg.layout.data_offset != RESULT_PREAMBLE:
-        raise InputError("not a nifo result table")
-    f, c = int(dims[0].size), int(dims[1].size)
-    data = np.asarray(msg.data, np.float64)
-    table = data[RESULT_PREAMBLE:].reshape(f, c)
-    names = dims[1].label.split("|")
-    sec, nsec, n_avg = data[:RESULT_PREAMBLE]
-    return {k: table[:, i] for i, k in enumerate(names)}, int(sec) * _NS + int(nsec), int(n_avg)

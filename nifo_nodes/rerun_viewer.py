@@ -5,8 +5,11 @@ Subscribes (relative names, remappable; see :mod:`nifo_nodes.common`)
 * ``accel/block`` — aligned spindle/body accelerations → ``accel/live``;
 * ``motion/block`` — integrated relative motion; with the body acceleration
   at the same stamps → restoring-force points ``restoring/{velocity,displacement}/live``;
-* ``identifier/result`` — ``NifoResult.to_dict()`` JSON with ``stamp_ns`` →
-  transmissibility, coherence, coefficient functions, convergence;
+* ``identifier/status`` (``nifo_msgs/LoopStatus``) — on every new estimate the
+  result document it names (``result_file``: ``NifoResult`` JSON with
+  ``stamp_ns`` and ``stream``) → transmissibility, coherence, coefficient
+  functions, convergence; and the stream's health (samples used / lost, gaps,
+  state) → ``stream/*`` scalars and the ``summary`` text;
 
 and logs them with :mod:`nifo.viz.rerun_log` at the data's stamps (never the
 wall clock), so the live view and a replayed bag look the same.
@@ -24,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 from collections import deque
 
 import numpy as np
@@ -63,7 +67,11 @@ def _stamps(b: Block) -> np.ndarray:
 
 class RerunViewerNode(Node):
     def __init__(self, recording, **kwargs) -> None:
-        from std_msgs.msg import Float64MultiArray, String
+        from std_msgs.msg import Float64MultiArray
+
+        from .results import msg_types
+
+        LoopStatus = msg_types()[2]
 
         from nifo.viz import rerun_log as rl
 
@@ -76,7 +84,8 @@ class RerunViewerNode(Node):
         rl.log_restoring_styling(RECORD, recording=recording)
         self.create_subscription(Float64MultiArray, TOPICS["accel"], self._on_accel, block_qos())
         self.create_subscription(Float64MultiArray, TOPICS["motion"], self._on_motion, block_qos())
-        self.create_subscription(String, TOPICS["result"], self._on_result, result_qos())
+        self._shown = (None, -1)
+        self.create_subscription(LoopStatus, TOPICS["status"], self._on_status, result_qos())
         # wakes the executor so SIGINT/SIGTERM are handled even when no message arrives (run_node's handlers
         # are Python's); only for that: every stamp logged comes from the data
         self.create_timer(0.5, lambda: None)
@@ -109,17 +118,31 @@ class RerunViewerNode(Node):
             self._scale = (np.std(z[ok]), np.std(zd[ok]), np.std(a2[ok]))
         self._rl.log_restoring(RECORD, st[ok], z[ok], zd[ok], a2[ok], scale=self._scale, recording=self._rec)
 
-    def _on_result(self, msg) -> None:
+    def _on_status(self, msg) -> None:
+        import rerun as rr
+
+        stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+        rr.set_time(self._rl.TIMELINE, timestamp=np.datetime64(stamp, "ns"), recording=self._rec)
+        for k in ("samples_used", "samples_lost", "gaps"):
+            rr.log(f"stream/{k}", rr.Scalars(float(getattr(msg, k))), recording=self._rec)
+        self._rl.log_summary(f"**live identification: {msg.state}**\n\n{msg.message}\n\n"
+                             f"| spectral averages | samples used | samples lost | stream gaps |\n|---|---|---|---|\n"
+                             f"| {msg.n_avg} | {msg.samples_used} | {msg.samples_lost} | {msg.gaps} |\n\n"
+                             "No spectral block spans a gap: lost samples are never averaged.", recording=self._rec)
+        key = (msg.result_file, msg.n_avg)
+        if not msg.result_file or key == self._shown:
+            return
         from nifo_core.nifo import NifoResult
 
         try:
-            doc = json.loads(msg.data)
+            doc = json.loads(Path(msg.result_file).read_text())
             res = NifoResult.from_dict(doc)
-        except (ValueError, NifoError) as err:
-            self.get_logger().warning(f"{TOPICS['result']}: unreadable result skipped ({err})",
+        except (OSError, ValueError, KeyError, NifoError) as err:
+            self.get_logger().warning(f"{msg.result_file}: unreadable result skipped ({err})",
                                       throttle_duration_sec=5.0)
             return
-        self._rl.log_nifo_result(int(doc.get("stamp_ns", 0)), res, recording=self._rec)
+        self._shown = key
+        self._rl.log_nifo_result(int(doc.get("stamp_ns", stamp)), res, recording=self._rec)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -12,7 +12,7 @@ from rclpy.serialization import deserialize_message, serialize_message  # noqa: 
 from nifo_core.errors import InputError  # noqa: E402
 from nifo_nodes.align import SampleAligner  # noqa: E402
 from nifo_nodes.messages import (Block, ImuEncoder, PointEncoder, block_from_msg, block_to_msg,  # noqa: E402
-                                 decode_imu, decode_imu_batch, decode_point, table_from_msg, table_to_msg)
+                                 decode_imu, decode_imu_batch, decode_point)
 
 
 @pytest.mark.parametrize("frame_id", ["", "spindle", "body", "a_longer_frame_id"])
@@ -83,11 +83,52 @@ def test_block_from_msg_rejects_a_message_with_the_wrong_layout():
         block_from_msg(Float64MultiArray(data=[1.0, 2.0]))
 
 
-def test_result_table_round_trips():
-    cols = {"freq_hz": np.arange(4.0), "t21_re": np.ones(4)}
-    back, stamp, n_avg = table_from_msg(table_to_msg(cols, stamp_ns=5_000_000_001, n_avg=3))
-    assert stamp == 5_000_000_001 and n_avg == 3
-    np.testing.assert_array_equal(back["t21_re"], cols["t21_re"])
+def test_result_messages_are_typed_with_a_data_stamped_header_and_survive_serialization(tmp_path):
+    """nifo_msgs Transmissibility / Coefficients / LoopStatus carry the estimate exactly (float64), the
+    stream accounting, and a header stamped with the data; the full document goes to a file."""
+    import json
+
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    from nifo_core.describing import make_term
+    from nifo_core.integrate import IntegrationBand
+    from nifo_core.nifo import StreamingNifo
+    from nifo_core.simulate import SimConfig, preset, simulate
+    from nifo_core.spectral import SpectralSettings
+    from nifo_msgs.msg import Coefficients, LoopStatus, Transmissibility
+    from nifo_nodes.results import StreamStats, coefficients_msg, status_msg, transmissibility_msg, write_result_file
+
+    rec = simulate(SimConfig(strut=preset("paper_deadzone"), duration_s=20.0, fs_hz=200.0), rng=1).record
+    s = StreamingNifo(200.0, [make_term({"kind": "velocity_deadzone", "params": {"knee": 0.03}})],
+                      settings=SpectralSettings(block=512, overlap=0.5), band=IntegrationBand(2.0, 80.0),
+                      on_ill_conditioned="ignore")
+    s.push(rec.spindle_accel, rec.body_accel)
+    r = s.result()
+    stream = StreamStats(samples_received=rec.n, samples_lost=17, gaps=1)
+    stamp = 1_700_000_123_456_789_012
+    t = deserialize_message(serialize_message(transmissibility_msg(r, stamp_ns=stamp, frame_id="body",
+                                                                   stream=stream)), Transmissibility)
+    assert (t.header.stamp.sec, t.header.stamp.nanosec, t.header.frame_id) == (1_700_000_123, 456_789_012, "body")
+    assert (t.n_avg, t.samples_used, t.samples_lost, t.gaps) == (r.n_avg, r.n_samples, 17, 1)
+    np.testing.assert_array_equal(t.freq_hz, r.freq_hz)
+    np.testing.assert_array_equal(np.asarray(t.t21_re) + 1j * np.asarray(t.t21_im), r.t21)
+    np.testing.assert_array_equal(np.asarray(t.t21_nominal_re) + 1j * np.asarray(t.t21_nominal_im), r.static.t21)
+    np.testing.assert_array_equal(t.t21_nominal_abs, np.abs(r.static.t21))
+    np.testing.assert_array_equal(t.cond, r.cond)
+    c = deserialize_message(serialize_message(coefficients_msg(r, stamp_ns=stamp, frame_id="body")), Coefficients)
+    assert list(c.terms) == ["velocity_deadzone(knee=0.03)"]
+    np.testing.assert_array_equal(c.c_pooled, r.static.c_over_m2)
+    np.testing.assert_array_equal(np.asarray(c.c_re) + 1j * np.asarray(c.c_im), r.c_over_m2[0])
+    st = deserialize_message(serialize_message(status_msg(r, stamp_ns=stamp, frame_id="body", stream=stream,
+                                                          cond_limit=1e4, result_file="/x.json")), LoopStatus)
+    assert st.state in ("estimating", "ill_conditioned") and "1 stream gap" in st.message
+    assert st.result_file == "/x.json" and st.n_avg == r.n_avg
+    # the full document: to a file, with the stream section
+    f = tmp_path / "r.json"
+    write_result_file(f, r, stamp_ns=stamp, stream=stream)
+    doc = json.loads(f.read_text())
+    assert doc["stamp_ns"] == stamp and doc["stream"]["samples_lost"] == 17 and doc["n_avg"] == r.n_avg
+    assert len(serialize_message(transmissibility_msg(r, stamp_ns=stamp, frame_id="body", stream=stream))) < 200_000
 
 
 # ----------------------------------------------------------------------------- alignment
@@ -126,6 +167,54 @@ def test_aligner_pairs_samples_whatever_the_interleaving_of_the_channels():
     assert [r.segment for r in runs] == [0] and runs[0].stamp_ns == stamps[0]
     np.testing.assert_array_equal(rows, np.column_stack([a, b]))
     assert al.counts["late"] == al.counts["gap"] == 0
+
+
+def test_ordered_aligner_waits_for_a_channel_far_behind_and_still_finds_a_real_hole():
+    """Lossless replay as fast as the graph goes: one channel thousands of samples ahead is no loss
+    (the best-effort rule would cut a gap every max_lag); a sample missing at the source is a gap as
+    soon as its own channel has moved past it."""
+    n, fs = 6000, 1000.0
+    stamps = 10**9 + np.arange(n) * 1_000_000
+    a, b = np.arange(n, dtype=float), -np.arange(n, dtype=float)
+    hole = set(range(4000, 4010))  # missing at the source on channel 0
+    for ordered, expect_gaps in ((True, 1), (False, None)):
+        al = SampleAligner(fs, 2, max_lag=50, ordered=ordered, max_wait=10 * n, log=lambda m: None)
+        for k in range(n):              # channel 0 entirely first, then channel 1: n samples apart
+            if k not in hole:
+                al.push(0, int(stamps[k]), a[k])
+        for k in range(n):
+            al.push(1, int(stamps[k]), b[k])
+        runs, rows = _rows(al)
+        if ordered:
+            assert al.counts["gap"] == expect_gaps and [r.segment for r in runs] == [0, 1]
+            keep = np.array([k not in hole for k in range(n)])
+            np.testing.assert_array_equal(rows, np.column_stack([a, b])[keep])
+            assert runs[1].stamp_ns == stamps[4010]
+        else:  # the vehicle's rule: the channel that fell behind is given up on
+            assert al.counts["gap"] >= 1 and rows.shape[0] < n - len(hole)
+
+
+def test_ordered_aligner_keeps_the_old_stream_tail_of_a_channel_behind_when_the_other_restarts():
+    """Replay started over while the body channel is still delivering the first pass's tail: that tail is
+    aligned (not lost), and the restart happens once every channel went back."""
+    n, fs = 2000, 1000.0
+    stamps = 10**9 + np.arange(n) * 1_000_000
+    a, b = np.arange(n, dtype=float), -np.arange(n, dtype=float)
+    al = SampleAligner(fs, 2, max_lag=50, ordered=True, restart_count=4, log=lambda m: None)
+    for k in range(n):
+        al.push(0, int(stamps[k]), a[k])
+    for k in range(n - 300):
+        al.push(1, int(stamps[k]), b[k])
+    for k in range(20):                  # channel 0 starts over ...
+        al.push(0, int(stamps[k]), a[k])
+    for k in range(n - 300, n):          # ... while channel 1's first pass still arrives
+        al.push(1, int(stamps[k]), b[k])
+    for k in range(20):
+        al.push(1, int(stamps[k]), b[k])
+    runs, rows = _rows(al)
+    assert [r.segment for r in runs] == [0, 1] and al.counts["restart"] == 1 and al.counts["gap"] == 0
+    np.testing.assert_array_equal(rows[:n], np.column_stack([a, b]))
+    np.testing.assert_array_equal(rows[n:], np.column_stack([a, b])[:20])
 
 
 def test_aligner_drops_late_and_duplicate_samples_without_a_new_segment():

@@ -27,7 +27,7 @@ import pytest
 pytest.importorskip("rclpy")
 pytestmark = pytest.mark.ros
 
-from nifo_nodes.launcher import CONFIG_DIR, NodeSpec, claim_domain_id, start, stop  # noqa: E402
+from nifo_nodes.launcher import CONFIG_DIR, NodeSpec, busy_core, claim_domain_id, start, stop  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 FS = 250.0
@@ -72,10 +72,12 @@ def batch_result(record_pieces):
 
 
 @pytest.fixture
-def domain():
-    """A domain id no concurrent test run or benchmark holds (a lock file per id), for this test only."""
+def domain(tmp_path):
+    """A domain id no concurrent test run or benchmark holds (a lock file per id), for this test only;
+    ROS_HOME in the test's directory (the identifier's default result file goes there)."""
     with claim_domain_id() as d:
         env = dict(os.environ, ROS_DOMAIN_ID=str(d), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+                   ROS_HOME=str(tmp_path / "ros_home"),
                    PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
         yield d, env
 
@@ -104,10 +106,12 @@ class Collector:
     def __init__(self, domain_id: int):
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
-        from std_msgs.msg import Float64MultiArray, String
+        from diagnostic_msgs.msg import DiagnosticArray
+        from std_msgs.msg import Float64MultiArray
 
+        from nifo_msgs.msg import Coefficients, LoopStatus, Transmissibility
         from nifo_nodes.common import block_qos, result_qos
-        from nifo_nodes.messages import block_from_msg, table_from_msg
+        from nifo_nodes.messages import block_from_msg
 
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx, domain_id=domain_id)
@@ -121,16 +125,20 @@ class Collector:
                 pass
 
         for k in self.blocks:
-            self.node.create_subscription(Float64MultiArray, f"{k}/block", lambda m, k=k: keep(k, m), block_qos())
-        for k in ("transmissibility", "coefficients"):
-            self.node.create_subscription(Float64MultiArray, f"identifier/{k}",
-                                          lambda m, k=k: self.latest.__setitem__(k, table_from_msg(m)), result_qos())
-        self.node.create_subscription(String, "identifier/result",
-                                      lambda m: self.latest.__setitem__("result", json.loads(m.data)), result_qos())
+            self.node.create_subscription(Float64MultiArray, f"{k}/block", lambda m, k=k: keep(k, m), block_qos(keep_all=True))
+        for k, t in (("transmissibility", Transmissibility), ("coefficients", Coefficients), ("status", LoopStatus)):
+            self.node.create_subscription(t, f"identifier/{k}", lambda m, k=k: self.latest.__setitem__(k, m),
+                                          result_qos())
+        self.diagnostics: dict = {}
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 10)
         self.ex = SingleThreadedExecutor(context=self.ctx)
         self.ex.add_node(self.node)
         self.thread = threading.Thread(target=self._spin, daemon=True)
         self.thread.start()
+
+    def _on_diag(self, msg):
+        for st in msg.status:
+            self.diagnostics[st.name] = (st.level[0], st.message, {kv.key: kv.value for kv in st.values})
 
     def _spin(self):
         while self.ctx.ok():
@@ -154,9 +162,19 @@ class Collector:
                       and self.node.count_subscribers("/nifo/accel/block") >= 2, timeout_s,
                       lambda: f"the nodes to come up\n{logs(tmp_path)}")
 
+    def done(self, ref) -> bool:
+        """The published estimate holds every block and every sample of ``ref`` (the tail adds samples
+        without completing a block)."""
+        t = self.latest.get("transmissibility")
+        return t is not None and t.n_avg == ref.n_avg and t.samples_used == ref.n_samples
+
     def navg(self) -> int:
         t = self.latest.get("transmissibility")
-        return -1 if t is None else t[2]
+        return -1 if t is None else t.n_avg
+
+    def got(self) -> str:
+        t = self.latest.get("transmissibility")
+        return "nothing" if t is None else f"{t.n_avg} blocks, {t.samples_used} samples, {t.gaps} gaps"
 
     def close(self):
         self.ctx.try_shutdown()
@@ -164,22 +182,37 @@ class Collector:
         self.node.destroy_node()
 
 
-def assert_matches_batch(latest, ref):
-    cols, _, n_avg = latest["transmissibility"]
-    assert n_avg == ref.n_avg
-    np.testing.assert_array_equal(cols["freq_hz"], ref.freq_hz)
-    np.testing.assert_allclose(cols["t21_re"] + 1j * cols["t21_im"], ref.t21, rtol=RTOL, atol=0)
-    np.testing.assert_allclose(cols["t21_h1_re"] + 1j * cols["t21_h1_im"], ref.t21_h1, rtol=RTOL, atol=0)
-    np.testing.assert_allclose(cols["coherence_h1"], ref.coherence_h1, rtol=RTOL, atol=1e-15)
-    coef, _, _ = latest["coefficients"]
+def _c(re, im) -> np.ndarray:
+    return np.asarray(re) + 1j * np.asarray(im)
+
+
+def assert_matches_batch(latest, ref, *, rtol=RTOL):
+    """The published nifo_msgs estimate equals the batch NifoResult ``ref`` to ``rtol``."""
+    t, coef = latest["transmissibility"], latest["coefficients"]
+    assert t.n_avg == ref.n_avg and t.samples_used == ref.n_samples
+    np.testing.assert_array_equal(t.freq_hz, ref.freq_hz)
+    np.testing.assert_allclose(_c(t.t21_re, t.t21_im), ref.t21, rtol=rtol, atol=0)
+    np.testing.assert_allclose(_c(t.t21_h1_re, t.t21_h1_im), ref.t21_h1, rtol=rtol, atol=0)
+    np.testing.assert_allclose(t.coherence_h1, ref.coherence_h1, rtol=rtol, atol=1e-15)
     band = ref.in_band
     # the nominal (pooled static) estimate nifo identify recommends
-    np.testing.assert_allclose((cols["t21_nominal_re"] + 1j * cols["t21_nominal_im"])[band], ref.static.t21[band],
-                               rtol=RTOL)
-    np.testing.assert_allclose(coef["c0_pooled"], ref.static.c_over_m2[0], rtol=RTOL)
-    np.testing.assert_allclose((coef["c0_re"] + 1j * coef["c0_im"])[band], ref.c_over_m2[0][band], rtol=RTOL)
-    np.testing.assert_allclose((coef["b0_re"] + 1j * coef["b0_im"])[band], ref.b[0][band], rtol=RTOL)
-    assert latest["result"]["n_avg"] == ref.n_avg
+    np.testing.assert_allclose(_c(t.t21_nominal_re, t.t21_nominal_im)[band], ref.static.t21[band], rtol=rtol)
+    np.testing.assert_allclose(coef.c_pooled, ref.static.c_over_m2, rtol=rtol)
+    nf = len(coef.freq_hz)
+    np.testing.assert_allclose(_c(coef.c_re, coef.c_im)[:nf][band], ref.c_over_m2[0][band], rtol=rtol)
+    np.testing.assert_allclose(_c(coef.b_re, coef.b_im)[:nf][band], ref.b[0][band], rtol=rtol)
+    st = latest["status"]
+    assert st.n_avg == ref.n_avg and st.result_file
+    doc = json.loads(Path(st.result_file).read_text())  # the full document, beside the messages
+    assert doc["n_avg"] == ref.n_avg and doc["stream"]["samples_used"] == ref.n_samples
+
+
+def _by_segment(blocks) -> dict:
+    out: dict = {}
+    for b in blocks:
+        lo, n = out.get(b.segment, (b.stamp_ns, 0))
+        out[b.segment] = (min(lo, b.stamp_ns), n + b.n)
+    return out
 
 
 def logs(d: Path) -> str:
@@ -201,7 +234,7 @@ def test_replayed_bag_through_integrator_and_identifier_equals_the_batch_engine(
         rp = replay(sample["bag"], env)
         procs.append(rp)
         ref = batch_result(rec)
-        col.wait_for(lambda: col.navg() == ref.n_avg, 90, f"n_avg={ref.n_avg} (got {col.navg()})\n{logs(tmp_path)}")
+        col.wait_for(lambda: col.done(ref), 90, f"n_avg={ref.n_avg}, {ref.n_samples} samples (got {col.got()})\n{logs(tmp_path)}")
         assert rp.wait(30) == 0, rp.stdout.read().decode()
         assert_matches_batch(col.latest, ref)
         # the aligned accelerations are the recorded samples, bit for bit
@@ -240,7 +273,7 @@ def test_identifier_killed_mid_run_resumes_from_its_checkpoint_to_the_same_estim
         col.wait_for(lambda: col.navg() >= 3 and ckpt.exists(), 60, f"a checkpoint\n{logs(tmp_path)}")
         os.killpg(first.pid, signal.SIGKILL)  # no chance to write a last checkpoint
         first.wait(5)
-        assert col.navg() < ref.n_avg
+        assert col.latest["transmissibility"].n_avg < ref.n_avg
         rp.wait(60)
         second = start(ident, env=env, log_dir=tmp_path)
         procs.append(second)
@@ -248,8 +281,8 @@ def test_identifier_killed_mid_run_resumes_from_its_checkpoint_to_the_same_estim
         col.wait_for(lambda: col.node.count_subscribers("/nifo/accel/block") >= 2, 30, "the restarted identifier")
         time.sleep(1.0)
         procs.append(replay(sample["bag"], env))  # the bag again: the identifier skips what it already has
-        col.wait_for(lambda: col.navg() == ref.n_avg, 90,
-                     lambda: f"n_avg={ref.n_avg} (got {col.navg()}); accel blocks by segment "
+        col.wait_for(lambda: col.done(ref), 90,
+                     lambda: f"n_avg={ref.n_avg}, {ref.n_samples} samples (got {col.got()}); accel blocks by segment "
                      f"{np.unique([b.segment for b in col.blocks['accel']], return_counts=True)}\n{logs(tmp_path)}")
         time.sleep(1.0)  # nothing more may arrive: every sample is used once
         assert_matches_batch(col.latest, ref)
@@ -315,10 +348,22 @@ def test_malformed_late_nan_stalled_and_restarted_streams_are_logged_and_skipped
             if k % 50 == 0:
                 time.sleep(0.02)
         ref = batch_result([(a1[:nan0], a2[:nan0]), (a1[nan1:], a2[nan1:])])
-        col.wait_for(lambda: col.navg() == ref.n_avg, 60, f"n_avg={ref.n_avg} (got {col.navg()})\n{logs(tmp_path)}")
+        col.wait_for(lambda: col.done(ref), 60, lambda: f"n_avg={ref.n_avg}, {ref.n_samples} samples (got {col.got()}); "
+                     f"accel rows by segment {_by_segment(col.blocks['accel'])}; diagnostics {col.diagnostics}\n"
+                     f"{logs(tmp_path)}")
         time.sleep(1.5)
         assert integ.poll() is None and ident.poll() is None, logs(tmp_path)
         assert_matches_batch(col.latest, ref)
+        # the loss is never silent: counted, published (messages, diagnostics, result file)
+        t, st = col.latest["transmissibility"], col.latest["status"]
+        assert (t.gaps, t.samples_lost, st.gaps, st.samples_lost) == (1, nan1 - nan0, 1, nan1 - nan0)
+        assert "1 stream gap(s), 50 samples lost" in st.message
+        col.wait_for(lambda: {"nifo/integrator", "nifo/identifier"} <= set(col.diagnostics), 10, "diagnostics")
+        lvl, msg, vals = col.diagnostics["nifo/identifier"]
+        assert lvl == 1 and vals["gaps"] == "1" and vals["samples_lost"] == str(nan1 - nan0), (msg, vals)
+        lvl, msg, vals = col.diagnostics["nifo/integrator"]
+        assert lvl == 1 and int(vals["aligned_gap"]) >= 1 and int(vals["malformed"]) > 0, (msg, vals)
+        assert json.loads(Path(st.result_file).read_text())["stream"]["gaps"] == 1
         il = (tmp_path / "integrator.log").read_text()
         for what in ("malformed message skipped", "non-finite sample", "late/out-of-order", "gap in the samples",
                      "publisher restarted"):
@@ -327,5 +372,46 @@ def test_malformed_late_nan_stalled_and_restarted_streams_are_logged_and_skipped
         assert "malformed block skipped" in idl and "stream gap" in idl, idl[-3000:]
     finally:
         stop(procs)
+        if col:
+            col.close()
+
+
+# ----------------------------------------------------------------------------- acceptance: live = nifo identify
+@pytest.fixture
+def cpu_hog():
+    """One core kept busy by another process for the whole test (the graph must not lose a sample)."""
+    with busy_core() as hog:
+        yield hog
+
+
+@pytest.mark.slow
+def test_bundled_bag_replayed_reliably_with_a_cpu_hog_equals_nifo_identify(domain, tmp_path, cpu_hog):
+    """run_pipeline.py --bag bags/sample/road_2p5mm --reliable: the final published estimate equals
+    ``nifo identify`` on the same bag (rtol 1e-9), no sample lost, no gap, while a CPU hog runs."""
+    from nifo_core.nifo import NifoResult
+
+    dom, env = domain
+    bag, model = REPO / "bags" / "sample" / "road_2p5mm", CONFIG_DIR / "model.yaml"
+    ident = subprocess.run([sys.executable, "-m", "nifo", "identify", str(bag), "--model", str(model), "--out",
+                            str(tmp_path / "identify"), "--no-plots", "--quiet"], env=env, capture_output=True,
+                           text=True, timeout=300)
+    assert ident.returncode == 0, ident.stderr
+    ref = NifoResult.from_dict(json.loads((tmp_path / "identify" / "identify.json").read_text())["result"])
+    col = None
+    try:
+        col = Collector(dom)
+        p = subprocess.run([sys.executable, str(REPO / "launch_scripts" / "run_pipeline.py"), "--bag", str(bag),
+                            "--model", str(model), "--reliable", "--rate", "0", "--linger", "3", "--domain-id",
+                            str(dom), "--log-dir", str(tmp_path), "--checkpoint", str(tmp_path / "id.npz")],
+                           env=env, capture_output=True, text=True, timeout=400)
+        assert p.returncode == 0, p.stderr + logs(tmp_path)
+        col.wait_for(lambda: col.done(ref), 20, lambda: f"the final estimate (got {col.got()})\n{p.stderr}\n{logs(tmp_path)}")
+        assert_matches_batch(col.latest, ref)
+        t = col.latest["transmissibility"]
+        assert (t.gaps, t.samples_lost) == (0, 0)
+        assert t.header.stamp.sec * 10**9 + t.header.stamp.nanosec == ref.freq_hz.size * 0 + 119_998_333_333
+        assert t.header.frame_id == "body"
+        assert cpu_hog.poll() is None  # the hog ran throughout
+    finally:
         if col:
             col.close()

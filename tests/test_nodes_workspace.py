@@ -32,7 +32,21 @@ def test_package_xml_is_a_valid_format_3_ament_python_package():
     pkg.validate()
     assert pkg.package_format == 3 and pkg.name == "nifo_ros"
     assert pkg.get_build_type() == "ament_python"
-    assert {"rclpy", "sensor_msgs", "std_msgs", "geometry_msgs"} <= {d.name for d in pkg.exec_depends}
+    assert {"rclpy", "sensor_msgs", "std_msgs", "geometry_msgs", "ament_index_python", "nifo_msgs",
+            "diagnostic_msgs"} <= {d.name for d in pkg.exec_depends}
+    assert {d.name for d in pkg.test_depends} == {"python3-pytest"}
+    msgs = parse_package(str(REPO / "ros2_ws" / "src" / "nifo_msgs" / "package.xml"))
+    msgs.validate()
+    assert msgs.get_build_type() == "ament_cmake" and "rosidl_interface_packages" in [g.name for g in
+                                                                                       msgs.member_of_groups]
+
+
+def test_the_ros_package_own_tests_pass_launch_files_name_only_what_exists():
+    """What ``colcon test`` runs for nifo_ros (its python3-pytest test dependency): the launch files parsed,
+    every executable, parameter file, parameter, remapped topic and launch argument checked."""
+    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(PKG / "test")],
+                       capture_output=True, text=True, timeout=120, cwd=PKG)
+    assert r.returncode == 0 and " passed" in r.stdout and "skipped" not in r.stdout, r.stdout[-3000:] + r.stderr
 
 
 def test_launch_files_compile_and_config_files_name_existing_parameters():
@@ -53,7 +67,7 @@ def test_colcon_build_installs_entry_points_that_run_the_nodes(tmp_path):
     colcon = shutil.which("colcon", path=str(Path(sys.executable).parent)) or shutil.which("colcon")
     if colcon is None:
         pytest.skip("colcon not installed (pip install colcon-core colcon-ros)")
-    r = subprocess.run([colcon, "--log-base", str(tmp_path / "log"), "build", "--base-paths", str(REPO / "ros2_ws"),
+    r = subprocess.run([colcon, "--log-base", str(tmp_path / "log"), "build", "--base-paths", str(PKG),
                         "--build-base", str(tmp_path / "build"), "--install-base", str(tmp_path / "install")],
                        cwd=tmp_path, capture_output=True, text=True, timeout=240)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
@@ -115,3 +129,5 @@ def test_run_pipeline_replays_a_bag_through_the_nodes_into_a_live_rerun_recordin
     # the live view: the viewer node logged the replayed accelerations at the data's stamps
     ents = {c.entity_path for c in RrdReader(rrd).stream().to_chunks()}
     assert "/accel/live" in ents, sorted(ents)
+    # the stream's health from the identifier's status (no estimate from 6 s: samples, no gap, no loss)
+    assert {"/stream/samples_lost", "/stream/gaps", "/summary"} <= ents, sorted(ents)

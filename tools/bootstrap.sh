@@ -15,6 +15,18 @@ nifo_bootstrap() {
     "$venv/bin/python" -m pip install -q -e "$spec" >&2
     touch "$stamp"
   fi
+  # ROS result messages (nifo_msgs, ros2_ws/src): built with the PyPI ROS tool chain and installed into
+  # .venv like the std_msgs wheel (ros2_ws/build_msgs.sh; needs a C/C++ compiler). Rebuilt when changed.
+  local mstamp="$venv/.nifo-msgs"
+  if [ ! -f "$mstamp" ] || [ -n "$(find "$here/ros2_ws/src/nifo_msgs" "$here/ros2_ws/build_msgs.sh" \
+        "$here/ros2_ws/build_msgs.requirements.txt" -newer "$mstamp" 2>/dev/null | head -1)" ]; then
+    echo "nifo: building the ROS result messages (nifo_msgs) into .venv (first use only, about a minute)" >&2
+    if bash "$here/ros2_ws/build_msgs.sh" "$venv" >&2; then
+      touch "$mstamp"
+    else
+      echo "nifo: WARNING: nifo_msgs could not be built (above); the ROS nodes need it, the rest of nifo does not" >&2
+    fi
+  fi
 }
 
 # Headless Chromium renders the HTML report in tests/test_report_browser.py (Debian's package).

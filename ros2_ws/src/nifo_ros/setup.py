@@ -21,6 +21,7 @@ setup(
         (f"share/{package_name}/config", glob("config/*.yaml")),
     ],
     install_requires=["setuptools"],
+    tests_require=["pytest"],
     zip_safe=True,
     maintainer="nifo maintainers",
     maintainer_email="nifo@example.com",
