@@ -21,6 +21,14 @@ nifo_bootstrap() {
   if [ ! -f "$mstamp" ] || [ -n "$(find "$here/ros2_ws/src/nifo_msgs" "$here/ros2_ws/build_msgs.sh" \
         "$here/ros2_ws/build_msgs.requirements.txt" -newer "$mstamp" 2>/dev/null | head -1)" ]; then
     echo "nifo: building the ROS result messages (nifo_msgs) into .venv (first use only, about a minute)" >&2
+    if ! command -v c++ >/dev/null 2>&1; then   # the message build compiles C/C++ type support
+      if [ "$(id -u)" -eq 0 ]; then
+        DEBIAN_FRONTEND=noninteractive apt-get update -qq >&2 \
+          && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends g++ make >/dev/null || true
+      else
+        echo "nifo: no C++ compiler for the ROS messages; run: sudo apt-get install -y g++ make" >&2
+      fi
+    fi
     if bash "$here/ros2_ws/build_msgs.sh" "$venv" >&2; then
       touch "$mstamp"
     else
