@@ -22,6 +22,8 @@ __all__ = [
     "RecordTooShortError",
     "ConfigError",
     "IllConditionedError",
+    "OutputError",
+    "CorruptDataError",
     "EXIT_CODES",
 ]
 
@@ -109,6 +111,20 @@ class IllConditionedError(NifoError, ArithmeticError):
     exit_code = 10
 
 
+class OutputError(NifoError):
+    """An output path that cannot or must not be written: a regular file where a directory is to go,
+    a directory holding the user's files, a read-only file system, a full disk, a path under a file."""
+
+    exit_code = 11
+
+
+class CorruptDataError(DataFileError):
+    """A data file whose checksum or internal structure shows it was damaged (e.g. a bag chunk's CRC)."""
+
+    exit_code = 12
+
+
 EXIT_CODES = {cls.__name__: cls.exit_code for cls in (
     NifoError, InputError, DataFileError, MissingChannelError, NonFiniteError,
-    TimestampError, SampleRateError, RecordTooShortError, ConfigError, IllConditionedError)}
+    TimestampError, SampleRateError, RecordTooShortError, ConfigError, IllConditionedError,
+    OutputError, CorruptDataError)}
