@@ -24,7 +24,6 @@ from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
-
 from nifo_core.errors import ConfigError, DataFileError
 from nifo_core.record import CHANNELS, Record
 
