@@ -6,7 +6,7 @@
 2. Mutations of a bag directory's ``metadata.yaml`` (bit flips, wrong message
    counts, truncation): a read that succeeds must give the original record.
 3. The hypothesis property tests of ``tests/test_fuzz_files.py`` (CSV, MAT,
-   model files, output paths) with ``--examples`` examples each (CI: 150).
+   model files, output paths) with ``--examples`` examples each (CI: 100).
 
 Prints the counts (cases, clear errors, tracebacks, hangs, wrong-with-exit-0,
 errors not naming file and fix) and exits 1 if any of the last four is not 0::
