@@ -20,7 +20,7 @@ from nifo_core.errors import CorruptDataError, DataFileError
 from .cdr import AXES as _AXES, CDR_LE as _CDR_LE, IMU, IMU_BODY as _IMU_BODY, IMU_VALUE as _IMU_VALUE
 from .cdr import POINT_BODY as _POINT_BODY, POINT_VALUE as _POINT_VALUE, Axis
 
-__all__ = ["indexed_counts", "write_chunk_crcs", "check_structure"]
+__all__ = ["indexed_counts", "write_chunk_crcs", "check_structure", "file_topics", "check_metadata_topics"]
 
 _GATHER16 = np.arange(16)
 _GATHER8 = np.arange(8)
@@ -167,6 +167,27 @@ def _message_index(f: BinaryIO, path: Path, offset: int, cid: int) -> np.ndarray
     if len(raw) != nbytes:
         raise _corrupt(path, offset, "message index cut short")
     return np.frombuffer(raw, dtype=[("t", "<u8"), ("o", "<u8")])
+
+
+def file_topics(path: Path) -> dict[str, str]:
+    """{topic: message type} of the channels the MCAP file itself declares (its summary)."""
+    with path.open("rb") as f:
+        summary = _summary(f)
+    return {ch.topic: summary.schemas[ch.schema_id].name if ch.schema_id in summary.schemas else ""
+            for ch in summary.channels.values()}
+
+
+def check_metadata_topics(listed: Mapping[str, str], path: Path, *, source: str) -> None:
+    """metadata.yaml's {topic: type} must be the MCAP file's own (else metadata.yaml was damaged or edited)."""
+    try:
+        own = file_topics(path)
+    except _NoUsableIndex:
+        return
+    if dict(listed) != own:
+        diff = sorted(set(listed.items()) ^ set(own.items()))
+        raise DataFileError(f"metadata.yaml and {path.name} disagree on the topics ({', '.join(map(str, diff))[:300]}); "
+                            "metadata.yaml is damaged or was edited", source=source,
+                            hint="restore metadata.yaml, or rebuild it with 'ros2 bag reindex'")
 
 
 def indexed_counts(path: Path, wanted: Mapping[str, tuple[str, str]]) -> dict[str, int]:
