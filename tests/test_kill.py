@@ -30,7 +30,7 @@ from nifo_core.simulate import SimConfig, simulate
 
 from conftest import REPO
 
-KILLS = 20
+KILLS = int(os.environ.get("NIFO_KILLS", 20))   # the acceptance: 20 kills of each command
 SEED = 14
 
 
