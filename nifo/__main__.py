@@ -1,5 +1,17 @@
+import signal
 import sys
 
+
+def _interrupt_again(unraisable) -> None:
+    """A Ctrl-C that lands in a finalizer (weakref callback, __del__) is not lost with an 'Exception
+    ignored' traceback: the signal is raised again and reaches the command, which cleans up and says so."""
+    if isinstance(unraisable.exc_value, KeyboardInterrupt):
+        signal.raise_signal(signal.SIGINT)
+        return
+    sys.__unraisablehook__(unraisable)
+
+
+sys.unraisablehook = _interrupt_again
 try:
     from nifo.cli import main
 

@@ -22,6 +22,8 @@ __all__ = [
     "RecordTooShortError",
     "ConfigError",
     "IllConditionedError",
+    "OutputError",
+    "CorruptDataError",
     "EXIT_CODES",
     "USAGE_EXIT_CODE",
 ]
@@ -110,6 +112,19 @@ class IllConditionedError(NifoError, ArithmeticError):
     exit_code = 10
 
 
+class OutputError(NifoError):
+    """An output path that cannot or must not be written: a regular file where a directory is to go,
+    a directory holding the user's files, a read-only file system, a full disk, a path under a file."""
+
+    exit_code = 13
+
+
+class CorruptDataError(DataFileError):
+    """A data file whose checksum or internal structure shows it was damaged (e.g. a bag chunk's CRC)."""
+
+    exit_code = 14
+
+
 #: exit code of ``nifo`` for a command line argparse cannot parse (argparse's own)
 USAGE_EXIT_CODE = 2
 
@@ -118,6 +133,7 @@ USAGE_EXIT_CODE = 2
 EXIT_CODES: dict[str, tuple[int, str]] = {
     **{cls.__name__: (cls.exit_code, (cls.__doc__ or "").strip().splitlines()[0].split(". ")[0].rstrip("."))
        for cls in (NifoError, InputError, DataFileError, MissingChannelError, NonFiniteError, TimestampError,
-                   SampleRateError, RecordTooShortError, ConfigError, IllConditionedError)},
+                   SampleRateError, RecordTooShortError, ConfigError, IllConditionedError, OutputError,
+                   CorruptDataError)},
     "PredictionDivergedError": (12, "The model's prediction diverged for this input"),
 }

@@ -24,7 +24,7 @@ import numpy as np
 from nifo_core.errors import NifoError
 from nifo_core.record import Record
 
-__all__ = ["Tally", "guarded", "bag_mutants", "fuzz_bag", "same_record", "cli"]
+__all__ = ["Tally", "guarded", "bag_mutants", "fuzz_bag", "fuzz_metadata", "same_record", "cli"]
 
 
 class Hang(BaseException):
@@ -205,6 +205,38 @@ def fuzz_bag(original: Record, workdir: Path, *, cases: int, seed: int, limit_s:
                     tally.add("error" if named else "unnamed", f"nifo info, {case}", err[-300:])
             else:
                 classify(tally, f"nifo info, {case}", target, outcome, value, lambda v: None)
+    return tally
+
+
+def fuzz_metadata(original: Record, work: Path, *, cases: int, seed: int) -> Tally:
+    """Mutate a bag directory's metadata.yaml (bit flips, wrong message counts, truncation); a read that
+    succeeds must give the original record."""
+    from nifo.io.loader import load_record, save_record
+
+    work.mkdir(parents=True, exist_ok=True)
+    bag = save_record(work / "bag", original)
+    truth = load_record(bag)
+    meta = (bag / "metadata.yaml").read_bytes()
+    rng = random.Random(seed)
+    tally = Tally()
+    for _ in range(cases):
+        b = bytearray(meta)
+        kind = rng.choice(["flip", "count", "truncate"])
+        if kind == "flip":
+            i = rng.randrange(len(b))
+            b[i] ^= 1 << rng.randrange(8)
+        elif kind == "count":
+            text = b.decode()
+            k = rng.choice([0, 1, truth.n - 1, truth.n + 1, 10**6, -5])
+            text = text.replace(f"message_count: {truth.n}", f"message_count: {k}", rng.randint(1, 3))
+            b = bytearray(text.encode())
+        else:
+            del b[rng.randrange(len(b)):]
+        (bag / "metadata.yaml").write_bytes(bytes(b))
+        outcome, value = guarded(lambda: load_record(bag), limit_s=20)
+        classify(tally, f"metadata.yaml {kind}", bag, outcome, value,
+                 lambda rec: None if same_record(rec, truth) else "the record read differs from the original")
+    (bag / "metadata.yaml").write_bytes(meta)
     return tally
 
 

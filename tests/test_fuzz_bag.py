@@ -20,7 +20,7 @@ from nifo.io.loader import load_record, save_record
 from nifo_core.errors import CorruptDataError
 from nifo_core.record import Record
 
-from fuzz_engine import chunk_spans, fuzz_bag
+from fuzz_engine import chunk_spans, fuzz_bag, fuzz_metadata
 
 SEED = 14
 CASES = 300
@@ -36,6 +36,13 @@ def test_bag_mutation_fuzzer_finds_no_traceback_hang_or_wrong_result(tmp_path):
     tally = fuzz_bag(_record(), tmp_path, cases=CASES, seed=SEED, via_cli_every=10)
     print(tally.line())
     assert tally.counts["cases"] >= CASES
+    assert tally.bad == 0, tally.line() + "\n" + "\n".join(f"{c}: {d}" for c, d in tally.failures)
+
+
+def test_metadata_yaml_mutations_never_change_the_record_silently(tmp_path):
+    """Flipped topic names, wrong message counts, cut files: the original record or one clear line."""
+    tally = fuzz_metadata(_record(3000), tmp_path, cases=120, seed=SEED)
+    print(tally.line())
     assert tally.bad == 0, tally.line() + "\n" + "\n".join(f"{c}: {d}" for c, d in tally.failures)
 
 

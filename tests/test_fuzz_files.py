@@ -29,7 +29,7 @@ from nifo_core.errors import ConfigError, DataFileError, NifoError, OutputError
 from fuzz_engine import Tally, classify, guarded, names_file_and_fix
 
 #: fixed seed (derandomize) and a bounded number of examples: the same cases on every run, seconds each
-FUZZ = settings(derandomize=True, max_examples=int(os.environ.get("NIFO_FUZZ_EXAMPLES", 150)), deadline=None,
+FUZZ = settings(derandomize=True, max_examples=int(os.environ.get("NIFO_FUZZ_EXAMPLES", 100)), deadline=None,
                 suppress_health_check=list(HealthCheck), database=None)
 
 _NAMES = ["time", "spindle_accel", "body_accel", "tire_patch_disp", "t", "x", ""]

@@ -19,7 +19,8 @@ def _dead_pid() -> int:
     return p.pid
 
 
-def test_staged_run_restores_the_old_output_on_error_and_replaces_it_on_success(tmp_path):
+def test_staged_run_restores_the_old_output_on_error_and_replaces_it_on_success(tmp_path, monkeypatch):
+    monkeypatch.setattr(atomic, "_state", {"committed": [], "restored": []})   # as in a fresh nifo process
     out = tmp_path / "res"
     (out / "identify").mkdir(parents=True)
     (out / "identify" / "identify.json").write_text("old")

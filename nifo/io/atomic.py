@@ -130,7 +130,10 @@ def check_output(final: str | os.PathLike, *, kind: str = "dir") -> Path:
                                       hint="give an output path whose parent directories are directories")
                 break
         return final
-    if final.is_dir() and not final.is_symlink():
+    if final.is_symlink():
+        raise OutputError(f"is a symbolic link (to {os.readlink(final)}); it is left untouched", source=str(final),
+                          hint="give the real path for the output")
+    if final.is_dir():
         if kind == "file":
             raise OutputError("is a directory; a file was to be written there", source=str(final),
                               hint="give a file name (or remove the directory yourself)")

@@ -17,7 +17,8 @@ from .assemble import assemble_record
 from .bag_topics import BagTopics, _topic_table, resolve_topics
 from .cdr import AXES as _AXES, Axis
 from .inputs import regular_input
-from .mcap_chunks import check_structure, _Decoded, _decode, _iter_mcap_indexed, _NoUsableIndex
+from .mcap_chunks import (_decode, _Decoded, _iter_mcap_indexed, _NoUsableIndex, check_metadata_topics,
+                          check_structure)
 
 if TYPE_CHECKING:
     from rosbags.interfaces import Connection
@@ -179,6 +180,8 @@ def _read_channels(storage: Path, topics: BagTopics | None, axis: Axis, src: str
                     raise DataFileError("the bag holds no messages", source=src,
                                         hint="record again and check that the sensor topics were published")
                 available = _topic_table(conns)
+                if mcap_file is not None and storage.is_dir():
+                    check_metadata_topics(available, mcap_file, source=src)
                 wanted = {r: (t, available[t]) for r, t in resolve_topics(available, topics, source=src).items()
                           if t}
                 decoded = None

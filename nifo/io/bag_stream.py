@@ -14,7 +14,8 @@ from .assemble import check_rate_range, check_values, nominal_rate
 from .bag_read import _CHANNEL_OF_ROLE, _is_sqlite, _mcap_file, _open_checked, read_bag
 from .bag_topics import BagTopics, _topic_table, resolve_topics
 from .cdr import Axis
-from .mcap_chunks import check_structure, _Decoded, _iter_mcap_indexed, _NoUsableIndex, indexed_counts
+from .mcap_chunks import (_Decoded, _iter_mcap_indexed, _NoUsableIndex, check_metadata_topics, check_structure,
+                          indexed_counts)
 
 __all__ = ["iter_bag_chunks", "record_chunks"]
 
@@ -173,6 +174,8 @@ def iter_bag_chunks(path: str | os.PathLike, *, chunk_samples: int, topics: BagT
                 raise DataFileError("the bag holds no messages", source=src,
                                     hint="record again and check that the sensor topics were published")
             available = _topic_table(conns)
+            if storage.is_dir():
+                check_metadata_topics(available, mcap_file, source=src)
             wanted = {r: (t, available[t]) for r, t in resolve_topics(available, topics, source=src).items() if t}
             expected = {r: sum(c.msgcount for c in conns if c.topic == t) for r, (t, _) in wanted.items()}
     except NifoError:

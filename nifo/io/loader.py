@@ -24,13 +24,11 @@ from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
-import numpy as np
-
 from nifo_core.errors import ConfigError, DataFileError
 from nifo_core.record import CHANNELS, Record
 
-from .inputs import regular_input
 from .assemble import _check_declared_rate, assemble_record  # noqa: F401  (assemble_record: public here too)
+from .inputs import regular_input
 
 if TYPE_CHECKING:
     from .bag import BagTopics

@@ -15,12 +15,12 @@ from typing import BinaryIO
 
 import numpy as np
 
-from nifo_core.errors import CorruptDataError
+from nifo_core.errors import CorruptDataError, DataFileError
 
 from .cdr import AXES as _AXES, CDR_LE as _CDR_LE, IMU, IMU_BODY as _IMU_BODY, IMU_VALUE as _IMU_VALUE
 from .cdr import POINT_BODY as _POINT_BODY, POINT_VALUE as _POINT_VALUE, Axis
 
-__all__ = ["indexed_counts", "write_chunk_crcs", "check_structure"]
+__all__ = ["indexed_counts", "write_chunk_crcs", "check_structure", "file_topics", "check_metadata_topics"]
 
 _GATHER16 = np.arange(16)
 _GATHER8 = np.arange(8)
@@ -107,6 +107,12 @@ def _corrupt(path: Path, offset: int, what: str) -> CorruptDataError:
                                  "recording; 'mcap recover' can salvage the intact chunks")
 
 
+def _damaged(path: Path, offset: int, what: str, *, cls: type[DataFileError] = CorruptDataError) -> DataFileError:
+    return cls(f"cannot read the bag (byte offset {offset}: {what}); the file is damaged or truncated",
+               source=str(path), hint="re-copy the bag; a recording cut short can often be repaired with "
+                                      "'ros2 bag reindex' (directory) or 'mcap recover' (.mcap file)")
+
+
 def _read_chunk(f: BinaryIO, path: Path, offset: int) -> bytes | None:
     """The uncompressed records of the chunk at ``offset``, CRC and size checked; None: cannot decompress."""
     from mcap.data_stream import ReadDataStream
@@ -161,6 +167,27 @@ def _message_index(f: BinaryIO, path: Path, offset: int, cid: int) -> np.ndarray
     if len(raw) != nbytes:
         raise _corrupt(path, offset, "message index cut short")
     return np.frombuffer(raw, dtype=[("t", "<u8"), ("o", "<u8")])
+
+
+def file_topics(path: Path) -> dict[str, str]:
+    """{topic: message type} of the channels the MCAP file itself declares (its summary)."""
+    with path.open("rb") as f:
+        summary = _summary(f)
+    return {ch.topic: summary.schemas[ch.schema_id].name if ch.schema_id in summary.schemas else ""
+            for ch in summary.channels.values()}
+
+
+def check_metadata_topics(listed: Mapping[str, str], path: Path, *, source: str) -> None:
+    """metadata.yaml's {topic: type} must be the MCAP file's own (else metadata.yaml was damaged or edited)."""
+    try:
+        own = file_topics(path)
+    except _NoUsableIndex:
+        return
+    if dict(listed) != own:
+        diff = sorted(set(listed.items()) ^ set(own.items()))
+        raise DataFileError(f"metadata.yaml and {path.name} disagree on the topics ({', '.join(map(str, diff))[:300]}); "
+                            "metadata.yaml is damaged or was edited", source=source,
+                            hint="restore metadata.yaml, or rebuild it with 'ros2 bag reindex'")
 
 
 def indexed_counts(path: Path, wanted: Mapping[str, tuple[str, str]]) -> dict[str, int]:
@@ -245,10 +272,11 @@ def check_structure(path: Path) -> None:
     size = path.stat().st_size
     with path.open("rb") as f:
         if f.read(8) != _MAGIC:
-            raise _corrupt(path, 0, "no MCAP magic at the start")
+            raise _damaged(path, 0, "no MCAP magic at the start: not an MCAP file", cls=DataFileError)
         f.seek(size - 8)
         if size < 8 + 8 + 9 + 20 or f.read(8) != _MAGIC:
-            raise _corrupt(path, max(size - 8, 0), "no MCAP magic at the end (the file was cut short)")
+            raise _damaged(path, max(size - 8, 0), "no MCAP magic at the end: the file was cut short",
+                          cls=DataFileError)
         pos = 8
         end = size - 8
         footer = None
@@ -256,27 +284,27 @@ def check_structure(path: Path) -> None:
             f.seek(pos)
             head = f.read(9)
             if len(head) < 9:
-                raise _corrupt(path, pos, "record header cut short")
+                raise _damaged(path, pos, "record header cut short")
             op, length = struct.unpack("<BQ", head)
             if length > end - pos - 9:
-                raise _corrupt(path, pos, f"record 0x{op:02x} claims {length} bytes, past the end of the file")
+                raise _damaged(path, pos, f"record 0x{op:02x} claims {length} bytes, past the end of the file")
             if op == _FOOTER:
                 footer = pos
                 if pos + 9 + length != end:
-                    raise _corrupt(path, pos, "the footer is not at the end of the file")
+                    raise _damaged(path, pos, "the footer is not at the end of the file")
                 break
             pos += 9 + length
         if footer is None:
-            raise _corrupt(path, pos, "no footer record")
+            raise _damaged(path, pos, "no footer record")
         f.seek(footer + 9)
         summary_start, offset_start, crc = struct.unpack("<QQI", f.read(20))
         if summary_start > footer or offset_start > footer:
-            raise _corrupt(path, footer, "the footer points outside the file")
+            raise _damaged(path, footer, "the footer points outside the file")
         if crc and summary_start:
             f.seek(summary_start)
             got = zlib.crc32(f.read(footer + 1 + 8 + 16 - summary_start))
             if got != crc:
-                raise _corrupt(path, summary_start, f"summary CRC-32 {got:08x} does not match the recorded {crc:08x}")
+                raise _damaged(path, summary_start, f"summary CRC-32 {got:08x} does not match the recorded {crc:08x}")
 
 
 def _fill_summary_crc(f: BinaryIO, size: int) -> None:
