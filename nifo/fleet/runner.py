@@ -163,7 +163,7 @@ def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSet
     digests = {g: settings_hash(st.cache_settings()) for g, st in setups.items()}
     bag_rows = [{"vehicle": e.vehicle, "corner": e.corner, "date": e.date, "path": str(e.path),
                  "status": "pending", "reason": "", "cached": False, "seconds": float("nan"),
-                 "hash": probes[i].get("hash", "")} for i, e in enumerate(entries)]
+                 "hash": probes[i].get("hash", ""), "key": ""} for i, e in enumerate(entries)]
     status, finals, loops = {}, {}, {}
     for g, st in setups.items():
         idx = [i for i, e in enumerate(entries) if e.group == g and i not in left_out]
@@ -192,7 +192,7 @@ def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSet
                 r = fut.result()
                 row = bag_rows[status[fut]]
                 if r["ok"]:
-                    row.update(status="ok", cached=r["cached"], seconds=r["seconds"])
+                    row.update(status="ok", cached=r["cached"], seconds=r["seconds"], key=r["key"])
                 else:
                     row.update(status="failed", reason=r["reason"])
             bar.advance(1)

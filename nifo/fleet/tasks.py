@@ -106,9 +106,10 @@ def _coefficients(res) -> dict[str, float]:
 def probe_bag(path: str, opts: dict) -> dict:
     """Content hash, sample rate, expected length and channels of a bag (reads its first samples only)."""
     from nifo.fleet.cache import content_hash
-    from nifo.io.loader import iter_record_chunks
+    from nifo.io.loader import detect_format, iter_record_chunks
 
     try:
+        detect_format(path)          # a missing or foreign file: the loader's one-line reason
         digest = content_hash(path)
         gen = iter_record_chunks(path, chunk_samples=PROBE_CHUNK, **opts)
         try:

@@ -1,0 +1,169 @@
+"""nifo fleet on a real Dask LocalCluster (2 worker processes) with a simulated fleet of real bags.
+
+The fleet: 10 vehicles × 2 bags × 40 s (nifo_core.simulate, saved as .mcap
+bags), every parameter of every vehicle varied ±10 %, v01 with a worn damper
+(C2 -30 %), v06 with the damper knee moved (0.03 → 0.06 m/s); plus a truncated
+bag in v02's folder and a missing bag of a vehicle v99. (The full 20 × 10
+fleet is in benchmarks/bench_fleet.py.)
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from nifo.cli import main
+from nifo.io.results import read_json, read_model
+
+pytestmark = pytest.mark.slow
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory) -> Path:
+    from nifo.fleet.simulated import write_simulated_fleet
+
+    root = tmp_path_factory.mktemp("fleet")
+    manifest = write_simulated_fleet(root, n_vehicles=10, bags_per_vehicle=2, duration_s=40.0, worn=(1,),
+                                     knee_moved=(6,), block=4096, seed=2)
+    good = root / "v02" / "FL" / "bag00.mcap"
+    bad = root / "v02" / "FL" / "bag_truncated.mcap"
+    bad.write_bytes(good.read_bytes()[: good.stat().st_size * 6 // 10])
+    m2 = json.loads((root / "fleet_truth.json").read_text())["v02"]["vehicle"]["m2"]
+    with manifest.open("a", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["v02", "FL", "2026-02-01", "v02/FL/bag_truncated.mcap", f"{m2:.6g}"])
+        w.writerow(["v99", "FL", "2026-02-01", "v99/FL/never_copied.mcap", ""])
+    return root
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def result(fleet, cluster, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("out") / "fleet_out"
+    rc = main(["fleet", str(fleet / "manifest.csv"), "--model", str(fleet / "model.yaml"), "--out", str(out),
+               "--scheduler", cluster.scheduler_address, "--quiet"])
+    assert rc == 0
+    return out
+
+
+def _groups(out: Path) -> dict:
+    t = pq.read_table(out / "fleet.parquet").to_pylist()
+    return {r["vehicle"]: r for r in t}
+
+
+def test_fleet_writes_every_output_and_flags_exactly_the_planted_struts(result):
+    assert {p.name for p in result.iterdir()} >= {"fleet.parquet", "fleet.csv", "bags.parquet", "bags.csv",
+                                                 "fleet.json", "fleet.html", "t21.png", "coefficients.png",
+                                                 "fleet.rrd"}
+    g = _groups(result)
+    assert {v for v, r in g.items() if r["flagged"]} == {"v01", "v06"}
+    assert g["v01"]["c2_z"] < -3.5 and "c2 = " in g["v01"]["flag_evidence"]
+    assert g["v06"]["c_velocity_deadzone_z"] < -3.5
+    for v, r in g.items():
+        if r["status"] == "ok":
+            assert r["n_bags"] == 2 and r["c2_lo"] < r["c2"] < r["c2_hi"]
+            assert r["t21_10hz_mag_lo"] < r["t21_10hz_mag"] < r["t21_10hz_mag_hi"]
+    html = (result / "fleet.html").read_text()
+    assert "v01/FL" in html and "[N·s/m]" in html
+    doc = read_json(result / "fleet.json", what="fleet")
+    assert doc["units"]["c2"] == "N·s/m" and doc["units"]["k2_over_m2"] == "1/s²"
+
+
+def test_fleet_coefficients_are_close_to_the_simulated_truth(result, fleet):
+    truth = json.loads((fleet / "fleet_truth.json").read_text())
+    g = _groups(result)
+    for v in ("v00", "v01", "v03", "v08"):
+        for name in ("k2", "c2"):
+            assert g[v][name] == pytest.approx(truth[v][name], rel=0.04), (v, name)
+
+
+def test_a_bad_bag_is_recorded_with_its_reason_and_the_fleet_goes_on(result):
+    bags = {Path(r["path"]).name: r for r in pq.read_table(result / "bags.parquet").to_pylist()}
+    assert bags["bag_truncated.mcap"]["status"] == "failed"
+    assert "bag_truncated.mcap" in bags["bag_truncated.mcap"]["reason"]
+    assert "\n" not in bags["bag_truncated.mcap"]["reason"]
+    assert bags["never_copied.mcap"]["status"] == "failed"
+    assert "no such file or directory" in bags["never_copied.mcap"]["reason"]
+    g = _groups(result)
+    assert g["v02"]["status"] == "ok" and g["v02"]["n_bags"] == 2 and g["v02"]["n_bags_failed"] == 1
+    assert g["v99"]["status"] == "failed" and g["v99"]["reason"] == "no usable bag"
+
+
+@pytest.mark.parametrize("vehicle", ["v01", "v03"])
+def test_group_coefficients_equal_nifo_identify_on_the_groups_bags(result, fleet, tmp_path, vehicle):
+    bags = sorted((fleet / vehicle / "FL").glob("bag0*.mcap"))
+    out = tmp_path / "ident"
+    assert main(["identify", *map(str, bags), "--model", str(fleet / "model.yaml"), "--out", str(out),
+                 "--no-plots", "--quiet"]) == 0
+    doc = read_json(out / "identify.json", what="identify")
+    model, _ = read_model(out)
+    g = _groups(result)[vehicle]
+    ident = {"k2_over_m2": model.body.k, "c2_over_m2": model.body.c,
+             "c_over_m2_velocity_deadzone": doc["summary"]["terms"][0]["c_over_m2"]}
+    for name, v in ident.items():
+        assert g[name] == pytest.approx(v, rel=1e-9, abs=0), name
+    assert g["n_avg"] == doc["summary"]["n_avg"]
+
+
+def test_a_killed_fleet_run_resumes_without_recomputing_finished_bags(result, fleet, tmp_path):
+    out, cache = tmp_path / "out", tmp_path / "cache"
+    cmd = [sys.executable, "-m", "nifo", "fleet", str(fleet / "manifest.csv"), "--model", str(fleet / "model.yaml"),
+           "--out", str(out), "--cache", str(cache), "--workers", "1", "--quiet", "--no-plots", "--no-rerun"]
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen(cmd, env=env, start_new_session=True, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    t0 = time.monotonic()
+    while len(list(cache.rglob("*.npz"))) < 3:
+        assert proc.poll() is None, "the fleet run ended before it could be killed"
+        assert time.monotonic() - t0 < 240
+        time.sleep(0.02)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    before = {p.stem: p.stat().st_mtime_ns for p in cache.rglob("*.npz")}
+    assert 3 <= len(before) < 20 and not out.exists()
+    rc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+    assert rc.returncode == 0, rc.stderr
+    bags = [r for r in pq.read_table(out / "bags.parquet").to_pylist() if r["status"] == "ok"]
+    assert {r["key"] for r in bags if r["cached"]} == set(before)
+    assert all(not r["cached"] for r in bags if r["key"] not in before)
+    assert {p.stem: p.stat().st_mtime_ns for p in cache.rglob("*.npz") if p.stem in before} == before
+    assert f"{len(before)} from the cache" in rc.stdout
+    a, b = pq.read_table(result / "fleet.parquet").to_pylist(), pq.read_table(out / "fleet.parquet").to_pylist()
+    for ra, rb in zip(a, b):
+        for k, va in ra.items():
+            if k.startswith("n_bags_cached"):
+                continue
+            if isinstance(va, float) and np.isfinite(va):
+                assert rb[k] == pytest.approx(va, rel=1e-12), (ra["vehicle"], k)
+            else:
+                assert rb[k] == va or (va != va and rb[k] != rb[k]), (ra["vehicle"], k)
+    shutil.rmtree(cache)
+
+
+def test_an_unreachable_scheduler_is_one_line_and_its_exit_code(fleet, capsys):
+    rc = main(["fleet", str(fleet / "manifest.csv"), "--model", str(fleet / "model.yaml"), "--out",
+               str(fleet / "never"), "--scheduler", "tcp://127.0.0.1:9", "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 20 and err.count("\n") == 1
+    assert "cannot reach the Dask scheduler tcp://127.0.0.1:9" in err and "Fix:" in err
+    assert not (fleet / "never").exists()
