@@ -12,7 +12,6 @@ from __future__ import annotations
 import csv
 import json
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -32,12 +31,24 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def fleet(tmp_path_factory) -> Path:
+def cluster():
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory, cluster) -> Path:
+    from distributed import Client
+
     from nifo.fleet.simulated import write_simulated_fleet
 
     root = tmp_path_factory.mktemp("fleet")
-    manifest = write_simulated_fleet(root, n_vehicles=10, bags_per_vehicle=2, duration_s=40.0, worn=(1,),
-                                     knee_moved=(6,), block=4096, seed=2)
+    with Client(cluster) as client:   # the bags are simulated on the cluster too
+        manifest = write_simulated_fleet(root, n_vehicles=10, bags_per_vehicle=2, duration_s=40.0, worn=(1,),
+                                         knee_moved=(6,), block=4096, seed=2,
+                                         mapper=lambda f, xs: client.gather(client.map(f, xs)))
     good = root / "v02" / "FL" / "bag00.mcap"
     bad = root / "v02" / "FL" / "bag_truncated.mcap"
     bad.write_bytes(good.read_bytes()[: good.stat().st_size * 6 // 10])
@@ -47,14 +58,6 @@ def fleet(tmp_path_factory) -> Path:
         w.writerow(["v02", "FL", "2026-02-01", "v02/FL/bag_truncated.mcap", f"{m2:.6g}"])
         w.writerow(["v99", "FL", "2026-02-01", "v99/FL/never_copied.mcap", ""])
     return root
-
-
-@pytest.fixture(scope="module")
-def cluster():
-    from distributed import LocalCluster
-
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as c:
-        yield c
 
 
 @pytest.fixture(scope="module")
@@ -126,43 +129,52 @@ def test_group_coefficients_equal_nifo_identify_on_the_groups_bags(result, fleet
 
 
 def test_a_killed_fleet_run_resumes_without_recomputing_finished_bags(result, fleet, tmp_path):
+    rows = list(csv.DictReader((fleet / "manifest.csv").open()))
+    part = tmp_path / "part.csv"          # 4 vehicles, 8 bags: enough to kill mid-way
+    with part.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows([{**r, "path": str(fleet / r["path"])} for r in rows if r["vehicle"] in ("v00", "v01", "v03",
+                                                                                            "v04")])
     out, cache = tmp_path / "out", tmp_path / "cache"
-    cmd = [sys.executable, "-m", "nifo", "fleet", str(fleet / "manifest.csv"), "--model", str(fleet / "model.yaml"),
-           "--out", str(out), "--cache", str(cache), "--workers", "1", "--quiet", "--no-plots", "--no-rerun"]
+    cmd = [sys.executable, "-m", "nifo", "fleet", str(part), "--model", str(fleet / "model.yaml"),
+           "--out", str(out), "--cache", str(cache), "--workers", "1", "--quiet", "--no-plots", "--no-rerun",
+           "--min-groups", "3"]
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     proc = subprocess.Popen(cmd, env=env, start_new_session=True, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
     t0 = time.monotonic()
-    while len(list(cache.rglob("*.npz"))) < 3:
+    while len(list(cache.rglob("*.npz"))) < 2:
         assert proc.poll() is None, "the fleet run ended before it could be killed"
         assert time.monotonic() - t0 < 240
-        time.sleep(0.02)
+        time.sleep(0.01)
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
     before = {p.stem: p.stat().st_mtime_ns for p in cache.rglob("*.npz")}
-    assert 3 <= len(before) < 20 and not out.exists()
+    assert 2 <= len(before) < 8 and not out.exists()
     rc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
     assert rc.returncode == 0, rc.stderr
-    bags = [r for r in pq.read_table(out / "bags.parquet").to_pylist() if r["status"] == "ok"]
+    bags = pq.read_table(out / "bags.parquet").to_pylist()
+    assert all(r["status"] == "ok" for r in bags) and len(bags) == 8
     assert {r["key"] for r in bags if r["cached"]} == set(before)
-    assert all(not r["cached"] for r in bags if r["key"] not in before)
     assert {p.stem: p.stat().st_mtime_ns for p in cache.rglob("*.npz") if p.stem in before} == before
     assert f"{len(before)} from the cache" in rc.stdout
-    a, b = pq.read_table(result / "fleet.parquet").to_pylist(), pq.read_table(out / "fleet.parquet").to_pylist()
-    for ra, rb in zip(a, b):
-        for k, va in ra.items():
-            if k.startswith("n_bags_cached"):
+    # every per-group number equals the uninterrupted run's (health columns depend on the fleet: left out)
+    full, resumed = _groups(result), _groups(out)
+    for v, rb in resumed.items():
+        for k, va in full[v].items():
+            if k.endswith("_z") or k in ("flagged", "flag_evidence", "health_note", "n_bags_cached",
+                                         "n_bags_failed", "n_bags"):
                 continue
             if isinstance(va, float) and np.isfinite(va):
-                assert rb[k] == pytest.approx(va, rel=1e-12), (ra["vehicle"], k)
+                assert rb[k] == pytest.approx(va, rel=1e-12), (v, k)
             else:
-                assert rb[k] == va or (va != va and rb[k] != rb[k]), (ra["vehicle"], k)
-    shutil.rmtree(cache)
+                assert rb[k] == va, (v, k)
 
 
 def test_an_unreachable_scheduler_is_one_line_and_its_exit_code(fleet, capsys):
     rc = main(["fleet", str(fleet / "manifest.csv"), "--model", str(fleet / "model.yaml"), "--out",
-               str(fleet / "never"), "--scheduler", "tcp://127.0.0.1:9", "--quiet"])
+               str(fleet / "never"), "--scheduler", "tcp://127.0.0.1:9", "--connect-timeout", "2", "--quiet"])
     err = capsys.readouterr().err
     assert rc == 20 and err.count("\n") == 1
     assert "cannot reach the Dask scheduler tcp://127.0.0.1:9" in err and "Fix:" in err

@@ -51,6 +51,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     d = p.add_argument_group("Dask")
     d.add_argument("--scheduler", metavar="tcp://HOST:8786", help="use this running Dask scheduler "
                    "(default: start a LocalCluster on this machine)")
+    d.add_argument("--connect-timeout", type=float, default=20.0, metavar="S",
+                   help="how long to wait for --scheduler [s] (default 20)")
     d.add_argument("--workers", type=int, metavar="N", help="LocalCluster worker processes (default: cores)")
     d.add_argument("--cache", type=Path, metavar="DIR", help="cache of per-bag partials (default OUT.cache)")
     d.add_argument("--no-cache", action="store_true", help="recompute every bag, keep nothing")
@@ -101,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     settings = FleetSettings(chunk_samples=args.chunk_samples, freqs_hz=tuple(args.freqs), fanout=args.fanout,
                              cache_dir=cache, loop=args.loop, health=health)
     n_groups = len({e.group for e in entries})
-    with fleet_client(args.scheduler, workers=args.workers) as client:
+    with fleet_client(args.scheduler, workers=args.workers, timeout_s=args.connect_timeout) as client:
         if not args.quiet:
             print(dashboard_line(client), file=sys.stderr, flush=True)
             print(f"fleet: {len(entries)} bags in {n_groups} vehicle/corner groups; cache "

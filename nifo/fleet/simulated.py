@@ -37,24 +37,36 @@ def _vehicle(rng: np.random.Generator, spread: float, *, worn_loss: float, knee_
     return car, strut
 
 
+def _write_bag(job: dict) -> str:
+    """Simulate one bag and write it with its truth (module-level: runs on a worker too)."""
+    from nifo.io.loader import save_record
+
+    sim = simulate(job["config"], rng=job["seed"])
+    path = Path(job["path"])
+    save_record(path, sim.record)
+    path.with_name(path.name + ".truth.json").write_text(json.dumps(
+        {"nifo_truth": 1, "record": path.name, **sim.truth.to_dict(), "config": job["config"].to_dict()}) + "\n")
+    return str(path)
+
+
 def write_simulated_fleet(root: str | Path, *, n_vehicles: int = 20, bags_per_vehicle: int = 10,
                           duration_s: float | Sequence[float] = 60.0, spread: float = 0.10,
                           worn: Sequence[int] = (3, 11), worn_loss: float = 0.30, knee_moved: Sequence[int] = (7,),
                           knee_factor: float = 2.0, corner: str = "FL", road_rms_mm: float = 2.5,
-                          block: int = 6144, with_mass: bool = True, seed: int = 0, progress=None) -> Path:
+                          block: int = 6144, with_mass: bool = True, seed: int = 0, mapper=map) -> Path:
     """Write the fleet under ``root``; returns the manifest path. Vehicles are ``v00``, ``v01``, ...
 
     ``duration_s`` is one length [s] or (lo, hi): each bag's length drawn uniformly in it. With
     ``with_mass`` the manifest gives every vehicle's sprung mass (``m2_kg``, as weighed).
+    ``mapper(func, jobs)`` runs the bag simulations (default: the built-in ``map``, in this
+    process; e.g. ``lambda f, xs: client.gather(client.map(f, xs))`` on a Dask cluster).
     """
-    from nifo.io.loader import save_record
     from nifo.io.modelfile import write_model_spec
 
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
-    rows, truth = [], {}
-    total = n_vehicles * bags_per_vehicle
+    rows, truth, jobs = [], {}, []
     for v in range(n_vehicles):
         name = f"v{v:02d}"
         car, strut = _vehicle(rng, spread, worn_loss=worn_loss if v in worn else 0.0,
@@ -68,17 +80,12 @@ def write_simulated_fleet(root: str | Path, *, n_vehicles: int = 20, bags_per_ve
         folder.mkdir(parents=True, exist_ok=True)
         for b in range(bags_per_vehicle):
             dur = float(duration_s) if np.isscalar(duration_s) else float(rng.uniform(*duration_s))
-            bag_seed = seed * 1_000_003 + v * 1000 + b
             cfg = SimConfig(vehicle=car, strut=strut, road=RandomRoad(road_rms_mm * 1e-3), duration_s=dur)
-            sim = simulate(cfg, rng=bag_seed)
             path = folder / f"bag{b:02d}.mcap"
-            save_record(path, sim.record)
-            path.with_name(path.name + ".truth.json").write_text(json.dumps(
-                {"nifo_truth": 1, "record": path.name, **sim.truth.to_dict(), "config": cfg.to_dict()}) + "\n")
+            jobs.append({"config": cfg, "seed": seed * 1_000_003 + v * 1000 + b, "path": str(path)})
             rows.append({"vehicle": name, "corner": corner, "date": f"2026-01-{1 + b % 28:02d}",
                          "path": path.relative_to(root).as_posix(), "m2_kg": f"{car.m2:.6g}" if with_mass else ""})
-            if progress:
-                progress(len(rows) / total)
+    list(mapper(_write_bag, jobs))
     with (root / "manifest.csv").open("w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=["vehicle", "corner", "date", "path", "m2_kg"])
         w.writeheader()
@@ -87,5 +94,3 @@ def write_simulated_fleet(root: str | Path, *, n_vehicles: int = 20, bags_per_ve
                      settings={"block": int(block)})
     (root / "fleet_truth.json").write_text(json.dumps(truth, indent=1) + "\n")
     return root / "manifest.csv"
-
-
