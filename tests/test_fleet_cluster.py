@@ -49,6 +49,17 @@ def fleet(tmp_path_factory, cluster) -> Path:
         manifest = write_simulated_fleet(root, n_vehicles=10, bags_per_vehicle=2, duration_s=40.0, worn=(1,),
                                          knee_moved=(6,), block=4096, seed=2,
                                          mapper=lambda f, xs: client.gather(client.map(f, xs)))
+    # vmix: a nominal vehicle whose bags differ in length (30 s and 45 s): its integration band is set
+    # by the shorter one, as in nifo identify, so the longer one is accumulated twice
+    from nifo.fleet.simulated import NOMINAL_DEADZONE, NOMINAL_KNEE, _write_bag
+    from nifo_core.describing import Term
+    from nifo_core.simulate import RandomRoad, SimConfig, StrutForce
+
+    strut = (StrutForce(Term("velocity_deadzone", {"knee": NOMINAL_KNEE}), NOMINAL_DEADZONE),)
+    (root / "vmix" / "FL").mkdir(parents=True)
+    for b, dur in enumerate((30.0, 45.0)):
+        _write_bag({"config": SimConfig(strut=strut, road=RandomRoad(0.0025), duration_s=dur), "seed": 90 + b,
+                    "path": str(root / "vmix" / "FL" / f"bag0{b}.mcap")})
     good = root / "v02" / "FL" / "bag00.mcap"
     bad = root / "v02" / "FL" / "bag_truncated.mcap"
     bad.write_bytes(good.read_bytes()[: good.stat().st_size * 6 // 10])
@@ -57,6 +68,8 @@ def fleet(tmp_path_factory, cluster) -> Path:
         w = csv.writer(f)
         w.writerow(["v02", "FL", "2026-02-01", "v02/FL/bag_truncated.mcap", f"{m2:.6g}"])
         w.writerow(["v99", "FL", "2026-02-01", "v99/FL/never_copied.mcap", ""])
+        for b in range(2):
+            w.writerow(["vmix", "FL", "2026-02-02", f"vmix/FL/bag0{b}.mcap", "300"])
     return root
 
 
@@ -112,7 +125,7 @@ def test_a_bad_bag_is_recorded_with_its_reason_and_the_fleet_goes_on(result):
     assert g["v99"]["status"] == "failed" and g["v99"]["reason"] == "no usable bag"
 
 
-@pytest.mark.parametrize("vehicle", ["v01", "v03"])
+@pytest.mark.parametrize("vehicle", ["v01", "v03", "vmix"])
 def test_group_coefficients_equal_nifo_identify_on_the_groups_bags(result, fleet, tmp_path, vehicle):
     bags = sorted((fleet / vehicle / "FL").glob("bag0*.mcap"))
     out = tmp_path / "ident"
@@ -126,6 +139,10 @@ def test_group_coefficients_equal_nifo_identify_on_the_groups_bags(result, fleet
     for name, v in ident.items():
         assert g[name] == pytest.approx(v, rel=1e-9, abs=0), name
     assert g["n_avg"] == doc["summary"]["n_avg"]
+    if vehicle == "vmix":
+        passes = {Path(r["path"]).name: r["passes"] for r in pq.read_table(result / "bags.parquet").to_pylist()
+                  if r["vehicle"] == "vmix"}
+        assert passes == {"bag00.mcap": 1, "bag01.mcap": 2}
 
 
 def test_a_killed_fleet_run_resumes_without_recomputing_finished_bags(result, fleet, tmp_path):

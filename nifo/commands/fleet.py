@@ -144,6 +144,9 @@ def format_summary(result, *, out: Path, files: list[str]) -> str:
     ok = {g: r for g, r in result.groups.items() if r["ok"]}
     lines = [f"fleet: {len(ok)} of {len(result.groups)} groups identified from {len(result.bags)} bags "
              f"({result.n_cached} from the cache, {result.n_failed} failed)"]
+    if result.n_redone:
+        lines.append(f"  {result.n_redone} bag(s) accumulated twice: a bag shorter than 64 s set its group's "
+                     "integration band (as in nifo identify); band_hz in the model file avoids it")
     for b in result.bags:
         if b["status"] != "ok":
             lines.append(f"  FAILED bag {b['vehicle']}/{b['corner']} {b['path']}: {b['reason']}")

@@ -21,7 +21,8 @@ from typing import Mapping
 
 import numpy as np
 
-__all__ = ["content_hash", "settings_hash", "cache_key", "load_partial", "store_partial", "CACHE_FORMAT"]
+__all__ = ["content_hash", "settings_hash", "cache_key", "load_partial", "store_partial", "load_note", "store_note",
+           "CACHE_FORMAT"]
 
 #: bump when the content of a cached partial changes meaning
 CACHE_FORMAT = 1
@@ -88,6 +89,34 @@ def store_partial(cache_dir: str | os.PathLike | None, key: str, state: Mapping[
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def load_note(cache_dir: str | os.PathLike | None, key: str) -> dict | None:
+    """A small cached JSON note (a bag's rate, length and channels) or None."""
+    if cache_dir is None:
+        return None
+    try:
+        return json.loads((Path(cache_dir) / "notes" / f"{key}.json").read_text())
+    except FileNotFoundError:
+        return None
+    except Exception:  # noqa: BLE001 - torn or foreign: recomputed
+        return None
+
+
+def store_note(cache_dir: str | os.PathLike | None, key: str, note: Mapping) -> None:
+    """Write a small JSON note atomically."""
+    if cache_dir is None:
+        return
+    folder = Path(cache_dir) / "notes"
+    folder.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{key}.", suffix=".tmp", dir=folder)
+    try:
+        with os.fdopen(fd, "w") as f:
+            json.dump(note, f)
+        os.replace(tmp, folder / f"{key}.json")
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise

@@ -1,34 +1,37 @@
-"""The fleet's task graph on a Dask client: probe → accumulate per bag → tree-merge per group → solve.
+"""The fleet's task graph on a Dask client: accumulate per bag → tree-merge per group → solve.
 
 ::
 
-    probe_bag(path) ──► group set-up (rate, integration band, tire patch, cache key)
-    compute_bag(path, key) ─┐                      (cache hit: read the partial, no recompute)
-    compute_bag(path, key) ─┼─ merge ─┐
-    compute_bag(path, key) ─┘         ├─ merge ── solve_group ──► row of the fleet table
-    compute_bag(path, key) ── merge ──┘            (loop_group, with --loop)
+    compute_bag(path) ─┐      (reads the bag once; a cache hit reads the partial, not the bag)
+    compute_bag(path) ─┼─ merge ─┐
+    compute_bag(path) ─┘         ├─ merge ── solve_group ──► row of the fleet table
+    compute_bag(path) ── merge ──┘            (loop_group, with --loop)
 
-Only paths, settings and cache keys go out to the workers; partials stay on
-the workers and move worker-to-worker into the merges; the client gathers a
-small status per bag and one result per group.
+Each bag is accumulated with its own integration band and tire patch until
+its group is complete; then the group's set-up is fixed as ``nifo identify``
+would (band from the model file, else ``default_band(fs, shortest bag)``; tire
+patch when every bag has one; bags at another rate left out) and only the
+bags whose set-up differs (a bag shorter than 64 s in the group, a bag
+without tire patch) are accumulated again. Only paths, settings and cache
+keys go out to the workers; partials stay on the workers and move
+worker-to-worker into the merges; the client gathers a small status per bag
+and one result per group.
 """
 
 from __future__ import annotations
 
 import argparse
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from nifo.fleet.cache import cache_key, settings_hash
 from nifo.fleet.manifest import BagEntry
-from nifo.fleet.tasks import (GroupSetup, bag_status, compute_bag, loop_group, merge_outcomes, probe_bag,
-                              solve_group)
+from nifo.fleet.tasks import GroupSetup, bag_status, compute_bag, loop_group, merge_outcomes, solve_group
 from nifo.progress import Progress
-from nifo_core.errors import ConfigError, NifoError
+from nifo_core.errors import ConfigError
 from nifo_core.fleet import Estimate, HealthSettings, assess_health, reduction_plan
 
-__all__ = ["FleetSettings", "FleetRun", "run_fleet", "group_setups"]
+__all__ = ["FleetSettings", "FleetRun", "run_fleet", "base_setups", "group_setup"]
 
 
 @dataclass(frozen=True)
@@ -75,6 +78,11 @@ class FleetRun:
         return sum(1 for b in self.bags if b["status"] != "ok")
 
     @property
+    def n_redone(self) -> int:
+        """Bags accumulated a second time with their group's set-up (band set by a bag shorter than 64 s)."""
+        return sum(1 for b in self.bags if b.get("passes", 0) > 1)
+
+    @property
     def n_cached(self) -> int:
         return sum(1 for b in self.bags if b.get("cached"))
 
@@ -95,117 +103,139 @@ def _model_cfgs(entries: list[BagEntry]) -> dict[Path, tuple]:
     return out
 
 
-def group_setups(entries: list[BagEntry], probes: list[dict], *, opts: dict, chunk_samples: int
-                 ) -> tuple[dict, dict[int, str]]:
-    """Per group: the GroupSetup all its bags share; and the reason for every bag left out.
+def base_setups(entries: list[BagEntry], *, opts: dict, chunk_samples: int) -> dict[tuple[str, str], GroupSetup]:
+    """Per group, the set-up from its model file; band and tire patch still open (None) unless the file fixes the band."""
+    cfgs = _model_cfgs(entries)
+    out = {}
+    for e in entries:
+        if e.group in out:
+            continue
+        spec, cfg = cfgs[e.model]
+        out[e.group] = GroupSetup(terms=tuple(spec.terms), spectral=cfg["spectral"], band=cfg["band"],
+                                  with_tire_patch=None, analysis_band_hz=tuple(cfg["analysis_band_hz"]),
+                                  cond_limit=cfg["cond_limit"], chunk_samples=int(chunk_samples), opts=dict(opts),
+                                  band_from_model=cfg["band"] is not None)
+    return out
 
-    The integration band is the model file's, else ``default_band(fs, shortest bag)`` as in
-    ``nifo identify``; the tire patch is used when every bag of the group has one; bags
-    whose rate differs from the group's most common rate are left out.
+
+def group_setup(base: GroupSetup, probes: dict[int, dict], *, label: str) -> tuple[GroupSetup | None, dict[int, str]]:
+    """The group's set-up from its bags' rates, lengths and channels, as ``nifo identify`` chooses it.
+
+    Returns the set-up (None when no bag is left) and the reason for every bag left out (another rate).
     """
     from nifo_core.integrate import default_band
 
-    cfgs = _model_cfgs(entries)
-    left_out: dict[int, str] = {i: p["reason"] for i, p in enumerate(probes) if not p["ok"]}
-    groups: dict[tuple[str, str], list[int]] = {}
-    for i, e in enumerate(entries):
-        groups.setdefault(e.group, []).append(i)
-    setups = {}
-    for g, idx in groups.items():
-        ok = [i for i in idx if i not in left_out]
-        if not ok:
-            continue
-        fs = Counter(probes[i]["fs_hz"] for i in ok).most_common(1)[0][0]
-        for i in ok:
-            if probes[i]["fs_hz"] != fs:
-                left_out[i] = (f"{entries[i].path}: sample rate {probes[i]['fs_hz']:g} Hz differs from the other "
-                               f"bags of {g[0]}/{g[1]} ({fs:g} Hz); resample it to {fs:g} Hz")
-        ok = [i for i in ok if i not in left_out]
-        spec, cfg = cfgs[entries[ok[0]].model]
-        band = cfg["band"]
-        while band is None:
-            shortest = min(ok, key=lambda i: probes[i]["n_samples"])
-            try:
-                band = default_band(fs, probes[shortest]["n_samples"] / fs)
-            except NifoError as err:
-                left_out[shortest] = f"{entries[shortest].path}: {err}"
-                ok.remove(shortest)
-                if not ok:
-                    break
-        if not ok:
-            continue
-        try:
-            band = band.validate(fs)
-        except NifoError as err:
-            for i in ok:
-                left_out[i] = f"{entries[i].path}: {err}"
-            continue
-        setups[g] = GroupSetup(terms=tuple(spec.terms), spectral=cfg["spectral"], band=band,
-                               with_tire_patch=all(probes[i]["has_tire_patch"] for i in ok),
-                               analysis_band_hz=tuple(cfg["analysis_band_hz"]), cond_limit=cfg["cond_limit"],
-                               chunk_samples=int(chunk_samples), opts=dict(opts))
-    return setups, left_out
+    if not probes:
+        return None, {}
+    fs = Counter(p["fs_hz"] for p in probes.values()).most_common(1)[0][0]
+    left = {i: f"sample rate {p['fs_hz']:g} Hz differs from the other bags of {label} ({fs:g} Hz); resample it"
+            for i, p in probes.items() if p["fs_hz"] != fs}
+    ok = [p for i, p in probes.items() if i not in left]
+    band = base.band or default_band(fs, min(p["n_samples"] for p in ok) / fs)
+    return replace(base, band=band, with_tire_patch=all(p["has_tire_patch"] for p in ok)), left
 
 
 def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSettings = FleetSettings(),
               quiet: bool = False) -> FleetRun:
     """Run the fleet on ``client`` (module docstring); failed bags are recorded, never raised."""
-    s = settings
-    paths = [str(e.path) for e in entries]
-    with Progress(float(len(entries)), "fleet: probing bags", enabled=not quiet) as bar:
-        futs = client.map(probe_bag, paths, opts=opts, pure=False)
-        probes = []
-        for f in futs:
-            probes.append(f.result())
-            bar.advance(1)
-        del futs
-    setups, left_out = group_setups(entries, probes, opts=opts, chunk_samples=s.chunk_samples)
-    digests = {g: settings_hash(st.cache_settings()) for g, st in setups.items()}
-    bag_rows = [{"vehicle": e.vehicle, "corner": e.corner, "date": e.date, "path": str(e.path),
-                 "status": "pending", "reason": "", "cached": False, "seconds": float("nan"),
-                 "hash": probes[i].get("hash", ""), "key": ""} for i, e in enumerate(entries)]
-    status, finals, loops = {}, {}, {}
-    for g, st in setups.items():
-        idx = [i for i, e in enumerate(entries) if e.group == g and i not in left_out]
-        outs = []
-        for i in idx:
-            key = cache_key(probes[i]["hash"], digests[g])
-            o = client.submit(compute_bag, paths[i], key, st, s.cache_dir, pure=False)
-            outs.append(o)
-            status[client.submit(bag_status, o, pure=False)] = i
-        for level in reduction_plan(len(outs), fanout=s.fanout):
-            outs = [outs[ix[0]] if len(ix) == 1 else client.submit(merge_outcomes, *[outs[j] for j in ix], pure=False)
-                    for ix in level]
-        m2 = next(entries[i].m2_kg for i in idx)
-        finals[g] = client.submit(solve_group, outs[0], freqs_hz=tuple(s.freqs_hz), plot_max_hz=s.plot_max_hz,
-                                  m2_kg=m2, pure=False)
-        if s.loop:
-            loops[g] = client.submit(loop_group, [paths[i] for i in idx], st, pure=False)
-        del outs
-    for i, reason in left_out.items():
-        bag_rows[i].update(status="failed", reason=reason)
     from distributed import as_completed
 
-    with Progress(float(len(status) + len(finals)), "fleet: bags and groups", enabled=not quiet) as bar:
-        for fut in as_completed([*status, *finals.values()]):
-            if fut in status:
-                r = fut.result()
-                row = bag_rows[status[fut]]
-                if r["ok"]:
-                    row.update(status="ok", cached=r["cached"], seconds=r["seconds"], key=r["key"])
-                else:
-                    row.update(status="failed", reason=r["reason"])
+    from nifo.fleet.cache import settings_hash
+
+    s = settings
+    bases = base_setups(entries, opts=opts, chunk_samples=s.chunk_samples)
+    paths = [str(e.path) for e in entries]
+    rows = [{"vehicle": e.vehicle, "corner": e.corner, "date": e.date, "path": p, "status": "pending",
+             "reason": "", "cached": False, "seconds": float("nan"), "hash": "", "key": "", "passes": 0}
+            for e, p in zip(entries, paths)]
+    members: dict[tuple[str, str], list[int]] = {}
+    for i, e in enumerate(entries):
+        members.setdefault(e.group, []).append(i)
+    outs, status, waiting, probes, final_setup = {}, {}, {}, {}, {}
+    solves, loops = {}, {}
+    ac = as_completed()
+
+    def submit(i: int, setup: GroupSetup) -> None:
+        rows[i]["passes"] += 1
+        outs[i] = client.submit(compute_bag, paths[i], setup, s.cache_dir, pure=False)
+        st = client.submit(bag_status, outs[i], pure=False)
+        status[st] = i
+        ac.add(st)
+
+    for g, idx in members.items():
+        waiting[g] = set(idx)
+        for i in idx:
+            submit(i, bases[g])
+
+    def group_ready(g) -> None:
+        ok = [i for i in members[g] if rows[i]["status"] == "ok"]
+        if g not in final_setup:            # first pass done: fix the group's set-up
+            setup, left = group_setup(bases[g], {i: probes[i] for i in ok}, label=f"{g[0]}/{g[1]}")
+            for i, why in left.items():
+                rows[i].update(status="failed", reason=f"{paths[i]}: {why}")
+            final_setup[g] = setup
+            digest = None if setup is None else settings_hash(setup.cache_settings())
+            redo = [i for i in ok if i not in left and probes[i]["setup_hash"] != digest]
+            if redo:
+                bar.total += len(redo)
+                waiting[g] = set(redo)
+                for i in redo:
+                    submit(i, setup)
+                return
+        ok = [i for i in members[g] if rows[i]["status"] == "ok"]
+        parts = [outs[i] for i in ok]
+        for i in members[g]:
+            outs.pop(i, None)
+        if not parts:
+            return
+        for level in reduction_plan(len(parts), fanout=s.fanout):
+            parts = [parts[ix[0]] if len(ix) == 1 else
+                     client.submit(merge_outcomes, *[parts[j] for j in ix], pure=False) for ix in level]
+        m2 = entries[members[g][0]].m2_kg
+        solves[g] = client.submit(solve_group, parts[0], freqs_hz=tuple(s.freqs_hz), plot_max_hz=s.plot_max_hz,
+                                  m2_kg=m2, pure=False)
+        ac.add(solves[g])
+        if s.loop:
+            loops[g] = client.submit(loop_group, [paths[i] for i in ok], final_setup[g], pure=False)
+
+    group_of = {i: e.group for i, e in enumerate(entries)}
+    with Progress(float(len(entries) + len(members)), "fleet: bags and groups", enabled=not quiet) as bar:
+        for fut in ac:
             bar.advance(1)
-    groups = {g: f.result() for g, f in finals.items()}
+            if fut not in status:
+                continue
+            i = status.pop(fut)
+            r = _result(fut)
+            if r["ok"]:
+                rows[i].update(status="ok", reason="", cached=r["cached"], seconds=r["seconds"], key=r["key"],
+                               hash=r["hash"])
+                probes[i] = {**r["probe"], "setup_hash": r["setup_hash"]}
+            else:
+                rows[i].update(status="failed", reason=r["reason"])
+            g = group_of[i]
+            waiting[g].discard(i)
+            if not waiting[g]:
+                group_ready(g)
+    groups = {g: _result(f) for g, f in solves.items()}
     for g, f in loops.items():
-        groups[g]["loop"] = f.result()
-    del status, finals, loops
-    for e in entries:   # groups with no usable bag at all
-        if e.group not in groups:
-            groups[e.group] = {"ok": False, "reason": "no usable bag", "bags": []}
+        lr = _result(f)
+        groups[g]["loop"] = lr if "verdict" in lr else {"ok": False, "verdict": f"loop not run: {lr['reason']}"}
+    del solves, loops, outs, status
+    for g in members:   # groups with no usable bag at all
+        if g not in groups:
+            groups[g] = {"ok": False, "reason": "no usable bag", "bags": []}
     _health(groups, s.health)
-    return FleetRun(bags=bag_rows, groups=groups, settings=s,
-                    setups={g: st.cache_settings() for g, st in setups.items()})
+    return FleetRun(bags=rows, groups=groups, settings=s,
+                    setups={g: st.cache_settings() for g, st in final_setup.items() if st is not None})
+
+
+def _result(fut) -> dict:
+    """A task's result; a task that died (worker lost, bug) becomes a one-line failure, not the fleet's end."""
+    try:
+        return fut.result()
+    except Exception as err:  # noqa: BLE001
+        first = str(err).splitlines()[0] if str(err) else "no message"
+        return {"ok": False, "reason": f"task failed on the cluster ({type(err).__name__}: {first})", "bags": []}
 
 
 def _health(groups: dict, hs: HealthSettings) -> None:

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -25,12 +25,8 @@ from nifo_core.errors import NifoError
 from nifo_core.integrate import IntegrationBand
 from nifo_core.spectral import SpectralSettings
 
-__all__ = ["GroupSetup", "coefficient_specs", "probe_bag", "compute_bag", "bag_status", "merge_outcomes",
-           "solve_group", "loop_group", "PROBE_CHUNK"]
-
-#: samples read to learn a bag's rate, length and channels
-PROBE_CHUNK = 2048
-
+__all__ = ["GroupSetup", "coefficient_specs", "bag_setup", "bag_coefficients", "compute_bag", "bag_status", "merge_outcomes",
+           "solve_group", "loop_group"]
 
 @dataclass(frozen=True)
 class GroupSetup:
@@ -38,19 +34,20 @@ class GroupSetup:
 
     terms: tuple[Term, ...]
     spectral: SpectralSettings
-    band: IntegrationBand
-    with_tire_patch: bool
+    band: IntegrationBand | None           # None: each bag's default_band until the group's is known
+    with_tire_patch: bool | None           # None: each bag's own until the group's is known
     analysis_band_hz: tuple[float, float]
     cond_limit: float
     chunk_samples: int
     opts: dict = field(default_factory=dict)
+    band_from_model: bool = False
 
     def cache_settings(self) -> dict:
         """What shapes a partial (the cache key's settings part)."""
         opts = {k: (None if v is None else (v if isinstance(v, (str, int, float)) else repr(v)))
                 for k, v in self.opts.items()}
         return {"terms": [t.to_dict() for t in self.terms], "spectral": self.spectral.to_dict(),
-                "band": self.band.to_dict(), "with_tire_patch": self.with_tire_patch,
+                "band": None if self.band is None else self.band.to_dict(), "with_tire_patch": self.with_tire_patch,
                 "analysis_band_hz": list(self.analysis_band_hz), "cond_limit": self.cond_limit,
                 "chunk_samples": self.chunk_samples, "opts": opts}
 
@@ -103,36 +100,28 @@ def _coefficients(res) -> dict[str, float]:
 # ---------------------------------------------------------------------------------------------
 # per bag
 # ---------------------------------------------------------------------------------------------
-def probe_bag(path: str, opts: dict) -> dict:
-    """Content hash, sample rate, expected length and channels of a bag (reads its first samples only)."""
-    from nifo.fleet.cache import content_hash
-    from nifo.io.loader import detect_format, iter_record_chunks
+def bag_setup(base: GroupSetup, probe: dict) -> GroupSetup:
+    """The set-up a bag is accumulated with: the group's band and tire patch where fixed, else its own.
 
-    try:
-        detect_format(path)          # a missing or foreign file: the loader's one-line reason
-        digest = content_hash(path)
-        gen = iter_record_chunks(path, chunk_samples=PROBE_CHUNK, **opts)
-        try:
-            first = next(gen)
-        except StopIteration:
-            return {"ok": False, "reason": f"{path}: the file holds no samples"}
-        finally:
-            gen.close()
-        n = int(first.meta.get("chunk", {}).get("total_samples", first.n))
-        return {"ok": True, "hash": digest, "fs_hz": float(first.fs_hz), "n_samples": n,
-                "has_tire_patch": bool(first.has_tire_patch)}
-    except Exception as err:  # noqa: BLE001 - a bad bag is recorded, the fleet goes on
-        return {"ok": False, "reason": _one_line(err)}
+    Own band: ``default_band(fs, this bag's length)`` (``nifo identify`` uses the
+    group's shortest bag; equal whenever every bag is longer than 64 s, else the
+    client recomputes the bags that differ).
+    """
+    from nifo_core.integrate import default_band
+
+    fs = probe["fs_hz"]
+    band = base.band or default_band(fs, probe["n_samples"] / fs)
+    tp = probe["has_tire_patch"] if base.with_tire_patch is None else base.with_tire_patch
+    return replace(base, band=band.validate(fs), with_tire_patch=bool(tp))
 
 
-def _accumulate(path: str, setup: GroupSetup):
-    from nifo.io.loader import iter_record_chunks
+def _accumulate(chunks, path: str, setup: GroupSetup):
     from nifo_core.errors import RecordTooShortError
     from nifo_core.nifo import StreamingNifo
 
     one = None
     n = 0
-    for chunk in iter_record_chunks(path, chunk_samples=setup.chunk_samples, **setup.opts):
+    for chunk in chunks:
         if one is None:   # the StreamingNifo nifo identify builds for each file (commands/identify.py)
             one = StreamingNifo(chunk.fs_hz, setup.terms, settings=setup.spectral, band=setup.band,
                                 with_tire_patch=setup.with_tire_patch, analysis_band_hz=setup.analysis_band_hz,
@@ -148,33 +137,88 @@ def _accumulate(path: str, setup: GroupSetup):
     return one, n
 
 
-def compute_bag(path: str, key: str, setup: GroupSetup, cache_dir: str | None) -> dict:
-    """The bag's partial: from the cache when there, else accumulated here (then cached)."""
-    from nifo.fleet.cache import load_partial, store_partial
+def bag_coefficients(one, setup: GroupSetup) -> dict[str, float]:
+    """This bag's own coefficients (for the group's standard errors), NaN where one bag cannot give them.
 
-    hit = load_partial(cache_dir, key)
-    if hit is not None:
-        return {"ok": True, "state": hit["state"], "bags": [{**hit["info"], "cached": True}]}
-    t0 = time.perf_counter()
+    Solved on the lines of the analysis band only, without the tire patch: the
+    pooled static fit and the body model use only those lines, so the values
+    are those of the full solve at a tenth of its cost.
+    """
+    from dataclasses import replace
+
+    from nifo_core.nifo import nifo_from_spectra
+
     try:
-        one, n = _accumulate(path, setup)
-        one.end_record()          # the partial keeps the sums, not the stream's edge samples
+        spec = one.spectra()
+        lo, hi = setup.analysis_band_hz
+        keep = (spec.freq_hz >= lo) & (spec.freq_hz <= hi)
+        spec = replace(spec, freq_hz=spec.freq_hz[keep].copy(), G=spec.G[keep].copy())
+        if setup.with_tire_patch:
+            spec = spec.select(list(range(spec.n_channels - 1)))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            try:
-                coefs = _coefficients(one.result())
-            except NifoError:      # one bag alone may not resolve every term: no per-bag value then
-                coefs = {n_: float("nan") for n_, _, _ in coefficient_specs(setup.terms)}
+            res = nifo_from_spectra(spec, setup.terms, band=setup.band, analysis_band_hz=setup.analysis_band_hz,
+                                    on_ill_conditioned="ignore", cond_limit=setup.cond_limit)
+        return _coefficients(res)
+    except NifoError:
+        return {n: float("nan") for n, _, _ in coefficient_specs(setup.terms)}
+
+
+def compute_bag(path: str, base: GroupSetup, cache_dir: str | None) -> dict:
+    """The bag's partial, reading the bag once: from the cache when there, else accumulated here (then cached).
+
+    The first chunk tells the rate, length and channels (kept as a note in the
+    cache, so a rerun finds the partial without opening the bag); with them the
+    bag's set-up (:func:`bag_setup`) and its cache key are known.
+    """
+    from itertools import chain
+
+    from nifo.fleet.cache import (cache_key, content_hash, load_note, load_partial, settings_hash, store_note,
+                                  store_partial)
+    from nifo.io.loader import detect_format, iter_record_chunks
+    from nifo_core.errors import RecordTooShortError
+
+    t0 = time.perf_counter()
+    raw = gen = None
+    try:
+        detect_format(path)          # a missing or foreign file: the loader's one-line reason
+        digest = content_hash(path)
+        note_key = cache_key(digest, settings_hash({"note": base.cache_settings()["opts"]}))
+        probe = load_note(cache_dir, note_key)
+        if probe is None:
+            raw = iter_record_chunks(path, chunk_samples=base.chunk_samples, **base.opts)
+            first = next(raw, None)
+            if first is None:
+                raise RecordTooShortError("the file holds no samples", source=path)
+            probe = {"fs_hz": float(first.fs_hz), "has_tire_patch": bool(first.has_tire_patch),
+                     "n_samples": int(first.meta.get("chunk", {}).get("total_samples", first.n))}
+            gen = chain([first], raw)
+            store_note(cache_dir, note_key, probe)
+        setup = bag_setup(base, probe)
+        setup_hash = settings_hash(setup.cache_settings())
+        key = cache_key(digest, setup_hash)
+        common = {"hash": digest, "probe": probe, "setup_hash": setup_hash}
+        hit = load_partial(cache_dir, key)
+        if hit is not None:
+            return {"ok": True, "state": hit["state"], "bags": [{**hit["info"], "cached": True}], **common}
+        if gen is None:
+            gen = raw = iter_record_chunks(path, chunk_samples=base.chunk_samples, **base.opts)
+        one, n = _accumulate(gen, path, setup)
+        one.end_record()          # the partial keeps the sums, not the stream's edge samples
+        coefs = bag_coefficients(one, setup)
         state = one.state_dict()
     except Exception as err:  # noqa: BLE001 - a bad bag is recorded, the fleet goes on
         return {"ok": False, "reason": _one_line(err)}
+    finally:
+        if raw is not None:
+            raw.close()
     info = {"key": key, "path": str(path), "n_samples": int(n), "fs_hz": one.fs_hz,
             "seconds": time.perf_counter() - t0, "coefs": coefs}
     try:
         store_partial(cache_dir, key, state, info)
     except OSError as err:
         info["cache_note"] = f"not cached: {err}"
-    return {"ok": True, "state": state, "bags": [{**info, "cached": False}]}
+    return {"ok": True, "state": state, "bags": [{**info, "cached": False}], **common}
 
 
 def bag_status(outcome: dict) -> dict:
@@ -183,7 +227,7 @@ def bag_status(outcome: dict) -> dict:
         return {"ok": False, "reason": outcome["reason"]}
     b = outcome["bags"][0]
     return {"ok": True, "cached": b["cached"], "seconds": b["seconds"], "n_samples": b["n_samples"],
-            "key": b["key"]}
+            "key": b["key"], "hash": outcome["hash"], "probe": outcome["probe"], "setup_hash": outcome["setup_hash"]}
 
 
 def merge_outcomes(*outcomes: dict) -> dict:
@@ -278,7 +322,8 @@ def loop_group(paths: list[str], setup: GroupSetup) -> dict:
 
     try:
         recs = [load_record(p, **setup.opts) for p in paths]
-        res = close_loop(recs, list(setup.terms), band=setup.band,
+        band = setup.band if setup.band_from_model else None     # as nifo loop: else its own suggestion
+        res = close_loop(recs, list(setup.terms), band=band,
                          settings=LoopSettings(spectral=setup.spectral, analysis_band_hz=setup.analysis_band_hz))
     except Exception as err:  # noqa: BLE001
         return {"ok": False, "verdict": f"loop not run: {_one_line(err)}", "added": []}
