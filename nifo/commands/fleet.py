@@ -19,8 +19,9 @@ from nifo_core.errors import ConfigError
 HELP = "identify a fleet: many bags of many vehicles on Dask, one model per vehicle/corner, odd struts flagged"
 DESCRIPTION = f"""{HELP}.
 
-INPUT is a manifest (CSV or YAML; columns vehicle, corner, date, path, model)
-or a folder tree ROOT/<vehicle>/<corner>/<bag>. Every bag's spectra are
+INPUT is a manifest (CSV or YAML; columns vehicle, corner, date, path, model,
+m2_kg) or a folder tree ROOT/<vehicle>/<corner>/<bag>. With m2_kg (the corner's
+weighed sprung mass) coefficients are also given in SI and compared in SI. Every bag's spectra are
 accumulated on a Dask worker, merged per vehicle/corner by tree reduction,
 and NIFO is solved per group exactly as 'nifo identify GROUP_BAGS --model M'.
 Each coefficient (K2/M2, C2/M2, c_i/M2) is compared with the fleet by a robust
@@ -68,6 +69,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     o.add_argument("--freqs", type=float, nargs="+", default=[2.0, 5.0, 10.0, 20.0], metavar="HZ",
                    help="frequencies of the T21 columns [Hz] (default 2 5 10 20)")
     o.add_argument("--loop", action="store_true", help="also run the residual loop per group (slow)")
+    o.add_argument("--characterize", action="store_true",
+                   help="also rank the restoring force's nonlinearities per group (slow)")
     o.add_argument("--chunk-samples", type=int, default=2 ** 18, metavar="N",
                    help="streaming chunk per bag [samples] (default 262144, as nifo identify)")
     o.add_argument("--no-plots", action="store_true", help="no HTML page and figures")
@@ -101,7 +104,8 @@ def run(args: argparse.Namespace) -> int:
                             min_groups=args.min_groups)
     cache = None if args.no_cache else str((args.cache or Path(str(args.out) + ".cache")).resolve())
     settings = FleetSettings(chunk_samples=args.chunk_samples, freqs_hz=tuple(args.freqs), fanout=args.fanout,
-                             cache_dir=cache, loop=args.loop, health=health)
+                             cache_dir=cache, loop=args.loop, characterize=args.characterize,
+                             health=health)
     n_groups = len({e.group for e in entries})
     with fleet_client(args.scheduler, workers=args.workers, timeout_s=args.connect_timeout) as client:
         if not args.quiet:

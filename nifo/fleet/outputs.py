@@ -8,7 +8,7 @@ estimates; NaN from one bag), ``NAME_se``, ``NAME_z`` (robust z against the
 fleet); ``t21_<f>hz_mag`` with ``_mag_lo/_mag_hi`` (~95 % random-error bounds)
 and ``_phase_deg`` at the chosen frequencies; ``coherence_h1_median``,
 ``cond_median``; ``flagged``, ``flag_evidence``, ``health_note``;
-``loop_verdict``; ``warnings``. Units are in ``fleet.json`` (``units``).
+``loop_verdict``, ``characterization``; ``warnings``. Units are in ``fleet.json`` (``units``).
 """
 
 from __future__ import annotations
@@ -60,6 +60,8 @@ def group_rows(run: FleetRun) -> list[dict]:
             row.update(flagged=False, flag_evidence="", health_note="not assessed: no result")
         loop = r.get("loop")
         row["loop_verdict"] = loop["verdict"] if loop else "loop not run (give --loop)"
+        ch = r.get("characterization")
+        row["characterization"] = ch["text"] if ch else "not run (give --characterize)"
         rows.append(row)
     return rows
 
@@ -103,6 +105,8 @@ def fleet_document(run: FleetRun, *, figures: list[str], inputs: str) -> dict:
                      meanings={n: m for n, _, m in r["specs"]})
         if r.get("loop"):
             g["loop"] = r["loop"]
+        if r.get("characterization"):
+            g["characterization"] = r["characterization"]
         groups.append(g)
     return _clean({"nifo_fleet": 1, "input": inputs, "units": units,
                    "settings": {"health": run.settings.health.to_dict(), "freqs_hz": list(run.settings.freqs_hz),

@@ -65,13 +65,15 @@ def plot_t21(path: Path, run: FleetRun) -> Path:
 
     fig, (am, ap) = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True, constrained_layout=True)
     band = None
+    styles = iter(["-", "--", ":", "-."] * 1000)
     for g, r in _ok_groups(run):
         c = r["curves"]
         f, t = np.asarray(c["freq_hz"]), np.asarray(c["t21"])
         m = f > 0
         flagged = r["health"].flagged
         kw = {"color": _FLAG if flagged else _OK, "lw": 1.4 if flagged else 0.7, "alpha": 1 if flagged else 0.5,
-              "zorder": 3 if flagged else 2, "label": _label(g) if flagged else None}
+              "zorder": 3 if flagged else 2, "label": _label(g) if flagged else None,
+              "ls": next(styles) if flagged else "-"}
         am.loglog(f[m], np.abs(t[m]), **kw)
         ap.semilogx(f[m], np.degrees(np.angle(t[m])), **kw)
         band = r["analysis_band_hz"]
@@ -82,7 +84,8 @@ def plot_t21(path: Path, run: FleetRun) -> Path:
     am.set_ylabel("|T21| = |X2/X1| [-]")
     ap.set_ylabel("phase of T21 [°]")
     ap.set_xlabel("frequency [Hz]")
-    am.set_title("nominal spindle→body transmissibility of every group (pooled NIFO T21; grey: analysis band)")
+    am.set_title("nominal spindle→body transmissibility of every group (pooled NIFO T21; grey: analysis band)",
+                 fontsize=10)
     am.legend(fontsize=8, loc="lower left")
     for ax in (am, ap):
         ax.grid(True, which="both", alpha=0.3)

@@ -26,7 +26,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from nifo.fleet.manifest import BagEntry
-from nifo.fleet.tasks import GroupSetup, bag_status, compute_bag, loop_group, merge_outcomes, solve_group
+from nifo.fleet.tasks import (GroupSetup, bag_status, characterize_group, compute_bag, loop_group, merge_outcomes,
+                              solve_group)
 from nifo.progress import Progress
 from nifo_core.errors import ConfigError
 from nifo_core.fleet import Estimate, HealthSettings, assess_health, reduction_plan
@@ -52,6 +53,8 @@ class FleetSettings:
         Where partials are cached (must be visible to every worker); None: no cache.
     loop : bool
         Also run the residual loop per group (loads the group's records on one worker).
+    characterize : bool
+        Also rank the restoring force's nonlinearities per group (``nifo characterize``, records loaded whole).
     health : HealthSettings
     """
 
@@ -61,6 +64,7 @@ class FleetSettings:
     fanout: int = 2
     cache_dir: str | None = None
     loop: bool = False
+    characterize: bool = False
     health: HealthSettings = field(default_factory=HealthSettings)
 
 
@@ -152,7 +156,7 @@ def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSet
     for i, e in enumerate(entries):
         members.setdefault(e.group, []).append(i)
     outs, status, waiting, probes, final_setup = {}, {}, {}, {}, {}
-    solves, loops = {}, {}
+    solves, loops, chars = {}, {}, {}
     ac = as_completed()
 
     def submit(i: int, setup: GroupSetup) -> None:
@@ -197,6 +201,8 @@ def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSet
         ac.add(solves[g])
         if s.loop:
             loops[g] = client.submit(loop_group, [paths[i] for i in ok], final_setup[g], pure=False)
+        if s.characterize:
+            chars[g] = client.submit(characterize_group, [paths[i] for i in ok], final_setup[g], m2, pure=False)
 
     group_of = {i: e.group for i, e in enumerate(entries)}
     with Progress(float(len(entries) + len(members)), "fleet: bags and groups", enabled=not quiet) as bar:
@@ -220,7 +226,11 @@ def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSet
     for g, f in loops.items():
         lr = _result(f)
         groups[g]["loop"] = lr if "verdict" in lr else {"ok": False, "verdict": f"loop not run: {lr['reason']}"}
-    del solves, loops, outs, status
+    for g, f in chars.items():
+        cr = _result(f)
+        groups[g]["characterization"] = cr if "text" in cr else {
+            "ok": False, "text": f"characterization not run: {cr['reason']}", "suggested": []}
+    del solves, loops, chars, outs, status
     for g in members:   # groups with no usable bag at all
         if g not in groups:
             groups[g] = {"ok": False, "reason": "no usable bag", "bags": []}

@@ -41,10 +41,13 @@ def _write_bag(job: dict) -> str:
     """Simulate one bag and write it with its truth (module-level: runs on a worker too)."""
     from nifo.io.loader import save_record
 
-    sim = simulate(job["config"], rng=job["seed"])
     path = Path(job["path"])
+    truth = path.with_name(path.name + ".truth.json")
+    if path.exists() and truth.exists():     # written by an earlier, interrupted call (truth comes last)
+        return str(path)
+    sim = simulate(job["config"], rng=job["seed"])
     save_record(path, sim.record)
-    path.with_name(path.name + ".truth.json").write_text(json.dumps(
+    truth.write_text(json.dumps(
         {"nifo_truth": 1, "record": path.name, **sim.truth.to_dict(), "config": job["config"].to_dict()}) + "\n")
     return str(path)
 

@@ -26,7 +26,8 @@ from nifo_core.integrate import IntegrationBand
 from nifo_core.spectral import SpectralSettings
 
 __all__ = ["GroupSetup", "coefficient_specs", "bag_setup", "bag_coefficients", "compute_bag", "bag_status", "merge_outcomes",
-           "solve_group", "loop_group"]
+           "solve_group", "loop_group",
+           "characterize_group"]
 
 @dataclass(frozen=True)
 class GroupSetup:
@@ -304,7 +305,7 @@ def solve_group(outcome: dict, *, freqs_hz: tuple[float, ...], plot_max_hz: floa
                             "hi": v["hi"] * m2_kg, "unit": unit}
         specs = specs + si
         names["si"] = [n for n, _, _ in si]
-    keep = res.freq_hz <= plot_max_hz
+    keep = (res.freq_hz >= 1.5 * res.band.f_lo_hz) & (res.freq_hz <= plot_max_hz)   # integrator exact from 1.5·f_lo
     lo_b, hi_b = res.bounds("t21")
     return {"ok": True, "bags": bags, "coefficients": values, "specs": specs, "names": names, "t21": _t21_at(res, freqs_hz),
             "summary": summary, "warnings": warn, "n_avg": int(res.n_avg), "fs_hz": res.fs_hz,
@@ -329,3 +330,19 @@ def loop_group(paths: list[str], setup: GroupSetup) -> dict:
         return {"ok": False, "verdict": f"loop not run: {_one_line(err)}", "added": []}
     return {"ok": True, "verdict": res.verdict, "added": [c.term.label for c in res.added],
             "nothing_missing": res.nothing_missing}
+
+
+def characterize_group(paths: list[str], setup: GroupSetup, m2_kg: float | None = None) -> dict:
+    """``nifo characterize``'s restoring-force ranking on a group's records (loaded on this worker)."""
+    from nifo.io.loader import load_record
+    from nifo_core.characterize import characterize
+
+    try:
+        recs = [load_record(p, **setup.opts) for p in paths]
+        band = setup.band if setup.band_from_model else None
+        ch = characterize(recs, band=band, m2_kg=m2_kg)
+    except Exception as err:  # noqa: BLE001
+        return {"ok": False, "text": f"characterization not run: {_one_line(err)}", "suggested": []}
+    labels = [t.label for t in ch.suggested_terms]
+    text = "nothing nonlinear found" if ch.nothing_found else "suggested: " + ", ".join(labels)
+    return {"ok": True, "text": text, "suggested": labels}
