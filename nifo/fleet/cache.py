@@ -7,7 +7,9 @@ input options, :data:`CACHE_FORMAT`). Renaming or moving a bag keeps its key;
 touching one byte or a setting makes a new one. An entry is one ``.npz``
 written to a temporary name and renamed into place, so a run killed at any
 instant (SIGKILL included) leaves whole entries or none: the next run reuses
-the finished bags and recomputes the rest.
+the finished bags and recomputes the rest. Entries are not fsync'ed (a
+process kill cannot tear a renamed file; after a power loss a torn entry
+fails to load and is recomputed).
 """
 
 from __future__ import annotations
@@ -86,9 +88,7 @@ def store_partial(cache_dir: str | os.PathLike | None, key: str, state: Mapping[
         with os.fdopen(fd, "wb") as f:
             np.savez(f, __info__=np.array(json.dumps(info, default=str)),
                      **{f"state.{k}": np.asarray(v) for k, v in state.items()})
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
+        os.replace(tmp, path)   # no fsync: a killed process leaves whole files; a torn one (power loss) reads as absent
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
