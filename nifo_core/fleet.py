@@ -34,7 +34,7 @@ import numpy as np
 
 from .errors import ConfigError
 
-__all__ = ["reduction_plan", "tree_reduce", "standard_error", "Estimate", "HealthSettings", "CoefficientHealth",
+__all__ = ["reduction_plan", "tree_reduce", "standard_error", "interval_halfwidth", "Estimate", "HealthSettings", "CoefficientHealth",
            "GroupHealth", "robust_z", "assess_health", "MAD_TO_SIGMA"]
 
 T = TypeVar("T")
@@ -96,6 +96,19 @@ def standard_error(per_record: Sequence[float]) -> float:
     if x.size < 2:
         return float("nan")
     return float(np.std(x, ddof=1) / np.sqrt(x.size))
+
+
+def interval_halfwidth(se: float, n: int, *, level: float = 0.95) -> float:
+    """Half-width of the ``level`` confidence interval of a mean of ``n`` values: t_{n-1}·SE (NaN below n = 2).
+
+    Student's t, not 2·SE: with the few records of one vehicle (n = 2: t = 12.7)
+    the normal quantile would claim far too much.
+    """
+    from scipy.stats import t
+
+    if n < 2 or not np.isfinite(se):
+        return float("nan")
+    return float(t.ppf(0.5 + level / 2, n - 1) * se)
 
 
 @dataclass(frozen=True)

@@ -130,3 +130,11 @@ def test_health_settings_reject_meaningless_limits():
         HealthSettings(min_records=1)
     with pytest.raises(ConfigError, match="z_limit"):
         HealthSettings(z_limit=0)
+
+
+def test_interval_uses_student_t_so_two_records_give_a_wide_interval():
+    from nifo_core.fleet import interval_halfwidth
+
+    assert interval_halfwidth(1.0, 2) == pytest.approx(12.706, rel=1e-3)
+    assert interval_halfwidth(1.0, 1000) == pytest.approx(1.962, rel=1e-3)
+    assert np.isnan(interval_halfwidth(1.0, 1))

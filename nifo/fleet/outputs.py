@@ -3,7 +3,7 @@
 Group table columns: ``vehicle, corner, status, reason``; data used
 (``n_bags, n_bags_failed, n_bags_cached, duration_s, n_avg, fs_hz``); for every
 coefficient NAME (see :func:`nifo.fleet.tasks.coefficient_specs`) ``NAME``,
-``NAME_lo``, ``NAME_hi`` (±2 standard errors from the spread of the per-bag
+``NAME_lo``, ``NAME_hi`` (95 % interval: Student t over the per-bag
 estimates; NaN from one bag), ``NAME_se``, ``NAME_z`` (robust z against the
 fleet); ``t21_<f>hz_mag`` with ``_mag_lo/_mag_hi`` (~95 % random-error bounds)
 and ``_phase_deg`` at the chosen frequencies; ``coherence_h1_median``,
@@ -114,7 +114,7 @@ def fleet_document(run: FleetRun, *, figures: list[str], inputs: str) -> dict:
                                 "cache_dir": run.settings.cache_dir,
                                 "groups": {f"{v}/{c}": st for (v, c), st in run.setups.items()}},
                    "groups": groups, "bags": run.bags, "figures": figures,
-                   "bounds": "coefficient bounds are ±2 standard errors of the per-bag estimates' mean (random "
+                   "bounds": "coefficient bounds are the 95 % interval (Student t) of the per-bag estimates' mean (random "
                              "spread only); |T21| bounds are |T21|(1 ± 2ε), ε the normalized random error"})
 
 

@@ -40,7 +40,8 @@ at least {{ health.min_groups }} assessable groups make a fleet).</p>
 {% for r in rows %}<tr class="{{ r.cls }}"><td>{{ r.vehicle }}</td><td>{{ r.corner }}</td><td class="n">{{ r.bags }}</td>
 <td class="n">{{ r.duration }}</td>{% for c in r.coefs %}<td class="n">{{ c }}</td>{% endfor %}
 <td>{{ r.health }}</td><td>{{ r.loop }}</td></tr>{% endfor %}</table>
-<p>Values ± 2 standard errors of the per-bag estimates (random spread only), then [robust z].</p>
+<p>Values ± the half-width of their 95 % interval (Student t over the per-bag estimates: random spread only),
+then [robust z].</p>
 {% if failed %}<h2>Failed bags</h2><table><tr><th>vehicle</th><th>corner</th><th>bag</th><th>reason</th></tr>
 {% for b in failed %}<tr class="fail"><td>{{ b.vehicle }}</td><td>{{ b.corner }}</td><td>{{ b.path }}</td>
 <td>{{ b.reason }}</td></tr>{% endfor %}</table>{% endif %}
@@ -95,7 +96,7 @@ def plot_t21(path: Path, run: FleetRun) -> Path:
 
 
 def plot_coefficients(path: Path, run: FleetRun) -> Path:
-    """Every coefficient of every group with ±2 SE bars, the fleet median and its ±z_limit·scale band."""
+    """Every coefficient of every group with 95 % interval bars, the fleet median and its ±z_limit·scale band."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -115,7 +116,7 @@ def plot_coefficients(path: Path, run: FleetRun) -> Path:
             unit = c["unit"]
             ch = next((h for h in r["health"].coefficients if h.name == name), None)
             col = _FLAG if (ch and ch.flagged) else (_OK if r["health"].assessed else _NA)
-            err = 2 * c["se"] if np.isfinite(c["se"]) else 0.0
+            err = (c["hi"] - c["lo"]) / 2 if np.isfinite(c["hi"] - c["lo"]) else 0.0
             ax.errorbar(i, c["value"], yerr=err, fmt="o", ms=4, color=col, capsize=2)
             if ch is not None and np.isfinite(ch.fleet_median):
                 ref = (ch.fleet_median, ch.fleet_scale)
@@ -128,7 +129,7 @@ def plot_coefficients(path: Path, run: FleetRun) -> Path:
     ax = axes[-1, 0]
     ax.set_xticks(x, [_label(g) for g, _ in ok], rotation=60, ha="right", fontsize=8)
     ax.set_xlabel("group (vehicle/corner)")
-    axes[0, 0].set_title(f"coefficients ± 2 SE; dashed: fleet median, grey: ± {zl:g} robust σ; red: flagged")
+    axes[0, 0].set_title(f"coefficients with 95 % intervals; dashed: fleet median, grey: ± {zl:g} robust σ; red: flagged")
     fig.savefig(path, dpi=130)
     plt.close(fig)
     return path
@@ -136,8 +137,8 @@ def plot_coefficients(path: Path, run: FleetRun) -> Path:
 
 def _fmt(c: dict, z: float) -> str:
     v = f"{c['value']:.4g}"
-    if np.isfinite(c["se"]):
-        v += f" ± {2 * c['se']:.2g}"
+    if np.isfinite(c["hi"] - c["lo"]):
+        v += f" ± {(c['hi'] - c['lo']) / 2:.2g}"
     if np.isfinite(z):
         v += f" [{z:+.1f}]"
     return v

@@ -5,7 +5,7 @@ Entity tree (all static: a fleet result has no time axis)
 ====================================================  =======================================================
 ``fleet/<vehicle>/<corner>/t21/magnitude_db``          |T21| [dB] vs frequency [Hz] (bar chart, pooled NIFO T21)
 ``fleet/<vehicle>/<corner>/t21/phase_deg``             phase [°] vs frequency [Hz]
-``fleet/<vehicle>/<corner>/summary``                   markdown: coefficients ± 2 SE, robust z, flags, data used
+``fleet/<vehicle>/<corner>/summary``                   markdown: coefficients, 95 % intervals, robust z, flags, data used
 ``fleet_coefficients/<name>``                          one bar per group (x: group index), every coefficient
 ``summary``                                            markdown: the fleet, the flags, the groups' index
 ====================================================  =======================================================
@@ -31,10 +31,10 @@ def _group_markdown(g, r) -> str:
     h = r["health"]
     lines = [f"## {g[0]} / {g[1]}", "", f"{len(r['bags'])} bags, {r['duration_s']:.0f} s, {r['n_avg']} averages; "
              + ("**FLAGGED**" if h.flagged else ("not flagged" if h.assessed else f"not assessed: {h.reason}")), "",
-             "| coefficient | value | ± 2 SE | unit | robust z |", "|---|---|---|---|---|"]
+             "| coefficient | value | ± (95 %) | unit | robust z |", "|---|---|---|---|---|"]
     z = {c.name: c.z for c in h.coefficients}
     for n, c in r["coefficients"].items():
-        lines.append(f"| {n} | {c['value']:.5g} | {2 * c['se']:.2g} | {c['unit']} | {z.get(n, float('nan')):+.2f} |")
+        lines.append(f"| {n} | {c['value']:.5g} | {(c['hi'] - c['lo']) / 2:.2g} | {c['unit']} | {z.get(n, float('nan')):+.2f} |")
     lines += ["", *[f"- {t}" for t in h.evidence]]
     return "\n".join(lines)
 

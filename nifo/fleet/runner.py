@@ -234,6 +234,7 @@ def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSet
     for g in members:   # groups with no usable bag at all
         if g not in groups:
             groups[g] = {"ok": False, "reason": "no usable bag", "bags": []}
+    groups = {g: groups[g] for g in members}     # manifest order, not completion order
     _health(groups, s.health)
     return FleetRun(bags=rows, groups=groups, settings=s,
                     setups={g: st.cache_settings() for g, st in final_setup.items() if st is not None})

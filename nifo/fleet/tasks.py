@@ -274,7 +274,7 @@ def solve_group(outcome: dict, *, freqs_hz: tuple[float, ...], plot_max_hz: floa
     Coefficients per body mass always; in SI too when the sprung mass ``m2_kg`` [kg] is given.
     """
     from nifo.commands.identify import check_usable, summarize
-    from nifo_core.fleet import standard_error
+    from nifo_core.fleet import interval_halfwidth, standard_error
     from nifo_core.nifo import StreamingNifo
 
     if not outcome["ok"]:
@@ -294,8 +294,10 @@ def solve_group(outcome: dict, *, freqs_hz: tuple[float, ...], plot_max_hz: floa
     names = {"per_mass": [n for n, _, _ in specs], "si": []}
     values = {}
     for name, unit, _ in specs:
-        se = standard_error([b["coefs"].get(name, np.nan) for b in bags])
-        values[name] = {"value": coefs[name], "se": se, "lo": coefs[name] - 2 * se, "hi": coefs[name] + 2 * se,
+        per_bag = [b["coefs"].get(name, np.nan) for b in bags]
+        se = standard_error(per_bag)
+        half = interval_halfwidth(se, int(np.isfinite(per_bag).sum()))
+        values[name] = {"value": coefs[name], "se": se, "lo": coefs[name] - half, "hi": coefs[name] + half,
                         "unit": unit}
     if m2_kg is not None:
         si = coefficient_specs(res.terms, si=True)
