@@ -129,7 +129,8 @@ def plot_coefficients(path: Path, run: FleetRun) -> Path:
     ax = axes[-1, 0]
     ax.set_xticks(x, [_label(g) for g, _ in ok], rotation=60, ha="right", fontsize=8)
     ax.set_xlabel("group (vehicle/corner)")
-    axes[0, 0].set_title(f"coefficients with 95 % intervals; dashed: fleet median, grey: ± {zl:g} robust σ; red: flagged")
+    axes[0, 0].set_title(f"coefficients, 95 % intervals; dashed: fleet median; grey: ± {zl:g} robust σ; red: flagged",
+                         fontsize=9)
     fig.savefig(path, dpi=130)
     plt.close(fig)
     return path
