@@ -70,7 +70,7 @@ def fleet_client(scheduler: str | None = None, *, workers: int | None = None,
         raise ClusterError(f"cannot start a local Dask cluster of {n} workers ({err})",
                            hint="try --workers 1, or point --scheduler at a running cluster") from None
     try:
-        client = Client(cluster)
+        client = Client(cluster, direct_to_workers=True)   # results come from the workers, not via the scheduler
         try:
             yield client
         finally:
