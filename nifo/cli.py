@@ -27,7 +27,7 @@ __all__ = ["main", "build_parser", "add_common_arguments", "COMMANDS"]
 
 #: order shown in ``nifo --help``
 COMMANDS = ("run", "simulate", "info", "characterize", "identify", "predict", "loop",
-            "replay", "view", "report")
+            "replay", "view", "report", "fleet")
 
 
 def _load(name: str):

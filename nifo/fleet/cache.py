@@ -1,0 +1,122 @@
+"""Per-bag partials on disk, keyed by the bag's content and the settings (restart-safe).
+
+Key = SHA-256 of (the bag's bytes: every file of a rosbag2 folder by relative
+path, or the file) and (the JSON of everything that changes the partial: terms,
+spectral settings, integration band, tire patch, analysis band, chunk length,
+input options, :data:`CACHE_FORMAT`). Renaming or moving a bag keeps its key;
+touching one byte or a setting makes a new one. An entry is one ``.npz``
+written to a temporary name and renamed into place, so a run killed at any
+instant (SIGKILL included) leaves whole entries or none: the next run reuses
+the finished bags and recomputes the rest. Entries are not fsync'ed (a
+process kill cannot tear a renamed file; after a power loss a torn entry
+fails to load and is recomputed).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+__all__ = ["content_hash", "settings_hash", "cache_key", "load_partial", "store_partial", "load_note", "store_note",
+           "CACHE_FORMAT"]
+
+#: bump when the content of a cached partial changes meaning
+CACHE_FORMAT = 1
+_CHUNK = 1 << 20
+
+
+def content_hash(path: str | os.PathLike) -> str:
+    """SHA-256 hex digest of a file, or of a folder's files (relative names and bytes, sorted)."""
+    p = Path(path)
+    h = hashlib.sha256()
+    files = sorted(q for q in p.rglob("*") if q.is_file()) if p.is_dir() else [p]
+    for q in files:
+        if p.is_dir():
+            h.update(q.relative_to(p).as_posix().encode() + b"\0")
+        with q.open("rb") as f:
+            while block := f.read(_CHUNK):
+                h.update(block)
+        h.update(b"\0\0")
+    return h.hexdigest()
+
+
+def settings_hash(settings: Mapping) -> str:
+    """SHA-256 of the canonical JSON of the settings that shape a partial."""
+    doc = json.dumps({"cache_format": CACHE_FORMAT, **settings}, sort_keys=True, default=str)
+    return hashlib.sha256(doc.encode()).hexdigest()
+
+
+def cache_key(bag_hash: str, settings_digest: str) -> str:
+    return hashlib.sha256(f"{bag_hash}:{settings_digest}".encode()).hexdigest()[:40]
+
+
+def _entry(cache_dir: Path, key: str) -> Path:
+    return cache_dir / key[:2] / f"{key}.npz"
+
+
+def load_partial(cache_dir: str | os.PathLike | None, key: str) -> dict | None:
+    """The cached partial (``{"state": {...}, "info": {...}}``) or None (absent or unreadable: recompute)."""
+    if cache_dir is None:
+        return None
+    path = _entry(Path(cache_dir), key)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            info = json.loads(str(z["__info__"]))
+            state = {k[6:]: z[k] for k in z.files if k.startswith("state.")}
+    except FileNotFoundError:
+        return None
+    except Exception:  # noqa: BLE001 - a torn or foreign entry is recomputed, never trusted
+        return None
+    return {"state": state, "info": info}
+
+
+def store_partial(cache_dir: str | os.PathLike | None, key: str, state: Mapping[str, np.ndarray],
+                  info: Mapping) -> None:
+    """Write one entry atomically (temporary file in the same folder, then rename)."""
+    if cache_dir is None:
+        return
+    path = _entry(Path(cache_dir), key)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{key}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, __info__=np.array(json.dumps(info, default=str)),
+                     **{f"state.{k}": np.asarray(v) for k, v in state.items()})
+        os.replace(tmp, path)   # no fsync: a killed process leaves whole files; a torn one (power loss) reads as absent
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def load_note(cache_dir: str | os.PathLike | None, key: str) -> dict | None:
+    """A small cached JSON note (a bag's rate, length and channels) or None."""
+    if cache_dir is None:
+        return None
+    try:
+        return json.loads((Path(cache_dir) / "notes" / f"{key}.json").read_text())
+    except FileNotFoundError:
+        return None
+    except Exception:  # noqa: BLE001 - torn or foreign: recomputed
+        return None
+
+
+def store_note(cache_dir: str | os.PathLike | None, key: str, note: Mapping) -> None:
+    """Write a small JSON note atomically."""
+    if cache_dir is None:
+        return
+    folder = Path(cache_dir) / "notes"
+    folder.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{key}.", suffix=".tmp", dir=folder)
+    try:
+        with os.fdopen(fd, "w") as f:
+            json.dump(note, f)
+        os.replace(tmp, folder / f"{key}.json")
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

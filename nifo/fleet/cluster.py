@@ -1,0 +1,92 @@
+"""The Dask client of a fleet run: an embedded LocalCluster by default, or an existing scheduler.
+
+One code path: both give a :class:`distributed.Client`; everything after that
+is the same. The embedded cluster has one single-threaded worker process per
+core (NIFO's numpy work holds the GIL for much of its time, so processes, not
+threads, and BLAS/OpenMP pinned to one thread per worker by Dask's nanny).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+from typing import Iterator
+
+from nifo_core.errors import NifoError
+
+__all__ = ["ClusterError", "FleetError", "fleet_client", "dashboard_line"]
+
+
+class ClusterError(NifoError, ConnectionError):
+    """The Dask scheduler cannot be reached or the local cluster cannot start."""
+
+    exit_code = 20
+
+
+class FleetError(NifoError, RuntimeError):
+    """No group of the fleet could be identified."""
+
+    exit_code = 21
+
+
+@contextlib.contextmanager
+def fleet_client(scheduler: str | None = None, *, workers: int | None = None,
+                 dashboard_address: str | None = ":0", timeout_s: float = 20.0) -> Iterator["object"]:
+    """Yield a connected :class:`distributed.Client`; close what this function started.
+
+    Parameters
+    ----------
+    scheduler : str, optional
+        Address of an existing scheduler (``tcp://host:8786``); None starts a LocalCluster.
+    workers : int, optional
+        Worker processes of the LocalCluster (default: the number of cores). Ignored with ``scheduler``.
+    dashboard_address : str or None
+        Where the LocalCluster serves its dashboard (``":0"``: a free port; None: no dashboard).
+    timeout_s : float
+        How long to wait for the scheduler [s].
+    """
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout=f"{timeout_s}s")
+        except (OSError, TimeoutError) as err:
+            raise ClusterError(f"cannot reach the Dask scheduler {scheduler} ({err})", channel="--scheduler",
+                               hint="start one (dask scheduler; dask worker tcp://HOST:8786) or leave out "
+                                    "--scheduler to run on this machine") from None
+        try:
+            yield client
+        finally:
+            client.close()
+        return
+    n = workers or os.cpu_count() or 1
+    if n < 1:
+        raise ClusterError(f"--workers {workers!r} must be at least 1", channel="--workers")
+    try:
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                               dashboard_address=dashboard_address, silence_logs=logging.ERROR)
+    except Exception as err:  # noqa: BLE001 - e.g. no free port, no fork
+        raise ClusterError(f"cannot start a local Dask cluster of {n} workers ({err})",
+                           hint="try --workers 1, or point --scheduler at a running cluster") from None
+    try:
+        client = Client(cluster, direct_to_workers=True)   # results come from the workers, not via the scheduler
+        try:
+            yield client
+        finally:
+            client.close()
+    finally:
+        cluster.close()
+
+
+def dashboard_line(client) -> str:
+    """One line naming the scheduler, the workers and the dashboard address."""
+    info = client.scheduler_info()
+    workers = info.get("workers", {})
+    threads = sum(w.get("nthreads", 1) for w in workers.values())
+    try:
+        link = client.dashboard_link
+    except Exception:  # noqa: BLE001 - no dashboard (bokeh missing or disabled)
+        link = None
+    dash = f"dashboard {link}" if link else "no dashboard (install bokeh>=3.1 to get one)"
+    return f"Dask: scheduler {client.scheduler.address}, {len(workers)} worker(s), {threads} thread(s); {dash}"

@@ -1,0 +1,263 @@
+"""The fleet's task graph on a Dask client: accumulate per bag → tree-merge per group → solve.
+
+::
+
+    compute_bag(path) ─┐      (reads the bag once; a cache hit reads the partial, not the bag)
+    compute_bag(path) ─┼─ merge ─┐
+    compute_bag(path) ─┘         ├─ merge ── solve_group ──► row of the fleet table
+    compute_bag(path) ── merge ──┘            (loop_group, with --loop)
+
+Each bag is accumulated with its own integration band and tire patch until
+its group is complete; then the group's set-up is fixed as ``nifo identify``
+would (band from the model file, else ``default_band(fs, shortest bag)``; tire
+patch when every bag has one; bags at another rate left out) and only the
+bags whose set-up differs (a bag shorter than 64 s in the group, a bag
+without tire patch) are accumulated again. Only paths, settings and cache
+keys go out to the workers; partials stay on the workers and move
+worker-to-worker into the merges; the client gathers a small status per bag
+and one result per group.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections import Counter
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from nifo.fleet.manifest import BagEntry
+from nifo.fleet.tasks import (GroupSetup, bag_status, characterize_group, compute_bag, loop_group, merge_outcomes,
+                              solve_group)
+from nifo.progress import Progress
+from nifo_core.errors import ConfigError
+from nifo_core.fleet import Estimate, HealthSettings, assess_health, reduction_plan
+
+__all__ = ["FleetSettings", "FleetRun", "run_fleet", "base_setups", "group_setup"]
+
+
+@dataclass(frozen=True)
+class FleetSettings:
+    """How a fleet run goes (the identification settings come from each group's model file).
+
+    Parameters
+    ----------
+    chunk_samples : int
+        Streaming chunk per bag [samples] (as ``nifo identify --chunk-samples``).
+    freqs_hz : tuple of float
+        Frequencies [Hz] at which the table gives |T21| (with ~95 % bounds) and its phase.
+    plot_max_hz : float
+        Highest frequency of the T21 curves kept for the page and Rerun [Hz].
+    fanout : int
+        Partials merged per reduction task.
+    cache_dir : str or None
+        Where partials are cached (must be visible to every worker); None: no cache.
+    loop : bool
+        Also run the residual loop per group (loads the group's records on one worker).
+    characterize : bool
+        Also rank the restoring force's nonlinearities per group (``nifo characterize``, records loaded whole).
+    health : HealthSettings
+    """
+
+    chunk_samples: int = 2 ** 18
+    freqs_hz: tuple[float, ...] = (2.0, 5.0, 10.0, 20.0)
+    plot_max_hz: float = 50.0
+    fanout: int = 2
+    cache_dir: str | None = None
+    loop: bool = False
+    characterize: bool = False
+    health: HealthSettings = field(default_factory=HealthSettings)
+
+
+@dataclass
+class FleetRun:
+    """What a fleet run produced: one row per bag, one result per group (with its health)."""
+
+    bags: list[dict]
+    groups: dict[tuple[str, str], dict]
+    settings: FleetSettings
+    setups: dict[tuple[str, str], dict]
+
+    @property
+    def n_failed(self) -> int:
+        return sum(1 for b in self.bags if b["status"] != "ok")
+
+    @property
+    def n_redone(self) -> int:
+        """Bags accumulated a second time with their group's set-up (band set by a bag shorter than 64 s)."""
+        return sum(1 for b in self.bags if b.get("passes", 0) > 1)
+
+    @property
+    def n_cached(self) -> int:
+        return sum(1 for b in self.bags if b.get("cached"))
+
+
+def _model_cfgs(entries: list[BagEntry]) -> dict[Path, tuple]:
+    from nifo.commands.identify import resolve_settings
+    from nifo.io.modelfile import load_model_spec
+
+    none = argparse.Namespace(block=None, overlap=None, window=None, band=None, freq_range=None,
+                              cond_limit=1e4, chunk_samples=2)
+    out = {}
+    for model in dict.fromkeys(e.model for e in entries):
+        spec = load_model_spec(model)
+        if spec.two_step:
+            raise ConfigError("nifo fleet takes single-step model files (nonlinearities:), not steps:",
+                              source=str(model), hint="identify two-step models per vehicle with nifo identify")
+        out[model] = (spec, resolve_settings(none, spec.settings))
+    return out
+
+
+def base_setups(entries: list[BagEntry], *, opts: dict, chunk_samples: int) -> dict[tuple[str, str], GroupSetup]:
+    """Per group, the set-up from its model file; band and tire patch still open (None) unless the file fixes the band."""
+    cfgs = _model_cfgs(entries)
+    out = {}
+    for e in entries:
+        if e.group in out:
+            continue
+        spec, cfg = cfgs[e.model]
+        out[e.group] = GroupSetup(terms=tuple(spec.terms), spectral=cfg["spectral"], band=cfg["band"],
+                                  with_tire_patch=None, analysis_band_hz=tuple(cfg["analysis_band_hz"]),
+                                  cond_limit=cfg["cond_limit"], chunk_samples=int(chunk_samples), opts=dict(opts),
+                                  band_from_model=cfg["band"] is not None)
+    return out
+
+
+def group_setup(base: GroupSetup, probes: dict[int, dict], *, label: str) -> tuple[GroupSetup | None, dict[int, str]]:
+    """The group's set-up from its bags' rates, lengths and channels, as ``nifo identify`` chooses it.
+
+    Returns the set-up (None when no bag is left) and the reason for every bag left out (another rate).
+    """
+    from nifo_core.integrate import default_band
+
+    if not probes:
+        return None, {}
+    fs = Counter(p["fs_hz"] for p in probes.values()).most_common(1)[0][0]
+    left = {i: f"sample rate {p['fs_hz']:g} Hz differs from the other bags of {label} ({fs:g} Hz); resample it"
+            for i, p in probes.items() if p["fs_hz"] != fs}
+    ok = [p for i, p in probes.items() if i not in left]
+    band = base.band or default_band(fs, min(p["n_samples"] for p in ok) / fs)
+    return replace(base, band=band, with_tire_patch=all(p["has_tire_patch"] for p in ok)), left
+
+
+def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSettings = FleetSettings(),
+              quiet: bool = False) -> FleetRun:
+    """Run the fleet on ``client`` (module docstring); failed bags are recorded, never raised."""
+    from distributed import as_completed
+
+    from nifo.fleet.cache import settings_hash
+
+    s = settings
+    bases = base_setups(entries, opts=opts, chunk_samples=s.chunk_samples)
+    paths = [str(e.path) for e in entries]
+    rows = [{"vehicle": e.vehicle, "corner": e.corner, "date": e.date, "path": p, "status": "pending",
+             "reason": "", "cached": False, "seconds": float("nan"), "hash": "", "key": "", "passes": 0}
+            for e, p in zip(entries, paths)]
+    members: dict[tuple[str, str], list[int]] = {}
+    for i, e in enumerate(entries):
+        members.setdefault(e.group, []).append(i)
+    outs, status, waiting, probes, final_setup = {}, {}, {}, {}, {}
+    solves, loops, chars = {}, {}, {}
+    ac = as_completed()
+
+    def submit(i: int, setup: GroupSetup) -> None:
+        rows[i]["passes"] += 1
+        outs[i] = client.submit(compute_bag, paths[i], setup, s.cache_dir, pure=False)
+        st = client.submit(bag_status, outs[i], pure=False)
+        status[st] = i
+        ac.add(st)
+
+    for g, idx in members.items():
+        waiting[g] = set(idx)
+        for i in idx:
+            submit(i, bases[g])
+
+    def group_ready(g) -> None:
+        ok = [i for i in members[g] if rows[i]["status"] == "ok"]
+        if g not in final_setup:            # first pass done: fix the group's set-up
+            setup, left = group_setup(bases[g], {i: probes[i] for i in ok}, label=f"{g[0]}/{g[1]}")
+            for i, why in left.items():
+                rows[i].update(status="failed", reason=f"{paths[i]}: {why}")
+            final_setup[g] = setup
+            digest = None if setup is None else settings_hash(setup.cache_settings())
+            redo = [i for i in ok if i not in left and probes[i]["setup_hash"] != digest]
+            if redo:
+                bar.total += len(redo)
+                waiting[g] = set(redo)
+                for i in redo:
+                    submit(i, setup)
+                return
+        ok = [i for i in members[g] if rows[i]["status"] == "ok"]
+        parts = [outs[i] for i in ok]
+        for i in members[g]:
+            outs.pop(i, None)
+        if not parts:
+            return
+        for level in reduction_plan(len(parts), fanout=s.fanout):
+            parts = [parts[ix[0]] if len(ix) == 1 else
+                     client.submit(merge_outcomes, *[parts[j] for j in ix], pure=False) for ix in level]
+        m2 = entries[members[g][0]].m2_kg
+        solves[g] = client.submit(solve_group, parts[0], freqs_hz=tuple(s.freqs_hz), plot_max_hz=s.plot_max_hz,
+                                  m2_kg=m2, pure=False)
+        ac.add(solves[g])
+        if s.loop:
+            loops[g] = client.submit(loop_group, [paths[i] for i in ok], final_setup[g], pure=False)
+        if s.characterize:
+            chars[g] = client.submit(characterize_group, [paths[i] for i in ok], final_setup[g], m2, pure=False)
+
+    group_of = {i: e.group for i, e in enumerate(entries)}
+    with Progress(float(len(entries) + len(members)), "fleet: bags and groups", enabled=not quiet) as bar:
+        for fut in ac:
+            bar.advance(1)
+            if fut not in status:
+                continue
+            i = status.pop(fut)
+            r = _result(fut)
+            if r["ok"]:
+                rows[i].update(status="ok", reason="", cached=r["cached"], seconds=r["seconds"], key=r["key"],
+                               hash=r["hash"])
+                probes[i] = {**r["probe"], "setup_hash": r["setup_hash"]}
+            else:
+                rows[i].update(status="failed", reason=r["reason"])
+            g = group_of[i]
+            waiting[g].discard(i)
+            if not waiting[g]:
+                group_ready(g)
+    groups = {g: _result(f) for g, f in solves.items()}
+    for g, f in loops.items():
+        lr = _result(f)
+        groups[g]["loop"] = lr if "verdict" in lr else {"ok": False, "verdict": f"loop not run: {lr['reason']}"}
+    for g, f in chars.items():
+        cr = _result(f)
+        groups[g]["characterization"] = cr if "text" in cr else {
+            "ok": False, "text": f"characterization not run: {cr['reason']}", "suggested": []}
+    del solves, loops, chars, outs, status
+    for g in members:   # groups with no usable bag at all
+        if g not in groups:
+            groups[g] = {"ok": False, "reason": "no usable bag", "bags": []}
+    groups = {g: groups[g] for g in members}     # manifest order, not completion order
+    _health(groups, s.health)
+    return FleetRun(bags=rows, groups=groups, settings=s,
+                    setups={g: st.cache_settings() for g, st in final_setup.items() if st is not None})
+
+
+def _result(fut) -> dict:
+    """A task's result; a task that died (worker lost, bug) becomes a one-line failure, not the fleet's end."""
+    try:
+        return fut.result()
+    except Exception as err:  # noqa: BLE001
+        first = str(err).splitlines()[0] if str(err) else "no message"
+        return {"ok": False, "reason": f"task failed on the cluster ({type(err).__name__}: {first})", "bags": []}
+
+
+def _health(groups: dict, hs: HealthSettings) -> None:
+    """Strut health over SI coefficients when every solved group has its sprung mass, else per body mass."""
+    ok = {g: r for g, r in groups.items() if r["ok"]}
+    si = bool(ok) and all(r.get("m2_kg") is not None for r in ok.values())
+    est, units = {}, {}
+    for g, r in ok.items():
+        names = r["names"]["si" if si else "per_mass"]
+        est[g] = {n: Estimate(r["coefficients"][n]["value"], r["coefficients"][n]["se"], len(r["bags"]),
+                              r["duration_s"]) for n in names}
+        units.update({n: r["coefficients"][n]["unit"] for n in names})
+    for g, h in assess_health(est, settings=hs, units=units).items():
+        groups[g]["health"] = h

@@ -1,0 +1,350 @@
+"""What runs on a Dask worker: probe a bag, accumulate it, merge partials, solve a group, run the loop.
+
+Workers get paths and small settings, never sample arrays; they return
+compact partials (a :meth:`StreamingNifo.state_dict`: the block cross-spectra
+of [a1, a2, g_i..] and a few counters) that stay on the workers until they
+are merged, and small per-group results. Every function is module-level and
+picklable. A bag that cannot be used returns ``{"ok": False, "reason": one
+line}`` instead of raising, so one bad bag never stops the fleet.
+
+The per-bag accumulation is the one ``nifo identify`` does per file (same
+StreamingNifo set-up, same chunk length), so a group's merged partial equals
+identify's merged accumulators and its coefficients agree to rounding.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from nifo_core.describing import Term
+from nifo_core.errors import NifoError
+from nifo_core.integrate import IntegrationBand
+from nifo_core.spectral import SpectralSettings
+
+__all__ = ["GroupSetup", "coefficient_specs", "bag_setup", "bag_coefficients", "compute_bag", "bag_status", "merge_outcomes",
+           "solve_group", "loop_group",
+           "characterize_group"]
+
+@dataclass(frozen=True)
+class GroupSetup:
+    """Everything a worker needs to accumulate one bag of a group (picklable, JSON-able)."""
+
+    terms: tuple[Term, ...]
+    spectral: SpectralSettings
+    band: IntegrationBand | None           # None: each bag's default_band until the group's is known
+    with_tire_patch: bool | None           # None: each bag's own until the group's is known
+    analysis_band_hz: tuple[float, float]
+    cond_limit: float
+    chunk_samples: int
+    opts: dict = field(default_factory=dict)
+    band_from_model: bool = False
+
+    def cache_settings(self) -> dict:
+        """What shapes a partial (the cache key's settings part)."""
+        opts = {k: (None if v is None else (v if isinstance(v, (str, int, float)) else repr(v)))
+                for k, v in self.opts.items()}
+        return {"terms": [t.to_dict() for t in self.terms], "spectral": self.spectral.to_dict(),
+                "band": None if self.band is None else self.band.to_dict(), "with_tire_patch": self.with_tire_patch,
+                "analysis_band_hz": list(self.analysis_band_hz), "cond_limit": self.cond_limit,
+                "chunk_samples": self.chunk_samples, "opts": opts}
+
+
+def coefficient_specs(terms, *, si: bool = False) -> list[tuple[str, str, str]]:
+    """(column name, unit, meaning) of every coefficient a group reports.
+
+    Per body mass (what output-only NIFO identifies): K2/M2, C2/M2, then c_i/M2
+    per term; with ``si`` (sprung mass known) the same times M2: K2, C2, c_i.
+    """
+    if si:
+        out = [("k2", "N/m", "K2, strut stiffness (K2/M2 times the given M2)"),
+               ("c2", "N·s/m", "C2, strut damping (C2/M2 times the given M2)")]
+    else:
+        out = [("k2_over_m2", "1/s²", "K2/M2, strut stiffness per body mass (body model fitted to T21)"),
+               ("c2_over_m2", "1/s", "C2/M2, strut damping per body mass (body model fitted to T21)")]
+    seen: dict[str, int] = {}
+    for t in terms:
+        seen[t.kind] = seen.get(t.kind, 0) + 1
+        stem = f"c_{t.kind}" if si else f"c_over_m2_{t.kind}"
+        name = stem + (f"_{seen[t.kind]}" if seen[t.kind] > 1 else "")
+        u = t.spec.coef_unit
+        if si:
+            out.append((name, u or "-", f"c of {t.label} (c/M2 times the given M2)"))
+        else:
+            out.append((name, f"({u})/kg" if u else "1/kg", f"c/M2 of {t.label} (pooled constant, NIFO static fit)"))
+    return out
+
+
+def _one_line(err: BaseException) -> str:
+    if isinstance(err, NifoError):
+        return str(err).replace("\n", " ")
+    return f"{type(err).__name__}: {str(err).splitlines()[0] if str(err) else 'no message'}"
+
+
+def _coefficients(res) -> dict[str, float]:
+    """Coefficient values of one NIFO result (NaN where the body model cannot be fitted)."""
+    from nifo_core.model import IdentifiedModel
+
+    names = [n for n, _, _ in coefficient_specs(res.terms)]
+    try:
+        body = IdentifiedModel.from_nifo(res, source="static").body
+        k, c = body.k, body.c
+    except NifoError:
+        k = c = float("nan")
+    gam = [float(x) for x in res.static.c_over_m2]
+    return dict(zip(names, [float(k), float(c), *gam]))
+
+
+# ---------------------------------------------------------------------------------------------
+# per bag
+# ---------------------------------------------------------------------------------------------
+def bag_setup(base: GroupSetup, probe: dict) -> GroupSetup:
+    """The set-up a bag is accumulated with: the group's band and tire patch where fixed, else its own.
+
+    Own band: ``default_band(fs, this bag's length)`` (``nifo identify`` uses the
+    group's shortest bag; equal whenever every bag is longer than 64 s, else the
+    client recomputes the bags that differ).
+    """
+    from nifo_core.integrate import default_band
+
+    fs = probe["fs_hz"]
+    band = base.band or default_band(fs, probe["n_samples"] / fs)
+    tp = probe["has_tire_patch"] if base.with_tire_patch is None else base.with_tire_patch
+    return replace(base, band=band.validate(fs), with_tire_patch=bool(tp))
+
+
+def _accumulate(chunks, path: str, setup: GroupSetup):
+    from nifo_core.errors import RecordTooShortError
+    from nifo_core.nifo import StreamingNifo
+
+    one = None
+    n = 0
+    for chunk in chunks:
+        if one is None:   # the StreamingNifo nifo identify builds for each file (commands/identify.py)
+            one = StreamingNifo(chunk.fs_hz, setup.terms, settings=setup.spectral, band=setup.band,
+                                with_tire_patch=setup.with_tire_patch, analysis_band_hz=setup.analysis_band_hz,
+                                on_ill_conditioned="warn", cond_limit=setup.cond_limit)
+        one.push(chunk.spindle_accel, chunk.body_accel, chunk.tire_patch_disp if setup.with_tire_patch else None)
+        n += chunk.n
+    if one is None:
+        raise RecordTooShortError("the file holds no samples", source=path)
+    if one.n_avg == 0:
+        raise RecordTooShortError(f"{n} samples ({n / one.fs_hz:.1f} s) is too short for NIFO (needs "
+                                  f"{one.min_samples} with block={one.settings.block})", source=path,
+                                  hint="record longer, or choose a smaller block")
+    return one, n
+
+
+def bag_coefficients(one, setup: GroupSetup) -> dict[str, float]:
+    """This bag's own coefficients (for the group's standard errors), NaN where one bag cannot give them.
+
+    Solved on the lines of the analysis band only, without the tire patch: the
+    pooled static fit and the body model use only those lines, so the values
+    are those of the full solve at a tenth of its cost.
+    """
+    from dataclasses import replace
+
+    from nifo_core.nifo import nifo_from_spectra
+
+    try:
+        spec = one.spectra()
+        lo, hi = setup.analysis_band_hz
+        keep = (spec.freq_hz >= lo) & (spec.freq_hz <= hi)
+        spec = replace(spec, freq_hz=spec.freq_hz[keep].copy(), G=spec.G[keep].copy())
+        if setup.with_tire_patch:
+            spec = spec.select(list(range(spec.n_channels - 1)))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            res = nifo_from_spectra(spec, setup.terms, band=setup.band, analysis_band_hz=setup.analysis_band_hz,
+                                    on_ill_conditioned="ignore", cond_limit=setup.cond_limit)
+        return _coefficients(res)
+    except NifoError:
+        return {n: float("nan") for n, _, _ in coefficient_specs(setup.terms)}
+
+
+def compute_bag(path: str, base: GroupSetup, cache_dir: str | None) -> dict:
+    """The bag's partial, reading the bag once: from the cache when there, else accumulated here (then cached).
+
+    The first chunk tells the rate, length and channels (kept as a note in the
+    cache, so a rerun finds the partial without opening the bag); with them the
+    bag's set-up (:func:`bag_setup`) and its cache key are known.
+    """
+    from itertools import chain
+
+    from nifo.fleet.cache import (cache_key, content_hash, load_note, load_partial, settings_hash, store_note,
+                                  store_partial)
+    from nifo.io.loader import detect_format, iter_record_chunks
+    from nifo_core.errors import RecordTooShortError
+
+    t0 = time.perf_counter()
+    raw = gen = None
+    try:
+        detect_format(path)          # a missing or foreign file: the loader's one-line reason
+        digest = content_hash(path)
+        note_key = cache_key(digest, settings_hash({"note": base.cache_settings()["opts"]}))
+        probe = load_note(cache_dir, note_key)
+        if probe is None:
+            raw = iter_record_chunks(path, chunk_samples=base.chunk_samples, **base.opts)
+            first = next(raw, None)
+            if first is None:
+                raise RecordTooShortError("the file holds no samples", source=path)
+            probe = {"fs_hz": float(first.fs_hz), "has_tire_patch": bool(first.has_tire_patch),
+                     "n_samples": int(first.meta.get("chunk", {}).get("total_samples", first.n))}
+            gen = chain([first], raw)
+            store_note(cache_dir, note_key, probe)
+        setup = bag_setup(base, probe)
+        setup_hash = settings_hash(setup.cache_settings())
+        key = cache_key(digest, setup_hash)
+        common = {"hash": digest, "probe": probe, "setup_hash": setup_hash}
+        hit = load_partial(cache_dir, key)
+        if hit is not None:
+            return {"ok": True, "state": hit["state"], "bags": [{**hit["info"], "cached": True}], **common}
+        if gen is None:
+            gen = raw = iter_record_chunks(path, chunk_samples=base.chunk_samples, **base.opts)
+        one, n = _accumulate(gen, path, setup)
+        one.end_record()          # the partial keeps the sums, not the stream's edge samples
+        coefs = bag_coefficients(one, setup)
+        state = one.state_dict()
+    except Exception as err:  # noqa: BLE001 - a bad bag is recorded, the fleet goes on
+        return {"ok": False, "reason": _one_line(err)}
+    finally:
+        if raw is not None:
+            raw.close()
+    info = {"key": key, "path": str(path), "n_samples": int(n), "fs_hz": one.fs_hz,
+            "seconds": time.perf_counter() - t0, "coefs": coefs}
+    try:
+        store_partial(cache_dir, key, state, info)
+    except OSError as err:
+        info["cache_note"] = f"not cached: {err}"
+    return {"ok": True, "state": state, "bags": [{**info, "cached": False}], **common}
+
+
+def bag_status(outcome: dict) -> dict:
+    """The small part of a bag's outcome the client needs (the partial stays on the worker)."""
+    if not outcome["ok"]:
+        return {"ok": False, "reason": outcome["reason"]}
+    b = outcome["bags"][0]
+    return {"ok": True, "cached": b["cached"], "seconds": b["seconds"], "n_samples": b["n_samples"],
+            "key": b["key"], "hash": outcome["hash"], "probe": outcome["probe"], "setup_hash": outcome["setup_hash"]}
+
+
+def merge_outcomes(*outcomes: dict) -> dict:
+    """Merge the usable partials of one group (failed bags are left out; they are reported by status)."""
+    from nifo_core.nifo import StreamingNifo
+
+    ok = [o for o in outcomes if o["ok"]]
+    if not ok:
+        reasons = sorted({r for o in outcomes for r in o.get("reasons", [o.get("reason", "")])})
+        return {"ok": False, "reason": "no usable bag", "reasons": reasons}
+    if len(ok) == 1:
+        return ok[0]
+    acc = StreamingNifo.from_state(ok[0]["state"])
+    for o in ok[1:]:
+        acc = acc.merge(StreamingNifo.from_state(o["state"]))
+    return {"ok": True, "state": acc.state_dict(), "bags": [b for o in ok for b in o["bags"]]}
+
+
+# ---------------------------------------------------------------------------------------------
+# per group
+# ---------------------------------------------------------------------------------------------
+def _t21_at(res, freqs_hz) -> dict:
+    st = res.static
+    f = res.freq_hz
+    out = {}
+    for fq in freqs_hz:
+        i = int(np.argmin(np.abs(f - fq)))
+        mag = float(np.abs(st.t21[i]))
+        eps = float(st.random_error[i])
+        key = f"t21_{fq:g}hz"
+        out[f"{key}_mag"] = mag
+        out[f"{key}_mag_lo"] = mag * max(1 - 2 * eps, 0.0)
+        out[f"{key}_mag_hi"] = mag * (1 + 2 * eps)
+        out[f"{key}_phase_deg"] = float(np.degrees(np.angle(st.t21[i])))
+        out[f"{key}_line_hz"] = float(f[i])
+    return out
+
+
+def solve_group(outcome: dict, *, freqs_hz: tuple[float, ...], plot_max_hz: float,
+                m2_kg: float | None = None) -> dict:
+    """NIFO on a group's merged partial: coefficients with bounds, T21 at ``freqs_hz``, curves for the page.
+
+    Coefficients per body mass always; in SI too when the sprung mass ``m2_kg`` [kg] is given.
+    """
+    from nifo.commands.identify import check_usable, summarize
+    from nifo_core.fleet import interval_halfwidth, standard_error
+    from nifo_core.nifo import StreamingNifo
+
+    if not outcome["ok"]:
+        return {"ok": False, "reason": outcome["reason"], "bags": []}
+    bags = outcome["bags"]
+    try:
+        acc = StreamingNifo.from_state(outcome["state"])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            res = acc.result()
+        check_usable(res, acc.cond_limit)
+        summary, warn = summarize(res, acc.cond_limit)
+    except Exception as err:  # noqa: BLE001 - a group that cannot be solved is reported, not fatal
+        return {"ok": False, "reason": _one_line(err), "bags": bags}
+    coefs = _coefficients(res)
+    specs = coefficient_specs(res.terms)
+    names = {"per_mass": [n for n, _, _ in specs], "si": []}
+    values = {}
+    for name, unit, _ in specs:
+        per_bag = [b["coefs"].get(name, np.nan) for b in bags]
+        se = standard_error(per_bag)
+        half = interval_halfwidth(se, int(np.isfinite(per_bag).sum()))
+        values[name] = {"value": coefs[name], "se": se, "lo": coefs[name] - half, "hi": coefs[name] + half,
+                        "unit": unit}
+    if m2_kg is not None:
+        si = coefficient_specs(res.terms, si=True)
+        for (name, unit, _), (pm, _, _) in zip(si, specs):
+            v = values[pm]
+            values[name] = {"value": v["value"] * m2_kg, "se": v["se"] * m2_kg, "lo": v["lo"] * m2_kg,
+                            "hi": v["hi"] * m2_kg, "unit": unit}
+        specs = specs + si
+        names["si"] = [n for n, _, _ in si]
+    keep = (res.freq_hz >= 1.5 * res.band.f_lo_hz) & (res.freq_hz <= plot_max_hz)   # integrator exact from 1.5·f_lo
+    lo_b, hi_b = res.bounds("t21")
+    return {"ok": True, "bags": bags, "coefficients": values, "specs": specs, "names": names, "t21": _t21_at(res, freqs_hz),
+            "summary": summary, "warnings": warn, "n_avg": int(res.n_avg), "fs_hz": res.fs_hz,
+            "duration_s": float(sum(b["n_samples"] for b in bags) / res.fs_hz),
+            "curves": {"freq_hz": res.freq_hz[keep], "t21": res.static.t21[keep],
+                       "t21_eps": res.static.random_error[keep], "h1": res.t21_h1[keep],
+                       "coherence": res.coherence_h1[keep]},
+            "analysis_band_hz": list(res.analysis_band_hz), "m2_kg": m2_kg}
+
+
+def loop_group(paths: list[str], setup: GroupSetup) -> dict:
+    """``nifo loop``'s residual loop on a group's records (loaded on this worker): its verdict."""
+    from nifo.io.loader import load_record
+    from nifo_core.loop import LoopSettings, close_loop
+
+    try:
+        recs = [load_record(p, **setup.opts) for p in paths]
+        band = setup.band if setup.band_from_model else None     # as nifo loop: else its own suggestion
+        res = close_loop(recs, list(setup.terms), band=band,
+                         settings=LoopSettings(spectral=setup.spectral, analysis_band_hz=setup.analysis_band_hz))
+    except Exception as err:  # noqa: BLE001
+        return {"ok": False, "verdict": f"loop not run: {_one_line(err)}", "added": []}
+    return {"ok": True, "verdict": res.verdict, "added": [c.term.label for c in res.added],
+            "nothing_missing": res.nothing_missing}
+
+
+def characterize_group(paths: list[str], setup: GroupSetup, m2_kg: float | None = None) -> dict:
+    """``nifo characterize``'s restoring-force ranking on a group's records (loaded on this worker)."""
+    from nifo.io.loader import load_record
+    from nifo_core.characterize import characterize
+
+    try:
+        recs = [load_record(p, **setup.opts) for p in paths]
+        band = setup.band if setup.band_from_model else None
+        ch = characterize(recs, band=band, m2_kg=m2_kg)
+    except Exception as err:  # noqa: BLE001
+        return {"ok": False, "text": f"characterization not run: {_one_line(err)}", "suggested": []}
+    labels = [t.label for t in ch.suggested_terms]
+    text = "nothing nonlinear found" if ch.nothing_found else "suggested: " + ", ".join(labels)
+    return {"ok": True, "text": text, "suggested": labels}

@@ -1,0 +1,198 @@
+"""nifo fleet on a real Dask LocalCluster (2 worker processes) with a simulated fleet of real bags.
+
+The fleet: 10 vehicles × 2 bags × 40 s (nifo_core.simulate, saved as .mcap
+bags), every parameter of every vehicle varied ±10 %, v01 with a worn damper
+(C2 -30 %), v06 with the damper knee moved (0.03 → 0.06 m/s); plus a truncated
+bag in v02's folder and a missing bag of a vehicle v99. (The full 20 × 10
+fleet is in benchmarks/bench_fleet.py.)
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from nifo.cli import main
+from nifo.io.results import read_json, read_model
+
+pytestmark = pytest.mark.slow
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory, cluster) -> Path:
+    from distributed import Client
+
+    from nifo.fleet.simulated import write_simulated_fleet
+
+    root = tmp_path_factory.mktemp("fleet")
+    with Client(cluster) as client:   # the bags are simulated on the cluster too
+        manifest = write_simulated_fleet(root, n_vehicles=10, bags_per_vehicle=2, duration_s=40.0, worn=(1,),
+                                         knee_moved=(6,), block=4096, seed=2,
+                                         mapper=lambda f, xs: client.gather(client.map(f, xs)))
+    # vmix: a nominal vehicle whose bags differ in length (30 s and 45 s): its integration band is set
+    # by the shorter one, as in nifo identify, so the longer one is accumulated twice
+    from nifo.fleet.simulated import NOMINAL_DEADZONE, NOMINAL_KNEE, _write_bag
+    from nifo_core.describing import Term
+    from nifo_core.simulate import RandomRoad, SimConfig, StrutForce
+
+    strut = (StrutForce(Term("velocity_deadzone", {"knee": NOMINAL_KNEE}), NOMINAL_DEADZONE),)
+    (root / "vmix" / "FL").mkdir(parents=True)
+    for b, dur in enumerate((30.0, 45.0)):
+        _write_bag({"config": SimConfig(strut=strut, road=RandomRoad(0.0025), duration_s=dur), "seed": 90 + b,
+                    "path": str(root / "vmix" / "FL" / f"bag0{b}.mcap")})
+    good = root / "v02" / "FL" / "bag00.mcap"
+    bad = root / "v02" / "FL" / "bag_truncated.mcap"
+    bad.write_bytes(good.read_bytes()[: good.stat().st_size * 6 // 10])
+    m2 = json.loads((root / "fleet_truth.json").read_text())["v02"]["vehicle"]["m2"]
+    with manifest.open("a", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["v02", "FL", "2026-02-01", "v02/FL/bag_truncated.mcap", f"{m2:.6g}"])
+        w.writerow(["v99", "FL", "2026-02-01", "v99/FL/never_copied.mcap", ""])
+        for b in range(2):
+            w.writerow(["vmix", "FL", "2026-02-02", f"vmix/FL/bag0{b}.mcap", "300"])
+    return root
+
+
+@pytest.fixture(scope="module")
+def result(fleet, cluster, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("out") / "fleet_out"
+    rc = main(["fleet", str(fleet / "manifest.csv"), "--model", str(fleet / "model.yaml"), "--out", str(out),
+               "--scheduler", cluster.scheduler_address, "--quiet"])
+    assert rc == 0
+    return out
+
+
+def _groups(out: Path) -> dict:
+    t = pq.read_table(out / "fleet.parquet").to_pylist()
+    return {r["vehicle"]: r for r in t}
+
+
+def test_fleet_writes_every_output_and_flags_exactly_the_planted_struts(result):
+    assert {p.name for p in result.iterdir()} >= {"fleet.parquet", "fleet.csv", "bags.parquet", "bags.csv",
+                                                 "fleet.json", "fleet.html", "t21.png", "coefficients.png",
+                                                 "fleet.rrd"}
+    g = _groups(result)
+    assert {v for v, r in g.items() if r["flagged"]} == {"v01", "v06"}
+    assert g["v01"]["c2_z"] < -3.5 and "c2 = " in g["v01"]["flag_evidence"]
+    assert g["v06"]["c_velocity_deadzone_z"] < -3.5
+    for v, r in g.items():
+        if r["status"] == "ok":
+            assert r["n_bags"] == 2 and r["c2_lo"] < r["c2"] < r["c2_hi"]
+            assert r["t21_10hz_mag_lo"] < r["t21_10hz_mag"] < r["t21_10hz_mag_hi"]
+    html = (result / "fleet.html").read_text()
+    assert "v01/FL" in html and "[N·s/m]" in html
+    doc = read_json(result / "fleet.json", what="fleet")
+    assert doc["units"]["c2"] == "N·s/m" and doc["units"]["k2_over_m2"] == "1/s²"
+
+
+def test_fleet_coefficients_are_close_to_the_simulated_truth(result, fleet):
+    truth = json.loads((fleet / "fleet_truth.json").read_text())
+    g = _groups(result)
+    for v in ("v00", "v01", "v03", "v08"):
+        for name in ("k2", "c2"):
+            assert g[v][name] == pytest.approx(truth[v][name], rel=0.04), (v, name)
+
+
+def test_a_bad_bag_is_recorded_with_its_reason_and_the_fleet_goes_on(result):
+    bags = {Path(r["path"]).name: r for r in pq.read_table(result / "bags.parquet").to_pylist()}
+    assert bags["bag_truncated.mcap"]["status"] == "failed"
+    assert "bag_truncated.mcap" in bags["bag_truncated.mcap"]["reason"]
+    assert "\n" not in bags["bag_truncated.mcap"]["reason"]
+    assert bags["never_copied.mcap"]["status"] == "failed"
+    assert "no such file or directory" in bags["never_copied.mcap"]["reason"]
+    g = _groups(result)
+    assert g["v02"]["status"] == "ok" and g["v02"]["n_bags"] == 2 and g["v02"]["n_bags_failed"] == 1
+    assert g["v99"]["status"] == "failed" and g["v99"]["reason"] == "no usable bag"
+
+
+@pytest.mark.parametrize("vehicle", ["v01", "v03", "vmix"])
+def test_group_coefficients_equal_nifo_identify_on_the_groups_bags(result, fleet, tmp_path, vehicle):
+    bags = sorted((fleet / vehicle / "FL").glob("bag0*.mcap"))
+    out = tmp_path / "ident"
+    assert main(["identify", *map(str, bags), "--model", str(fleet / "model.yaml"), "--out", str(out),
+                 "--no-plots", "--quiet"]) == 0
+    doc = read_json(out / "identify.json", what="identify")
+    model, _ = read_model(out)
+    g = _groups(result)[vehicle]
+    ident = {"k2_over_m2": model.body.k, "c2_over_m2": model.body.c,
+             "c_over_m2_velocity_deadzone": doc["summary"]["terms"][0]["c_over_m2"]}
+    for name, v in ident.items():
+        assert g[name] == pytest.approx(v, rel=1e-9, abs=0), name
+    assert g["n_avg"] == doc["summary"]["n_avg"]
+    if vehicle == "vmix":
+        passes = {Path(r["path"]).name: r["passes"] for r in pq.read_table(result / "bags.parquet").to_pylist()
+                  if r["vehicle"] == "vmix"}
+        assert passes == {"bag00.mcap": 1, "bag01.mcap": 2}
+
+
+def test_a_killed_fleet_run_resumes_without_recomputing_finished_bags(result, fleet, tmp_path):
+    rows = list(csv.DictReader((fleet / "manifest.csv").open()))
+    part = tmp_path / "part.csv"          # 4 vehicles, 8 bags: enough to kill mid-way
+    with part.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows([{**r, "path": str(fleet / r["path"])} for r in rows if r["vehicle"] in ("v00", "v01", "v03",
+                                                                                            "v04")])
+    out, cache = tmp_path / "out", tmp_path / "cache"
+    cmd = [sys.executable, "-m", "nifo", "fleet", str(part), "--model", str(fleet / "model.yaml"),
+           "--out", str(out), "--cache", str(cache), "--workers", "1", "--quiet", "--no-plots", "--no-rerun",
+           "--min-groups", "3"]
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen(cmd, env=env, start_new_session=True, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    t0 = time.monotonic()
+    while len(list(cache.rglob("*.npz"))) < 2:
+        assert proc.poll() is None, "the fleet run ended before it could be killed"
+        assert time.monotonic() - t0 < 240
+        time.sleep(0.01)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    before = {p.stem: p.stat().st_mtime_ns for p in cache.rglob("*.npz")}
+    assert 2 <= len(before) < 8 and not out.exists()
+    rc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+    assert rc.returncode == 0, rc.stderr
+    bags = pq.read_table(out / "bags.parquet").to_pylist()
+    assert all(r["status"] == "ok" for r in bags) and len(bags) == 8
+    assert {r["key"] for r in bags if r["cached"]} == set(before)
+    assert {p.stem: p.stat().st_mtime_ns for p in cache.rglob("*.npz") if p.stem in before} == before
+    assert f"{len(before)} from the cache" in rc.stdout
+    # every per-group number equals the uninterrupted run's (health columns depend on the fleet: left out)
+    full, resumed = _groups(result), _groups(out)
+    for v, rb in resumed.items():
+        for k, va in full[v].items():
+            if k.endswith("_z") or k in ("flagged", "flag_evidence", "health_note", "n_bags_cached",
+                                         "n_bags_failed", "n_bags"):
+                continue
+            if isinstance(va, float) and np.isfinite(va):
+                assert rb[k] == pytest.approx(va, rel=1e-12), (v, k)
+            else:
+                assert rb[k] == va, (v, k)
+
+
+def test_an_unreachable_scheduler_is_one_line_and_its_exit_code(fleet, capsys):
+    rc = main(["fleet", str(fleet / "manifest.csv"), "--model", str(fleet / "model.yaml"), "--out",
+               str(fleet / "never"), "--scheduler", "tcp://127.0.0.1:9", "--connect-timeout", "2", "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 20 and err.count("\n") == 1
+    assert "cannot reach the Dask scheduler tcp://127.0.0.1:9" in err and "Fix:" in err
+    assert not (fleet / "never").exists()
