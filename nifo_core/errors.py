@@ -129,11 +129,15 @@ class CorruptDataError(DataFileError):
 USAGE_EXIT_CODE = 2
 
 #: error class name -> (exit code, what it means), as ``nifo --help`` lists them; unique per class.
-#: ``PredictionDivergedError`` lives in :mod:`nifo_core.model` (heavy to import) and is listed here by name.
+#: ``PredictionDivergedError`` (:mod:`nifo_core.model`) and the fleet's errors (:mod:`nifo.fleet.cluster`) are
+#: heavy to import and are listed here by name; tests/test_cli.py checks the numbers against the classes.
 EXIT_CODES: dict[str, tuple[int, str]] = {
     **{cls.__name__: (cls.exit_code, (cls.__doc__ or "").strip().splitlines()[0].split(". ")[0].rstrip("."))
        for cls in (NifoError, InputError, DataFileError, MissingChannelError, NonFiniteError, TimestampError,
                    SampleRateError, RecordTooShortError, ConfigError, IllConditionedError, OutputError,
                    CorruptDataError)},
     "PredictionDivergedError": (12, "The model's prediction diverged for this input"),
+    # the fleet's errors live in nifo.fleet.cluster (Dask is not imported for other commands)
+    "ClusterError": (20, "The Dask cluster could not be started or reached"),
+    "FleetError": (21, "The fleet run could not go on"),
 }

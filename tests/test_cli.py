@@ -44,7 +44,8 @@ def _json(argv: list[str]) -> tuple[int, dict, str]:
 
 
 def _all_errors() -> list[type]:
-    for mod in ("nifo_core.model", "nifo_core.nifo", "nifo_core.loop", "nifo.io.loader", "nifo.io.bag"):
+    for mod in ("nifo_core.model", "nifo_core.nifo", "nifo_core.loop", "nifo.io.loader", "nifo.io.bag",
+                "nifo.fleet.cluster"):
         importlib.import_module(mod)
     found, todo = [], [NifoError]
     while todo:
@@ -105,8 +106,9 @@ def test_every_command_prints_one_json_document(ran, tmp_path):
         assert code == 0 and doc["ok"] and doc["command"] == name, (name, err[-2000:])
         assert all(k in doc for k in keys), (name, doc.keys())
         seen.add(name)
-    # run: tests/test_run_cmd.py (its pipeline runs with --json); replay: test_replay_json below
-    assert seen | {"run", "replay"} == set(COMMANDS)
+    # run: tests/test_run_cmd.py (its pipeline runs with --json); replay: test_replay_json below;
+    # fleet: tests/test_fleet_cluster.py (on a real LocalCluster)
+    assert seen | {"run", "replay", "fleet"} == set(COMMANDS)
 
 
 def test_replay_json_in_a_subprocess_on_its_own_ros_domain():

@@ -9,7 +9,9 @@ fleet is in benchmarks/bench_fleet.py.)
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 import json
 import os
 import signal
@@ -76,9 +78,13 @@ def fleet(tmp_path_factory, cluster) -> Path:
 @pytest.fixture(scope="module")
 def result(fleet, cluster, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("out") / "fleet_out"
-    rc = main(["fleet", str(fleet / "manifest.csv"), "--model", str(fleet / "model.yaml"), "--out", str(out),
-               "--scheduler", cluster.scheduler_address, "--quiet"])
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        rc = main(["fleet", str(fleet / "manifest.csv"), "--model", str(fleet / "model.yaml"), "--out", str(out),
+                   "--scheduler", cluster.scheduler_address, "--quiet", "--json"])
     assert rc == 0
+    doc = json.loads(buf.getvalue())   # --json: one document on stdout (tests/test_cli.py checks the others)
+    assert doc["command"] == "fleet" and doc["ok"] and doc["out"] == str(out) and doc["bags_failed"] >= 1
     return out
 
 
@@ -169,7 +175,8 @@ def test_a_killed_fleet_run_resumes_without_recomputing_finished_bags(result, fl
     proc.wait()
     before = {p.stem: p.stat().st_mtime_ns for p in cache.rglob("*.npz")}
     assert 2 <= len(before) < 8 and not out.exists()
-    rc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+    # again, with its summary text (the global --quiet silences it)
+    rc = subprocess.run([c for c in cmd if c != "--quiet"], env=env, capture_output=True, text=True, timeout=300)
     assert rc.returncode == 0, rc.stderr
     bags = pq.read_table(out / "bags.parquet").to_pylist()
     assert all(r["status"] == "ok" for r in bags) and len(bags) == 8

@@ -75,7 +75,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="streaming chunk per bag [samples] (default 262144, as nifo identify)")
     o.add_argument("--no-plots", action="store_true", help="no HTML page and figures")
     o.add_argument("--no-rerun", action="store_true", help="no Rerun recording")
-    o.add_argument("--quiet", action="store_true", help="no progress output")
     add_input_arguments(p)
 
 
@@ -123,7 +122,10 @@ def run(args: argparse.Namespace) -> int:
     files = write_outputs(args.out, result, inputs=str(args.input), plots=not args.no_plots,
                           rerun=not args.no_rerun)
     print(format_summary(result, out=args.out, files=files))
-    return 0
+    failed = [b for b in result.bags if b["reason"]]
+    return {"out": str(args.out), "files": files, "bags": len(result.bags), "bags_failed": len(failed),
+            "groups": len(result.groups), "groups_identified": len(solved),
+            "flagged": sorted(str(g) for g, r in result.groups.items() if r["ok"] and r["health"].flagged)}
 
 
 def write_outputs(out: Path, result, *, inputs: str, plots: bool = True, rerun: bool = True) -> list[str]:
