@@ -76,8 +76,8 @@ from .describing import Term
 from .errors import ConfigError, InputError, SampleRateError
 from .integrate import IntegrationBand, default_band
 from .nifo_estimate import nifo_from_spectra
-from .nifo_result import (DEFAULT_ANALYSIS_BAND_HZ, DEFAULT_COND_LIMIT, XB, FixedTerms, IllConditionedWarning,
-                          InputMeasured, NifoResult, OnIll, StaticFit)
+from .nifo_result import (A1, DEFAULT_ANALYSIS_BAND_HZ, DEFAULT_COND_LIMIT, FORCE, XB, FixedTerms,
+                          IllConditionedWarning, InputMeasured, NifoResult, OnIll, StaticFit)
 from .nifo_stream import StreamingNifo, _as_terms
 from .record import Record
 from .spectral import SpectralSettings
@@ -94,7 +94,8 @@ def identify_nifo(records: Sequence[Record] | Record, terms: Sequence[Term], *,
                   fixed: "NifoResult | FixedTerms | Sequence | None" = None, input_measured: bool | None = None,
                   spindle_noise_psd: float | None = None,
                   analysis_band_hz: tuple[float, float] = DEFAULT_ANALYSIS_BAND_HZ,
-                  on_ill_conditioned: OnIll = "warn", cond_limit: float = DEFAULT_COND_LIMIT) -> NifoResult:
+                  on_ill_conditioned: OnIll = "warn", cond_limit: float = DEFAULT_COND_LIMIT,
+                  use_force: bool | None = None) -> NifoResult:
     """Output-only NIFO on one or more records (paper Eq. 8-9), averaged over all their blocks.
 
     Each record is pushed once into its own :class:`StreamingNifo` and the
@@ -118,6 +119,12 @@ def identify_nifo(records: Sequence[Record] | Record, terms: Sequence[Term], *,
         every record). Default: when every record has it.
     spindle_noise_psd, analysis_band_hz, on_ill_conditioned, cond_limit :
         See :func:`nifo_from_spectra`.
+    use_force : bool, optional
+        Use the records' measured force on the body as one more input
+        (X2 = T21·X1 + T2F·F + Σ B_i·Xn_i; gives M2 and physical
+        coefficients). Default: when every record has a force. Records with a
+        fixed spindle (``Record.spindle_fixed``) need it; their spindle column
+        is dropped.
 
     Returns
     -------
@@ -141,18 +148,36 @@ def identify_nifo(records: Sequence[Record] | Record, terms: Sequence[Term], *,
         missing = [r.source or f"record {i}" for i, r in enumerate(recs) if not r.has_tire_patch]
         raise InputError(f"input-measured NIFO needs the tire patch, missing in {missing}", channel=XB,
                          hint="drop input_measured or use records with tire_patch_disp")
+    has_force = all(r.has_force for r in recs)
+    if use_force is None:
+        use_force = has_force
+    fixed_sp = {r.spindle_fixed for r in recs}
+    if use_force and not has_force:
+        missing = [r.source or f"record {i}" for i, r in enumerate(recs) if not r.has_force]
+        raise InputError(f"NIFO with force needs the force in every record, missing in {missing}", channel=FORCE,
+                         hint="give the force channel of every record (--columns force=NAME), or none")
+    if len(fixed_sp) > 1:
+        raise InputError("some records have a fixed spindle and some a measured one", channel=A1,
+                         hint="identify records of one kind together")
+    spindle_fixed = fixed_sp.pop()
+    if spindle_fixed and not use_force:
+        raise InputError("records with a fixed spindle need their measured force as the input", channel=FORCE,
+                         hint="give the force channel (--columns force=NAME)")
+    if use_force:
+        input_measured = False
     band = band or default_band(fs, min(r.duration_s for r in recs))
     proto = StreamingNifo(fs, terms, settings=settings, band=band, fixed=fixed, with_tire_patch=input_measured,
                           spindle_noise_psd=spindle_noise_psd, analysis_band_hz=analysis_band_hz,
                           on_ill_conditioned=on_ill_conditioned,
-                          cond_limit=cond_limit)
+                          cond_limit=cond_limit, with_force=use_force, spindle_fixed=spindle_fixed)
     total = None
     for r in recs:
         r.require_samples(proto.min_samples, what=(
             f"NIFO (block={proto.settings.block} plus {proto.delay_samples} integrator edge samples at each "
             f"end for f_lo={band.f_lo_hz:g} Hz)"))
         one = proto._like()
-        one.push(r.spindle_accel, r.body_accel, r.tire_patch_disp if input_measured else None)
+        one.push(r.spindle_accel, r.body_accel, r.tire_patch_disp if input_measured else None,
+                 r.force if use_force else None)
         total = one if total is None else total.merge(one)
     res = total.result()
     prov = dict(res.provenance)

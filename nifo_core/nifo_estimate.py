@@ -16,7 +16,7 @@ import numpy as np
 from .describing import Term
 from .errors import ConfigError, IllConditionedError
 from .integrate import IntegrationBand
-from .nifo_result import (A1, A2, DEFAULT_ANALYSIS_BAND_HZ, DEFAULT_COND_LIMIT, ILL_FRACTION, XB, FixedTerms,
+from .nifo_result import (A1, A2, DEFAULT_ANALYSIS_BAND_HZ, DEFAULT_COND_LIMIT, FORCE, ILL_FRACTION, XB, FixedTerms,
                           IllConditionedWarning, InputMeasured, NifoResult, OnIll, StaticFit)
 from .spectral import CrossSpectra, MimoFit, coherence, h1, mimo_fit
 
@@ -25,9 +25,9 @@ __all__ = ["nifo_from_spectra"]
 # ---------------------------------------------------------------------------------------------
 # the estimator, from spectra
 # ---------------------------------------------------------------------------------------------
-def _channel_names(terms: Sequence[Term], with_tire_patch: bool) -> tuple[str, ...]:
+def _channel_names(terms: Sequence[Term], with_tire_patch: bool, with_force: bool = False) -> tuple[str, ...]:
     names = [A1, A2, *(f"g{i}:{t.label}" for i, t in enumerate(terms))]
-    return tuple(names + [XB]) if with_tire_patch else tuple(names)
+    return tuple(names + [FORCE] * with_force + [XB] * with_tire_patch)
 
 
 def _check_conditioning(cond: np.ndarray, mask: np.ndarray, *, what: str, cond_limit: float,
@@ -140,8 +140,9 @@ def nifo_from_spectra(spec: CrossSpectra, terms: Sequence[Term], *, band: Integr
                       analysis_band_hz: tuple[float, float] = DEFAULT_ANALYSIS_BAND_HZ,
                       with_tire_patch: bool = False, spindle_noise_psd: float | None = None,
                       on_ill_conditioned: OnIll = "warn", cond_limit: float = DEFAULT_COND_LIMIT,
-                      n_samples: int = 0, provenance: Mapping | None = None) -> NifoResult:
-    """NIFO estimates from the cross-spectral matrix of [a1, a2, g_fixed.., g_1.., (xb)].
+                      n_samples: int = 0, provenance: Mapping | None = None, with_force: bool = False,
+                      spindle_fixed: bool = False) -> NifoResult:
+    """NIFO estimates from the cross-spectral matrix of [a1, a2, g_fixed.., g_1.., (f), (xb)].
 
     Parameters
     ----------
@@ -180,12 +181,17 @@ def nifo_from_spectra(spec: CrossSpectra, terms: Sequence[Term], *, band: Integr
         :class:`IllConditionedWarning` or raise :class:`IllConditionedError`.
     cond_limit : float
         Scaled condition number counted as ill-conditioned.
+    with_force : bool
+        The spectra hold a measured force on the body [N] (after the
+        describing functions): see :func:`_nifo_with_force`.
+    spindle_fixed : bool
+        The spindle did not move: its column is left out of the regression.
     """
     fixed = FixedTerms.coerce(fixed)
     fixed_terms = tuple(fixed.terms) if fixed is not None else ()
     all_terms = (*fixed_terms, *terms)
     nfx, nt = len(fixed_terms), len(all_terms)
-    want = _channel_names(all_terms, with_tire_patch)
+    want = _channel_names(all_terms, with_tire_patch, with_force)
     if spec.n_channels != len(want):
         raise ConfigError(f"cross spectra hold {spec.n_channels} channels, NIFO with {nt} terms needs {len(want)}",
                           hint="accumulate with StreamingNifo")
@@ -202,6 +208,17 @@ def nifo_from_spectra(spec: CrossSpectra, terms: Sequence[Term], *, band: Integr
     with np.errstate(divide="ignore", invalid="ignore"):
         inv_w2 = np.where(w > 0, 1.0 / np.where(w > 0, w, 1) ** 2, np.nan)
     noise = None if spindle_noise_psd is None else float(spindle_noise_psd)
+    if spindle_fixed and not with_force:
+        raise ConfigError("a fixed spindle leaves NIFO without an input", channel=FORCE,
+                          hint="give the measured force or the spindle acceleration")
+    if with_force:
+        if nfx or with_tire_patch:
+            raise ConfigError("NIFO with a measured force supports neither fixed (two-step) terms nor the "
+                              "tire patch", hint="identify all terms in one step; drop the tire patch")
+        return _nifo_with_force(spec, all_terms, band=band, mask=mask, w=w, inv_w2=inv_w2,
+                                spindle_fixed=spindle_fixed, analysis_band_hz=analysis_band_hz,
+                                on_ill_conditioned=on_ill_conditioned, cond_limit=cond_limit,
+                                n_samples=n_samples, provenance=provenance)
 
     # fixed (step-1) terms enter through their constant c_i/M2 = γ_i: with D_i = γ_i·(T21 - 1),
     # A2 = T21·A1 + Σ_fixed D_i·Gn_i + Σ_free D_i·Gn_i  <=>  y = T21·u + Σ_free D_i·Gn_i
@@ -257,3 +274,117 @@ def nifo_from_spectra(spec: CrossSpectra, terms: Sequence[Term], *, band: Integr
                       spindle_noise_psd=noise, provenance=prov)
 
 
+
+
+def one_mass_fit(freq_hz: np.ndarray, h_af: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(M2 [kg], K2 [N/m], C2 [N·s/m], relative RMS misfit) of a body driven by a force.
+
+    One mass on a spring-damper to the spindle, force F on the mass
+    (M2·ẍ2 = -(K2 + jωC2)·(X2 - X1) - Σ c_i·G_i + F): the acceleration per
+    force is h = -ω²/(-ω²M2 + K2 + jωC2), so ``1/h = M2 - K2/ω² - j·C2/ω``,
+    linear in the three unknowns; least squares over the ``mask`` lines, each
+    line weighted by |h| so that the misfit is relative.
+    """
+    w = 2 * np.pi * np.asarray(freq_hz, float)
+    ok = mask & np.isfinite(h_af) & (np.abs(h_af) > 0) & (w > 0)
+    if ok.sum() < 3:
+        raise IllConditionedError("fewer than 3 usable lines for the one-mass fit of the force path",
+                                  hint="widen the analysis band or record more data")
+    wo, inv = w[ok], 1.0 / h_af[ok]
+    wt = np.abs(h_af[ok])
+    a = np.concatenate([np.column_stack([np.ones_like(wo), -1 / wo**2, np.zeros_like(wo)]),
+                        np.column_stack([np.zeros_like(wo), np.zeros_like(wo), -1 / wo])]) * np.tile(wt, 2)[:, None]
+    rhs = np.concatenate([inv.real, inv.imag]) * np.tile(wt, 2)
+    m2, k2, c2 = np.linalg.lstsq(a, rhs, rcond=None)[0]
+    model = -wo**2 / (-wo**2 * m2 + k2 + 1j * wo * c2)
+    rms = float(np.sqrt(np.mean(np.abs(model - h_af[ok]) ** 2) / np.mean(np.abs(h_af[ok]) ** 2)))
+    return np.array([m2, k2, c2, rms])
+
+
+def _nifo_with_force(spec: CrossSpectra, terms: Sequence[Term], *, band: IntegrationBand, mask: np.ndarray,
+                     w: np.ndarray, inv_w2: np.ndarray, spindle_fixed: bool, analysis_band_hz: tuple[float, float],
+                     on_ill_conditioned: OnIll, cond_limit: float, n_samples: int,
+                     provenance: Mapping | None) -> NifoResult:
+    """NIFO with a measured force on the body (paper Eq. 8 with one more input).
+
+    In accelerations, for the body equation M2·ẍ2 = -Z·z - Σ c_i·g_i + F (Z = K2 + jωC2, K3 = 0):
+
+        A2 = T21·A1 + H·F + Σ D_i·Gn_i,   H = -ω²/(-ω²M2 + Z) = -ω²·T2F,   D_i = -c_i·H
+
+    Free fit: the per-line H1 of A2 on [A1, F, Gn_1..] — without A1 when the
+    spindle is fixed (a zero column would make G_UU singular). c_i(ω) = -D_i/H
+    in physical units [N per unit of g]. Constant-coefficient fit: the real
+    c_i pooled over the band from the equation error
+    ``A2 - T21·A1 - H·F = -Σ c_i·H·Gn_i`` (weights 1/G_nn, as :func:`_static_fit`),
+    then the H1 of A2 on [A1, F - Σ c_i·Gn_i]. M2 comes from the one-mass fit
+    of H (:func:`one_mass_fit`), which makes c_i/M2 = γ_i and, for a fixed
+    spindle, the one-mass model's T21 = 1 - M2·H (it is not measured then).
+    """
+    nt = len(terms)
+    nch = spec.n_channels
+    fi = 2 + nt                                                             # force channel
+    gi = list(range(2, 2 + nt))
+    lead = [] if spindle_fixed else [0]
+    fit: MimoFit = mimo_fit(spec, [*lead, fi, *gi], 1)
+    _check_conditioning(fit.cond, mask, what="NIFO with force", cond_limit=cond_limit, on_ill=on_ill_conditioned)
+    k = len(lead)
+    h_af = fit.h[k]
+    d = fit.h[k + 1:]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c_free = -d / h_af
+    # constant coefficients: the equation error e = A2 - T21·A1 - H·F = Σ c_i·(-H)·Gn_i
+    c = np.zeros(0)
+    if nt:
+        t21f = fit.h[0] if lead else np.zeros_like(h_af)
+        hh = np.where(np.isfinite(h_af), h_af, 0)
+        wts = np.zeros((w.size, 1 + nt, nch), complex)
+        wts[:, 0, 0] = -np.where(np.isfinite(t21f), t21f, 0)
+        wts[:, 0, 1] = 1.0
+        wts[:, 0, fi] = -hh
+        for i in range(nt):
+            wts[:, 1 + i, 2 + i] = -hh
+        g = spec.combine(wts).G
+        ok = mask & np.isfinite(h_af) & (fit.residual_psd > 0)
+        if not ok.any():
+            raise IllConditionedError("no usable line in the analysis band for the constant-coefficient fit",
+                                      hint="widen the analysis band or record more data")
+        wt = 1.0 / fit.residual_psd[ok]
+        lhs = np.einsum("f,fij->ij", wt, g[ok][:, 1:, 1:].real)
+        rhs = np.einsum("f,fi->i", wt, g[ok][:, 1:, 0].real)
+        c = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+    comb = np.zeros((3, nch))
+    comb[0, 0] = comb[1, 1] = comb[2, fi] = 1.0
+    comb[2, 2:2 + nt] = -c
+    cs = spec.combine(comb, names=(A1, A2, FORCE + "-nl"))
+    sfit = mimo_fit(cs, [0, 2] if lead else [2], 1)
+    hs = sfit.h[-1]
+    one = one_mass_fit(spec.freq_hz, hs, mask)
+    m2 = one[0]
+    if not (np.isfinite(m2) and m2 > 0):
+        raise IllConditionedError(f"the one-mass fit of the force path gives M2 = {m2:.4g} kg (not physical)",
+                                  hint="check the force's sign and units, and the analysis band")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t21s = sfit.h[0] if lead else 1 - m2 * hs
+        t21 = fit.h[0] if lead else 1 - m2 * h_af
+        b = -d * inv_w2
+        bs = c[:, None] * hs[None, :] * inv_w2[None, :]                    # D_i = -c_i·H, B = -D/ω²
+        static = StaticFit(c_over_m2=c / m2, t21=t21s, b=bs, mu_over_k2=bs / t21s,
+                           coherence=sfit.multiple_coherence, random_error=sfit.random_error[-1],
+                           t2f=-hs * inv_w2, c=c, one_mass=one)
+        mu = b / t21
+    pc = np.full((1 + nt, w.size), np.nan)
+    err = np.full((1 + nt, w.size), np.nan)
+    if lead:
+        pc[0], err[0] = fit.partial_coherence[0], fit.random_error[0]
+    pc[1:], err[1:] = fit.partial_coherence[k + 1:], fit.random_error[k + 1:]
+    prov = dict(provenance or {})
+    prov["force"] = {"spindle_fixed": bool(spindle_fixed), "m2_kg": float(m2), "k2_n_per_m": float(one[1]),
+                     "c2_ns_per_m": float(one[2]), "one_mass_misfit": float(one[3]), "c": c.tolist()}
+    return NifoResult(freq_hz=spec.freq_hz.copy(), t21=t21, b=b, mu_over_k2=mu, c_over_m2=c_free / m2,
+                      t21_h1=np.full(w.size, np.nan + 0j) if spindle_fixed else h1(spec, 0, 1),
+                      coherence_h1=coherence(spec, fi, 1) if spindle_fixed else coherence(spec, 0, 1),
+                      multiple_coherence=fit.multiple_coherence, partial_coherence=pc, cond=fit.cond,
+                      random_error=err, n_avg=spec.n_avg, n_samples=int(n_samples), terms=tuple(terms),
+                      fixed=(False,) * nt, fs_hz=spec.fs_hz, settings=spec.settings, band=band,
+                      analysis_band_hz=analysis_band_hz, input_measured=None, static=static,
+                      spindle_noise_psd=None, provenance=prov, t2f=-h_af * inv_w2, spindle_fixed=spindle_fixed)

@@ -31,7 +31,7 @@ ILL_FRACTION = 0.1
 
 OnIll = Literal["warn", "raise", "ignore"]
 
-A1, A2, XB = "spindle_accel", "body_accel", "tire_patch_disp"
+A1, A2, XB, FORCE = "spindle_accel", "body_accel", "tire_patch_disp", "force"
 
 
 class IllConditionedWarning(UserWarning):
@@ -155,6 +155,14 @@ class StaticFit:
         Coherence of A1 + Σγ·Gn with A2 + Σγ·Gn.
     random_error : ndarray, shape (nf,)
         Normalized random error of |T21| (single-input formula; γ taken as exact).
+    t2f : ndarray, complex, shape (nf,), optional
+        With a measured force: body displacement per force X2/F [m/N] of the
+        constant-coefficient fit (see :func:`nifo_core.nifo_estimate.nifo_from_spectra`).
+    c : ndarray, shape (n_terms,), optional
+        With a measured force: the physical coefficients c_i [N per unit of g].
+    one_mass : ndarray, shape (4,), optional
+        With a measured force: (M2 [kg], K2 [N/m], C2 [N·s/m], relative RMS
+        misfit) of the one-mass fit F/A2 = M2 - (K2 + jωC2)/ω² over the analysis band.
     """
 
     c_over_m2: np.ndarray
@@ -163,23 +171,40 @@ class StaticFit:
     mu_over_k2: np.ndarray
     coherence: np.ndarray
     random_error: np.ndarray
+    t2f: np.ndarray | None = None
+    c: np.ndarray | None = None
+    one_mass: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        for k in ("c_over_m2", "t21", "b", "mu_over_k2", "coherence", "random_error"):
-            object.__setattr__(self, k, _ro(getattr(self, k)))
+        for k in ("c_over_m2", "t21", "b", "mu_over_k2", "coherence", "random_error", "t2f", "c", "one_mass"):
+            if getattr(self, k) is not None:
+                object.__setattr__(self, k, _ro(getattr(self, k)))
+
+    @property
+    def m2(self) -> float | None:
+        """Body mass M2 [kg] from the measured force (None without a force)."""
+        return None if self.one_mass is None else float(self.one_mass[0])
 
     def to_dict(self) -> dict:
-        return {"c_over_m2": _floats(self.c_over_m2), "t21": _cplx(self.t21), "b": [_cplx(x) for x in self.b],
-                "mu_over_k2": [_cplx(x) for x in self.mu_over_k2], "coherence": _floats(self.coherence),
-                "random_error": _floats(self.random_error)}
+        out = {"c_over_m2": _floats(self.c_over_m2), "t21": _cplx(self.t21), "b": [_cplx(x) for x in self.b],
+               "mu_over_k2": [_cplx(x) for x in self.mu_over_k2], "coherence": _floats(self.coherence),
+               "random_error": _floats(self.random_error)}
+        if self.t2f is not None:
+            out.update(t2f=_cplx(self.t2f), c=_floats(self.c), one_mass=_floats(self.one_mass))
+        return out
 
     @classmethod
     def from_dict(cls, d: Mapping) -> "StaticFit":
         nt = len(d["c_over_m2"])
+        opt = {}
+        if d.get("t2f") is not None:
+            opt = {"t2f": _uncplx(d["t2f"]), "c": np.asarray(d["c"], float),
+                   "one_mass": np.asarray(d["one_mass"], float)}
         return cls(c_over_m2=np.asarray(d["c_over_m2"], float), t21=_uncplx(d["t21"]),
                    b=np.array([_uncplx(x) for x in d["b"]]).reshape(nt, -1),
                    mu_over_k2=np.array([_uncplx(x) for x in d["mu_over_k2"]]).reshape(nt, -1),
-                   coherence=np.asarray(d["coherence"], float), random_error=np.asarray(d["random_error"], float))
+                   coherence=np.asarray(d["coherence"], float), random_error=np.asarray(d["random_error"], float),
+                   **opt)
 
 
 @dataclass(frozen=True, eq=False)
@@ -241,6 +266,15 @@ class NifoResult:
         correction), when given.
     provenance : mapping
         JSON-able notes (records, steps).
+    t2f : ndarray, complex, shape (nf,), optional
+        With a measured force on the body: X2/F [m/N] of the free fit (the
+        force is one more input of Eq. 8: X2 = T21·X1 + T2F·F + Σ B_i·Xn_i).
+        ``c_over_m2`` is then c_i/M2 with c_i = -D_i/(-ω²·T2F) and M2 from
+        the one-mass fit (``static.one_mass``).
+    spindle_fixed : bool
+        The spindle did not move (force-driven single mass): T21 was not
+        regressed; ``t21`` is the one-mass model's 1 - M2·(-ω²·T2F) and row 0
+        of ``partial_coherence``/``random_error`` is NaN.
     """
 
     freq_hz: np.ndarray
@@ -266,11 +300,16 @@ class NifoResult:
     static: StaticFit | None = None   # always set by the estimator; None only in hand-made results
     spindle_noise_psd: float | None = None
     provenance: Mapping = field(default_factory=dict)
+    t2f: np.ndarray | None = None
+    spindle_fixed: bool = False
 
     def __post_init__(self) -> None:
         for k in ("freq_hz", "t21", "b", "mu_over_k2", "c_over_m2", "t21_h1", "coherence_h1",
                   "multiple_coherence", "partial_coherence", "cond", "random_error"):
             object.__setattr__(self, k, _ro(getattr(self, k)))
+        if self.t2f is not None:
+            object.__setattr__(self, "t2f", _ro(self.t2f))
+        object.__setattr__(self, "spindle_fixed", bool(self.spindle_fixed))
         object.__setattr__(self, "terms", tuple(self.terms))
         object.__setattr__(self, "fixed", tuple(bool(f) for f in self.fixed))
         object.__setattr__(self, "analysis_band_hz", (float(self.analysis_band_hz[0]),
@@ -326,6 +365,7 @@ class NifoResult:
             "static": None if self.static is None else self.static.to_dict(),
             "spindle_noise_psd": self.spindle_noise_psd,
             "provenance": json.loads(json.dumps(dict(self.provenance), default=str)),
+            "t2f": None if self.t2f is None else _cplx(self.t2f), "spindle_fixed": self.spindle_fixed,
         }
 
     @classmethod
@@ -353,7 +393,9 @@ class NifoResult:
                 input_measured=None if im is None else InputMeasured.from_dict(im),
                 static=None if d.get("static") is None else StaticFit.from_dict(d["static"]),
                 spindle_noise_psd=d.get("spindle_noise_psd"),
-                provenance=dict(d.get("provenance") or {}))
+                provenance=dict(d.get("provenance") or {}),
+                t2f=None if d.get("t2f") is None else _uncplx(d["t2f"]),
+                spindle_fixed=bool(d.get("spindle_fixed", False)))
         except (KeyError, TypeError, ValueError) as err:
             raise ConfigError(f"cannot read NIFO result: {err!r}", hint="pass what NifoResult.to_dict() wrote") \
                 from None

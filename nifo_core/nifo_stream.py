@@ -54,6 +54,13 @@ class StreamingNifo:
     with_tire_patch : bool
         Also accumulate the tire-patch displacement for the input-measured
         estimate (paper Eq. 10); :meth:`push` then needs it.
+    with_force : bool
+        Also accumulate a measured force on the body [N] (one more input of
+        Eq. 8: X2 = T21·X1 + T2F·F + Σ B_i·Xn_i); :meth:`push` then needs it.
+    spindle_fixed : bool
+        The spindle does not move (a single mass driven by the force): its
+        column is dropped from the regression instead of inverting a singular
+        G_UU. Needs ``with_force``.
     spindle_noise_psd, analysis_band_hz, on_ill_conditioned, cond_limit :
         As in :func:`nifo_from_spectra`.
 
@@ -66,14 +73,15 @@ class StreamingNifo:
     released), so the samples used are exactly the ``valid`` part of
     :func:`integrate` on the whole record. Describing functions are evaluated
     on (z, ż) with the play-operator state carried across chunks, and
-    [a1, a2, g_fixed.., g.., xb] go into one :class:`CrossSpectralAccumulator`.
+    [a1, a2, g_fixed.., g.., f, xb] go into one :class:`CrossSpectralAccumulator`.
     """
 
     def __init__(self, fs_hz: float, terms: Sequence[Term], *, settings: SpectralSettings | None = None,
                  band: IntegrationBand | None = None, fixed: "NifoResult | FixedTerms | Sequence | None" = None,
                  with_tire_patch: bool = False, spindle_noise_psd: float | None = None,
                  analysis_band_hz: tuple[float, float] = DEFAULT_ANALYSIS_BAND_HZ,
-                 on_ill_conditioned: OnIll = "warn", cond_limit: float = DEFAULT_COND_LIMIT) -> None:
+                 on_ill_conditioned: OnIll = "warn", cond_limit: float = DEFAULT_COND_LIMIT,
+                 with_force: bool = False, spindle_fixed: bool = False) -> None:
         if not (np.isfinite(fs_hz) and fs_hz > 0):
             raise ConfigError(f"fs_hz={fs_hz!r} must be a positive sample rate [Hz]")
         if on_ill_conditioned not in ("warn", "raise", "ignore"):
@@ -85,12 +93,20 @@ class StreamingNifo:
         self.settings = settings or SpectralSettings()
         self.band = (band or default_band(self.fs_hz)).validate(self.fs_hz)
         self.with_tire_patch = bool(with_tire_patch)
+        self.with_force = bool(with_force)
+        self.spindle_fixed = bool(spindle_fixed)
+        if self.spindle_fixed and not self.with_force:
+            raise ConfigError("a fixed spindle leaves NIFO without an input", channel="force",
+                              hint="give the measured force (with_force=True) or the spindle acceleration")
+        if self.with_force and self.fixed is not None:
+            raise ConfigError("two-step NIFO (fixed terms) with a measured force is not supported",
+                              hint="identify all terms in one step when the force is measured")
         self.spindle_noise_psd = None if spindle_noise_psd is None else float(spindle_noise_psd)
         self.analysis_band_hz = (float(analysis_band_hz[0]), float(analysis_band_hz[1]))
         self.on_ill_conditioned = on_ill_conditioned
         self.cond_limit = float(cond_limit)
         self.delay_samples = (integrator_taps(self.fs_hz, self.band)[0].size - 1) // 2
-        self._names = _channel_names(self.all_terms, self.with_tire_patch)
+        self._names = _channel_names(self.all_terms, self.with_tire_patch, self.with_force)
         self._acc = CrossSpectralAccumulator(len(self._names), self.fs_hz, self.settings, names=self._names)
         self._n_used = 0
         self._records = 0
@@ -99,8 +115,8 @@ class StreamingNifo:
     # -- stream state ---------------------------------------------------------------------
     def _reset_stream(self) -> None:
         self._integ = StreamingIntegrator(self.fs_hz, self.band)
-        self._n_raw = 2 + self.with_tire_patch
-        self._hist = np.zeros((self._n_raw, 0))      # last ≤ 2·delay raw samples (a1, a2, xb)
+        self._n_raw = 2 + self.with_tire_patch + self.with_force
+        self._hist = np.zeros((self._n_raw, 0))      # last ≤ 2·delay raw samples (a1, a2, xb, f)
         self._n_in = 0                                # raw samples pushed in this stream
         self._play = np.full(len(self.all_terms), np.nan)
 
@@ -115,8 +131,8 @@ class StreamingNifo:
         return self._acc.n_blocks
 
     def push(self, spindle_accel: np.ndarray, body_accel: np.ndarray,
-             tire_patch_disp: np.ndarray | None = None) -> int:
-        """Feed a chunk of the stream: accelerations [m/s²] (and xb [m]), each shape (k,).
+             tire_patch_disp: np.ndarray | None = None, force: np.ndarray | None = None) -> int:
+        """Feed a chunk of the stream: accelerations [m/s²] (and xb [m], force [N]), each shape (k,).
 
         Returns the number of spectral blocks completed by this chunk. Inputs are not modified.
         """
@@ -128,6 +144,11 @@ class StreamingNifo:
                 raise InputError("this NIFO accumulates the tire patch (with_tire_patch=True) but none was pushed",
                                  channel=XB, hint="push tire_patch_disp with every chunk")
             chans.append(np.asarray(tire_patch_disp, dtype=float).ravel())
+        if self.with_force:
+            if force is None:
+                raise InputError("this NIFO accumulates a measured force (with_force=True) but none was pushed",
+                                 channel="force", hint="push the force with every chunk")
+            chans.append(np.asarray(force, dtype=float).ravel())
         if len({c.size for c in chans}) != 1:
             raise InputError(f"chunk channels differ in length {[c.size for c in chans]}",
                              hint="push the same samples of every channel")
@@ -153,6 +174,8 @@ class StreamingNifo:
             return 0
         g = self._evaluate(x, v)
         rows = [aligned[0], aligned[1], *g]
+        if self.with_force:
+            rows.append(aligned[-1])
         if self.with_tire_patch:
             rows.append(aligned[2])
         self._n_used += v.size
@@ -195,14 +218,17 @@ class StreamingNifo:
                 "integrator_edge_samples": self.delay_samples}
         return nifo_from_spectra(self.spectra(), self.terms, band=self.band, fixed=self.fixed,
                                  analysis_band_hz=self.analysis_band_hz, with_tire_patch=self.with_tire_patch,
+                                 with_force=self.with_force, spindle_fixed=self.spindle_fixed,
                                  spindle_noise_psd=self.spindle_noise_psd,
                                  on_ill_conditioned=self.on_ill_conditioned, cond_limit=self.cond_limit,
                                  n_samples=self._n_used, provenance=prov)
 
     def same_setup(self, other: "StreamingNifo") -> bool:
         """True when ``other`` accumulates the same channels the same way (so the two can merge)."""
-        return (self.fs_hz, self.all_terms, self.settings, self.band, self.with_tire_patch) == \
-            (other.fs_hz, other.all_terms, other.settings, other.band, other.with_tire_patch)
+        return (self.fs_hz, self.all_terms, self.settings, self.band, self.with_tire_patch, self.with_force,
+                self.spindle_fixed) == \
+            (other.fs_hz, other.all_terms, other.settings, other.band, other.with_tire_patch, other.with_force,
+             other.spindle_fixed)
 
     _same_setup = same_setup   # kept for callers of the earlier private name
 
@@ -224,6 +250,7 @@ class StreamingNifo:
     def _like(self) -> "StreamingNifo":
         return StreamingNifo(self.fs_hz, self.terms, settings=self.settings, band=self.band, fixed=self.fixed,
                              with_tire_patch=self.with_tire_patch, spindle_noise_psd=self.spindle_noise_psd,
+                             with_force=self.with_force, spindle_fixed=self.spindle_fixed,
                              analysis_band_hz=self.analysis_band_hz, on_ill_conditioned=self.on_ill_conditioned,
                              cond_limit=self.cond_limit)
 
@@ -237,6 +264,7 @@ class StreamingNifo:
         config = {"fs_hz": self.fs_hz, "terms": [t.to_dict() for t in self.terms],
                   "settings": self.settings.to_dict(), "band": self.band.to_dict(),
                   "with_tire_patch": self.with_tire_patch, "spindle_noise_psd": self.spindle_noise_psd,
+                  "with_force": self.with_force, "spindle_fixed": self.spindle_fixed,
                   "analysis_band_hz": list(self.analysis_band_hz),
                   "on_ill_conditioned": self.on_ill_conditioned, "cond_limit": self.cond_limit,
                   "fixed": None if self.fixed is None else self.fixed.to_dict()}
@@ -256,7 +284,8 @@ class StreamingNifo:
                       settings=SpectralSettings.from_dict(c["settings"]), band=IntegrationBand(**c["band"]),
                       fixed=fixed, with_tire_patch=c["with_tire_patch"], spindle_noise_psd=c["spindle_noise_psd"],
                       analysis_band_hz=tuple(c["analysis_band_hz"]), on_ill_conditioned=c["on_ill_conditioned"],
-                      cond_limit=c["cond_limit"])
+                      cond_limit=c["cond_limit"], with_force=c.get("with_force", False),
+                      spindle_fixed=c.get("spindle_fixed", False))
             acc = CrossSpectralAccumulator.from_state({k[4:]: v for k, v in state.items() if k.startswith("acc.")})
             hist = np.asarray(state["hist"], float)
             n_in = int(state["n_in"])
