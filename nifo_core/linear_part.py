@@ -31,7 +31,7 @@ fit error, and says why (``LinearPart.reason``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal, Mapping
 
 import numpy as np
@@ -39,7 +39,29 @@ import scipy.linalg
 
 from .errors import ConfigError
 
-__all__ = ["BodyModel", "LinearPart", "fit_body_model", "fit_rational", "select_linear_part"]
+__all__ = ["BodyModel", "LinearPart", "absorbed_rates", "fit_body_model", "fit_rational", "select_linear_part"]
+
+#: a physical one-mass body is kept unless its T21 misfit exceeds this (relative RMS over the band)
+BODY_FIT_LIMIT = 0.10
+
+#: the linear part each kind gives to the linear part of the model: g = α·z + β·ż + (a bounded remainder)
+_ABSORB = {"backlash": (1.0, 0.0), "clearance": (1.0, 0.0), "velocity_deadzone": (0.0, 1.0)}
+
+
+def absorbed_rates(terms, gammas) -> tuple[float, float]:
+    """(a, b) = (Σ γ_i·α_i [1/s²], Σ γ_i·β_i [1/s]) of the terms whose remainder g - α·z - β·ż is bounded.
+
+    A backlash (play) is z within ±deadband/2, a clearance z minus a clip,
+    a velocity dead zone ż minus a clip: their linear part belongs to the linear
+    part of the model. Left in the feedback it can make the nominal linear part
+    non-physical (the static fit splits K2 + c_play between them), e.g. k < 0.
+    """
+    a = b = 0.0
+    for t, g in zip(terms, gammas):
+        al, be = _ABSORB.get(t.kind, (0.0, 0.0))
+        a += float(g) * al
+        b += float(g) * be
+    return a, b
 
 
 # ---------------------------------------------------------------------------------------------
@@ -146,6 +168,11 @@ class LinearPart:
         Why this linear part was chosen (filled by :func:`select_linear_part`).
     candidates : mapping
         The forms that were tried, each with its fit error, stability and physicality.
+    absorbed : (float, float)
+        (a [1/s²], b [1/s]): the linear part of the strut terms moved into this
+        linear part (:func:`absorbed_rates`); it realises Hz' = Hz/(1 - Hz·(a + s·b))
+        and the feedback subtracts a·z + b·ż again. ``hz``/``t21`` give the
+        nominal Hz, T21 (without it).
     """
 
     kind: Literal["body", "rational"]
@@ -156,8 +183,10 @@ class LinearPart:
     band_hz: tuple[float, float] = (float("nan"), float("nan"))
     reason: str = ""
     candidates: Mapping = field(default_factory=dict)
+    absorbed: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "absorbed", (float(self.absorbed[0]), float(self.absorbed[1])))
         if self.kind == "body":
             if not isinstance(self.body, BodyModel):
                 raise ConfigError("a linear part of kind 'body' needs a BodyModel")
@@ -206,7 +235,14 @@ class LinearPart:
         return float(1.0 / re.min()) if re.size and re.min() > 0 else float("inf")
 
     def hz(self, freq_hz) -> np.ndarray:
-        """Hz(jω) = Z/U [m per m/s²]."""
+        """Nominal Hz(jω) = Z/U [m per m/s²] (the absorbed strut part taken out again)."""
+        s = 2j * np.pi * np.asarray(freq_hz, float)
+        h = self.hz_realised(freq_hz)
+        a, b = self.absorbed
+        return h / (1 + h * (a + b * s)) if (a or b) else h
+
+    def hz_realised(self, freq_hz) -> np.ndarray:
+        """Hz'(jω) this part realises (``state_space``), with the absorbed strut part."""
         s = 2j * np.pi * np.asarray(freq_hz, float)
         if self.kind == "body":
             b = self.body
@@ -216,8 +252,8 @@ class LinearPart:
         return np.sum(self.residues[:, None] / (s[None, :] - self.poles[:, None]), axis=0)
 
     def t21(self, freq_hz) -> np.ndarray:
-        """T21 = 1 + s²·Hz of this linear part."""
-        if self.kind == "body":
+        """Nominal T21 = 1 + s²·Hz of this linear part."""
+        if self.kind == "body" and not any(self.absorbed):
             return self.body.t21(freq_hz)
         w = 2 * np.pi * np.asarray(freq_hz, float)
         return 1 - w**2 * self.hz(freq_hz)
@@ -250,7 +286,7 @@ class LinearPart:
     def to_dict(self) -> dict:
         d = {"kind": self.kind, "fit_rms": self.fit_rms, "band_hz": list(self.band_hz), "reason": self.reason,
              "stable": self.stable, "physical": self.physical, "order": self.order,
-             "candidates": dict(self.candidates)}
+             "candidates": dict(self.candidates), "absorbed": list(self.absorbed)}
         if self.kind == "body":
             d["body"] = self.body.to_dict()
         else:
@@ -264,7 +300,8 @@ class LinearPart:
         try:
             kw = {"fit_rms": float(d.get("fit_rms") if d.get("fit_rms") is not None else np.nan),
                   "band_hz": tuple(float(v) if v is not None else np.nan for v in d.get("band_hz", (np.nan,) * 2)),
-                  "reason": str(d.get("reason", "")), "candidates": dict(d.get("candidates") or {})}
+                  "reason": str(d.get("reason", "")), "candidates": dict(d.get("candidates") or {}),
+                  "absorbed": tuple(d.get("absorbed") or (0.0, 0.0))}
             if d["kind"] == "body":
                 return cls("body", body=BodyModel(**d["body"]), **kw)
             cx = lambda v: np.asarray(v["re"], float) + 1j * np.asarray(v["im"], float)  # noqa: E731
@@ -438,13 +475,37 @@ def fit_rational(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[float, 
 
 def select_linear_part(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[float, float],
                        form: Literal["auto", "body", "rational"] = "auto", order: int | None = None,
-                       fit_k3: bool = False, weights: np.ndarray | None = None) -> LinearPart:
+                       fit_k3: bool = False, weights: np.ndarray | None = None,
+                       absorbed: tuple[float, float] = (0.0, 0.0)) -> LinearPart:
     """Fit the one-mass body and a rational model to T21 and choose (module docstring).
 
-    ``form='auto'`` keeps the physical body unless it is not physical or the
-    rational model fits T21 clearly better (error below 2/3 of the body's and
-    at least 1 % lower); ``'body'`` or ``'rational'`` force a form (a forced
-    body must be physical).
+    With ``absorbed`` = (a, b) (:func:`absorbed_rates`) the forms are fitted to
+    T21' = 1 - ω²·Hz', Hz' = Hz/(1 - Hz·(a + jω·b)): the nominal linear part
+    plus the linear part of the strut terms.
+    """
+    a, b = float(absorbed[0]), float(absorbed[1])
+    f = np.asarray(freq_hz, float)
+    t = np.asarray(t21, complex)
+    if a or b:
+        w = 2 * np.pi * f
+        with np.errstate(divide="ignore", invalid="ignore"):
+            hz = (1 - t) / w**2
+            t = 1 - w**2 * hz / (1 - hz * (a + 1j * w * b))
+    out = _select(f, t, band_hz=band_hz, form=form, order=order, fit_k3=fit_k3, weights=weights)
+    if a or b:
+        out = replace(out, absorbed=(a, b), reason=out.reason + f" (fitted with the linear part of the strut terms, "
+                                                               f"{a:.4g} 1/s² and {b:.4g} 1/s, absorbed)")
+    return out
+
+
+def _select(freq_hz, t21, *, band_hz, form, order, fit_k3, weights) -> LinearPart:
+    """select_linear_part on the (absorbed) T21.
+
+    ``form='auto'`` keeps the physical body unless it is not physical, or it
+    misfits T21 by more than ``BODY_FIT_LIMIT`` and the rational model halves
+    that error (a rational model is only trusted inside the fitted band: the
+    body extrapolates physically, e.g. to a body mode below the band);
+    ``'body'`` or ``'rational'`` force a form (a forced body must be physical).
 
     Returns
     -------
@@ -481,11 +542,11 @@ def select_linear_part(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[f
     if form != "auto":
         raise ConfigError(f"form={form!r} must be 'auto', 'body' or 'rational'")
     if body is not None and body.physical and (rational is None or not (
-            rational.fit_rms < 2 / 3 * body.fit_rms and rational.fit_rms < body.fit_rms - 0.01)):
+            body.fit_rms > BODY_FIT_LIMIT and rational.fit_rms < 0.5 * body.fit_rms)):
         why = (f"one-mass body: physical (k={body.k:.4g} 1/s², c={body.c:.4g} 1/s), T21 fit error "
                f"{100 * body.fit_rms:.2f} %" + ("" if rational is None else
                                                  f" vs {100 * rational.fit_rms:.2f} % for the rational model of "
-                                                 f"order {rational.order} (not clearly better)"))
+                                                 f"order {rational.order} (the body is kept below a misfit of 10 %)"))
         return LinearPart.from_body(body, band_hz=band, reason=why, candidates=cand)
     if rational is None:
         raise ConfigError(f"no linear part could be fitted to T21 in {band[0]:g}-{band[1]:g} Hz: "

@@ -36,7 +36,7 @@ transient (the record's past is unknown) and are best left out of comparisons
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal, Mapping
 
 import numpy as np
@@ -46,7 +46,7 @@ from .describing import Term, make_term
 from .errors import ConfigError, IllConditionedError, InputError
 from .fixed_point import contraction_bound, fixed_point_solve
 from .integrate import IntegrationBand, integrate
-from .linear_part import BodyModel, LinearPart, fit_body_model, fit_rational, select_linear_part
+from .linear_part import BodyModel, LinearPart, absorbed_rates, fit_body_model, select_linear_part
 from .nifo import NifoResult
 from .spectral import SpectralSettings, coherence, cross_spectra, h1
 from .timesim import simulate_response
@@ -185,8 +185,11 @@ class IdentifiedModel:
                 w2 = (2 * np.pi * result.freq_hz) ** 2
                 t21 = 1 + w2 * m2 * st.t2f            # Hz = Z/U = -M2·X2/F with a fixed spindle
         lin = select_linear_part(result.freq_hz, t21, band_hz=result.analysis_band_hz, form=linear_form, order=order,
-                                 fit_k3=fit_k3)
-        body = lin.body if lin.kind == "body" else None
+                                 fit_k3=fit_k3, absorbed=absorbed_rates(terms, gam))
+        body = None
+        if lin.kind == "body":     # the nominal one-mass body (the absorbed strut part taken out again)
+            bm, (ka, ca) = lin.body, lin.absorbed
+            body = BodyModel(bm.k - ka, bm.c - ca, bm.k3, bm.fit_rms)
         return cls(freq_hz=result.freq_hz, t21=t21, b=b, terms=terms, c_over_m2=gam, body=body,
                    analysis_band_hz=result.analysis_band_hz, fs_hz=result.fs_hz, settings=result.settings,
                    band=result.band, source=source if terms else "h1", provenance=prov, linear=lin,
@@ -401,8 +404,9 @@ def predict_body(model: IdentifiedModel, spindle_accel: np.ndarray | None, fs_hz
         if engine == "frequency":
             raise ConfigError(f"the frequency-domain fixed point is not provably convergent for this model "
                               f"(contraction bound {rho:.3g} ≥ 1)", hint="use the time-domain engine (the default)")
-        linear = model.linear if model.linear.kind == "rational" else fit_rational(
-            model.freq_hz, model.t21, band_hz=model.analysis_band_hz)
+        linear = model.linear if model.linear.kind == "rational" else select_linear_part(
+            model.freq_hz, model.t21, band_hz=model.analysis_band_hz, form="rational",
+            absorbed=absorbed_rates(model.terms, model.c_over_m2))
         note = f" (frequency domain not provably convergent: contraction bound {rho:.3g})"
     elif engine == "frequency":
         nfft = scipy.fft.next_fast_len(n + 2 * int(round(pad_s * fs_hz)), real=True)
@@ -427,9 +431,10 @@ def _edge(linear: LinearPart, fs_hz: float, n: int) -> int:
 def _predict_time(model, linear, a1, force, fs_hz, oversample, label, what) -> Prediction:
     n = (a1 if a1 is not None else force).size
     v = _external(model, linear, a1, force, fs_hz, n)
-    lin = simulate_response(linear, (), (), v, fs_hz, spindle_accel=a1, oversample=oversample)
+    lin = simulate_response(replace(linear, absorbed=(0.0, 0.0)), (), (), v, fs_hz, spindle_accel=a1,
+                            oversample=oversample)       # the stable realised part alone: the scale of "bounded"
     resp = lin
-    if model.terms:
+    if model.terms or any(linear.absorbed):
         limit = DIVERGENCE_FACTOR * max(float(np.max(np.abs(lin.z))), 1e-12)
         resp = simulate_response(linear, model.terms, model.c_over_m2, v, fs_hz, spindle_accel=a1,
                                  oversample=oversample, z_limit=limit)
