@@ -476,12 +476,14 @@ def fit_rational(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[float, 
 def select_linear_part(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[float, float],
                        form: Literal["auto", "body", "rational"] = "auto", order: int | None = None,
                        fit_k3: bool = False, weights: np.ndarray | None = None,
-                       absorbed: tuple[float, float] = (0.0, 0.0)) -> LinearPart:
+                       absorbed: tuple[float, float] = (0.0, 0.0), body: BodyModel | None = None) -> LinearPart:
     """Fit the one-mass body and a rational model to T21 and choose (module docstring).
 
     With ``absorbed`` = (a, b) (:func:`absorbed_rates`) the forms are fitted to
     T21' = 1 - ω²·Hz', Hz' = Hz/(1 - Hz·(a + jω·b)): the nominal linear part
-    plus the linear part of the strut terms.
+    plus the linear part of the strut terms. ``body`` gives the one-mass body
+    instead of fitting it (e.g. K2/M2, C2/M2 of a measured force path, where a
+    relative T21 error is meaningless).
     """
     a, b = float(absorbed[0]), float(absorbed[1])
     f = np.asarray(freq_hz, float)
@@ -491,14 +493,15 @@ def select_linear_part(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[f
         with np.errstate(divide="ignore", invalid="ignore"):
             hz = (1 - t) / w**2
             t = 1 - w**2 * hz / (1 - hz * (a + 1j * w * b))
-    out = _select(f, t, band_hz=band_hz, form=form, order=order, fit_k3=fit_k3, weights=weights)
+    given = None if body is None else BodyModel(body.k + a, body.c + b, body.k3, body.fit_rms)
+    out = _select(f, t, band_hz=band_hz, form=form, order=order, fit_k3=fit_k3, weights=weights, given=given)
     if a or b:
         out = replace(out, absorbed=(a, b), reason=out.reason + f" (fitted with the linear part of the strut terms, "
                                                                f"{a:.4g} 1/s² and {b:.4g} 1/s, absorbed)")
     return out
 
 
-def _select(freq_hz, t21, *, band_hz, form, order, fit_k3, weights) -> LinearPart:
+def _select(freq_hz, t21, *, band_hz, form, order, fit_k3, weights, given) -> LinearPart:
     """select_linear_part on the (absorbed) T21.
 
     ``form='auto'`` keeps the physical body unless it is not physical, or it
@@ -517,7 +520,8 @@ def _select(freq_hz, t21, *, band_hz, form, order, fit_k3, weights) -> LinearPar
     body = rational = None
     if form in ("auto", "body"):
         try:
-            body = fit_body_model(freq_hz, t21, band_hz=band, fit_k3=fit_k3, weights=weights, require_physical=False)
+            body = given or fit_body_model(freq_hz, t21, band_hz=band, fit_k3=fit_k3, weights=weights,
+                                           require_physical=False)
             cand["body"] = {"fit_rms": body.fit_rms, "physical": body.physical, "stable": body.physical,
                             "k": body.k, "c": body.c, "k3": body.k3}
         except ConfigError as err:

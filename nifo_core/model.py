@@ -59,7 +59,8 @@ Engine = Literal["time", "frequency"]
 
 #: a response whose |z| exceeds this many times the linear part's peak counts as diverged
 DIVERGENCE_FACTOR = 100.0
-DEFAULT_OVERSAMPLE = 8
+#: the time-domain engine steps at least this fast by default [Hz] (oversample = ceil(rate/fs), at least 2)
+FINE_RATE_HZ = 2400.0
 
 
 class PredictionDivergedError(IllConditionedError):
@@ -177,15 +178,14 @@ class IdentifiedModel:
             gam = np.nanmean(result.c_over_m2[:, result.in_band].real, axis=1)
         else:
             raise ConfigError(f"source={source!r} must be 'static', 'free' or 'h1'")
-        force_gain = 0.0
+        force_gain, given = 0.0, None
         m2 = getattr(st, "m2", None) if st is not None else None
-        if m2 is not None and np.isfinite(m2) and m2 > 0:
+        if m2 is not None and np.isfinite(m2) and m2 > 0:      # a measured force: M2, K2, C2 of its path
             force_gain = 1.0 / m2
-            if getattr(result, "spindle_fixed", False) and st.t2f is not None:
-                w2 = (2 * np.pi * result.freq_hz) ** 2
-                t21 = 1 + w2 * m2 * st.t2f            # Hz = Z/U = -M2·X2/F with a fixed spindle
+            _, k2, c2, misfit = (float(v) for v in st.one_mass)
+            given = BodyModel(k2 / m2, c2 / m2, 0.0, misfit)
         lin = select_linear_part(result.freq_hz, t21, band_hz=result.analysis_band_hz, form=linear_form, order=order,
-                                 fit_k3=fit_k3, absorbed=absorbed_rates(terms, gam))
+                                 fit_k3=fit_k3, absorbed=absorbed_rates(terms, gam), body=given)
         body = None
         if lin.kind == "body":     # the nominal one-mass body (the absorbed strut part taken out again)
             bm, (ka, ca) = lin.body, lin.absorbed
@@ -338,7 +338,7 @@ def _check_input(x, name: str, n: int | None) -> np.ndarray | None:
 
 def predict_body(model: IdentifiedModel, spindle_accel: np.ndarray | None, fs_hz: float, *,
                  force: np.ndarray | None = None, method: Method = "parametric", engine: Engine | None = None,
-                 oversample: int = DEFAULT_OVERSAMPLE, label: str | None = None, tol: float = 1e-6,
+                 oversample: int | None = None, label: str | None = None, tol: float = 1e-6,
                  max_iter: int = 200, relax: float = 1.0, pad_s: float = 5.0) -> Prediction:
     """Predict the body acceleration from a measured spindle acceleration (METHOD.md §4).
 
@@ -359,8 +359,9 @@ def predict_body(model: IdentifiedModel, spindle_accel: np.ndarray | None, fs_hz
         Force an engine: 'frequency' raises :class:`ConfigError` where its
         convergence is not guaranteed. Default: 'time' for 'parametric'; the
         frequency domain where provable, else time, for 'nonparametric'.
-    oversample : int
-        Fine steps per sample of the time-domain engine.
+    oversample : int, optional
+        Fine steps per sample of the time-domain engine; default: enough for
+        ``FINE_RATE_HZ`` (4 at 600 Hz), at least 2.
     label : str, optional
         Names the record in error messages.
     tol, max_iter : float, int
@@ -428,16 +429,25 @@ def _edge(linear: LinearPart, fs_hz: float, n: int) -> int:
     return int(min(n // 4, np.ceil(5 * linear.slowest_decay_s() * fs_hz)))
 
 
+def _linear_peak(linear: LinearPart, v: np.ndarray, fs_hz: float) -> float:
+    """max |z| of the stable realised linear part alone driven by v (FFT, zero-padded): the scale of "bounded"."""
+    nfft = scipy.fft.next_fast_len(v.size + int(5 * min(linear.slowest_decay_s(), 60.0) * fs_hz), real=True)
+    f = np.fft.rfftfreq(nfft, 1.0 / fs_hz)
+    hz = linear.hz_realised(f)
+    hz[f == 0] = 0
+    return float(np.max(np.abs(scipy.fft.irfft(hz * scipy.fft.rfft(v, nfft), nfft))))
+
+
 def _predict_time(model, linear, a1, force, fs_hz, oversample, label, what) -> Prediction:
     n = (a1 if a1 is not None else force).size
     v = _external(model, linear, a1, force, fs_hz, n)
-    lin = simulate_response(replace(linear, absorbed=(0.0, 0.0)), (), (), v, fs_hz, spindle_accel=a1,
-                            oversample=oversample)       # the stable realised part alone: the scale of "bounded"
-    resp = lin
+    q = int(oversample) if oversample is not None else max(2, int(np.ceil(FINE_RATE_HZ / fs_hz - 1e-9)))
+    limit = np.inf
     if model.terms or any(linear.absorbed):
-        limit = DIVERGENCE_FACTOR * max(float(np.max(np.abs(lin.z))), 1e-12)
-        resp = simulate_response(linear, model.terms, model.c_over_m2, v, fs_hz, spindle_accel=a1,
-                                 oversample=oversample, z_limit=limit)
+        limit = DIVERGENCE_FACTOR * max(_linear_peak(linear, v, fs_hz), 1e-12)
+    resp = simulate_response(linear, model.terms, model.c_over_m2, v, fs_hz, spindle_accel=a1, oversample=q,
+                             z_limit=limit)
+    if model.terms or any(linear.absorbed):
         if resp.diverged_at >= 0:
             k = resp.diverged_at
             zk = resp.z[min(k, n - 1)]

@@ -57,7 +57,7 @@ class TimeResponse:
     z, zdot : ndarray
         Relative displacement [m] and velocity [m/s] (exact states at the samples).
     zddot : ndarray
-        Relative acceleration [m/s²] (anti-aliased, decimated).
+        Relative acceleration body_accel - ẍ1 [m/s²].
     body_accel : ndarray
         ẍ1 + z̈ [m/s²] (anti-aliased at the fine rate, decimated).
     force : ndarray
@@ -105,12 +105,15 @@ def _fb(z, zd, codes, coef, p0, p1, play, commit, la, lb):  # pragma: no cover -
 
 
 @numba.njit(cache=True)
-def _solve(z0, zd0, alpha, beta, guess, codes, coef, p0, p1, play, la, lb):  # pragma: no cover - compiled
-    """n = N(z0 + α·n, ż0 + β·n): fixed point, then bisection on a bracket. Returns (n, ok)."""
+def _solve(z0, zd0, alpha, beta, guess, codes, coef, p0, p1, play, la, lb, atol):  # pragma: no cover - compiled
+    """n = N(z0 + α·n, ż0 + β·n): fixed point, then bisection on a bracket. Returns (n, ok).
+
+    Converged when the change is below 1e-13 relative or ``atol`` [m/s²] (rounding of the input's scale).
+    """
     n = guess
     for _ in range(40):
         nn = _fb(z0 + alpha * n, zd0 + beta * n, codes, coef, p0, p1, play, False, la, lb)
-        if abs(nn - n) <= 1e-13 * max(abs(nn), abs(n)) + 1e-300:
+        if abs(nn - n) <= 1e-13 * max(abs(nn), abs(n)) + atol:
             return nn, True
         n = nn
     # not contracting: bracket a sign change of f(n) = n - N(n) around the guess and bisect
@@ -134,13 +137,13 @@ def _solve(z0, zd0, alpha, beta, guess, codes, coef, p0, p1, play, la, lb):  # p
             lo, flo = mid, fm
         else:
             hi = mid
-        if hi - lo <= 1e-14 * max(abs(lo), abs(hi)) + 1e-300:
+        if hi - lo <= 1e-14 * max(abs(lo), abs(hi)) + atol:
             break
     return 0.5 * (lo + hi), True
 
 
 @numba.njit(cache=True)
-def _run(phi, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, la, lb, z_limit,
+def _run(phi, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, la, lb, z_limit, atol,
          out_z, out_zd, out_zdd, out_n):  # pragma: no cover - compiled
     """March the FOH-discretised linear part with the implicit strut feedback; returns the failing step or -1."""
     ns = phi.shape[0]
@@ -155,6 +158,7 @@ def _run(phi, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, la, lb, z_limit,
         beta += cd[i] * g1[i]
     active = nt > 0 or la != 0.0 or lb != 0.0
     nk = _fb(0.0, 0.0, codes, coef, p0, p1, play, True, la, lb) if active else 0.0
+    nprev = nk
     out_z[0], out_zd[0], out_zdd[0], out_n[0] = 0.0, 0.0, dd * (v[0] + nk), nk
     for j in range(v.size - 1):
         uk = v[j] + nk
@@ -170,7 +174,8 @@ def _run(phi, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, la, lb, z_limit,
             zd0 += cd[i] * acc
         n = 0.0
         if active:
-            n, ok = _solve(z0, zd0, alpha, beta, nk, codes, coef, p0, p1, play, la, lb)
+            n, ok = _solve(z0, zd0, alpha, beta, 2.0 * nk - nprev, codes, coef, p0, p1, play, la, lb, atol)
+            nprev = nk
             if not ok:
                 return j + 1
         zdd = dd * (un + n)
@@ -239,9 +244,17 @@ def simulate_response(linear: LinearPart, terms: Sequence[Term], gammas: Sequenc
     nf = v.size
     z, zd, zdd, nn = (np.zeros(nf) for _ in range(4))
     la, lb = linear.absorbed
+    atol = 1e-13 * float(np.max(np.abs(v))) if v.size else 0.0
     fail = _run(np.ascontiguousarray(phi), g0, g1, c, cd, ca, dd, v, codes, coef, p0, p1, la, lb, float(z_limit),
-                z, zd, zdd, nn)
-    a1f = 0.0 if spindle_accel is None else _up(np.asarray(spindle_accel, float), q)
-    n = np.asarray(external).size
-    return TimeResponse(z=z[::q][:n], zdot=zd[::q][:n], zddot=_down(zdd, q)[:n], body_accel=_down(a1f + zdd, q)[:n],
-                        force=nn[::q][:n], diverged_at=-1 if fail < 0 else int(fail // q), oversample=q)
+                atol, z, zd, zdd, nn)
+    ext = np.asarray(external, float)
+    n = ext.size
+    if spindle_accel is None:
+        a2 = _down(zdd, q)[:n]
+        a1 = 0.0
+    else:
+        a1 = np.asarray(spindle_accel, float)
+        a1f = v if np.array_equal(a1, ext) else _up(a1, q)      # the input's interpolation, once
+        a2 = _down(a1f + zdd, q)[:n]
+    return TimeResponse(z=z[::q][:n], zdot=zd[::q][:n], zddot=a2 - a1, body_accel=a2, force=nn[::q][:n],
+                        diverged_at=-1 if fail < 0 else int(fail // q), oversample=q)
