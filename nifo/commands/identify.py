@@ -160,13 +160,14 @@ def accumulate(paths: list[Path], terms, cfg: dict, *, opts: dict, chunk_samples
     if len(fixed_sp) > 1:
         raise ConfigError("some files have a fixed spindle and some a measured one",
                           hint="identify files of one kind together")
+    spindle_fixed = fixed_sp.pop()
     has_tp = all(c.has_tire_patch for c in firsts) and not has_force
     band = cfg["band"] or default_band(fs, min(totals) / fs)
 
     def fresh() -> StreamingNifo:
         return StreamingNifo(fs, terms, settings=cfg["spectral"], band=band, with_tire_patch=has_tp,
                              analysis_band_hz=cfg["analysis_band_hz"], on_ill_conditioned="warn",
-                             cond_limit=cfg["cond_limit"], with_force=has_force, spindle_fixed=fixed_sp.pop())
+                             cond_limit=cfg["cond_limit"], with_force=has_force, spindle_fixed=spindle_fixed)
 
     total, data, per_file = None, [], []
     # progress only for long work (a minute of data streams in well under a second)
