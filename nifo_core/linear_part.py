@@ -20,7 +20,8 @@ nonlinear state-space models). Two forms of Hz:
     Hz(s) = Σ_n r_n/(s - p_n), poles and residues in conjugate pairs, fitted
     to Hz = (1 - T21)/ω² over the analysis band by vector fitting (Gustavsen &
     Semlyen 1999, relaxed: Gustavsen 2006) with unstable poles flipped into the
-    left half plane, and residues constrained to Σ r_n = 0 so Hz has relative
+    left half plane, plus one fixed well-damped pole pair at 3× the band's top
+    for the modes above the band (their in-band residual flexibility), and residues constrained to Σ r_n = 0 so Hz has relative
     degree 2 (z and ż are states: no algebraic loop through the nonlinear
     feedback). The order is chosen or selected automatically (smallest within
     10 % of the best T21 error). A black box: stable, not physical.
@@ -352,6 +353,10 @@ def _real_block(poles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return a, b
 
 
+def _lstsq(a: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return scipy.linalg.lstsq(a, y, lapack_driver="gelsy", check_finite=False)[0]
+
+
 def _stack(a: np.ndarray) -> np.ndarray:
     return np.concatenate([a.real, a.imag])
 
@@ -375,10 +380,12 @@ def _residues(s, h, wgt, poles):
     y = _stack(h * wgt)
     # constraint row: sum of complex residues = Σ_real c + Σ_pairs 2·c1 = 0
     con = np.concatenate([[1.0] if p.imag == 0 else [2.0, 0.0] for p in poles if p.imag >= 0])
-    n = con.size
-    kkt = np.block([[a.T @ a, con[:, None]], [con[None, :], np.zeros((1, 1))]])
-    rhs = np.concatenate([a.T @ y, [0.0]])
-    x = np.linalg.lstsq(kkt, rhs, rcond=None)[0][:n]
+    # Σ r = 0 by elimination: x = N·y with N a basis of the constraint's null space
+    null = scipy.linalg.null_space(con[None, :])
+    an = a @ null
+    cn = np.linalg.norm(an, axis=0)
+    cn[cn == 0] = 1.0
+    x = null @ (_lstsq(an / cn, y) / cn)
     res, i = [], 0
     kept = [p for p in poles if p.imag >= 0]
     for p in kept:
@@ -409,7 +416,9 @@ def _vf(s, h, wgt, poles, n_iter):
         a = np.vstack([a, scale * norm_row])
         y = np.zeros(a.shape[0])
         y[-1] = scale * ns
-        x = np.linalg.lstsq(a, y, rcond=None)[0]
+        cn = np.linalg.norm(a, axis=0)
+        cn[cn == 0] = 1.0
+        x = _lstsq(a / cn, y) / cn          # columns scaled: conditioning
         ct, dt = x[m + 1: 2 * m + 1], x[-1]
         if abs(dt) < 1e-8:
             dt = 1e-8
@@ -426,7 +435,7 @@ def _start_poles(n_pairs: int, band_hz: tuple[float, float]) -> np.ndarray:
 
 
 def fit_rational(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[float, float], order: int | None = None,
-                 max_order: int = 24, weights: np.ndarray | None = None, n_iter: int = 12) -> LinearPart:
+                 max_order: int = 40, weights: np.ndarray | None = None, n_iter: int = 12) -> LinearPart:
     """A stable rational Hz = (1 - T21)/ω² fitted over ``band_hz`` by vector fitting (module docstring).
 
     Parameters
@@ -461,12 +470,18 @@ def fit_rational(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[float, 
     if weights is not None:
         wgt = wgt * np.sqrt(np.asarray(weights)[m])
     fits = []
+    # modes above the band act in it as a constant (residual flexibility): one fixed, well-damped pole pair
+    # at 3× the band's top frequency represents them with relative degree 2 (a bare constant would not)
+    w_res = 2 * np.pi * 3 * band_hz[1]
+    residual = w_res * np.array([-0.7 + 0.714j, -0.7 - 0.714j])
     for o in orders:
         poles = _vf(s, h, wgt, _start_poles(o // 2, band_hz), n_iter)
-        p, r = _residues(s, h, wgt, poles)
+        p, r = _residues(s, h, wgt, _conj_clean(np.concatenate([poles, residual])))
         err = float(np.sqrt(np.mean(np.abs(1 - w**2 * np.sum(r[:, None] / (s[None, :] - p[:, None]), axis=0)
                                            - t[m]) ** 2 / np.abs(t[m]) ** 2)))
         fits.append((o, err, p, r))
+        if err < 1e-9:       # exact: higher orders only add spurious poles
+            break
     best = min(e for _, e, _, _ in fits)
     o, err, p, r = next(x for x in fits if x[1] <= 1.1 * best + 1e-3)
     return LinearPart("rational", poles=p, residues=r, fit_rms=err, band_hz=(float(band_hz[0]), float(band_hz[1])),
