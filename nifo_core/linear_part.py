@@ -96,6 +96,11 @@ class BodyModel:
     def to_dict(self) -> dict:
         return {"k": self.k, "c": self.c, "k3": self.k3, "fit_rms": self.fit_rms}
 
+    @classmethod
+    def from_dict(cls, d: Mapping) -> "BodyModel":
+        """Inverse of :meth:`to_dict` (null, as JSON writes NaN, reads as NaN)."""
+        return cls(**{k: float("nan") if v is None else float(v) for k, v in d.items()})
+
 
 def _usable(freq_hz, t21, band_hz, weights):
     f = np.asarray(freq_hz, float)
@@ -304,7 +309,7 @@ class LinearPart:
                   "reason": str(d.get("reason", "")), "candidates": dict(d.get("candidates") or {}),
                   "absorbed": tuple(d.get("absorbed") or (0.0, 0.0))}
             if d["kind"] == "body":
-                return cls("body", body=BodyModel(**d["body"]), **kw)
+                return cls("body", body=BodyModel.from_dict(d["body"]), **kw)
             cx = lambda v: np.asarray(v["re"], float) + 1j * np.asarray(v["im"], float)  # noqa: E731
             return cls(str(d["kind"]), poles=cx(d["poles"]), residues=cx(d["residues"]), **kw)
         except KeyError as err:

@@ -184,8 +184,12 @@ class IdentifiedModel:
             force_gain = 1.0 / m2
             _, k2, c2, misfit = (float(v) for v in st.one_mass)
             given = BodyModel(k2 / m2, c2 / m2, 0.0, misfit)
-        lin = select_linear_part(result.freq_hz, t21, band_hz=result.analysis_band_hz, form=linear_form, order=order,
-                                 fit_k3=fit_k3, absorbed=absorbed_rates(terms, gam), body=given)
+        fit = dict(band_hz=result.analysis_band_hz, form=linear_form, order=order, fit_k3=fit_k3, body=given)
+        lin = select_linear_part(result.freq_hz, t21, absorbed=absorbed_rates(terms, gam), **fit)
+        if any(lin.absorbed) and not lin.physical:     # e.g. a softening clearance: absorbing its slope hurts
+            plain = select_linear_part(result.freq_hz, t21, **fit)
+            if plain.physical or plain.fit_rms < lin.fit_rms:
+                lin = plain
         body = None
         if lin.kind == "body":     # the nominal one-mass body (the absorbed strut part taken out again)
             bm, (ka, ca) = lin.body, lin.absorbed
@@ -212,7 +216,7 @@ class IdentifiedModel:
         try:
             terms = tuple(make_term(t) for t in d["terms"])
             nf = len(d["freq_hz"])
-            body = None if d["body"] is None else BodyModel(**d["body"])
+            body = None if d["body"] is None else BodyModel.from_dict(d["body"])
             lin = LinearPart.from_dict(d["linear_part"]) if d.get("linear_part") else None
             return cls(freq_hz=np.asarray(d["freq_hz"], float), t21=_uncplx(d["t21"]),
                        b=np.array([_uncplx(x) for x in d["b"]], complex).reshape(len(terms), nf), terms=terms,
