@@ -21,26 +21,17 @@ import numpy as np
 
 from nifo_core.describing import Term
 from nifo_core.errors import ConfigError
-from nifo_core.integrate import IntegrationBand
 from nifo_core.model import BodyModel, IdentifiedModel, predict_body
 from nifo_core.simulate import RandomRoad, SimConfig, StrutForce, preset, simulate
-from nifo_core.spectral import SpectralSettings
 
 TARGET_S = 2.0
 
 
 def _model(sim, fs: float, *, terms: bool = True) -> IdentifiedModel:
     car = sim.truth.vehicle
-    f = SpectralSettings().freq_hz(fs)
-    body = BodyModel(car.k2 / car.m2, car.c2 / car.m2)
     strut = sim.truth.strut if terms else ()
-    gam = np.array([s.coefficient / car.m2 for s in strut])
-    t21 = body.t21(f)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        b = gam[:, None] * (1 - t21)[None, :] / (2 * np.pi * f[None, :]) ** 2
-    return IdentifiedModel(freq_hz=f, t21=t21, b=b, terms=tuple(s.term for s in strut), c_over_m2=gam, body=body,
-                           analysis_band_hz=(2.0, 30.0), fs_hz=fs, settings=SpectralSettings(),
-                           band=IntegrationBand(0.5, 200.0))
+    return IdentifiedModel.from_body(BodyModel(car.k2 / car.m2, car.c2 / car.m2), [s.term for s in strut],
+                                     [s.coefficient / car.m2 for s in strut], fs_hz=fs)
 
 
 def _timed(fn, repeats: int):

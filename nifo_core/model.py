@@ -152,6 +152,27 @@ class IdentifiedModel:
         object.__setattr__(self, "force_gain", fg)
 
     @classmethod
+    def from_body(cls, body: BodyModel, terms=(), gammas=(), *, fs_hz: float,
+                  settings: SpectralSettings | None = None, band: IntegrationBand | None = None,
+                  analysis_band_hz: tuple[float, float] = (2.0, 30.0), source: str = "static",
+                  provenance: Mapping | None = None) -> "IdentifiedModel":
+        """A model from known physical parameters: a one-mass body and constant coefficients γ_i = c_i/M2.
+
+        T21 and B_i = γ_i·(1 - T21)/ω² (paper Eq. 8) are put on the lines of ``settings``
+        (e.g. the true model of a simulation, or an equation-error fit).
+        """
+        settings = settings or SpectralSettings()
+        f = settings.freq_hz(fs_hz)
+        t21 = body.t21(f)
+        gam = np.asarray(gammas, float).reshape(len(terms))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            b = gam[:, None] * ((1 - t21) / (2 * np.pi * f) ** 2)[None, :]
+        return cls(freq_hz=f, t21=t21, b=b, terms=tuple(terms), c_over_m2=gam, body=body,
+                   analysis_band_hz=analysis_band_hz, fs_hz=fs_hz, settings=settings,
+                   band=band or IntegrationBand(0.5, min(200.0, 0.4 * fs_hz)), source=source,
+                   provenance=dict(provenance or {}))
+
+    @classmethod
     def from_nifo(cls, result: NifoResult, *, source: Literal["static", "free", "h1"] = "static",
                   fit_k3: bool = False, linear_form: Literal["auto", "body", "rational"] = "auto",
                   order: int | None = None) -> "IdentifiedModel":

@@ -13,9 +13,7 @@ from nifo.cli import main
 from nifo.io.results import read_model, write_json, write_model
 from nifo_core.describing import make_term
 from nifo_core.errors import DataFileError, IllConditionedError
-from nifo_core.integrate import IntegrationBand
 from nifo_core.model import BodyModel, IdentifiedModel
-from nifo_core.spectral import SpectralSettings
 
 SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample"
 LOW, HIGH = SAMPLE / "road_1mm", SAMPLE / "road_2p5mm"
@@ -30,15 +28,8 @@ def _quietly(argv) -> int:
 
 def _model(terms, gammas, k, c) -> IdentifiedModel:
     """A model as ``nifo loop`` builds it: a one-mass body and constant coefficients."""
-    f = SpectralSettings().freq_hz(FS)
-    body = BodyModel(k, c)
-    t21 = body.t21(f)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        b = np.array(gammas, float)[:, None] * ((1 - t21) / (2 * np.pi * f) ** 2)[None, :]
-    return IdentifiedModel(freq_hz=f, t21=t21, b=b.reshape(len(terms), f.size), terms=tuple(terms),
-                           c_over_m2=np.array(gammas, float), body=body, analysis_band_hz=(2.0, 30.0), fs_hz=FS,
-                           settings=SpectralSettings(), band=IntegrationBand(0.5, 200.0),
-                           provenance={"from": "nifo loop equation-error fit"})
+    return IdentifiedModel.from_body(BodyModel(k, c), terms, gammas, fs_hz=FS,
+                                     provenance={"from": "nifo loop equation-error fit"})
 
 
 @pytest.fixture(scope="module")

@@ -40,16 +40,9 @@ def _nmse(y, yhat) -> float:
 
 def _truth_model(sim, *, terms=True) -> IdentifiedModel:
     car = sim.truth.vehicle
-    f = SpectralSettings().freq_hz(FS)
-    body = BodyModel(car.k2 / car.m2, car.c2 / car.m2)
     strut = sim.truth.strut if terms else ()
-    gam = np.array([s.coefficient / car.m2 for s in strut])
-    t21 = body.t21(f)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        b = gam[:, None] * (1 - t21)[None, :] / (2 * np.pi * f[None, :]) ** 2
-    return IdentifiedModel(freq_hz=f, t21=t21, b=b, terms=tuple(s.term for s in strut), c_over_m2=gam, body=body,
-                           analysis_band_hz=(2.0, 30.0), fs_hz=FS, settings=SpectralSettings(),
-                           band=IntegrationBand(0.5, 200.0))
+    return IdentifiedModel.from_body(BodyModel(car.k2 / car.m2, car.c2 / car.m2), [s.term for s in strut],
+                                     [s.coefficient / car.m2 for s in strut], fs_hz=FS)
 
 
 @pytest.mark.parametrize("case", list(STRONG))
