@@ -20,7 +20,8 @@ nonlinear state-space models). Two forms of Hz:
     Hz(s) = Σ_n r_n/(s - p_n), poles and residues in conjugate pairs, fitted
     to Hz = (1 - T21)/ω² over the analysis band by vector fitting (Gustavsen &
     Semlyen 1999, relaxed: Gustavsen 2006) with unstable poles flipped into the
-    left half plane, plus one fixed well-damped pole pair at 3× the band's top
+    left half plane and damped at least to the line spacing (a resonance
+    narrower than df is invisible to the fit and would only ring), plus one fixed well-damped pole pair at 3× the band's top
     for the modes above the band (their in-band residual flexibility), and residues constrained to Σ r_n = 0 so Hz has relative
     degree 2 (z and ż are states: no algebraic loop through the nonlinear
     feedback). The order is chosen or selected automatically (smallest within
@@ -366,9 +367,9 @@ def _stack(a: np.ndarray) -> np.ndarray:
     return np.concatenate([a.real, a.imag])
 
 
-def _flip(poles: np.ndarray) -> np.ndarray:
-    p = np.where(poles.real > 0, -poles.real + 1j * poles.imag, poles)
-    return np.where(np.abs(p.real) < 1e-9 * np.maximum(np.abs(p), 1), p - 1e-6 * np.maximum(np.abs(p), 1), p)
+def _flip(poles: np.ndarray, min_decay: float) -> np.ndarray:
+    """Unstable poles mirrored into the left half plane; every pole decays at least at ``min_decay`` [1/s]."""
+    return np.minimum(-np.abs(poles.real), -min_decay) + 1j * poles.imag
 
 
 def _conj_clean(poles: np.ndarray) -> np.ndarray:
@@ -406,7 +407,7 @@ def _residues(s, h, wgt, poles):
     return full_p, full_r
 
 
-def _vf(s, h, wgt, poles, n_iter):
+def _vf(s, h, wgt, poles, n_iter, min_decay):
     """Relaxed vector fitting pole relocation (Gustavsen 2006), unstable poles flipped each pass."""
     ns = s.size
     for _ in range(n_iter):
@@ -429,7 +430,7 @@ def _vf(s, h, wgt, poles, n_iter):
             dt = 1e-8
         ab, bb = _real_block(poles)
         new = np.linalg.eigvals(ab - np.outer(bb, ct) / dt)
-        poles = _conj_clean(_flip(new))
+        poles = _conj_clean(_flip(new, min_decay))
     return poles
 
 
@@ -479,8 +480,11 @@ def fit_rational(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[float, 
     # at 3× the band's top frequency represents them with relative degree 2 (a bare constant would not)
     w_res = 2 * np.pi * 3 * band_hz[1]
     residual = w_res * np.array([-0.7 + 0.714j, -0.7 - 0.714j])
+    # a resonance narrower than the line spacing df cannot be seen in the data, only ring in time: every
+    # pole decays at least at π·df (half-power bandwidth ≥ df)
+    min_decay = np.pi * float(np.median(np.diff(f[m])))
     for o in orders:
-        poles = _vf(s, h, wgt, _start_poles(o // 2, band_hz), n_iter)
+        poles = _vf(s, h, wgt, _start_poles(o // 2, band_hz), n_iter, min_decay)
         p, r = _residues(s, h, wgt, _conj_clean(np.concatenate([poles, residual])))
         err = float(np.sqrt(np.mean(np.abs(1 - w**2 * np.sum(r[:, None] / (s[None, :] - p[:, None]), axis=0)
                                            - t[m]) ** 2 / np.abs(t[m]) ** 2)))
