@@ -47,12 +47,14 @@ EXCERPT_S = 4.0
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("data", nargs="+", type=Path, metavar="DATA", help="records to predict (bag, .mcap, .csv, .mat)")
     p.add_argument("--model", required=True, type=Path, metavar="MODEL.json",
-                   help="model.json written by nifo identify (or its output directory)")
+                   help="model.json written by nifo identify or nifo loop (or the directory holding it)")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory (replaced atomically)")
     p.add_argument("--freq-range", type=float, nargs=2, metavar=("LO", "HI"), default=(2.0, 30.0),
                    help="band of the transmissibility errors [Hz] (default 2 30)")
     p.add_argument("--method", choices=("parametric", "nonparametric"), default="parametric",
-                   help="linear responses from the fitted body model (default) or the identified T21(ω), B_i(ω)")
+                   help="the model's linear part (one-mass body or rational, simulated in time; default) or the "
+                        "identified T21(ω), B_i(ω) line by line (frequency domain where provably convergent, else "
+                        "a rational fit of them in time)")
     p.add_argument("--no-plots", action="store_true", help="write predict.json only")
     add_input_arguments(p)
 
