@@ -9,16 +9,74 @@ from __future__ import annotations
 
 import os
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from nifo_core.errors import ConfigError, DataFileError, NifoError, NonFiniteError, SampleRateError, TimestampError
-from nifo_core.record import CHANNELS, Record
+from nifo_core.errors import (ConfigError, DataFileError, NifoError, NonFiniteError, RecordTooShortError,
+                              SampleRateError, TimestampError)
+from nifo_core.record import Record, acceleration_from_displacement
 from nifo_core.timebase import check_common_rate, sample_rate_from_stamps
 
-__all__ = ["assemble_record", "nominal_rate", "check_declared_rate", "check_rate_range", "check_values",
+__all__ = ["assemble_record", "Assembly", "Skip", "READ_ROLES", "FIXED", "nominal_rate", "check_declared_rate",
+           "check_rate_range", "check_values",
            "seconds_to_ns"]
+
+
+#: channel roles a CSV/MAT reader looks for (``body_disp`` becomes ``body_accel``)
+READ_ROLES = ("spindle_accel", "body_accel", "body_disp", "tire_patch_disp", "force")
+#: ``spindle_accel=fixed``: the spindle does not move
+FIXED = "fixed"
+
+
+@dataclass(frozen=True)
+class Skip:
+    """Samples to drop from the start of a record (a transient): seconds, or whole periods."""
+
+    seconds: float | None = None
+    periods: int | None = None
+    period_samples: int | None = None
+
+    def samples(self, fs_hz: float, n: int, *, source: str) -> int:
+        """Samples to drop from a record of ``n`` samples at ``fs_hz``; a clear error if nothing would be left."""
+        k = 0
+        if self.seconds is not None:
+            k += int(round(self.seconds * fs_hz))
+        if self.periods is not None:
+            k += int(self.periods) * int(self.period_samples)
+        if k >= n:
+            raise RecordTooShortError(f"skipping {k} samples ({k / fs_hz:.3g} s) leaves nothing of {n}",
+                                      source=source, channel="--skip-seconds/--skip-periods",
+                                      hint="skip less than the record's length")
+        return k
+
+    @property
+    def active(self) -> bool:
+        return bool(self.seconds) or bool(self.periods)
+
+
+@dataclass(frozen=True)
+class Assembly:
+    """What :func:`assemble_record` does besides stamps → Record (set by :func:`load_record`).
+
+    extra : {role: (values, label, rate in Hz or None)}
+        Channels read from other files (``NAME@FILE``), appended as they are.
+    spindle_fixed : bool
+        ``spindle_accel=fixed``: build the record with a fixed spindle.
+    skip : Skip
+        Transient start to drop.
+    required : frozenset
+        Roles the reader must find in the file.
+    collect : bool
+        Return ``{role: values}`` and the rate instead of a Record (reading one channel of another file).
+    """
+
+    extra: Mapping[str, tuple[np.ndarray, str, float | None]] = field(default_factory=dict)
+    spindle_fixed: bool = False
+    skip: Skip = Skip()
+    required: frozenset = frozenset({"spindle_accel", "body_accel"})
+    collect: bool = False
 
 
 def _check_declared_rate(rate: float, fs_hz: float, *, source: str) -> None:
@@ -83,7 +141,8 @@ def _align(stamps: dict[str, np.ndarray], fs: float, *, labels: Mapping[str, str
 
 def assemble_record(channels: Mapping[str, tuple[np.ndarray | None, np.ndarray]], *,
                     labels: Mapping[str, str], path: str | os.PathLike, meta: Mapping,
-                    fs_hz: float | None = None, t0_ns: int = 0, stamp_tol_ns: float = 1.0) -> Record:
+                    fs_hz: float | None = None, t0_ns: int = 0, stamp_tol_ns: float = 1.0,
+                    assembly: Assembly | None = None) -> Record:
     """Build a :class:`Record` from ``{channel: (stamp_ns or None, values)}``.
 
     With stamps: each channel's rate comes from its stamps
@@ -94,13 +153,18 @@ def assemble_record(channels: Mapping[str, tuple[np.ndarray | None, np.ndarray]]
     many samples were cut. The rate is snapped to its short decimal form when
     that reproduces every stamp within ``stamp_tol_ns``. Without stamps
     ``fs_hz`` is required. ``labels`` name channels in messages (topic, column or key).
+    ``assembly`` (from :func:`load_record`) adds channels of other files, a
+    fixed spindle, a skipped start and a displacement's derivative, in that order.
     """
     src = str(path)
     meta = dict(meta)
-    names = [c for c in CHANNELS if c in channels]
+    asm = assembly or Assembly()
+    names = [c for c in READ_ROLES if c in channels]
     values = {c: np.asarray(channels[c][1], dtype=np.float64).ravel() for c in names}
     stamps = {c: channels[c][0] for c in names}
     if all(s is None for s in stamps.values()):
+        if fs_hz is None and asm.collect:
+            return values[names[0]], None
         if fs_hz is None:
             raise ConfigError("the file has no time stamps and no sample rate was given", source=src,
                               channel="fs", hint="pass --fs HZ (fs_hz=...) or add a time column/key")
@@ -144,9 +208,34 @@ def assemble_record(channels: Mapping[str, tuple[np.ndarray | None, np.ndarray]]
                                  f"(first at t={i / fs:.3f} s, sample {i})", source=src, channel=labels[c],
                                  hint="cut the record before/after the bad stretch or repair the sensor data")
     check_values(values, labels=labels, fs=fs, source=src)
+    if asm.collect:
+        return values[names[0]], fs
+    labels = dict(labels)
+    for role, (v, label, f_other) in asm.extra.items():            # NAME@FILE channels
+        n_here = next(iter(values.values())).size if values else v.size
+        if v.size != n_here:
+            raise TimestampError(f"{label} has {v.size} samples but the record has {n_here}", source=src,
+                                 channel=role, hint="combine channels recorded together (same length and rate)")
+        if f_other is not None and abs(f_other - fs) > 1e-6 * fs:
+            raise SampleRateError(f"{label} is sampled at {f_other:.10g} Hz, the record at {fs:.10g} Hz",
+                                  source=src, channel=role, hint="combine channels sampled at one rate")
+        values[role], labels[role] = np.asarray(v, np.float64), label
+        meta.setdefault("columns", {})[role] = label
+    if asm.skip.active:                                             # transient start
+        k = asm.skip.samples(fs, next(iter(values.values())).size, source=src)
+        values = {c: v[k:] for c, v in values.items()}
+        t0 += int(round(k * 1e9 / fs))
+        meta["skipped_samples"] = k
+    if "body_disp" in values:                                       # displacement -> acceleration
+        values["body_accel"], how = acceleration_from_displacement(values.pop("body_disp"), fs,
+                                                                   period_samples=asm.skip.period_samples)
+        meta["body_from_displacement"] = how
+    if asm.spindle_fixed:
+        meta["spindle"] = "fixed"
     try:
-        return Record(fs, values["spindle_accel"], values["body_accel"], values.get("tire_patch_disp"),
-                      t0_ns=t0, source=Path(path).name, meta=meta)
+        return Record(fs, None if asm.spindle_fixed else values["spindle_accel"], values["body_accel"],
+                      values.get("tire_patch_disp"), t0_ns=t0, source=Path(path).name, meta=meta,
+                      force=values.get("force"))
     except NifoError as err:
         raise err.with_context(source=src) from None
 

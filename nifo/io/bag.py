@@ -6,7 +6,11 @@ Layout of the bags nifo writes (and expects by default)
   in ``linear_acceleration.<axis>`` [m/s²];
 - ``/nifo/body/imu``: ``sensor_msgs/msg/Imu``, body (sprung) acceleration, likewise;
 - ``/nifo/tire_patch/displacement`` (optional): ``geometry_msgs/msg/PointStamped``,
-  tire-patch displacement in ``point.<axis>`` [m].
+  tire-patch displacement in ``point.<axis>`` [m];
+- ``/nifo/force`` (optional): ``geometry_msgs/msg/WrenchStamped``, a measured
+  force on the body (a shaker rig's load cell) in ``wrench.force.<axis>`` [N];
+  the standard stamped message for a force (what ROS force/torque sensor
+  drivers publish), frame_id ``"force"``.
 
 * One message per sample; ``header.stamp`` is the sample time
   ``t0_ns + round(i · 1e9 / fs_hz)`` and is also the bag's log time.
@@ -68,9 +72,9 @@ from .bag_read import read_bag
 from .bag_stream import iter_bag_chunks, record_chunks as _record_chunks
 from .bag_topics import BagTopics, resolve_topics
 from .bag_write import BAG_VERSION, TopicData, write_bag, write_channels
-from .cdr import IMU, POINT_STAMPED
+from .cdr import IMU, POINT_STAMPED, WRENCH_STAMPED
 from .cdr import payloads as _payloads
 from .mcap_chunks import _decode
 
 __all__ = ["BagTopics", "TopicData", "read_bag", "iter_bag_chunks", "write_bag", "write_channels",
-           "resolve_topics", "IMU", "POINT_STAMPED", "BAG_VERSION"]
+           "resolve_topics", "IMU", "POINT_STAMPED", "WRENCH_STAMPED", "BAG_VERSION"]

@@ -111,7 +111,8 @@ class _Channel:
     log_ns: np.ndarray
 
 
-_CHANNEL_OF_ROLE = {"spindle": "spindle_accel", "body": "body_accel", "tire_patch": "tire_patch_disp"}
+_CHANNEL_OF_ROLE = {"spindle": "spindle_accel", "body": "body_accel", "tire_patch": "tire_patch_disp",
+                    "force": "force"}
 
 
 def _open_checked(path: str | os.PathLike, axis: Axis) -> tuple[Path, str, Path]:
@@ -139,7 +140,8 @@ def read_bag(path: str | os.PathLike, *, topics: BagTopics | None = None, axis: 
     # header stamps, unless a recorder left them all zero: then the receive (log) time
     use_log_time = not any(ch.stamp_ns.any() for ch in chans.values())
     meta = {"format": "rosbag2", "storage": "sqlite3" if _is_sqlite(storage) else "mcap", "path": src,
-            "topics": {role: chans[role].topic if role in chans else None for role in _CHANNEL_OF_ROLE},
+            "topics": {role: chans[role].topic if role in chans else None for role in _CHANNEL_OF_ROLE
+                       if role != "force" or role in chans},   # a force only when there is one
             "axis": axis, "stamps": "receive_time" if use_log_time else "header"}
     if use_log_time:
         meta["stamps_note"] = "header stamps are all zero; the bag's receive (log) time was used"
@@ -205,7 +207,7 @@ def _read_channels(storage: Path, topics: BagTopics | None, axis: Axis, src: str
                                  "'ros2 bag reindex' (directory) or 'mcap recover' (.mcap file)") from err
     for role in list(out):
         if not out[role].values.size:
-            if role == "tire_patch":
+            if role in ("tire_patch", "force"):
                 del out[role]
                 continue
             raise DataFileError("the topic holds no messages", source=src, channel=out[role].topic,

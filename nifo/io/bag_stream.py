@@ -118,7 +118,8 @@ class _ChunkAssembler:
             check_values({_CHANNEL_OF_ROLE[r]: v for r, v in vals.items()}, fs=self.fs, source=self.src, constant=False,
                          labels={_CHANNEL_OF_ROLE[r]: self.labels[r] for r in self.roles})
             try:
-                rec = Record(self.fs, vals["spindle"], vals["body"], vals.get("tire_patch"), t0_ns=int(ref[0]),
+                rec = Record(self.fs, vals["spindle"], vals["body"], vals.get("tire_patch"), force=vals.get("force"),
+                             t0_ns=int(ref[0]),
                              source=self.name, meta=meta)
             except NifoError as err:
                 raise err.with_context(source=self.src) from None
@@ -192,15 +193,17 @@ def iter_bag_chunks(path: str | os.PathLike, *, chunk_samples: int, topics: BagT
     except Exception as err:
         raise DataFileError(f"cannot read the bag's index ({str(err).rstrip('.') or type(err).__name__}); the file "
                             "is damaged or truncated", source=src, hint="re-copy the bag") from err
-    if expected.get("tire_patch", 1) == 0:
-        del wanted["tire_patch"], expected["tire_patch"]
+    for opt in ("tire_patch", "force"):
+        if expected.get(opt, 1) == 0:
+            del wanted[opt], expected[opt]
     for role in ("spindle", "body"):
         if expected[role] == 0:
             raise DataFileError("the topic holds no messages", source=src, channel=wanted[role][0],
                                 hint="record again and check that the sensor published")
-    roles = [r for r in ("spindle", "body", "tire_patch") if r in wanted]
+    roles = [r for r in ("spindle", "body", "tire_patch", "force") if r in wanted]
     meta = {"format": "rosbag2", "storage": "mcap", "path": src,
-            "topics": {role: wanted[role][0] if role in wanted else None for role in _CHANNEL_OF_ROLE},
+            "topics": {role: wanted[role][0] if role in wanted else None for role in _CHANNEL_OF_ROLE
+                       if role != "force" or role in wanted},
             "axis": axis, "stamps": "header", "streamed": True}
     asm = _ChunkAssembler(roles, chunk_samples=chunk_samples, src=src, name=path.name,
                           labels={r: wanted[r][0] for r in roles}, meta=meta, total=min(expected.values()))

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 
 from nifo_core.errors import ConfigError, MissingChannelError
 
-from .cdr import IMU, POINT_STAMPED
+from .cdr import IMU, POINT_STAMPED, WRENCH_STAMPED
 
 if TYPE_CHECKING:
     from rosbags.interfaces import Connection
@@ -19,9 +19,11 @@ __all__ = ["BagTopics", "resolve_topics"]
 _SPINDLE_WORDS = ("spindle", "wheel", "unsprung")
 _BODY_WORDS = ("body", "sprung", "chassis")
 _TIRE_WORDS = ("tire", "tyre", "patch", "road")
+_FORCE_WORDS = ("force", "load", "wrench")
+_FORCE_TOPIC = "/nifo/force"
 
 _ROLE_ALIASES = {"spindle": "spindle", "spindle_accel": "spindle", "body": "body", "body_accel": "body",
-                 "tire_patch": "tire_patch", "tire_patch_disp": "tire_patch"}
+                 "tire_patch": "tire_patch", "tire_patch_disp": "tire_patch", "force": "force"}
 
 
 @dataclass(frozen=True)
@@ -37,6 +39,8 @@ class BagTopics:
     spindle: str = "/nifo/spindle/imu"
     body: str = "/nifo/body/imu"
     tire_patch: str | None = "/nifo/tire_patch/displacement"
+    #: None: ``/nifo/force`` when the bag has it (a force is optional)
+    force: str | None = None
 
     @classmethod
     def parse(cls, text: str) -> "BagTopics":
@@ -52,7 +56,8 @@ class BagTopics:
         return cls(**given)
 
     def as_dict(self) -> dict[str, str | None]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        """Topic per role (``force`` only when set)."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "force" or self.force}
 
 
 _DEFAULT_TOPICS = BagTopics()
@@ -77,7 +82,9 @@ def resolve_topics(available: Mapping[str, str], topics: BagTopics | None, *,
     present; otherwise Imu topics are matched by name: spindle
     ("spindle", "wheel", "unsprung") and body ("body", "sprung", "chassis",
     but not a spindle word); a PointStamped with "tire", "tyre", "patch" or
-    "road" in its name is the tire patch. Raises :class:`MissingChannelError`
+    "road" in its name is the tire patch, a WrenchStamped ``/nifo/force`` or
+    the one with "force", "load" or "wrench" in its name the measured force
+    (the ``force`` role is listed only when found). Raises :class:`MissingChannelError`
     listing the Imu topics when a role is absent or ambiguous.
     """
     imus = sorted(t for t, ty in available.items() if ty == IMU)
@@ -92,11 +99,12 @@ def resolve_topics(available: Mapping[str, str], topics: BagTopics | None, *,
     if topics is not None and topics != _DEFAULT_TOPICS:
         out: dict[str, str | None] = {}
         for role, want, types in (("spindle", topics.spindle, (IMU,)), ("body", topics.body, (IMU,)),
-                                  ("tire_patch", topics.tire_patch, (POINT_STAMPED,))):
+                                  ("tire_patch", topics.tire_patch, (POINT_STAMPED,)),
+                                  ("force", topics.force or _FORCE_TOPIC, (WRENCH_STAMPED,))):
             if want is None:
                 out[role] = None
             elif want not in available:
-                if role == "tire_patch" and want == _DEFAULT_TOPICS.tire_patch:
+                if (role, want) in (("tire_patch", _DEFAULT_TOPICS.tire_patch), ("force", _FORCE_TOPIC)):
                     out[role] = None  # the optional default
                     continue
                 raise missing(role, f"topic {want} is not in the bag")
@@ -105,6 +113,8 @@ def resolve_topics(available: Mapping[str, str], topics: BagTopics | None, *,
                                           source=source, channel=role, hint=fix)
             else:
                 out[role] = want
+        if out.get("force", 0) is None:
+            del out["force"]
         if out["spindle"] == out["body"]:
             raise MissingChannelError(f"spindle and body are both {out['spindle']}", source=source,
                                       channel="--topics", hint="give the spindle and the body their own topics")
@@ -127,6 +137,10 @@ def resolve_topics(available: Mapping[str, str], topics: BagTopics | None, *,
     else:
         found = _matching(points, _TIRE_WORDS)
         out["tire_patch"] = found[0] if len(found) == 1 else None
+    wrenches = sorted(t for t, ty in available.items() if ty == WRENCH_STAMPED)
+    found = [_FORCE_TOPIC] if available.get(_FORCE_TOPIC) == WRENCH_STAMPED else _matching(wrenches, _FORCE_WORDS)
+    if len(found) == 1:   # the force role is listed only when present
+        out["force"] = found[0]
     if out["spindle"] == out["body"]:
         raise missing("body", f"spindle and body resolve to the same topic {out['spindle']}")
     return out

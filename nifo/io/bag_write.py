@@ -15,7 +15,7 @@ from nifo_core.record import Record
 
 from .atomic import staged_file
 from .bag_topics import _DEFAULT_TOPICS, BagTopics
-from .cdr import AXES as _AXES, IMU, POINT_STAMPED, Axis
+from .cdr import AXES as _AXES, IMU, LAYOUT as _LAYOUT, POINT_STAMPED, WRENCH_STAMPED, Axis
 from .cdr import payloads as _payloads  # the message layout lives in nifo.io.cdr
 from .mcap_chunks import write_chunk_crcs
 
@@ -47,6 +47,9 @@ class TopicData:
 
 def _topic_data(record: Record, topics: BagTopics) -> list[TopicData]:
     stamps = record.t0_ns + np.rint(np.arange(record.n) * (1e9 / record.fs_hz)).astype(np.int64)
+    if record.spindle_accel is None:
+        raise ConfigError("the record has a fixed spindle (no spindle acceleration); a bag needs both Imu topics",
+                          channel="spindle", hint="write it as CSV or MAT instead")
     out = [TopicData(topics.spindle, IMU, "spindle", stamps, record.spindle_accel),
            TopicData(topics.body, IMU, "body", stamps, record.body_accel)]
     if record.tire_patch_disp is not None:
@@ -55,6 +58,8 @@ def _topic_data(record: Record, topics: BagTopics) -> list[TopicData]:
                               channel="tire_patch",
                               hint="name a tire-patch topic (--topics ...,tire_patch=/topic) or drop the tire patch")
         out.append(TopicData(topics.tire_patch, POINT_STAMPED, "tire_patch", stamps, record.tire_patch_disp))
+    if record.force is not None:
+        out.append(TopicData(topics.force or "/nifo/force", WRENCH_STAMPED, "force", stamps, record.force))
     return out
 
 
@@ -129,11 +134,11 @@ def write_channels(path: str | os.PathLike, data: Sequence[TopicData], *, axis: 
     if axis not in _AXES:
         raise ConfigError(f"{axis=} is not one of x, y, z", channel="--axis", hint="use --axis x, y or z")
     for td in data:
-        if (td.msgtype not in (IMU, POINT_STAMPED) or np.shape(td.stamp_ns) != np.shape(td.values)
+        if (td.msgtype not in _LAYOUT or np.shape(td.stamp_ns) != np.shape(td.values)
                 or (td.log_ns is not None and np.shape(td.log_ns) != np.shape(td.values))):
             raise ConfigError(f"topic {td.topic}: {td.msgtype} with {np.size(td.stamp_ns)} stamps and "
                               f"{np.size(td.values)} values", channel=td.topic,
-                              hint=f"give {IMU} or {POINT_STAMPED} and one stamp per value")
+                              hint=f"give {IMU}, {POINT_STAMPED} or {WRENCH_STAMPED} and one stamp per value")
     names = [td.topic for td in data]
     if len(set(names)) != len(names):
         raise ConfigError(f"two roles share one topic: {names}", channel="--topics",

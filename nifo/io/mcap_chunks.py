@@ -17,8 +17,8 @@ import numpy as np
 
 from nifo_core.errors import CorruptDataError, DataFileError
 
-from .cdr import AXES as _AXES, CDR_LE as _CDR_LE, IMU, IMU_BODY as _IMU_BODY, IMU_VALUE as _IMU_VALUE
-from .cdr import POINT_BODY as _POINT_BODY, POINT_VALUE as _POINT_VALUE, Axis
+from .cdr import AXES as _AXES, CDR_LE as _CDR_LE, IMU
+from .cdr import LAYOUT as _LAYOUT, POINT_STAMPED, Axis
 
 __all__ = ["indexed_counts", "write_chunk_crcs", "check_structure", "file_topics", "check_metadata_topics"]
 
@@ -35,7 +35,7 @@ def _decode_buffer(buf: np.ndarray, starts: np.ndarray, sizes: np.ndarray, *, ms
     where the size says, then read stamp and value with strided gathers.
     Anything else goes through rosbags' generic ``deserialize_cdr``.
     """
-    body, value = (_IMU_BODY, _IMU_VALUE) if msgtype == IMU else (_POINT_BODY, _POINT_VALUE)
+    body, value = _LAYOUT[msgtype]
     value += 8 * _AXES[axis]
     n = starts.size
     stamps = np.empty(n, np.int64)
@@ -63,7 +63,8 @@ def _decode_buffer(buf: np.ndarray, starts: np.ndarray, sizes: np.ndarray, *, ms
     for i in np.flatnonzero(~done).tolist():  # odd messages: the generic deserializer
         msg = typestore.deserialize_cdr(buf[starts[i]:starts[i] + sizes[i]].tobytes(), msgtype)
         stamps[i] = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        values[i] = getattr(msg.linear_acceleration if msgtype == IMU else msg.point, axis)
+        values[i] = getattr(msg.linear_acceleration if msgtype == IMU else
+                            msg.point if msgtype == POINT_STAMPED else msg.wrench.force, axis)
     return stamps, values
 
 

@@ -1,0 +1,61 @@
+"""F-16 ground vibration test (Noël & Schoukens 2017, nonlinearbenchmark.org): prediction of every level.
+
+What holds and is asserted (the study with every option is ``tools/f16_predict.py``,
+docs/f16_predict.md): identified on levels 3/5/7, the model — linear or with
+a clearance term — is written as model.json, read back, and predicts every
+level (1, 3, 5, 7) from rest without diverging (the NMSE of the
+period-averaged 2-15 Hz steady state stays bounded), the linear model within
+2 %. That the nonlinear model beats the linear one at every level does NOT
+hold on these data yet (see the doc); it is measured, not asserted.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+
+import f16_predict  # noqa: E402
+
+from nifo.io.results import read_model  # noqa: E402
+
+
+def test_score_is_zero_for_a_perfect_prediction_and_one_hundred_for_none():
+    rng = np.random.default_rng(0)
+    y = np.tile(rng.standard_normal(f16_predict.PERIOD), 3)
+    assert f16_predict.score(y, y, 400.0) == 0.0
+    assert f16_predict.score(y, np.zeros_like(y), 400.0) == pytest.approx(100.0)
+
+
+@pytest.mark.slow
+def test_identified_on_3_5_7_predicts_every_level_without_divergence(shared_data, tmp_path):
+    rows = f16_predict.study(shared_data / "f16", tmp_path, sets={"3/5/7": (3, 5, 7)},
+                             forms={"clearance 0.02 mm": f16_predict.FORMS["clearance 0.02 mm"]},
+                             linear_parts={"auto": None}, log=print)
+    assert [r["form"] for r in rows] == ["linear", "clearance 0.02 mm"]
+    for r in rows:
+        assert not r["errors"], r["errors"]
+        model, _ = read_model(r["model_json"])                       # model.json written every time
+        assert model.linear.stable
+        assert sorted(r["nmse"]) == [1, 3, 5, 7]
+        assert all(np.isfinite(v) and v < 100.0 for v in r["nmse"].values()), r["nmse"]   # bounded: no divergence
+    linear = rows[0]["nmse"]
+    assert all(v < 2.0 for v in linear.values()), linear
+
+
+@pytest.mark.slow
+def test_backlash_identified_on_1_5_7_beats_linear_at_every_level(shared_data):
+    """The one configuration of the study where the nonlinear model wins everywhere (held-out level 3 included).
+
+    Margins are 3-23 % of the linear NMSE and depend on the rational linear part
+    the library selects (docs/f16_predict.md): a change there shows up here.
+    """
+    rows = f16_predict.study(shared_data / "f16", None, sets={"1/5/7": (1, 5, 7)},
+                             forms={"backlash 0.14 mm": f16_predict.FORMS["backlash 0.14 mm"]},
+                             linear_parts={"auto": None}, log=print)
+    linear, play = rows[0]["nmse"], rows[1]["nmse"]
+    assert all(play[lv] < linear[lv] for lv in (1, 3, 5, 7)), (play, linear)

@@ -1,0 +1,193 @@
+#!/usr/bin/env python
+"""F-16 prediction study: identify on some levels, predict the others; nonlinear vs linear on one metric.
+
+Data: Noël & Schoukens (2017), F-16 ground vibration test benchmark,
+nonlinearbenchmark.org (``../shared/data/f16``): ``FullMSine`` levels 1, 3, 5, 7,
+9 periods × 8192 samples at 400 Hz, random-phase multisine 2-15 Hz. Row 1 of
+``Acceleration`` (wing, next to the interface) is the "spindle" input, row 2
+(payload) the "body" output.
+
+For every identification set (3/5/7 → all; leave-one-out: three levels → the
+fourth) and every model form, the model is identified with NIFO
+(:func:`nifo_core.nifo.identify_nifo`: one block per period, boxcar,
+integration band 1.5-40 Hz, analysis band 2-15 Hz; the transient first
+period left out of the spectra) and made into an
+:class:`~nifo_core.model.IdentifiedModel` with the linear part the library
+selects (:func:`nifo_core.linear_part.select_linear_part`) or a rational model
+of fixed order; the linear baseline is the same with no nonlinear term
+(identified on the same levels, same linear-part choice). Every level is then
+predicted in the time domain (:func:`nifo_core.model.predict_body`) from its
+measured wing acceleration, from rest, over the whole record (the test also
+started from rest), and scored on
+
+    NMSE = 100·Σ|Y - Ŷ|²/Σ|Y|² over the 2-15 Hz lines of the period average of periods 2-9
+
+(Y: DFT of the measured payload acceleration's period average). A model.json
+is written for every identification (``--out``), as ``nifo identify`` does.
+
+Run: ``python tools/f16_predict.py [--data DIR] [--out DIR] [--json FILE] [--img DIR] [--quick]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from nifo.io.loader import load_record  # noqa: E402
+from nifo.io.results import write_model  # noqa: E402
+from nifo_core.describing import make_term  # noqa: E402
+from nifo_core.errors import NifoError  # noqa: E402
+from nifo_core.integrate import IntegrationBand  # noqa: E402
+from nifo_core.model import IdentifiedModel, predict_body  # noqa: E402
+from nifo_core.nifo import identify_nifo  # noqa: E402
+from nifo_core.spectral import SpectralSettings  # noqa: E402
+
+DATA = Path(os.environ.get("NIFO_SHARED_DATA", ROOT.parent / "shared" / "data")) / "f16"
+LEVELS = (1, 3, 5, 7)
+PERIOD = 8192
+COLUMNS = {"spindle_accel": "Acceleration[1]", "body_accel": "Acceleration[2]", "fs": "Fs"}
+SETTINGS = SpectralSettings(block=PERIOD, overlap=0.0, window="boxcar")
+BAND = IntegrationBand(1.5, 40.0)
+ANALYSIS = (2.0, 15.0)
+SETS = {"3/5/7": (3, 5, 7), "1/3/5 (LOO 7)": (1, 3, 5), "1/3/7 (LOO 5)": (1, 3, 7), "1/5/7 (LOO 3)": (1, 5, 7)}
+#: model forms: label -> terms (backlash 0.14 mm: what nifo characterize suggests on level 7, docs/f16_nifo.md)
+FORMS = {
+    "clearance 0.02 mm": [{"kind": "clearance", "params": {"gap": 2e-5}}],
+    "backlash 0.14 mm": [{"kind": "backlash", "params": {"deadband": 1.4e-4}}],
+    "friction (coulomb)": [{"kind": "coulomb", "params": {"eps": 1e-3}}],
+    "backlash 0.14 mm + friction": [{"kind": "backlash", "params": {"deadband": 1.4e-4}},
+                                    {"kind": "coulomb", "params": {"eps": 1e-3}}],
+}
+
+
+def load(level: int, data: Path, *, skip: int) -> "object":
+    return load_record(data / f"F16Data_FullMSine_Level{level}.mat", columns=COLUMNS, skip_periods=skip or None,
+                       period_samples=PERIOD)
+
+
+def score(y: np.ndarray, yhat: np.ndarray, fs_hz: float) -> float:
+    """NMSE [%] over the 2-15 Hz lines of the period average of periods 2.. (the first dropped)."""
+    def avg(x):
+        p = np.asarray(x)[PERIOD:]
+        return p[:p.size // PERIOD * PERIOD].reshape(-1, PERIOD).mean(axis=0)
+    f = np.fft.rfftfreq(PERIOD, 1 / fs_hz)
+    band = (f >= ANALYSIS[0]) & (f <= ANALYSIS[1])
+    y_f, yh_f = np.fft.rfft(avg(y))[band], np.fft.rfft(avg(yhat))[band]
+    return float(100 * np.sum(np.abs(y_f - yh_f) ** 2) / np.sum(np.abs(y_f) ** 2))
+
+
+def study(data: Path, out: Path | None, *, sets: dict, forms: dict, linear_parts: dict, sources=("static",),
+          log=print, partial: Path | None = None) -> list[dict]:
+    """Identify and predict every (set, linear part, form, source); rows of results (``partial``: JSON after each)."""
+    steady = {lv: load(lv, data, skip=1) for lv in LEVELS}      # identification: periods 2-9
+    full = {lv: load(lv, data, skip=0) for lv in LEVELS}        # prediction: the whole record, from rest
+    rows = []
+    for set_name, ids in sets.items():
+        for lp_name, order in linear_parts.items():
+            for form_name, spec in {"linear": [], **forms}.items():
+                for source in (sources if spec else ("static",)):
+                    t0 = time.perf_counter()
+                    row = {"set": set_name, "identified_on": list(ids), "linear_part": lp_name, "form": form_name,
+                           "source": source, "nmse": {}, "errors": {}}
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore")
+                        try:
+                            res = identify_nifo([steady[lv] for lv in ids], [make_term(t) for t in spec],
+                                                settings=SETTINGS, band=BAND, analysis_band_hz=ANALYSIS)
+                            model = IdentifiedModel.from_nifo(res, source=source, order=order)
+                        except NifoError as err:
+                            row["errors"]["identify"] = str(err)
+                            rows.append(row)
+                            log(f"{set_name:14} {lp_name:11} {form_name:28} {source:6} identify failed: {err}")
+                            continue
+                    row["linear_part_reason"] = model.linear.reason
+                    row["linear_order"] = int(model.linear.order)
+                    row["c_over_m2"] = [float(v) for v in model.c_over_m2]
+                    if out is not None:
+                        d = out / f"{set_name.split()[0].replace('/', '')}_{lp_name.replace(' ', '')}_" \
+                                  f"{form_name.split()[0]}{len(spec)}_{source}"
+                        d.mkdir(parents=True, exist_ok=True)
+                        write_model(d / "model.json", model)
+                        row["model_json"] = str(d / "model.json")
+                    for lv in LEVELS:
+                        rec = full[lv]
+                        try:
+                            p = predict_body(model, rec.spindle_accel, rec.fs_hz, label=rec.source)
+                            row["nmse"][lv] = score(rec.body_accel, p.body_accel, rec.fs_hz)
+                        except NifoError as err:
+                            row["errors"][lv] = str(err)
+                    row["seconds"] = time.perf_counter() - t0
+                    rows.append(row)
+                    log(f"{set_name:14} {lp_name:11} {form_name:28} {source:6} " + " ".join(
+                        f"L{lv} {row['nmse'].get(lv, float('nan')):7.3f}" for lv in LEVELS)
+                        + f"   [{model.linear.kind} {model.linear.order}] {row['seconds']:.0f}s")
+                    if partial is not None:
+                        partial.write_text(json.dumps({"rows": rows}, indent=1, default=str))
+    return rows
+
+
+def verdicts(rows: list[dict]) -> list[dict]:
+    """Per (set, linear part, form, source): is the nonlinear NMSE below the linear one at every predicted level?"""
+    base = {(r["set"], r["linear_part"]): r for r in rows if r["form"] == "linear"}
+    out = []
+    for r in rows:
+        if r["form"] == "linear" or not r["nmse"]:
+            continue
+        lin = base.get((r["set"], r["linear_part"]))
+        held = [lv for lv in LEVELS if lv not in r["identified_on"]]
+        pred = [lv for lv in LEVELS]
+        better = {lv: (lv in r["nmse"] and lv in lin["nmse"] and r["nmse"][lv] < lin["nmse"][lv]) for lv in pred}
+        out.append({"set": r["set"], "linear_part": r["linear_part"], "form": r["form"], "source": r["source"],
+                    "better_at_every_level": all(better.values()),
+                    "better_at_held_out": all(better[lv] for lv in held),
+                    "ratio": {lv: (lin["nmse"][lv] / r["nmse"][lv]) if lv in r["nmse"] and lv in lin["nmse"]
+                              else None for lv in pred}})
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=DATA)
+    ap.add_argument("--out", type=Path, default=None, help="write every model.json under this directory")
+    ap.add_argument("--json", type=Path, default=None, help="write all rows and verdicts here")
+    ap.add_argument("--quick", action="store_true", help="3/5/7 only, backlash and clearance 0.02 mm, auto linear part")
+    ap.add_argument("--free", action="store_true", help="also per-line (free) coefficients")
+    ap.add_argument("--all", action="store_true", help="also backlash + friction")
+    ap.add_argument("--order", type=int, default=None, help="a rational linear part of this order for every model")
+    args = ap.parse_args(argv)
+    sets, forms, lps = SETS, FORMS, {"auto": None}
+    if args.quick:
+        sets = {"3/5/7": SETS["3/5/7"]}
+        forms = {k: FORMS[k] for k in ("clearance 0.02 mm", "backlash 0.14 mm")}
+        lps = {"auto": None}
+    print(f"NMSE [%] of the period-averaged steady state, 2-15 Hz lines; levels {LEVELS}")
+    sources = ("static", "free") if args.free else ("static",)
+    if args.order:   # a fixed rational order instead of the library's selection
+        lps = {f"rational {args.order}": args.order}
+    if not args.all:
+        forms = {k: v for k, v in forms.items() if k != "backlash 0.14 mm + friction"}
+    rows = study(args.data, args.out, sets=sets, forms=forms, linear_parts=lps, sources=sources,
+                 partial=args.json)
+    ver = verdicts(rows)
+    print("\nnonlinear below linear (same set, same linear part) at every level / at the held-out levels:")
+    for v in ver:
+        print(f"  {v['set']:14} {v['linear_part']:11} {v['form']:28} {v['source']:6} "
+              f"{'yes' if v['better_at_every_level'] else 'no ':>4} / {'yes' if v['better_at_held_out'] else 'no'}   "
+              + " ".join(f"L{lv} {r:5.2f}x" if r else f"L{lv}   n/a" for lv, r in v["ratio"].items()))
+    if args.json:
+        args.json.write_text(json.dumps({"rows": rows, "verdicts": ver}, indent=1, default=str))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
