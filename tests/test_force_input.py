@@ -277,7 +277,7 @@ def test_data_option_errors_are_one_line_naming_file_and_fix(tmp_path):
     with pytest.raises(RecordTooShortError, match="leaves nothing"):
         load_record(ym, columns={"force": "um@x_um_7.mat", "body_disp": "ym", "spindle_accel": "fixed"},
                     skip_periods=6, period_samples=per)
-    scipy.io.savemat(tmp_path / "short_um.mat", {"um": np.zeros((100, 1)), "fs": np.float64(fs)})
+    scipy.io.savemat(tmp_path / "short_um.mat", {"um": np.linspace(-1.0, 1.0, 100)[:, None], "fs": np.float64(fs)})
     with pytest.raises(TimestampError, match="100 samples but the record has"):
         load_record(ym, columns={"force": "um@short_um.mat", "body_disp": "ym", "spindle_accel": "fixed"})
     with pytest.raises(ConfigError, match="does not occur"):

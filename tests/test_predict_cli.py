@@ -12,8 +12,8 @@ import pytest
 from nifo.cli import main
 from nifo.io.results import read_model, write_json, write_model
 from nifo_core.describing import make_term
-from nifo_core.errors import DataFileError, IllConditionedError
-from nifo_core.model import BodyModel, IdentifiedModel
+from nifo_core.errors import DataFileError
+from nifo_core.model import BodyModel, IdentifiedModel, PredictionDivergedError
 
 SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample"
 LOW, HIGH = SAMPLE / "road_1mm", SAMPLE / "road_2p5mm"
@@ -74,7 +74,7 @@ def test_a_model_unstable_at_one_level_names_that_record_and_level(tmp_path, cap
     write_model(d / "model.json", _model([make_term({"clearance": {"gap": 0.009}})], [-7330.0], 73.3, 4.67))
     rc = _quietly(["predict", LOW, HIGH, "--model", d, "--out", tmp_path / "p", "--no-plots"])
     err = capsys.readouterr().err
-    assert rc == IllConditionedError.exit_code
+    assert rc == PredictionDivergedError.exit_code
     assert "road_2p5mm" in err and "grows without bound" in err and "spindle RMS" in err
     assert "relax" not in err and "max_iter" not in err          # no setting the CLI does not have
     doc = json.loads((tmp_path / "p" / "predict.json").read_text())
