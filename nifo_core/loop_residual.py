@@ -115,24 +115,30 @@ class _Evaluator:
         eq_nmse = _nmse_pct(yt, yt - xt @ theta)
         notes: list[str] = []
         pred_nmse, per_rec, trans, pairs = None, (), (), []
-        residual_of = "equation"
-        if self.settings.prediction != "none":
+        residual_of, unavailable = "equation", None
+        if self.settings.prediction == "none":
+            unavailable = "prediction switched off (prediction='none')"
+        else:
             try:
                 pred_nmse, per_rec, trans, pairs = self._predict(terms)
                 residual_of = "prediction"
             except (NifoError, np.linalg.LinAlgError) as err:
+                unavailable = str(err)
                 notes.append(f"no held-out prediction for this model ({err}); equation error only")
-        if not pairs:  # per-band residual of the equation error
-            for p in self.test_parts:
-                e = p.y - np.column_stack([p.z, p.zdot, *[_g(p, t) for t in terms]]) @ theta
-                if e.size >= self.spec.block:
-                    s = cross_spectra(np.stack([p.y, e]), p.rf.fs_hz, self.spec)
-                    pairs.append((s.freq_hz, auto_spectrum(s, 0), auto_spectrum(s, 1)))
+        eq_pairs = []  # per-band residual of the equation error (always: the gate compares like with like)
+        for p in self.test_parts:
+            e = p.y - np.column_stack([p.z, p.zdot, *[_g(p, t) for t in terms]]) @ theta
+            if e.size >= self.spec.block:
+                s = cross_spectra(np.stack([p.y, e]), p.rf.fs_hz, self.spec)
+                eq_pairs.append((s.freq_hz, auto_spectrum(s, 0), auto_spectrum(s, 1)))
+        eq_bands = _band_db(eq_pairs)
         out = Errors(terms=terms, theta_per_kg=tuple(float(v) for v in theta[2:]), k_per_kg=float(theta[0]),
                      c_per_kg=float(theta[1]), equation_nmse_pct=eq_nmse, equation_nmse_fit_pct=fit_nmse,
                      prediction_nmse_pct=pred_nmse, prediction_nmse_per_record_pct=tuple(per_rec),
-                     band_residual_db=_band_db(pairs), residual_of=residual_of,
-                     transmissibility_error_pct=tuple(trans), notes=tuple(notes))
+                     band_residual_db=_band_db(pairs) if pairs else eq_bands, residual_of=residual_of,
+                     equation_band_residual_db=eq_bands,
+                     transmissibility_error_pct=tuple(trans), prediction_unavailable=unavailable,
+                     notes=tuple(notes))
         self._cache[key] = out
         return out
 

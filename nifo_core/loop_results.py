@@ -18,6 +18,7 @@ from .characterize import DEFAULT_KINDS, Candidate, Thresholds
 from .describing import Term
 from .errors import ConfigError
 from .integrate import IntegrationBand
+from .model import IdentifiedModel
 from .spectral import SpectralSettings
 
 __all__ = ["LoopSettings", "Errors", "Trial", "Evidence", "Round", "LoopResult", "RESIDUAL_BANDS_HZ",
@@ -49,6 +50,9 @@ class LoopSettings:
         Grid points per parameter.
     min_heldout_gain : float
         Relative fall of the held-out equation-error NMSE a candidate must bring.
+    max_band_rise_db : float
+        Most a candidate may raise any band of the held-out residual (prediction error and
+        equation error) [dB]; besides, it must lower the held-out prediction NMSE when there is one.
     tire_quantile, tire_guard_s, max_tire_shift : float
         Tire check: samples with |ẍ1| above this quantile, ± guard [s], are left
         out in a refit; the coefficient may move by at most ``max_tire_shift`` (relative).
@@ -77,6 +81,7 @@ class LoopSettings:
     thresholds: Thresholds = field(default_factory=Thresholds)
     grid_points: int = 24
     min_heldout_gain: float = 0.01
+    max_band_rise_db: float = 1.0
     tire_quantile: float = 0.995
     tire_guard_s: float = 0.1
     max_tire_shift: float = 0.5
@@ -95,7 +100,7 @@ class LoopSettings:
                               hint="e.g. 2/3: fit on the first two thirds, test on the last third")
         if not 0.5 < float(self.tire_quantile) < 1:
             raise ConfigError(f"tire_quantile={self.tire_quantile!r} must be in (0.5, 1)")
-        for name in ("min_heldout_gain", "tire_guard_s", "max_tire_shift"):
+        for name in ("min_heldout_gain", "max_band_rise_db", "tire_guard_s", "max_tire_shift"):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v >= 0):
                 raise ConfigError(f"{name}={v!r} must be finite and non-negative")
@@ -113,6 +118,7 @@ class LoopSettings:
         return {"max_rounds": int(self.max_rounds), "fit_fraction": float(self.fit_fraction),
                 "kinds": list(self.kinds), "thresholds": self.thresholds.to_dict(),
                 "grid_points": self.grid_points, "min_heldout_gain": self.min_heldout_gain,
+                "max_band_rise_db": self.max_band_rise_db,
                 "tire_quantile": self.tire_quantile, "tire_guard_s": self.tire_guard_s,
                 "max_tire_shift": self.max_tire_shift, "top_tried": self.top_tried,
                 "spectral": self.spectral.to_dict(), "analysis_band_hz": list(self.analysis_band_hz),
@@ -140,7 +146,8 @@ class Errors:
         The same on the fit part [%].
     prediction_nmse_pct : float or None
         Held-out NMSE of the body acceleration predicted from the measured spindle
-        acceleration by the NIFO-identified model, all records pooled [%].
+        acceleration (``settings.prediction`` says by which fit), all records pooled [%];
+        None when it could not be computed (``prediction_unavailable`` says why).
     prediction_nmse_per_record_pct : tuple of float
         The same per record (level).
     band_residual_db : mapping
@@ -148,9 +155,13 @@ class Errors:
         prediction error (the equation error when no prediction), records pooled.
     residual_of : str
         ``"prediction"`` or ``"equation"``: which error ``band_residual_db`` is of.
+    equation_band_residual_db : mapping
+        The same bands of the held-out equation error, always.
     transmissibility_error_pct : tuple of (str, float)
         Per record (level): median over the analysis band of |T_pred - T_meas|/|T_meas| [%]
         on the held-out part.
+    prediction_unavailable : str or None
+        Why there is no held-out prediction (None when there is one).
     notes : tuple of str
     """
 
@@ -165,21 +176,19 @@ class Errors:
     band_residual_db: Mapping[str, float]
     residual_of: str
     transmissibility_error_pct: tuple[tuple[str, float], ...]
+    prediction_unavailable: str | None = None
+    equation_band_residual_db: Mapping[str, float] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
-
-    @property
-    def headline_nmse_pct(self) -> float:
-        """The held-out NMSE reported first: prediction when available, else equation error."""
-        return self.prediction_nmse_pct if self.prediction_nmse_pct is not None else self.equation_nmse_pct
 
     def to_dict(self) -> dict:
         return {"terms": [t.to_dict() for t in self.terms], "theta_per_kg": list(self.theta_per_kg),
                 "k_per_kg": self.k_per_kg, "c_per_kg": self.c_per_kg,
-                "heldout_nmse_pct": self.headline_nmse_pct,
-                "equation_nmse_pct": self.equation_nmse_pct, "equation_nmse_fit_pct": self.equation_nmse_fit_pct,
                 "prediction_nmse_pct": self.prediction_nmse_pct,
+                "prediction_unavailable": self.prediction_unavailable,
+                "equation_nmse_pct": self.equation_nmse_pct, "equation_nmse_fit_pct": self.equation_nmse_fit_pct,
                 "prediction_nmse_per_record_pct": list(self.prediction_nmse_per_record_pct),
                 "band_residual_db": dict(self.band_residual_db), "residual_of": self.residual_of,
+                "equation_band_residual_db": dict(self.equation_band_residual_db),
                 "transmissibility_error_pct": [{"record": s, "error_pct": e}
                                                for s, e in self.transmissibility_error_pct],
                 "notes": list(self.notes)}
@@ -274,6 +283,9 @@ class LoopResult:
     fit_seconds: tuple[float, ...]
     test_seconds: tuple[float, ...]
     notes: tuple[str, ...] = ()
+    model: IdentifiedModel | None = None
+    linear_model: IdentifiedModel | None = None
+    model_unavailable: str | None = None
 
     @property
     def added(self) -> tuple[Candidate, ...]:
@@ -308,6 +320,7 @@ class LoopResult:
                 "errors_before": self.initial.to_dict(), "errors_after": self.final.to_dict(),
                 "rounds": [r.to_dict() for r in self.rounds], "verdict": self.verdict,
                 "nothing_missing": self.nothing_missing, "report": self.report(),
+                "model_unavailable": self.model_unavailable,
                 "band": self.band.to_dict(), "m2_kg": self.m2_kg, "settings": self.settings.to_dict(),
                 "records": [{"source": s, "fit_s": a, "test_s": b}
                             for s, a, b in zip(self.sources, self.fit_seconds, self.test_seconds)],
@@ -336,13 +349,32 @@ def _effect_dict(t: Trial) -> dict:
 def _errors_line(e: Errors) -> str:
     parts = []
     if e.prediction_nmse_pct is not None:
-        parts.append(f"held-out NMSE {e.prediction_nmse_pct:.2f} % (body acceleration predicted from the spindle)")
-    parts.append(f"equation error {e.equation_nmse_pct:.2f} % (held-out, force balance)")
-    parts.append("residual " + ", ".join(f"{k} Hz {v:+.1f} dB" for k, v in e.band_residual_db.items()))
+        parts.append(f"held-out prediction NMSE {e.prediction_nmse_pct:.2f} % (body acceleration simulated from the "
+                     f"measured spindle)")
+    else:
+        parts.append(f"held-out prediction NMSE not computed ({e.prediction_unavailable or 'prediction off'})")
+    parts.append(f"held-out equation error {e.equation_nmse_pct:.2f} % (force balance, band-limited)")
+    parts.append(f"residual of the {e.residual_of} " + ", ".join(f"{k} Hz {v:+.1f} dB"
+                                                              for k, v in e.band_residual_db.items()))
     if e.transmissibility_error_pct:
         parts.append("transmissibility error " + ", ".join(f"{s or 'record'} {v:.1f} %"
                                                            for s, v in e.transmissibility_error_pct))
     return "; ".join(parts) + "."
+
+
+def before_after_text(before: Errors, after: Errors) -> str:
+    """Before → after on each metric, each labelled; a side without a prediction says so (never another metric)."""
+    p0, p1 = before.prediction_nmse_pct, after.prediction_nmse_pct
+    if p0 is not None and p1 is not None:
+        pred = f"held-out prediction NMSE {p0:.2f} % → {p1:.2f} %"
+    elif p0 is None and p1 is None:
+        pred = f"held-out prediction NMSE not computed ({before.prediction_unavailable or 'prediction off'})"
+    else:
+        pred = ("held-out prediction NMSE " + (f"{p0:.2f} %" if p0 is not None else "not computed")
+                + " → " + (f"{p1:.2f} %" if p1 is not None else "not computed")
+                + f" ({(after if p1 is None else before).prediction_unavailable})")
+    return (f"{pred}; held-out equation error {before.equation_nmse_pct:.2f} % → "
+            f"{after.equation_nmse_pct:.2f} %")
 
 
 def _p_text(p: float) -> str:
@@ -386,7 +418,6 @@ def _round_text(i: int, trial: Trial, before: Errors, ev: Evidence | None, m2: f
         alt = (" Nearly as good: " + ", ".join(f"{a.term.label} (explains {100 * a.err:.2f} %)" for a in alts)
                + f" — the data barely tell them apart; {c.kind} explains most ({100 * c.err:.2f} %).")
     assert after is not None
-    nm0, nm1 = before.headline_nmse_pct, after.headline_nmse_pct
     pc = ""
     if ev is not None and np.isfinite(ev.partial_coherence_mean):
         pc = (f", partial coherence {ev.partial_coherence_mean:.2f} (95 % level {ev.partial_coherence_level:.2f}) "
@@ -395,8 +426,7 @@ def _round_text(i: int, trial: Trial, before: Errors, ev: Evidence | None, m2: f
             f"body-acceleration residual ({100 * c.err_cv:.0f} % on alternate held-out blocks), "
             f"{_p_text(c.p_value)}{pc}, {_stability_words(c, n_records)}, and is not an artefact of the "
             f"tire's impacts (coefficient moves {100 * trial.tire_shift:.0f} % without them); "
-            f"held-out NMSE {nm0:.2f} % → {nm1:.2f} %, equation error {before.equation_nmse_pct:.2f} % → "
-            f"{after.equation_nmse_pct:.2f} %.{alt}")
+            f"{before_after_text(before, after)}.{alt}")
 
 
 def _nothing_text(i: int, ranked: Sequence[Candidate], trials: Sequence[Trial]) -> str:

@@ -92,9 +92,11 @@ def test_a_hidden_effect_is_the_first_added_with_its_key_parameter_and_the_heldo
     value = first.coefficient if key == "coefficient" else first.term.params[key]
     assert value == pytest.approx(truth, rel=0.25), res.report()
     r1 = res.rounds[0]
-    assert r1.after.headline_nmse_pct < r1.before.headline_nmse_pct
+    # one metric on both sides: the held-out PREDICTION error falls, and so does the equation error
+    assert r1.before.prediction_nmse_pct is not None and r1.after.prediction_nmse_pct is not None
+    assert r1.after.prediction_nmse_pct < r1.before.prediction_nmse_pct
     assert r1.after.equation_nmse_pct < r1.before.equation_nmse_pct
-    assert res.final.headline_nmse_pct < res.initial.headline_nmse_pct
+    assert res.final.prediction_nmse_pct < res.initial.prediction_nmse_pct
     assert r1.added.candidate.p_value < 1e-3 and r1.added.accepted
     assert f"Round 1: added" in res.report()
 
@@ -136,7 +138,7 @@ def test_two_hidden_effects_are_found_in_two_rounds(scenario):
     bump = res.added[kinds.index("bump_stop")]
     assert bump.term.params["gap"] == pytest.approx(0.004, rel=0.25)
     assert res.added[kinds.index("coulomb")].coefficient == pytest.approx(100.0, rel=0.25)
-    nm = [res.initial.headline_nmse_pct] + [r.after.headline_nmse_pct for r in res.rounds if r.added]
+    nm = [res.initial.prediction_nmse_pct] + [r.after.prediction_nmse_pct for r in res.rounds if r.added]
     assert nm[0] > nm[1] > nm[2]
 
 
@@ -154,7 +156,9 @@ def test_report_holds_the_errors_per_band_and_level_and_serialises(scenario):
     assert len(ev["bins"]) == len(ev["residual_before"]) == len(ev["residual_after"])
     # the residual bends like the missing effect before, and is flat after
     assert np.nanstd(ev["residual_after"]) < 0.5 * np.nanstd(ev["residual_before"])
-    assert "held-out NMSE" in res.report()
+    text = res.report()
+    assert "held-out prediction NMSE" in text and "held-out equation error" in text
+    assert "heldout_nmse_pct" not in doc["errors_before"]  # no metric that stands for another
 
 
 def test_loop_settings_refuse_bad_values():
@@ -191,3 +195,12 @@ def test_loop_command_writes_json_model_and_plots(scenario, tmp_path, capsys):
     assert (out / "loop_errors.png").stat().st_size > 0 and (out / "loop_round1.png").stat().st_size > 0
     printed = capsys.readouterr().out
     assert "Round 1: added" in printed and NOTHING_MISSING in printed
+    assert "model.json" in printed
+    # the loop's model.json goes straight into nifo predict: no identify step in between
+    rc = main(["predict", str(data), "--model", str(out / "model.json"), "--out", str(tmp_path / "pred"),
+               "--no-plots"])
+    assert rc == 0
+    pred = json.loads((tmp_path / "pred" / "predict.json").read_text())
+    rec = pred["records"][0]
+    assert [t["kind"] for t in json.loads((out / "model.json").read_text())["terms"]] == ["cubic_stiffness"]
+    assert rec["model"]["nmse_percent"] < rec["linear"]["nmse_percent"]

@@ -295,7 +295,7 @@ def _effect_label(e) -> str:
     return str(e)
 
 
-_NMSE_KEYS = ("heldout_nmse_pct", "nmse_percent", "nmse", "held_out_nmse_percent")
+_NMSE_KEYS = ("prediction_nmse_pct", "nmse_percent", "nmse", "held_out_nmse_percent")
 
 
 def _terms_text(terms) -> str:
@@ -307,10 +307,12 @@ def _terms_text(terms) -> str:
 def _errors_table(before: Mapping, after: Mapping) -> str:
     """Metric | before | after, from the loop's error summaries (held-out NMSE, equation error, bands, T)."""
     rows = []
-    for key, label, fmt in (("heldout_nmse_pct", "held-out NMSE (body acceleration predicted) [%]", ".3g"),
-                            ("equation_nmse_pct", "equation error, held out (force balance) [%]", ".3g")):
-        if key in before or key in after:
-            rows.append([label, _num(before.get(key), fmt), _num(after.get(key), fmt)])
+    for key, label, fmt in (("prediction_nmse_pct", "held-out prediction NMSE (body acceleration simulated) [%]",
+                             ".3g"),
+                            ("equation_nmse_pct", "held-out equation error (force balance) [%]", ".3g")):
+        if key in before or key in after:  # a side without a prediction says so: never another metric instead
+            rows.append([label] + [_num(d.get(key), fmt) if d.get(key) is not None or key != "prediction_nmse_pct"
+                                   else "not computed" for d in (before, after)])
     bb, ba = before.get("band_residual_db") or {}, after.get("band_residual_db") or {}
     for band in bb or ba:
         rows.append([f"residual {band} Hz [dB]", _num(bb.get(band), ".1f"), _num(ba.get(band), ".1f")])
@@ -352,7 +354,7 @@ def _loop(r: ResultDir) -> tuple[str, list[tuple[str, str]]]:
                      _num(_find(rd.get("after") or {}, *_NMSE_KEYS), ".3g"), _e(rd.get("text", ""))])
     if rows:
         parts += ["<h3>Rounds</h3>",
-                  _table(["round", "added", "best candidate", "ERR", "p", "held-out NMSE before [%]",
+                  _table(["round", "added", "best candidate", "ERR", "p", "held-out prediction NMSE before [%]",
                           "after [%]", "why"], rows, numeric=(3, 4, 5, 6))]
     if not parts:
         parts.append("<pre>" + _e(json.dumps({k: v for k, v in d.items() if not isinstance(v, (list, dict))},
