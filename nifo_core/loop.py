@@ -82,7 +82,7 @@ import numpy as np
 
 from .characterize import rank_beyond
 from .describing import Term, make_term
-from .errors import ConfigError, InputError, NifoError
+from .errors import ConfigError, InputError, NifoError, RecordTooShortError
 from .integrate import IntegrationBand
 from .loop_residual import _Evaluator, _evidence, _retune, _tire_check
 from .loop_results import (NOTHING_MISSING, RESIDUAL_BANDS_HZ, Errors, Evidence, LoopResult, LoopSettings, Round,
@@ -94,10 +94,34 @@ __all__ = ["LoopSettings", "Errors", "Trial", "Evidence", "Round", "LoopResult",
            "RESIDUAL_BANDS_HZ", "NOTHING_MISSING"]
 
 
-def _split(rec: Record, frac: float) -> tuple[Record, Record]:
-    k = int(round(frac * rec.n))
-    a, b = rec.slice(0, k), rec.slice(k, rec.n)
-    return a, b
+#: a record must span this many periods of the integration band's lower edge: the integrator takes 16
+#: (its edges are dropped), and the held-out third must keep ≈ 4 periods once its band-pass has settled
+LOOP_PERIODS_PER_RECORD = 48.0
+
+
+def loop_band(records: Sequence[Record], band: IntegrationBand | None = None) -> tuple[IntegrationBand, str | None]:
+    """The integration band for the loop on these records, and what was adapted (None: nothing).
+
+    Default: :func:`~nifo_core.restoring.suggest_band` of the first record. Its lower edge is raised
+    where the shortest record spans fewer than ``LOOP_PERIODS_PER_RECORD`` periods of it (30 s → 1.6 Hz,
+    60 s → 0.8 Hz): every column of the equation error is band-limited alike, so a higher edge costs
+    the loop only the motion below it, while a too-low one leaves no held-out part.
+    """
+    fs = float(records[0].fs_hz)
+    band = (band or suggest_band(records[0]).band).validate(fs)
+    shortest = min(r.duration_s for r in records)
+    need = LOOP_PERIODS_PER_RECORD / shortest if shortest > 0 else float("inf")
+    if band.f_lo_hz >= need:
+        return band, None
+    new = IntegrationBand(round(float(np.ceil(need * 100) / 100), 2), band.f_hi_hz)
+    if new.f_lo_hz >= new.f_hi_hz:
+        raise RecordTooShortError(f"a {shortest:.1f} s record is too short for the loop",
+                                  hint=f"record at least {LOOP_PERIODS_PER_RECORD / band.f_lo_hz:.0f} s")
+    new.validate(fs)
+    return new, (f"integration band's lower edge raised {band.f_lo_hz:g} → {new.f_lo_hz:g} Hz: the shortest record "
+                 f"({shortest:.0f} s) must span {LOOP_PERIODS_PER_RECORD:g} periods of it to keep a held-out part "
+                 f"after the integrator's edges (records of {LOOP_PERIODS_PER_RECORD / band.f_lo_hz:.0f} s keep "
+                 f"{band.f_lo_hz:g} Hz)")
 
 
 def _heldout_failures(current: Errors, after: Errors, s: LoopSettings) -> list[str]:
@@ -165,11 +189,10 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
         raise InputError(f"records have different sample rates {rates} Hz", hint="resample to one rate first")
     terms = [make_term(t) for t in declared]
     s = settings
-    band = band or suggest_band(recs[0]).band
+    band, band_note = loop_band(recs, band)
     say = progress or (lambda f, w: None)
-    split = [_split(r, s.fit_fraction) for r in recs]
     say(0.0, "restoring force and the declared model")
-    ev = _Evaluator([a for a, _ in split], [b for _, b in split], band, s)
+    ev = _Evaluator(recs, band, s)
     retuned: list[str] = []
     if s.retune and terms:
         terms, retuned = _retune(ev, terms, s)
@@ -230,6 +253,7 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
                    + f"; {before_after_text(initial, current)}. "
                    + verdict)
     notes = [f"declared {n} (the declared form is kept; the data set its parameter)" for n in retuned]
+    notes += ([band_note] if band_note else []) + ev.notes
     if band.f_lo_hz > 1.0:
         notes.append(f"the integration band starts at {band.f_lo_hz:g} Hz: motion below it is only partly in z, ż")
     model = linear = unavailable = None
@@ -240,6 +264,6 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
     return LoopResult(declared=tuple(make_term(t) for t in declared), terms=tuple(terms), rounds=tuple(rounds),
                       initial=initial, final=current, verdict=verdict, band=band, m2_kg=m2_kg, settings=s,
                       sources=tuple(r.source for r in recs),
-                      fit_seconds=tuple(a.duration_s for a, _ in split),
-                      test_seconds=tuple(b.duration_s for _, b in split), notes=tuple(notes), model=model,
+                      fit_seconds=tuple(a.duration_s for a in ev.fit_recs),
+                      test_seconds=tuple(b.duration_s for b in ev.test_recs), notes=tuple(notes), model=model,
                       linear_model=linear, model_unavailable=unavailable)

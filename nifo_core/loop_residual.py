@@ -84,17 +84,29 @@ def _band_db(spec_pairs: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) ->
 class _Evaluator:
     """Fits a term set on the fit parts and scores it on the held-out parts (both residuals)."""
 
-    def __init__(self, fit_recs: Sequence[Record], test_recs: Sequence[Record], band: IntegrationBand,
-                 settings: LoopSettings) -> None:
-        self.fit_recs, self.test_recs = list(fit_recs), list(test_recs)
+    def __init__(self, records: Sequence[Record], band: IntegrationBand, settings: LoopSettings) -> None:
+        # integrate each WHOLE record, then split its restoring force in time: the integrator's edges are
+        # lost once per record, not at the split too (a 60 s record keeps a held-out part)
         self.band, self.settings = band, settings
-        self.fit_rfs = [restoring_force(r, band=band) for r in self.fit_recs]
-        self.test_rfs = [restoring_force(r, band=band) for r in self.test_recs]
+        self.fit_recs, self.test_recs, self.fit_rfs, self.test_rfs = [], [], [], []
+        for rec in records:
+            rf = restoring_force(rec, band=band)
+            k = int(round(settings.fit_fraction * rf.n))
+            self.fit_rfs.append(rf.select(slice(0, k)))
+            self.test_rfs.append(replace(rf.select(slice(k, rf.n)), start=rf.start + k))
+            self.fit_recs.append(rec.slice(0, rf.start + k))
+            self.test_recs.append(rec.slice(rf.start + k, rec.n))
         self.fit_parts = [_part(rf) for rf in self.fit_rfs]
         self.test_parts = [_part(rf) for rf in self.test_rfs]
         spec = settings.spectral
-        self.spec = spec if all(r.n >= 2 * spec.block for r in self.test_recs) else replace(
-            spec, block=int(2 ** np.floor(np.log2(max(min(r.n for r in self.test_recs) // 8, 256)))))
+        self.notes: list[str] = []
+        shortest = min(r.n for r in self.test_recs)
+        self.spec = spec if shortest >= 2 * spec.block else replace(
+            spec, block=int(2 ** np.floor(np.log2(max(shortest // 8, 256)))))
+        if self.spec.block != spec.block:
+            self.notes.append(f"spectral block {spec.block} → {self.spec.block} samples for the per-band residual and "
+                              f"the transmissibilities: the shortest held-out part is "
+                              f"{shortest / records[0].fs_hz:.1f} s")
         self._measured = [cross_spectra(np.stack([r.spindle_accel, r.body_accel]), r.fs_hz, self.spec)
                           for r in self.test_recs]
         self._cache: dict = {}
