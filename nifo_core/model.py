@@ -1,65 +1,69 @@
 """The identified model and its predictions (METHOD.md §4, paper §3.3 validation).
 
-A model is the nominal linear transmissibility T21(ω) plus describing
-functions g_i with their coefficients. Built from a :class:`~nifo_core.nifo.NifoResult`
-it keeps both forms the estimator gives:
+A model is what the static NIFO fit identifies (:mod:`nifo_core.nifo`)::
+
+    A2 + Σ γ_i·G_i = T21·(A1 + Σ γ_i·G_i)   ⇔   Z = Hz(s)·(A1 + Σ γ_i·G_i(z, ż) [+ k3·X1] [- F/M2]),
+
+z = x2 - x1, γ_i = c_i/M2 the constant coefficients, Hz = -(1 - T21)/s². It
+keeps both forms the estimator gives:
 
 - non-parametric: T21(ω) and B_i(ω) on the spectral lines (paper Eq. 8);
-- parametric: a body-side model fitted to them, per unit body mass M2,
+- parametric: the linear part Hz (:class:`~nifo_core.linear_part.LinearPart`):
+  the physical one-mass body (k = K2/M2, c = C2/M2: paper Eq. 2 / M2) where
+  it fits, a stable rational model otherwise, chosen by
+  :func:`~nifo_core.linear_part.select_linear_part`, which says why.
 
-      z̈ + c·ż + k·z + k3·x2 = -ẍ1 - Σ γ_i·g_i(z, ż),     z = x2 - x1,     (paper Eq. 2 / M2)
+Prediction from a MEASURED spindle acceleration (and, when the model has one,
+a measured force on the body) simulates this model in time
+(:mod:`nifo_core.timesim`: exact discretisation of the stable linear part,
+implicit strut feedback, every kind of :mod:`nifo_core.describing` including
+the hysteretic backlash). It cannot diverge numerically; a response that grows
+without bound means the identified model is unstable at that level and raises
+:class:`PredictionDivergedError` naming the record, the level and the reason.
 
-  with k = K2/M2, c = C2/M2 (and k3 = K3/M2, 0 by default) fitted to T21 by
-  linear least squares of ``(k + jωc)·(T21 - 1) + k3·T21 = ω²·T21`` over the
-  analysis band, and γ_i = c_i/M2 the constant coefficients (the ``static``
-  fit of the result, flat in frequency for a static nonlinearity).
+``method='nonparametric'`` uses the identified T21(ω), B_i(ω) on the lines
+instead (cross-faded to the linear part outside the analysis band), solved in
+the frequency domain by Picard iteration ONLY where that provably converges
+(:func:`~nifo_core.fixed_point.contraction_bound` < 1); elsewhere it falls back
+to the time-domain engine with a rational fit of the identified T21 and says
+so in :attr:`Prediction.method`.
 
-Prediction from a MEASURED spindle acceleration solves the feedback
-x2 = T21·x1 + Σ B_i·G_i(x2 - x1) (METHOD.md §4). We solve it in the frequency
-domain on the whole (zero-padded) record, for the relative displacement:
-
-    Z = Hz·A1 + Σ Bz_i·G_i(z, ż),   Hz = (1 - T21)/ω²,  Bz_i = B_i   (K3 = 0)
-
-by a relaxed fixed-point iteration with an equivalent-linearisation split:
-each iteration regresses g_i on (z, ż) of the current iterate (λ_i = α_i + jωβ_i),
-moves that linear part to the left-hand side and iterates only on the
-remainder, so the loop gain stays well below one (plain Picard iteration
-stalls or diverges when Σ Bz_i·λ_i approaches 1, e.g. a stiff backlash). The
-result satisfies the undivided equation exactly at convergence. ``method``
-chooses where Hz and Bz_i come from: ``'parametric'`` (default: the fitted body
-model at every frequency: smooth, extrapolates, equals simulating the
-parametric model in time) or ``'nonparametric'`` (the identified T21(ω),
-B_i(ω) inside the analysis band, cross-faded to the parametric model outside
-it, where the estimates are not trustworthy).
-
-The body acceleration is then A2 = A1 - ω²·Z. The first and last
-``edge_s`` seconds of a prediction carry the start-up transient (the record's
-past is unknown) and are best left out of comparisons.
+The first and last ``edge_s`` seconds of a prediction carry the start-up
+transient (the record's past is unknown) and are best left out of comparisons
+(:attr:`Prediction.valid`).
 """
 
 from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from typing import Literal, Mapping, Sequence
+from typing import Literal, Mapping
 
 import numpy as np
 import scipy.fft
 
-from .describing import Term, make_term, play_operator
+from .describing import Term, make_term
 from .errors import ConfigError, IllConditionedError, InputError
-from .integrate import IntegrationBand
+from .fixed_point import contraction_bound, fixed_point_solve
+from .integrate import IntegrationBand, integrate
+from .linear_part import BodyModel, LinearPart, fit_body_model, fit_rational, select_linear_part
 from .nifo import NifoResult
 from .spectral import SpectralSettings, coherence, cross_spectra, h1
+from .timesim import simulate_response
 
-__all__ = ["BodyModel", "IdentifiedModel", "Prediction", "PredictedTransmissibility", "PredictionDivergedError",
-           "fit_body_model", "predict_body", "predict_transmissibility"]
+__all__ = ["BodyModel", "LinearPart", "IdentifiedModel", "Prediction", "PredictedTransmissibility",
+           "PredictionDivergedError", "fit_body_model", "predict_body", "predict_transmissibility"]
 
 Method = Literal["parametric", "nonparametric"]
+Engine = Literal["time", "frequency"]
+
+#: a response whose |z| exceeds this many times the linear part's peak counts as diverged
+DIVERGENCE_FACTOR = 100.0
+DEFAULT_OVERSAMPLE = 8
 
 
 class PredictionDivergedError(IllConditionedError):
-    """The feedback x2 = T21·x1 + Σ B_i·G_i(x2 - x1) could not be solved for this input."""
+    """The identified model's response to this input grows without bound (the model is unstable at this level)."""
 
 
 def _ro(a) -> np.ndarray:
@@ -77,81 +81,11 @@ def _uncplx(d) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------
-# the parametric body model
-# ---------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class BodyModel:
-    """Body side per unit body mass: k = K2/M2 [1/s²], c = C2/M2 [1/s], k3 = K3/M2 [1/s²].
-
-    ``fit_rms`` is the relative RMS misfit of T21 over the fitted band.
-    """
-
-    k: float
-    c: float
-    k3: float = 0.0
-    fit_rms: float = float("nan")
-
-    def t21(self, freq_hz) -> np.ndarray:
-        """T21 = (k + jωc)/(-ω² + k + jωc + k3) of this model."""
-        w = 2 * np.pi * np.asarray(freq_hz, float)
-        zz = self.k + 1j * w * self.c
-        return zz / (-(w**2) + zz + self.k3)
-
-    def natural_frequency_hz(self) -> float:
-        return float(np.sqrt(self.k + self.k3) / (2 * np.pi))
-
-    def to_dict(self) -> dict:
-        return {"k": self.k, "c": self.c, "k3": self.k3, "fit_rms": self.fit_rms}
-
-
-def fit_body_model(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[float, float] = (2.0, 30.0),
-                   fit_k3: bool = False, weights: np.ndarray | None = None) -> BodyModel:
-    """Fit k = K2/M2, c = C2/M2 (and k3 = K3/M2) to a nominal T21 (METHOD.md §4).
-
-    Linear least squares of the equation error ``(k + jωc)·(T21 - 1) + k3·T21 - ω²·T21``
-    over the lines of ``band_hz`` (real and imaginary parts), each line
-    scaled by 1/|ω²·T21| so the error is relative.
-
-    Raises
-    ------
-    ConfigError
-        When the band holds fewer than 3 usable lines or the fit is not physical (k or c ≤ 0).
-    """
-    f = np.asarray(freq_hz, float)
-    t = np.asarray(t21, complex)
-    w = 2 * np.pi * f
-    m = (f >= band_hz[0]) & (f <= band_hz[1]) & np.isfinite(t) & (w > 0)
-    if weights is not None:
-        m &= np.isfinite(weights) & (np.asarray(weights) > 0)
-    if m.sum() < 3:
-        raise ConfigError(f"only {int(m.sum())} usable lines in {band_hz[0]:g}-{band_hz[1]:g} Hz to fit the body model",
-                          hint="widen the band")
-    wm, tm = w[m], t[m]
-    scale = 1.0 / np.abs(wm**2 * tm)
-    if weights is not None:
-        scale = scale * np.sqrt(np.asarray(weights)[m])
-    cols = [(tm - 1) * scale, 1j * wm * (tm - 1) * scale]
-    if fit_k3:
-        cols.append(tm * scale)
-    a = np.stack(cols, axis=1)
-    y = wm**2 * tm * scale
-    x, *_ = np.linalg.lstsq(np.concatenate([a.real, a.imag]), np.concatenate([y.real, y.imag]), rcond=None)
-    k, c = float(x[0]), float(x[1])
-    k3 = float(x[2]) if fit_k3 else 0.0
-    if not (k > 0 and c > 0):
-        raise ConfigError(f"the body model fitted to T21 is not physical (k={k:.4g} 1/s², c={c:.4g} 1/s)",
-                          hint="check the analysis band and the coherence of T21")
-    model = BodyModel(k, c, k3)
-    resid = np.abs(model.t21(f[m]) / tm - 1)
-    return BodyModel(k, c, k3, float(np.sqrt(np.mean(resid**2))))
-
-
-# ---------------------------------------------------------------------------------------------
 # the identified model
 # ---------------------------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class IdentifiedModel:
-    """T21(ω) + describing functions + coefficients: what ``nifo identify`` produces.
+    """T21(ω) + describing functions + coefficients + linear part: what ``nifo identify`` produces.
 
     Attributes
     ----------
@@ -164,8 +98,8 @@ class IdentifiedModel:
     terms : tuple of Term
     c_over_m2 : ndarray, shape (n_terms,)
         Constant coefficients γ_i = c_i/M2 [unit of c per kg].
-    body : BodyModel
-        Parametric body side fitted to ``t21``.
+    body : BodyModel or None
+        The one-mass body fitted to ``t21`` (None when it could not be or is not physical).
     analysis_band_hz : (float, float)
         Where the non-parametric functions are trusted.
     fs_hz : float
@@ -175,6 +109,10 @@ class IdentifiedModel:
     source : {'static', 'free', 'h1'}
         Which estimate of the result the model was made from.
     provenance : mapping
+    linear : LinearPart, optional
+        The linear part Hz predictions use; default: the one-mass ``body``.
+    force_gain : float
+        1/M2 [1/kg] for a measured force on the body (0: no force input).
     """
 
     freq_hz: np.ndarray
@@ -182,13 +120,15 @@ class IdentifiedModel:
     b: np.ndarray
     terms: tuple[Term, ...]
     c_over_m2: np.ndarray
-    body: BodyModel
+    body: BodyModel | None
     analysis_band_hz: tuple[float, float]
     fs_hz: float
     settings: SpectralSettings
     band: IntegrationBand
     source: str = "static"
     provenance: Mapping = field(default_factory=dict)
+    linear: LinearPart | None = None
+    force_gain: float = 0.0
 
     def __post_init__(self) -> None:
         for k in ("freq_hz", "t21", "b", "c_over_m2"):
@@ -200,55 +140,84 @@ class IdentifiedModel:
         if self.t21.shape != (nf,) or self.b.shape != (nt, nf) or self.c_over_m2.shape != (nt,):
             raise ConfigError(f"model arrays do not fit {nt} terms on {nf} lines: t21 {self.t21.shape}, "
                               f"b {self.b.shape}, c_over_m2 {self.c_over_m2.shape}")
+        if self.linear is None:
+            if self.body is None:
+                raise ConfigError("a model needs a linear part: give body= (one-mass) or linear= (LinearPart)")
+            object.__setattr__(self, "linear", LinearPart.from_body(self.body, band_hz=self.analysis_band_hz,
+                                                                    reason="one-mass body given"))
+        fg = float(self.force_gain)
+        if not np.isfinite(fg) or fg < 0:
+            raise ConfigError(f"force_gain={self.force_gain!r} must be 1/M2 ≥ 0 [1/kg]")
+        object.__setattr__(self, "force_gain", fg)
 
     @classmethod
     def from_nifo(cls, result: NifoResult, *, source: Literal["static", "free", "h1"] = "static",
-                  fit_k3: bool = False) -> "IdentifiedModel":
+                  fit_k3: bool = False, linear_form: Literal["auto", "body", "rational"] = "auto",
+                  order: int | None = None) -> "IdentifiedModel":
         """Make a model from a NIFO result.
 
         ``source='static'`` (default) uses the constant-coefficient fit,
         ``'free'`` the per-line estimates (γ = band mean of Re c_i/M2), and
         ``'h1'`` the plain H1 without terms: the equivalent linearisation at
         the identification level, the linear model to compare against.
+        The linear part is chosen by :func:`select_linear_part` (``linear_form``,
+        ``order``): never fails for a non-physical body when a stable rational
+        fit exists.
         """
         prov = {"from": "nifo", "source": source, "n_avg": result.n_avg, **dict(result.provenance)}
+        st = result.static
         if source == "h1" or not result.terms:
             t21, terms, b, gam = result.t21_h1, (), np.zeros((0, result.freq_hz.size), complex), np.zeros(0)
         elif source == "static":
-            if result.static is None:
+            if st is None:
                 raise ConfigError("this NIFO result has no constant-coefficient (static) fit", hint="use source='free'")
-            t21, terms, b, gam = result.static.t21, result.terms, result.static.b, result.static.c_over_m2
+            t21, terms, b, gam = st.t21, result.terms, st.b, st.c_over_m2
         elif source == "free":
             t21, terms, b = result.t21, result.terms, result.b
             gam = np.nanmean(result.c_over_m2[:, result.in_band].real, axis=1)
         else:
             raise ConfigError(f"source={source!r} must be 'static', 'free' or 'h1'")
-        body = fit_body_model(result.freq_hz, t21, band_hz=result.analysis_band_hz, fit_k3=fit_k3)
+        force_gain = 0.0
+        m2 = getattr(st, "m2", None) if st is not None else None
+        if m2 is not None and np.isfinite(m2) and m2 > 0:
+            force_gain = 1.0 / m2
+            if getattr(result, "spindle_fixed", False) and st.t2f is not None:
+                w2 = (2 * np.pi * result.freq_hz) ** 2
+                t21 = 1 + w2 * m2 * st.t2f            # Hz = Z/U = -M2·X2/F with a fixed spindle
+        lin = select_linear_part(result.freq_hz, t21, band_hz=result.analysis_band_hz, form=linear_form, order=order,
+                                 fit_k3=fit_k3)
+        body = lin.body if lin.kind == "body" else None
         return cls(freq_hz=result.freq_hz, t21=t21, b=b, terms=terms, c_over_m2=gam, body=body,
                    analysis_band_hz=result.analysis_band_hz, fs_hz=result.fs_hz, settings=result.settings,
-                   band=result.band, source=source if terms else "h1", provenance=prov)
+                   band=result.band, source=source if terms else "h1", provenance=prov, linear=lin,
+                   force_gain=force_gain)
 
     def to_dict(self) -> dict:
         """Plain JSON types (complex arrays as ``{"re": [...], "im": [...]}``)."""
         return {"nifo_identified_model": 1, "freq_hz": self.freq_hz.tolist(), "t21": _cplx(self.t21),
                 "b": [_cplx(x) for x in self.b], "terms": [t.to_dict() for t in self.terms],
-                "c_over_m2": self.c_over_m2.tolist(), "body": self.body.to_dict(),
+                "c_over_m2": self.c_over_m2.tolist(), "body": None if self.body is None else self.body.to_dict(),
+                "linear_part": self.linear.to_dict(), "force_gain": self.force_gain,
                 "analysis_band_hz": list(self.analysis_band_hz), "fs_hz": self.fs_hz,
                 "settings": self.settings.to_dict(), "band": self.band.to_dict(), "source": self.source,
                 "provenance": json.loads(json.dumps(dict(self.provenance), default=str))}
 
     @classmethod
     def from_dict(cls, d: Mapping) -> "IdentifiedModel":
-        """Inverse of :meth:`to_dict`; :class:`ConfigError` naming what is wrong otherwise."""
+        """Inverse of :meth:`to_dict` (files without ``linear_part`` use the body);
+        :class:`ConfigError` naming what is wrong otherwise."""
         try:
             terms = tuple(make_term(t) for t in d["terms"])
             nf = len(d["freq_hz"])
+            body = None if d["body"] is None else BodyModel(**d["body"])
+            lin = LinearPart.from_dict(d["linear_part"]) if d.get("linear_part") else None
             return cls(freq_hz=np.asarray(d["freq_hz"], float), t21=_uncplx(d["t21"]),
                        b=np.array([_uncplx(x) for x in d["b"]], complex).reshape(len(terms), nf), terms=terms,
-                       c_over_m2=np.asarray(d["c_over_m2"], float), body=BodyModel(**d["body"]),
+                       c_over_m2=np.asarray(d["c_over_m2"], float), body=body,
                        analysis_band_hz=tuple(d["analysis_band_hz"]), fs_hz=float(d["fs_hz"]),
                        settings=SpectralSettings.from_dict(d["settings"]), band=IntegrationBand(**d["band"]),
-                       source=str(d.get("source", "static")), provenance=dict(d.get("provenance") or {}))
+                       source=str(d.get("source", "static")), provenance=dict(d.get("provenance") or {}),
+                       linear=lin, force_gain=float(d.get("force_gain") or 0.0))
         except KeyError as err:
             raise ConfigError(f"identified model lacks {err.args[0]!r}",
                               hint="pass what IdentifiedModel.to_dict() wrote") from None
@@ -261,22 +230,26 @@ class IdentifiedModel:
 # ---------------------------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class Prediction:
-    """Predicted body response to a measured spindle acceleration.
+    """Predicted body response to a measured spindle acceleration (and force).
 
     Attributes
     ----------
     body_accel : ndarray, shape (n,)
         Predicted body acceleration [m/s²].
     z, zdot : ndarray, shape (n,)
-        Predicted relative displacement [m] and velocity [m/s] (no DC).
+        Predicted relative displacement [m] and velocity [m/s].
     iterations : int
-        Fixed-point iterations used.
+        Frequency-domain iterations used (0 for the time-domain engine).
     residual : float
-        Final relative change of z between iterations.
+        Final relative change of z between iterations (0 for the time-domain engine).
     method : str
+        What ran: the engine and the linear part.
     edge_samples : int
-        Samples at each end affected by the record's unknown past (five decay
-        times 2/c of the body mode; ``valid`` selects the rest).
+        Samples at each end affected by the record's unknown past (five times
+        the slowest time constant of the linear part; ``valid`` selects the rest).
+    engine : {'time', 'frequency'}
+    oversample : int
+        Fine steps per sample of the time-domain engine (0 for the frequency domain).
     """
 
     body_accel: np.ndarray
@@ -286,6 +259,8 @@ class Prediction:
     residual: float
     method: str
     edge_samples: int
+    engine: str = "time"
+    oversample: int = 0
 
     def __post_init__(self) -> None:
         for k in ("body_accel", "z", "zdot"):
@@ -307,58 +282,90 @@ def _interp_c(f: np.ndarray, fp: np.ndarray, yp: np.ndarray) -> np.ndarray:
     return np.interp(f, fp, yp.real) + 1j * np.interp(f, fp, yp.imag)
 
 
-def _responses(model: IdentifiedModel, f: np.ndarray, method: Method) -> tuple[np.ndarray, np.ndarray]:
-    """Hz (A1 -> Z) and Bz_i (G_i -> Z) on the record's FFT lines; zero at DC."""
+def _line_responses(model: IdentifiedModel, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Hz (V -> Z) and Bz_i (G_i -> Z) from the identified T21(ω), B_i(ω), faded to the linear part
+    outside the analysis band; zero at DC."""
     w = 2 * np.pi * f
-    bm = model.body
-    den = -(w**2) + bm.k + 1j * w * bm.c + bm.k3
+    hz = model.linear.hz(f)
+    bz = model.c_over_m2[:, None] * hz[None, :]
+    lo, hi = model.analysis_band_hz
+    wgt = _fade(f, lo, hi, min(0.5, 0.25 * (hi - lo)))
     with np.errstate(divide="ignore", invalid="ignore"):
-        hz = -(1 - np.where(w > 0, bm.k3 / np.where(w > 0, w, 1) ** 2, 0)) / den    # z̈ + cż + kz + k3·x2 = -ẍ1 - Σγg
-    bz = -model.c_over_m2[:, None] / den[None, :]
-    if method == "nonparametric":
-        lo, hi = model.analysis_band_hz
-        wgt = _fade(f, lo, hi, min(0.5, 0.25 * (hi - lo)))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            hz_np = (1 - _interp_c(f, model.freq_hz, model.t21)) / np.where(w > 0, w, 1) ** 2
-        hz = wgt * hz_np + (1 - wgt) * hz
-        for i in range(len(model.terms)):
-            bz[i] = wgt * _interp_c(f, model.freq_hz, model.b[i]) + (1 - wgt) * bz[i]
-    elif method != "parametric":
-        raise ConfigError(f"method={method!r} must be 'parametric' or 'nonparametric'")
+        hz_np = (1 - _interp_c(f, model.freq_hz, model.t21)) / np.where(w > 0, w, 1) ** 2
+    hz = wgt * hz_np + (1 - wgt) * hz
+    for i in range(len(model.terms)):
+        bz[i] = wgt * _interp_c(f, model.freq_hz, model.b[i]) + (1 - wgt) * bz[i]
     hz[w == 0] = 0
     bz[:, w == 0] = 0
     return hz, bz
 
 
-def _evaluate(terms: Sequence[Term], z: np.ndarray, zdot: np.ndarray) -> np.ndarray:
-    out = np.empty((len(terms), z.size))
-    for i, t in enumerate(terms):
-        out[i] = play_operator(z, t.params["deadband"]) if t.kind == "backlash" else t.evaluate(z, zdot)
-    return out
+def _level(a1: np.ndarray | None, force: np.ndarray | None) -> str:
+    parts = []
+    if a1 is not None:
+        parts.append(f"spindle RMS {np.sqrt(np.mean(a1 ** 2)):.3g} m/s²")
+    if force is not None:
+        parts.append(f"force RMS {np.sqrt(np.mean(force ** 2)):.3g} N")
+    return ", ".join(parts)
 
 
-def predict_body(model: IdentifiedModel, spindle_accel: np.ndarray, fs_hz: float, *, method: Method = "parametric",
-                 tol: float = 1e-6, max_iter: int = 200, relax: float = 1.0, pad_s: float = 5.0) -> Prediction:
+def _external(model: IdentifiedModel, linear: LinearPart, a1, force, fs_hz: float, n: int) -> np.ndarray:
+    """v = ẍ1 [+ k3·x1] [- F/M2] [m/s²]: the measured input of the linear part."""
+    v = np.zeros(n) if a1 is None else a1.copy()
+    if linear.kind == "body" and linear.body.k3 != 0 and a1 is not None:
+        v += linear.body.k3 * integrate(a1, fs_hz, band=model.band).displacement   # paper Eq. 2: K3·x2 = K3·(z + x1)
+    if force is not None:
+        if model.force_gain == 0:
+            raise ConfigError("a force was given but the model has no force input (force_gain = 0)",
+                              channel="force", hint="identify the model with the measured force")
+        v -= model.force_gain * force
+    return v
+
+
+def _check_input(x, name: str, n: int | None) -> np.ndarray | None:
+    if x is None:
+        return None
+    a = np.asarray(x, dtype=float).ravel()
+    if a.size == 0 or not np.all(np.isfinite(a)):
+        raise InputError(f"{name} must be a non-empty finite signal", channel=name)
+    if n is not None and a.size != n:
+        raise InputError(f"{name} has {a.size} samples, the spindle acceleration {n}", channel=name)
+    return a
+
+
+def predict_body(model: IdentifiedModel, spindle_accel: np.ndarray | None, fs_hz: float, *,
+                 force: np.ndarray | None = None, method: Method = "parametric", engine: Engine | None = None,
+                 oversample: int = DEFAULT_OVERSAMPLE, label: str | None = None, tol: float = 1e-6,
+                 max_iter: int = 200, relax: float = 1.0, pad_s: float = 5.0) -> Prediction:
     """Predict the body acceleration from a measured spindle acceleration (METHOD.md §4).
 
     Parameters
     ----------
     model : IdentifiedModel
-    spindle_accel : ndarray, shape (n,)
-        Measured spindle acceleration [m/s²] (any amplitude level).
+    spindle_accel : ndarray, shape (n,), or None
+        Measured spindle acceleration [m/s²] (any amplitude level); None for a
+        fixed spindle (then ``force`` drives the model).
     fs_hz : float
         Its sample rate [Hz].
+    force : ndarray, shape (n,), optional
+        Measured force on the body [N] (models with ``force_gain`` > 0).
     method : {'parametric', 'nonparametric'}
-        Source of the linear responses (see the module docstring).
-    tol : float
-        Convergence: relative RMS change of z between iterations.
-    max_iter : int
-        Iterations before giving up.
+        Linear responses from the model's linear part (default), or the
+        identified T21(ω), B_i(ω) (module docstring).
+    engine : {'time', 'frequency'}, optional
+        Force an engine: 'frequency' raises :class:`ConfigError` where its
+        convergence is not guaranteed. Default: 'time' for 'parametric'; the
+        frequency domain where provable, else time, for 'nonparametric'.
+    oversample : int
+        Fine steps per sample of the time-domain engine.
+    label : str, optional
+        Names the record in error messages.
+    tol, max_iter : float, int
+        Frequency domain only: convergence (relative RMS change of z) and iterations.
     relax : float
-        Initial relaxation factor in (0, 1]; halved automatically when the
-        change grows.
+        Accepted for compatibility; the provable Picard iteration does not relax.
     pad_s : float
-        Zeros added at both ends [s] so the periodic FFT solution does not wrap.
+        Frequency domain only: zeros added at both ends [s].
 
     Returns
     -------
@@ -367,64 +374,99 @@ def predict_body(model: IdentifiedModel, spindle_accel: np.ndarray, fs_hz: float
     Raises
     ------
     PredictionDivergedError
-        When the iteration does not converge (the message gives the last change).
+        When the model's response grows without bound (names the record, level, reason).
     InputError
         For non-finite or empty input.
     """
-    a1 = np.asarray(spindle_accel, dtype=float).ravel()
-    if a1.size == 0 or not np.all(np.isfinite(a1)):
-        raise InputError("spindle acceleration must be a non-empty finite signal", channel="spindle_accel")
+    a1 = _check_input(spindle_accel, "spindle_accel", None)
+    force = _check_input(force, "force", None if a1 is None else a1.size)
+    if a1 is None and force is None:
+        raise InputError("nothing drives the model: give the spindle acceleration or a force", channel="spindle_accel")
     if not (0 < relax <= 1):
         raise ConfigError(f"relax={relax!r} must be in (0, 1]")
+    n = (a1 if a1 is not None else force).size
+    if method not in ("parametric", "nonparametric"):
+        raise ConfigError(f"method={method!r} must be 'parametric' or 'nonparametric'")
+    if engine not in (None, "time", "frequency"):
+        raise ConfigError(f"engine={engine!r} must be 'time' or 'frequency'")
+    linear = model.linear
+    note = ""
+    if method == "nonparametric" and engine != "time":
+        nfft = scipy.fft.next_fast_len(n + 2 * int(round(pad_s * fs_hz)), real=True)
+        f = np.fft.rfftfreq(nfft, 1.0 / fs_hz)
+        hz, bz = _line_responses(model, f)
+        rho = contraction_bound(model.terms, bz, f)
+        if rho < 1 and not (linear.kind == "body" and linear.body.k3 != 0):
+            return _predict_frequency(model, a1, force, fs_hz, hz, bz, nfft, rho, method, tol, max_iter, pad_s)
+        if engine == "frequency":
+            raise ConfigError(f"the frequency-domain fixed point is not provably convergent for this model "
+                              f"(contraction bound {rho:.3g} ≥ 1)", hint="use the time-domain engine (the default)")
+        linear = model.linear if model.linear.kind == "rational" else fit_rational(
+            model.freq_hz, model.t21, band_hz=model.analysis_band_hz)
+        note = f" (frequency domain not provably convergent: contraction bound {rho:.3g})"
+    elif engine == "frequency":
+        nfft = scipy.fft.next_fast_len(n + 2 * int(round(pad_s * fs_hz)), real=True)
+        f = np.fft.rfftfreq(nfft, 1.0 / fs_hz)
+        hz = linear.hz(f)
+        hz[f == 0] = 0
+        bz = model.c_over_m2[:, None] * hz[None, :]
+        rho = contraction_bound(model.terms, bz, f)
+        if rho >= 1 or (linear.kind == "body" and linear.body.k3 != 0):
+            raise ConfigError(f"the frequency-domain fixed point is not provably convergent for this model "
+                              f"(contraction bound {rho:.3g} ≥ 1, or k3 ≠ 0)",
+                              hint="use the time-domain engine (the default)")
+        return _predict_frequency(model, a1, force, fs_hz, hz, bz, nfft, rho, method, tol, max_iter, pad_s)
+    return _predict_time(model, linear, a1, force, fs_hz, oversample, label,
+                         f"time domain, {linear.kind} linear part of order {linear.order}{note}")
+
+
+def _edge(linear: LinearPart, fs_hz: float, n: int) -> int:
+    return int(min(n // 4, np.ceil(5 * linear.slowest_decay_s() * fs_hz)))
+
+
+def _predict_time(model, linear, a1, force, fs_hz, oversample, label, what) -> Prediction:
+    n = (a1 if a1 is not None else force).size
+    v = _external(model, linear, a1, force, fs_hz, n)
+    lin = simulate_response(linear, (), (), v, fs_hz, spindle_accel=a1, oversample=oversample)
+    resp = lin
+    if model.terms:
+        limit = DIVERGENCE_FACTOR * max(float(np.max(np.abs(lin.z))), 1e-12)
+        resp = simulate_response(linear, model.terms, model.c_over_m2, v, fs_hz, spindle_accel=a1,
+                                 oversample=oversample, z_limit=limit)
+        if resp.diverged_at >= 0:
+            k = resp.diverged_at
+            zk = resp.z[min(k, n - 1)]
+            why = (f"|z| exceeded {DIVERGENCE_FACTOR:g}× the linear model's peak ({limit:.3g} m)"
+                   if np.isfinite(zk) and abs(zk) > limit or not np.isfinite(zk)
+                   else "the state escapes: the implicit step has no finite solution for the strut force")
+            raise PredictionDivergedError(
+                f"the identified model's response grows without bound at this level ({_level(a1, force)}): {why} "
+                f"at t = {k / fs_hz:.2f} s", source=label,
+                hint="the model is unstable at this amplitude (e.g. a softening or negative term outgrowing the "
+                     "linear part): identify it on data that covers this level, or leave that term out")
+    return Prediction(body_accel=resp.body_accel, z=resp.z, zdot=resp.zdot, iterations=0, residual=0.0,
+                      method=what, edge_samples=_edge(linear, fs_hz, n), engine="time", oversample=resp.oversample)
+
+
+def _predict_frequency(model, a1, force, fs_hz, hz, bz, nfft, rho, method, tol, max_iter, pad_s) -> Prediction:
+    n = (a1 if a1 is not None else force).size
     pad = int(round(pad_s * fs_hz))
-    n = a1.size
-    nfft = scipy.fft.next_fast_len(n + 2 * pad, real=True)
     x = np.zeros(nfft)
-    x[pad:pad + n] = a1
+    x[pad:pad + n] = _external(model, model.linear, a1, force, fs_hz, n)
     f = np.fft.rfftfreq(nfft, 1.0 / fs_hz)
     w = 2 * np.pi * f
-    A1 = scipy.fft.rfft(x)
-    hz, bz = _responses(model, f, method)
-    nt = len(model.terms)
-    Z = hz * A1
-    z = scipy.fft.irfft(Z, nfft)
-    zd = scipy.fft.irfft(1j * w * Z, nfft)
-    it, change, r = 0, 0.0, float(relax)
-    if nt:
-        sl = slice(pad, pad + n)
-        prev_change = np.inf
-        for it in range(1, max_iter + 1):
-            g = _evaluate(model.terms, z, zd)
-            # equivalent linearisation of each g on the current iterate (α·z + β·ż)
-            basis = np.stack([z[sl], zd[sl]], axis=1)
-            coef = np.linalg.lstsq(basis, g[:, sl].T, rcond=None)[0] if np.any(basis) else np.zeros((2, nt))
-            lam = coef[0][:, None] + 1j * w[None, :] * coef[1][:, None]            # (nt, nf)
-            G = scipy.fft.rfft(g, axis=1)
-            denom = 1 - np.sum(bz * lam, axis=0)
-            Znew = (hz * A1 + np.sum(bz * (G - lam * Z[None, :]), axis=0)) / denom
-            Znew[~np.isfinite(Znew)] = 0
-            Zrel = (1 - r) * Z + r * Znew
-            zn = scipy.fft.irfft(Zrel, nfft)
-            change = float(np.sqrt(np.mean((zn[sl] - z[sl]) ** 2)) / max(np.sqrt(np.mean(zn[sl] ** 2)), 1e-300))
-            if not np.isfinite(change):
-                raise PredictionDivergedError(f"prediction diverged after {it} iterations (non-finite response)",
-                                              hint="check the model (c_over_m2, body) and the input level")
-            if change > prev_change * 1.5 and r > 1 / 64:
-                r *= 0.5                                                               # back off, keep iterate
-            Z, z = Zrel, zn
-            zd = scipy.fft.irfft(1j * w * Z, nfft)
-            prev_change = change
-            if change < tol:
-                break
-        else:
-            raise PredictionDivergedError(
-                f"prediction did not converge in {max_iter} iterations (last relative change {change:.2e}, "
-                f"relaxation {r:g})", hint="lower relax, raise max_iter, or check the model at this input level")
-    A2 = A1 - w**2 * Z
-    a2 = scipy.fft.irfft(A2, nfft)[pad:pad + n]
-    edge = int(min(n // 4, np.ceil(10.0 / max(model.body.c, 0.1) * fs_hz)))   # 5 decay times of the body mode
-    return Prediction(body_accel=a2, z=z[pad:pad + n], zdot=zd[pad:pad + n], iterations=it, residual=change,
-                      method=method, edge_samples=edge)
+    sl = slice(pad, pad + n)
+    Z, it, change = fixed_point_solve(model.terms, hz, bz, scipy.fft.rfft(x), nfft, fs_hz, sl, tol=tol,
+                                      max_iter=max_iter)
+    a1p = np.zeros(nfft)
+    if a1 is not None:
+        a1p[pad:pad + n] = a1
+    a2 = scipy.fft.irfft(scipy.fft.rfft(a1p) - w**2 * Z, nfft)[sl]
+    z = scipy.fft.irfft(Z, nfft)[sl]
+    zd = scipy.fft.irfft(1j * w * Z, nfft)[sl]
+    return Prediction(body_accel=a2, z=z, zdot=zd, iterations=it, residual=change,
+                      method=f"frequency domain ({method}), Picard iteration, contraction bound {rho:.3g}",
+                      edge_samples=_edge(model.linear, fs_hz, n), engine="frequency", oversample=0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -459,7 +501,8 @@ def predict_transmissibility(model: IdentifiedModel, spindle_accel: np.ndarray, 
 
     The prediction's start-up edges are left out; the spectra come from the
     one spectral engine with ``settings`` (the model's by default), so the
-    answer compares line by line with the measured transmissibility at that level.
+    answer compares line by line with the measured transmissibility at that
+    level. ``solver`` goes to :func:`predict_body` (``force``, ``engine``, ``label``, …).
     """
     pred = predict_body(model, spindle_accel, fs_hz, method=method, **solver)
     settings = settings or model.settings

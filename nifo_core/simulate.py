@@ -43,6 +43,8 @@ from .describing import Term, make_term
 from .errors import ConfigError
 from .record import Record
 from .road import ChirpRoad, RandomRoad, Road, road_from_dict, road_signal
+from .strut_forces import strut_arrays
+from .strut_forces import strut_force as _strut_force
 from .vehicle import QuarterCar
 
 __all__ = ["StrutForce", "RandomRoad", "ChirpRoad", "SensorNoise", "SimConfig", "Simulation", "Truth",
@@ -339,67 +341,7 @@ def preset(name: str) -> tuple[StrutForce, ...]:
 # --------------------------------------------------------------------------------------------
 # the compiled integrator
 # --------------------------------------------------------------------------------------------
-# kind codes (must match _KIND_CODES below)
-_CUBIC, _CLEAR, _SAT, _BUMP_C, _BUMP_R, _PLAY, _VDZ, _VSAT, _COUL, _QUAD, _ASYM_R, _ASYM_C = range(12)
-
-
-def _kind_code(t: Term) -> tuple[int, float, float]:
-    """(code, p0, p1) of a term for the compiled force evaluation."""
-    p = t.params
-    simple = {"cubic_stiffness": (_CUBIC, 0.0), "clearance": (_CLEAR, p.get("gap")),
-              "saturation": (_SAT, p.get("limit")), "backlash": (_PLAY, 0.5 * p.get("deadband", 0.0)),
-              "velocity_deadzone": (_VDZ, p.get("knee")), "velocity_saturation": (_VSAT, p.get("limit")),
-              "coulomb": (_COUL, p.get("eps")), "quadratic_damping": (_QUAD, 0.0)}
-    if t.kind in simple:
-        code, p0 = simple[t.kind]
-        return code, float(p0), 0.0
-    if t.kind == "bump_stop":
-        return (_BUMP_C if p["side"] == "compression" else _BUMP_R), p["gap"], p["offset"]
-    if t.kind == "asymmetric_damping":
-        return (_ASYM_R if p["side"] == "rebound" else _ASYM_C), 0.0, 0.0
-    raise ConfigError(f"the simulator has no code for kind {t.kind!r}")  # pragma: no cover
-
-
-@numba.njit(cache=True)
-def _g(code, p0, p1, z, zd, y):  # pragma: no cover - compiled
-    """One basis function, written as describing.py computes it (same rounding)."""
-    if code == _CUBIC:
-        return z**3
-    if code == _CLEAR or code == _VDZ:
-        x = z if code == _CLEAR else zd
-        return np.sign(x) * max(abs(x) - p0, 0.0)
-    if code == _SAT or code == _VSAT:
-        x = z if code == _SAT else zd
-        return min(max(x, -p0), p0)
-    if code == _BUMP_C:
-        return min(z - p1 + p0, 0.0)
-    if code == _BUMP_R:
-        return max(z - p1 - p0, 0.0)
-    if code == _PLAY:
-        if y < z - p0:
-            return z - p0
-        if y > z + p0:
-            return z + p0
-        return y
-    if code == _COUL:
-        return np.tanh(zd / p0)
-    if code == _QUAD:
-        return zd * abs(zd)
-    if code == _ASYM_R:
-        return max(zd, 0.0)
-    return min(zd, 0.0)  # _ASYM_C
-
-
-@numba.njit(cache=True)
-def _strut_force(z, zd, codes, coef, p0, p1, play, commit):  # pragma: no cover - compiled
-    """N1 = Σ c_i·g_i(z, ż) (paper Eq. 1-2); commits the play states when ``commit``."""
-    n1 = 0.0
-    for i in range(codes.size):
-        g = _g(codes[i], p0[i], p1[i], z, zd, play[i])
-        if commit and codes[i] == _PLAY:
-            play[i] = g
-        n1 += coef[i] * g
-    return n1
+# strut forces by kind code: one compiled definition, shared with the prediction engine
 
 
 @numba.njit(cache=True)
@@ -558,12 +500,7 @@ def _generator(rng) -> tuple[np.random.Generator, int | None]:
 
 
 def _strut_arrays(strut: tuple[StrutForce, ...]):
-    rows = [_kind_code(s.term) for s in strut]
-    codes = np.array([r[0] for r in rows], dtype=np.int64)
-    p0 = np.array([r[1] for r in rows], dtype=np.float64)
-    p1 = np.array([r[2] for r in rows], dtype=np.float64)
-    coef = np.array([s.coefficient for s in strut], dtype=np.float64)
-    return codes, coef, p0, p1
+    return strut_arrays([s.term for s in strut], [s.coefficient for s in strut])
 
 
 def _integrate(cfg: SimConfig, xb, xbd, n_steps: int, rec: tuple[int, int],

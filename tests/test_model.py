@@ -115,8 +115,25 @@ def test_a_model_file_without_terms_is_refused_by_name():
         IdentifiedModel.from_dict({"freq_hz": [0.0, 1.0]})
 
 
-def test_a_solve_that_does_not_converge_raises_with_the_last_change():
-    model = _hand_model([DZ], [-2.0], BodyModel(73.3, 4.67))
+def test_a_model_unstable_at_the_level_raises_naming_the_record_level_and_reason():
+    # a softening cubic (γ = -1e7 1/(s²·m²)) loses all stiffness beyond |z| = 2.7 mm: a large input escapes
+    model = _hand_model([Term("cubic_stiffness")], [-1e7], BodyModel(73.3, 4.67))
     a1 = 20 * np.random.default_rng(1).standard_normal(20_000)
-    with pytest.raises(PredictionDivergedError, match="did not converge"):
-        predict_body(model, a1, FS, max_iter=2, tol=1e-14)
+    with pytest.raises(PredictionDivergedError, match=r"run7\.mcap: .*grows without bound.*spindle RMS 19.9 m/s²"):
+        predict_body(model, a1, FS, label="run7.mcap")
+    small = predict_body(model, 0.002 * a1, FS, label="run7.mcap")       # well inside the barrier: fine
+    assert np.all(np.isfinite(small.body_accel)) and small.engine == "time"
+
+
+def test_the_frequency_domain_path_runs_only_where_it_provably_converges():
+    model = _hand_model([DZ], [-2.0], BodyModel(73.3, 4.67))
+    a1 = signal.sosfiltfilt(signal.butter(4, 30, fs=FS, output="sos"), np.random.default_rng(2).standard_normal(30_000))
+    fd = predict_body(model, a1, FS, engine="frequency", tol=1e-10)
+    td = predict_body(model, a1, FS)
+    v = td.valid
+    assert fd.engine == "frequency" and "contraction bound" in fd.method
+    assert np.std(fd.body_accel[v] - td.body_accel[v]) < 1e-3 * np.std(td.body_accel[v])
+    stiff = _hand_model([Term("coulomb", {"eps": 0.005})], [0.5], BodyModel(73.3, 4.67))   # L = 100/s: ρ ≫ 1
+    with pytest.raises(ConfigError, match="not provably convergent"):
+        predict_body(stiff, a1, FS, engine="frequency")
+    assert predict_body(stiff, a1, FS, method="nonparametric").engine == "time"

@@ -12,8 +12,29 @@ naming file, channel and fix (timestamps not increasing or gapped, channels at
 different rates or on different clocks, NaN/inf samples).
 
 For commands: :func:`add_input_arguments` adds ``--topics``, ``--columns``,
-``--fs`` and ``--axis`` to a parser and :func:`input_options` turns the parsed
+``--fs``, ``--axis``, ``--skip-seconds``, ``--skip-periods`` and
+``--period-samples`` to a parser and :func:`input_options` turns the parsed
 arguments into keyword arguments for :func:`load_record`.
+
+Channel roles (``--columns ROLE=NAME``, CSV and MAT): ``spindle_accel``,
+``body_accel`` [m/s²], ``tire_patch_disp`` [m], ``force`` [N] (on the body) and
+``body_disp`` (a displacement recorded instead of ``body_accel``: it is
+differentiated twice, exactly for periodic data — see
+:func:`nifo_core.record.acceleration_from_displacement`). Two forms extend a
+NAME: ``NAME@FILE`` reads that channel from another file (CSV column or MAT
+key; FILE relative to the data file's directory, or absolute), e.g. the
+Silverbox's input and output::
+
+    --columns force=um@SNJP_um_full_FNSI_50.mat,body_disp=ym,spindle_accel=fixed,fs=fs
+
+and ``spindle_accel=fixed`` declares a spindle that does not move (a single
+mass driven by the measured force). The channel from the other file must have
+the same number of samples (and rate, when that file gives one).
+
+Transient start: ``skip_seconds`` drops that much from the start,
+``skip_periods`` drops whole periods of ``period_samples`` (multisine data:
+the periods before the steady state). Both are applied after channels are
+combined and before a displacement is differentiated.
 """
 
 from __future__ import annotations
@@ -21,29 +42,83 @@ from __future__ import annotations
 import argparse
 import os
 from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
-from nifo_core.errors import (ConfigError, DataFileError, NifoError, NonFiniteError, SampleRateError,
-                              TimestampError)
-from nifo_core.record import CHANNELS, Record
+from nifo_core.errors import (ConfigError, DataFileError, NifoError, NonFiniteError, RecordTooShortError,
+                              SampleRateError, TimestampError)
+from nifo_core.record import Record, acceleration_from_displacement
 from nifo_core.timebase import check_common_rate, sample_rate_from_stamps
 
 if TYPE_CHECKING:
     from .bag import BagTopics
 
 __all__ = ["load_record", "save_record", "load_records", "iter_record_chunks", "detect_format", "assemble_record",
-           "parse_columns", "add_input_arguments", "input_options", "COLUMN_KEYS"]
+           "parse_columns", "add_input_arguments", "input_options", "COLUMN_KEYS", "READ_ROLES", "Assembly", "Skip"]
 
 Format = Literal["bag", "csv", "mat"]
 Axis = Literal["x", "y", "z"]
 
+#: channel roles a CSV/MAT reader looks for (``body_disp`` becomes ``body_accel``)
+READ_ROLES = ("spindle_accel", "body_accel", "body_disp", "tire_patch_disp", "force")
 #: keys of a ``columns`` mapping (CSV column names / MAT keys), with accepted aliases
-COLUMN_KEYS = ("time", *CHANNELS, "fs", "t0_ns")
+COLUMN_KEYS = ("time", *READ_ROLES, "fs", "t0_ns")
 _COLUMN_ALIASES = {"t": "time", "spindle": "spindle_accel", "body": "body_accel",
                    "tire_patch": "tire_patch_disp", "fs_hz": "fs"}
+#: ``spindle_accel=fixed``: the spindle does not move
+FIXED = "fixed"
+
+
+@dataclass(frozen=True)
+class Skip:
+    """Samples to drop from the start of a record (a transient): seconds, or whole periods."""
+
+    seconds: float | None = None
+    periods: int | None = None
+    period_samples: int | None = None
+
+    def samples(self, fs_hz: float, n: int, *, source: str) -> int:
+        """Samples to drop from a record of ``n`` samples at ``fs_hz``; a clear error if nothing would be left."""
+        k = 0
+        if self.seconds is not None:
+            k += int(round(self.seconds * fs_hz))
+        if self.periods is not None:
+            k += int(self.periods) * int(self.period_samples)
+        if k >= n:
+            raise RecordTooShortError(f"skipping {k} samples ({k / fs_hz:.3g} s) leaves nothing of {n}",
+                                      source=source, channel="--skip-seconds/--skip-periods",
+                                      hint="skip less than the record's length")
+        return k
+
+    @property
+    def active(self) -> bool:
+        return bool(self.seconds) or bool(self.periods)
+
+
+@dataclass(frozen=True)
+class Assembly:
+    """What :func:`assemble_record` does besides stamps → Record (set by :func:`load_record`).
+
+    extra : {role: (values, label, rate in Hz or None)}
+        Channels read from other files (``NAME@FILE``), appended as they are.
+    spindle_fixed : bool
+        ``spindle_accel=fixed``: build the record with a fixed spindle.
+    skip : Skip
+        Transient start to drop.
+    required : frozenset
+        Roles the reader must find in the file.
+    collect : bool
+        Return ``{role: values}`` and the rate instead of a Record (reading one channel of another file).
+    """
+
+    extra: Mapping[str, tuple[np.ndarray, str, float | None]] = field(default_factory=dict)
+    spindle_fixed: bool = False
+    skip: Skip = Skip()
+    required: frozenset = frozenset({"spindle_accel", "body_accel"})
+    collect: bool = False
 
 _BAG_SUFFIXES = {".mcap", ".db3"}
 _CSV_SUFFIXES = {".csv", ".tsv", ".txt"}
@@ -86,7 +161,8 @@ def detect_format(path: str | os.PathLike) -> Format:
 
 def load_record(path: str | os.PathLike, *, topics: "BagTopics | None" = None,
                 columns: Mapping[str, str] | None = None, fs_hz: float | None = None,
-                axis: Axis = "z") -> Record:
+                axis: Axis = "z", skip_seconds: float | None = None, skip_periods: int | None = None,
+                period_samples: int | None = None) -> Record:
     """Read one data file into a :class:`Record`.
 
     Parameters
@@ -97,13 +173,21 @@ def load_record(path: str | os.PathLike, *, topics: "BagTopics | None" = None,
         Bag topics for the roles; found by name when not given (bags only).
     columns : mapping, optional
         CSV column / MAT key for each of ``time``, ``spindle_accel``,
-        ``body_accel``, ``tire_patch_disp``, ``fs`` (CSV and MAT only). MAT
-        keys may pick a row of a 2-D array: ``"Acceleration[1]"``.
+        ``body_accel``, ``body_disp``, ``tire_patch_disp``, ``force``, ``fs``
+        (CSV and MAT only). MAT keys may pick a row of a 2-D array:
+        ``"Acceleration[1]"``; ``NAME@FILE`` reads from another file and
+        ``spindle_accel="fixed"`` declares a fixed spindle (module docstring).
     fs_hz : float, optional
         Sample rate [Hz] for files without time stamps; when the file has
         stamps it must agree with them.
     axis : {"x", "y", "z"}
         The vector component read from Imu / PointStamped messages (bags only).
+    skip_seconds : float, optional
+        Drop this much from the start (a transient) [s].
+    skip_periods, period_samples : int, optional
+        Drop ``skip_periods`` whole periods of ``period_samples`` samples from
+        the start (periodic data); ``period_samples`` alone makes a
+        displacement channel's derivative exact when the record is whole periods.
 
     Raises
     ------
@@ -114,23 +198,118 @@ def load_record(path: str | os.PathLike, *, topics: "BagTopics | None" = None,
         :class:`RecordTooShortError`, :class:`ConfigError`.
     """
     fmt = detect_format(path)
+    skip = _skip(skip_seconds, skip_periods, period_samples, source=str(path))
     if fmt == "bag":
         from .bag import read_bag
         rec = read_bag(path, topics=topics, axis=axis)
         if fs_hz is not None:
             _check_declared_rate(rec.fs_hz, fs_hz, source=str(path))
+        if skip.active:
+            k = skip.samples(rec.fs_hz, rec.n, source=str(path))
+            rec = rec.slice(k, rec.n)
+            rec = _with_meta(rec, skipped_samples=k)
         return rec
-    cols = _normalise_columns(columns)
+    cols, asm = _plan(path, _normalise_columns(columns), fs_hz=fs_hz, skip=skip)
+    if fs_hz is None:   # a file without a rate takes the rate of a channel combined from another file
+        fs_hz = next((f for _, _, f in asm.extra.values() if f is not None), None)
+    return _read_tabular(fmt, path, cols, fs_hz, asm)
+
+
+def _read_tabular(fmt: str, path, cols: Mapping[str, str], fs_hz: float | None, asm: Assembly):
     if fmt == "csv":
         from .tabular import read_csv
-        return read_csv(path, columns=cols, fs_hz=fs_hz)
-    from .matfile import read_mat
-    return read_mat(path, columns=cols, fs_hz=fs_hz)
+        return read_csv(path, columns=cols, fs_hz=fs_hz, assembly=asm)
+    if fmt == "mat":
+        from .matfile import read_mat
+        return read_mat(path, columns=cols, fs_hz=fs_hz, assembly=asm)
+    raise DataFileError("a channel from another file must come from a CSV or MAT file", source=str(path),
+                        hint="give NAME@FILE with a .csv or .mat file")
+
+
+def _with_meta(rec: Record, **items) -> Record:
+    from dataclasses import replace
+    return replace(rec, meta={**dict(rec.meta), **items})
+
+
+def _skip(seconds, periods, period_samples, *, source: str) -> Skip:
+    if seconds is not None and not (np.isfinite(seconds) and seconds >= 0):
+        raise ConfigError(f"--skip-seconds {seconds!r} must be a time >= 0 [s]", source=source,
+                          channel="--skip-seconds", hint="e.g. --skip-seconds 2")
+    if period_samples is not None and int(period_samples) < 1:
+        raise ConfigError(f"--period-samples {period_samples!r} must be a positive number of samples",
+                          source=source, channel="--period-samples", hint="e.g. --period-samples 8192")
+    if periods is not None:
+        if int(periods) < 0:
+            raise ConfigError(f"--skip-periods {periods!r} must be >= 0", source=source, channel="--skip-periods",
+                              hint="e.g. --skip-periods 1")
+        if period_samples is None:
+            raise ConfigError("--skip-periods needs the period's length", source=source, channel="--skip-periods",
+                              hint="add --period-samples N (samples per period, e.g. 8192)")
+    return Skip(seconds, None if periods is None else int(periods),
+                None if period_samples is None else int(period_samples))
+
+
+def _external_path(base: str | os.PathLike, name: str) -> Path:
+    p = Path(name).expanduser()
+    if not p.is_absolute():
+        near = Path(base).parent / p
+        p = near if near.exists() or not p.exists() else p
+    if not p.exists():
+        raise DataFileError(f"no such file {name!r} (looked beside {Path(base).name} and in the working directory)",
+                            source=str(base), channel="--columns",
+                            hint="give NAME@FILE with FILE relative to the data file's directory, or absolute")
+    return p
+
+
+def _plan(path, cols: dict[str, str], *, fs_hz: float | None, skip: Skip) -> tuple[dict[str, str], Assembly]:
+    """Split ``columns`` into what the reader reads from ``path`` and what the loader adds (module docstring)."""
+    local: dict[str, str] = {}
+    extra: dict[str, tuple[np.ndarray, str, float | None]] = {}
+    spindle_fixed = False
+    for role, name in cols.items():
+        if role == "spindle_accel" and name.strip().lower() == FIXED:
+            spindle_fixed = True
+        elif role in READ_ROLES and "@" in name:
+            key, _, other = name.rpartition("@")
+            if not key.strip() or not other.strip():
+                raise ConfigError(f"cannot read --columns {role}={name!r}", source=str(path), channel="--columns",
+                                  hint="write ROLE=NAME@FILE, e.g. force=um@SNJP_um_full_FNSI_50.mat")
+            extra[role] = _read_external(path, _external_path(path, other.strip()), key.strip(), role, fs_hz)
+        else:
+            local[role] = name
+    if "body_disp" in cols and "body_accel" in cols:
+        raise ConfigError("both body_accel and body_disp are given", source=str(path), channel="--columns",
+                          hint="give the body's acceleration or its displacement, not both")
+    if spindle_fixed and "force" not in cols:
+        raise ConfigError("a fixed spindle needs a measured force", source=str(path), channel="--columns",
+                          hint="add force=NAME (or NAME@FILE) to --columns, or name the spindle column")
+    required = {"spindle_accel", "body_accel"} - set(extra)
+    if spindle_fixed:
+        required.discard("spindle_accel")
+    if "body_disp" in cols:
+        required.discard("body_accel")
+        if "body_disp" not in extra:
+            required.add("body_disp")
+    return local, Assembly(extra=extra, spindle_fixed=spindle_fixed, skip=skip, required=frozenset(required))
+
+
+def _read_external(base, path: Path, key: str, role: str,
+                   fs_hz: float | None) -> tuple[np.ndarray, str, float | None]:
+    """One channel (CSV column or MAT key ``key``) of another file, for ``role``."""
+    fmt = detect_format(path)
+    if fmt == "bag":
+        raise DataFileError("a channel from another file must come from a CSV or MAT file", source=str(base),
+                            channel=role, hint=f"convert {path.name} to CSV or MAT, or use a bag with all topics")
+    cols = {role: key}
+    got = _read_tabular(fmt, path, cols, fs_hz, Assembly(required=frozenset({role}), collect=True))
+    values, fs_file = got
+    return values, f"{key}@{path.name}", fs_file
 
 
 def iter_record_chunks(path: str | os.PathLike, *, chunk_samples: int, topics: "BagTopics | None" = None,
                        columns: Mapping[str, str] | None = None, fs_hz: float | None = None,
-                       axis: Axis = "z") -> Iterator[Record]:
+                       axis: Axis = "z", skip_seconds: float | None = None, skip_periods: int | None = None,
+                       period_samples: int | None = None) -> Iterator[Record]:
     """:func:`load_record`, handed out as consecutive chunks of ``chunk_samples`` samples.
 
     Bags (single indexed MCAP) are decoded chunk by chunk with the same numpy
@@ -139,19 +318,36 @@ def iter_record_chunks(path: str | os.PathLike, *, chunk_samples: int, topics: "
     Every chunk's ``meta["chunk"]`` holds ``index``, ``start`` (sample) and
     ``total_samples`` (expected for the whole file). Pushing the chunks in
     order into a streaming estimator gives what the whole record would.
+    A skipped start (``skip_*``, see :func:`load_record`) is dropped before the first chunk.
     """
     fmt = detect_format(path)
     if fmt != "bag":
         from .bag import _record_chunks
-        yield from _record_chunks(load_record(path, topics=topics, columns=columns, fs_hz=fs_hz, axis=axis),
-                                  int(chunk_samples))
+        yield from _record_chunks(load_record(path, topics=topics, columns=columns, fs_hz=fs_hz, axis=axis,
+                                              skip_seconds=skip_seconds, skip_periods=skip_periods,
+                                              period_samples=period_samples), int(chunk_samples))
         return
+    from dataclasses import replace
+
     from .bag import iter_bag_chunks
-    first = True
+    skip = _skip(skip_seconds, skip_periods, period_samples, source=str(path))
+    first, left = True, 0
     for rec in iter_bag_chunks(path, chunk_samples=chunk_samples, topics=topics, axis=axis):
-        if first and fs_hz is not None:
-            _check_declared_rate(rec.fs_hz, fs_hz, source=str(path))
+        if first:
+            if fs_hz is not None:
+                _check_declared_rate(rec.fs_hz, fs_hz, source=str(path))
+            total = int(rec.meta.get("chunk", {}).get("total_samples", rec.n))
+            left = skip.samples(rec.fs_hz, total, source=str(path)) if skip.active else 0
         first = False
+        if left:
+            if left >= rec.n:
+                left -= rec.n
+                continue
+            rec, left = rec.slice(left, rec.n), 0
+        if skip.active and "chunk" in rec.meta:
+            k = skip.samples(rec.fs_hz, int(rec.meta["chunk"]["total_samples"]), source=str(path))
+            ch = dict(rec.meta["chunk"], total_samples=int(rec.meta["chunk"]["total_samples"]) - k)
+            rec = replace(rec, meta={**dict(rec.meta), "chunk": ch, "skipped_samples": k})
         yield rec
 
 
@@ -215,18 +411,26 @@ def parse_columns(text: str) -> dict[str, str]:
 
 
 def add_input_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add the options every data-reading command shares: --topics, --columns, --fs, --axis."""
+    """Add the options every data-reading command shares: --topics, --columns, --fs, --axis, --skip-*."""
     g = parser.add_argument_group("input data")
     g.add_argument("--topics", metavar="ROLE=TOPIC,...",
                    help="bag topics, e.g. spindle=/a/imu,body=/b/imu[,tire_patch=/c] "
                         "(default: /nifo/... or found by name)")
     g.add_argument("--columns", metavar="ROLE=NAME,...",
                    help="CSV columns / MAT keys, e.g. time=t,spindle_accel=a_wheel,body_accel=a_body; "
-                        "MAT rows as KEY[i], fs=KEY (default: time,spindle_accel,body_accel,tire_patch_disp)")
+                        "MAT rows as KEY[i], fs=KEY; also force=NAME [N], body_disp=NAME (displacement instead "
+                        "of body_accel), NAME@FILE (from another file), spindle_accel=fixed "
+                        "(default: time,spindle_accel,body_accel,tire_patch_disp,force)")
     g.add_argument("--fs", type=float, metavar="HZ", dest="fs_hz",
                    help="sample rate for files without a time column")
     g.add_argument("--axis", choices=("x", "y", "z"), default="z",
                    help="vector component read from Imu/PointStamped messages (default: z)")
+    g.add_argument("--skip-seconds", type=float, metavar="S", dest="skip_seconds",
+                   help="drop the first S seconds of every record (a transient start)")
+    g.add_argument("--skip-periods", type=int, metavar="P", dest="skip_periods",
+                   help="drop the first P periods of periodic (multisine) data; needs --period-samples")
+    g.add_argument("--period-samples", type=int, metavar="N", dest="period_samples",
+                   help="samples per period of periodic data (e.g. 8192); also makes body_disp's derivative exact")
 
 
 def input_options(args: argparse.Namespace) -> dict:
@@ -238,7 +442,10 @@ def input_options(args: argparse.Namespace) -> dict:
     return {"topics": BagTopics.parse(topics) if topics else None,
             "columns": parse_columns(columns) if columns else None,
             "fs_hz": getattr(args, "fs_hz", None),
-            "axis": getattr(args, "axis", "z") or "z"}
+            "axis": getattr(args, "axis", "z") or "z",
+            "skip_seconds": getattr(args, "skip_seconds", None),
+            "skip_periods": getattr(args, "skip_periods", None),
+            "period_samples": getattr(args, "period_samples", None)}
 
 
 # =============================================================================
@@ -307,7 +514,8 @@ def _align(stamps: dict[str, np.ndarray], fs: float, *, labels: Mapping[str, str
 
 def assemble_record(channels: Mapping[str, tuple[np.ndarray | None, np.ndarray]], *,
                     labels: Mapping[str, str], path: str | os.PathLike, meta: Mapping,
-                    fs_hz: float | None = None, t0_ns: int = 0, stamp_tol_ns: float = 1.0) -> Record:
+                    fs_hz: float | None = None, t0_ns: int = 0, stamp_tol_ns: float = 1.0,
+                    assembly: Assembly | None = None) -> Record:
     """Build a :class:`Record` from ``{channel: (stamp_ns or None, values)}``.
 
     With stamps: each channel's rate comes from its stamps
@@ -318,13 +526,18 @@ def assemble_record(channels: Mapping[str, tuple[np.ndarray | None, np.ndarray]]
     many samples were cut. The rate is snapped to its short decimal form when
     that reproduces every stamp within ``stamp_tol_ns``. Without stamps
     ``fs_hz`` is required. ``labels`` name channels in messages (topic, column or key).
+    ``assembly`` (from :func:`load_record`) adds channels of other files, a
+    fixed spindle, a skipped start and a displacement's derivative, in that order.
     """
     src = str(path)
     meta = dict(meta)
-    names = [c for c in CHANNELS if c in channels]
+    asm = assembly or Assembly()
+    names = [c for c in READ_ROLES if c in channels]
     values = {c: np.asarray(channels[c][1], dtype=np.float64).ravel() for c in names}
     stamps = {c: channels[c][0] for c in names}
     if all(s is None for s in stamps.values()):
+        if fs_hz is None and asm.collect:
+            return values[names[0]], None
         if fs_hz is None:
             raise ConfigError("the file has no time stamps and no sample rate was given", source=src,
                               channel="fs", hint="pass --fs HZ (fs_hz=...) or add a time column/key")
@@ -361,8 +574,33 @@ def assemble_record(channels: Mapping[str, tuple[np.ndarray | None, np.ndarray]]
             raise NonFiniteError(f"{int(bad.sum())} of {v.size} samples are NaN or infinite "
                                  f"(first at t={i / fs:.3f} s, sample {i})", source=src, channel=labels[c],
                                  hint="cut the record before/after the bad stretch or repair the sensor data")
+    if asm.collect:
+        return values[names[0]], fs
+    labels = dict(labels)
+    for role, (v, label, f_other) in asm.extra.items():            # NAME@FILE channels
+        n_here = next(iter(values.values())).size if values else v.size
+        if v.size != n_here:
+            raise TimestampError(f"{label} has {v.size} samples but the record has {n_here}", source=src,
+                                 channel=role, hint="combine channels recorded together (same length and rate)")
+        if f_other is not None and abs(f_other - fs) > 1e-6 * fs:
+            raise SampleRateError(f"{label} is sampled at {f_other:.10g} Hz, the record at {fs:.10g} Hz",
+                                  source=src, channel=role, hint="combine channels sampled at one rate")
+        values[role], labels[role] = np.asarray(v, np.float64), label
+        meta.setdefault("columns", {})[role] = label
+    if asm.skip.active:                                             # transient start
+        k = asm.skip.samples(fs, next(iter(values.values())).size, source=src)
+        values = {c: v[k:] for c, v in values.items()}
+        t0 += int(round(k * 1e9 / fs))
+        meta["skipped_samples"] = k
+    if "body_disp" in values:                                       # displacement -> acceleration
+        values["body_accel"], how = acceleration_from_displacement(values.pop("body_disp"), fs,
+                                                                   period_samples=asm.skip.period_samples)
+        meta["body_from_displacement"] = how
+    if asm.spindle_fixed:
+        meta["spindle"] = "fixed"
     try:
-        return Record(fs, values["spindle_accel"], values["body_accel"], values.get("tire_patch_disp"),
-                      t0_ns=t0, source=Path(path).name, meta=meta)
+        return Record(fs, None if asm.spindle_fixed else values["spindle_accel"], values["body_accel"],
+                      values.get("tire_patch_disp"), t0_ns=t0, source=Path(path).name, meta=meta,
+                      force=values.get("force"))
     except NifoError as err:
         raise err.with_context(source=src) from None

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from nifo_core.errors import DataFileError, MissingChannelError
-from nifo_core.record import CHANNELS, Record
+from nifo_core.record import Record
 
 from .atomic import staged_file
 
@@ -110,19 +110,24 @@ def _load(path: Path) -> dict:
 
 
 def read_mat(path: str | os.PathLike, *, columns: Mapping[str, str] | None = None,
-             fs_hz: float | None = None) -> Record:
-    """Read a ``.mat`` file (layout in the module docstring) into a :class:`Record`."""
-    from .loader import assemble_record
+             fs_hz: float | None = None, assembly=None) -> Record:
+    """Read a ``.mat`` file (layout in the module docstring) into a :class:`Record`.
+
+    ``assembly`` (:class:`nifo.io.loader.Assembly`, set by ``load_record``):
+    the roles required and what is added besides the file's keys.
+    """
+    from .loader import READ_ROLES, Assembly, assemble_record
 
     path = Path(path)
     src = str(path)
+    asm = assembly or Assembly()
     data = _load(path)
     cols = dict(columns or {})
     used: dict[str, str] = {}
     chans: dict[str, np.ndarray] = {}
-    for role in CHANNELS:
+    for role in READ_ROLES:
         spec = cols.get(role, role)
-        if role == "tire_patch_disp" and role not in cols and _key_name(spec) not in data:
+        if role not in asm.required and role not in cols and _key_name(spec) not in data:
             continue
         chans[role] = _pick(data, spec, role=role, src=src)
         used[role] = spec
@@ -157,7 +162,7 @@ def read_mat(path: str | os.PathLike, *, columns: Mapping[str, str] | None = Non
             raise DataFileError(f"key {t0_spec!r} is not one number", source=src, channel="t0_ns",
                                 hint="store t0_ns as an int64 scalar, or drop it")
         t0_ns = int(raw_t0[0])  # int64 kept exact (no float round trip)
-    if stamps is None and fs_hz is None and fs_file is None:
+    if stamps is None and fs_hz is None and fs_file is None and not asm.collect:
         raise MissingChannelError(f"no sample rate: no key fs/Fs/time; the file holds {_listing(data)}",
                                   source=src, channel="fs",
                                   hint="name the rate key with --columns fs=KEY, or give it with --fs HZ")
@@ -169,9 +174,9 @@ def read_mat(path: str | os.PathLike, *, columns: Mapping[str, str] | None = Non
     if stamps is not None:
         tol = 1.0 + 4 * float(np.spacing(np.max(np.abs(t)))) * 1e9
         return assemble_record({c: (stamps, v) for c, v in chans.items()}, labels=labels, path=path, meta=meta,
-                               fs_hz=fs_hz if fs_hz is not None else fs_file, stamp_tol_ns=tol)
+                               fs_hz=fs_hz if fs_hz is not None else fs_file, stamp_tol_ns=tol, assembly=asm)
     return assemble_record({c: (None, v) for c, v in chans.items()}, labels=labels, path=path, meta=meta,
-                           fs_hz=fs_hz if fs_hz is not None else fs_file, t0_ns=t0_ns)
+                           fs_hz=fs_hz if fs_hz is not None else fs_file, t0_ns=t0_ns, assembly=asm)
 
 
 def write_mat(path: str | os.PathLike, record: Record) -> Path:
@@ -181,8 +186,9 @@ def write_mat(path: str | os.PathLike, record: Record) -> Path:
     final = Path(path)
     out = {"spindle_accel": np.asarray(record.spindle_accel), "body_accel": np.asarray(record.body_accel),
            "fs": np.float64(record.fs_hz), "t0_ns": np.int64(record.t0_ns)}
-    if record.tire_patch_disp is not None:
-        out["tire_patch_disp"] = np.asarray(record.tire_patch_disp)
+    for name in ("tire_patch_disp", "force"):
+        if getattr(record, name) is not None:
+            out[name] = np.asarray(getattr(record, name))
     try:
         with staged_file(final) as tmp:
             scipy.io.savemat(str(tmp), out, appendmat=False, oned_as="column", do_compression=False)

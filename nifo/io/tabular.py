@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from nifo_core.errors import DataFileError, MissingChannelError
-from nifo_core.record import CHANNELS, Record
+from nifo_core.record import Record
 
 from .atomic import staged_file
 
@@ -65,13 +65,18 @@ def _bad_cell(path: Path, delim: str, header: list[str], wanted: Mapping[str, in
 
 
 def read_csv(path: str | os.PathLike, *, columns: Mapping[str, str] | None = None,
-             fs_hz: float | None = None) -> Record:
-    """Read a CSV table (layout in the module docstring) into a :class:`Record`."""
-    from .loader import assemble_record
+             fs_hz: float | None = None, assembly=None) -> Record:
+    """Read a CSV table (layout in the module docstring) into a :class:`Record`.
+
+    ``assembly`` (:class:`nifo.io.loader.Assembly`, set by ``load_record``):
+    the roles required and what is added besides the file's columns.
+    """
+    from .loader import READ_ROLES, Assembly, assemble_record
 
     path = Path(path)
     src = str(path)
-    names = {"time": "time", **{c: c for c in CHANNELS}, **dict(columns or {})}
+    asm = assembly or Assembly()
+    names = {"time": "time", **{c: c for c in READ_ROLES}, **dict(columns or {})}
     try:
         with path.open(newline="", encoding="utf-8-sig") as f:
             header_line = f.readline()
@@ -84,17 +89,17 @@ def read_csv(path: str | os.PathLike, *, columns: Mapping[str, str] | None = Non
             index = {h: j for j, h in enumerate(header)}
             wanted: dict[str, int] = {}
             explicit = set(columns or {})
-            for role in ("time", *CHANNELS):
+            for role in ("time", *READ_ROLES):
                 name = names.get(role)
                 if name in index:
                     wanted[role] = index[name]
-                elif role in ("spindle_accel", "body_accel") or role in explicit:
+                elif role in asm.required or role in explicit:
                     if role == "time" and fs_hz is not None:
                         continue
                     raise MissingChannelError(
                         f"no column {name!r}; the header has {', '.join(map(repr, header))}", source=src,
                         channel=role, hint=_FIX_COLUMNS)
-            if "time" not in wanted and fs_hz is None:
+            if "time" not in wanted and fs_hz is None and not asm.collect:
                 raise MissingChannelError(
                     f"no time column {names['time']!r} and no sample rate; the header has "
                     f"{', '.join(map(repr, header))}", source=src, channel="time",
@@ -127,22 +132,23 @@ def read_csv(path: str | os.PathLike, *, columns: Mapping[str, str] | None = Non
         stamps = np.rint(t * 1e9).astype(np.int64)
         # seconds in a float: allow the rounding of t*1e9 to whole ns
         tol = 1.0 + 4 * float(np.spacing(np.max(np.abs(t)))) * 1e9
-    chans = {c: (stamps, col[c]) for c in CHANNELS if c in col}
+    chans = {c: (stamps, col[c]) for c in READ_ROLES if c in col}
     labels = {c: f"column {names[c]}" for c in chans}
     meta = {"format": "csv", "path": src, "columns": {r: header[j] for r, j in wanted.items()},
             "delimiter": delim}
     return assemble_record(chans, labels=labels, path=path, meta=meta, fs_hz=fs_hz,
-                           stamp_tol_ns=tol if stamps is not None else 1.0)
+                           stamp_tol_ns=tol if stamps is not None else 1.0, assembly=asm)
 
 
 def write_csv(path: str | os.PathLike, record: Record) -> Path:
-    """Write ``record`` as CSV (``time,spindle_accel,body_accel[,tire_patch_disp]``); atomic."""
+    """Write ``record`` as CSV (``time,spindle_accel,body_accel[,tire_patch_disp][,force]``); atomic."""
     final = Path(path)
     cols = [record.t0_ns * 1e-9 + np.arange(record.n) / record.fs_hz, record.spindle_accel, record.body_accel]
     header = ["time", "spindle_accel", "body_accel"]
-    if record.tire_patch_disp is not None:
-        cols.append(record.tire_patch_disp)
-        header.append("tire_patch_disp")
+    for name in ("tire_patch_disp", "force"):
+        if getattr(record, name) is not None:
+            cols.append(getattr(record, name))
+            header.append(name)
     try:
         with staged_file(final) as tmp:
             np.savetxt(tmp, np.column_stack(cols), fmt="%.17g", delimiter=",", header=",".join(header),
