@@ -86,7 +86,7 @@ from .errors import ConfigError, InputError, NifoError, RecordTooShortError
 from .integrate import IntegrationBand
 from .loop_residual import _Evaluator, _evidence, _retune, _tire_check
 from .loop_results import (NOTHING_MISSING, RESIDUAL_BANDS_HZ, Errors, Evidence, LoopResult, LoopSettings, Round,
-                           Trial, _nothing_text, _round_text, before_after_text)
+                           Trial, _nothing_text, _round_text, before_after_text, unconfirmed_text)
 from .record import Record
 from .restoring import suggest_band
 
@@ -124,35 +124,36 @@ def loop_band(records: Sequence[Record], band: IntegrationBand | None = None) ->
                  f"{band.f_lo_hz:g} Hz)")
 
 
-def _heldout_failures(current: Errors, after: Errors, s: LoopSettings) -> list[str]:
-    """Why a candidate does not improve the model on held-out data (empty: it does).
+def _heldout_failures(current: Errors, after: Errors, s: LoopSettings) -> tuple[list[str], list[str]]:
+    """Why a candidate does not improve the model on held-out data: (equation side, prediction side).
 
-    It must lower the held-out equation error by ``min_heldout_gain`` (relative), lower the held-out
+    Equation side: it must lower the held-out equation error by ``min_heldout_gain`` (relative) and
+    raise no band of it by more than ``max_band_rise_db``. Prediction side: it must lower the held-out
     prediction NMSE whenever the current model has one (a model that cannot be predicted any more
-    fails), and raise no band of the held-out residual by more than ``max_band_rise_db``, neither of
-    the prediction (when both have one) nor of the equation error. A significance test alone trusts a
-    mis-specified model (F-16 level 1: a multi-mode structure read as one mass takes a play that
-    lowers the error at 2-15 Hz while the 20-30 Hz residual grows by 24 dB).
+    fails) and raise no band of the prediction error by more than ``max_band_rise_db``. A significance
+    test alone trusts a mis-specified model (F-16 level 1: a multi-mode structure read as one mass
+    takes a play that lowers the error at 2-15 Hz while the 20-30 Hz residual grows by 22 dB).
     """
-    out = []
+    eq, pred = [], []
     e0, e1 = current.equation_nmse_pct, after.equation_nmse_pct
     gain = 1 - e1 / e0 if e0 > 0 else 0.0
     if not gain >= s.min_heldout_gain:
-        out.append(f"held-out equation error {e0:.3g} % → {e1:.3g} % does not fall by {100 * s.min_heldout_gain:g} %")
+        eq.append(f"held-out equation error {e0:.3g} % → {e1:.3g} % does not fall by {100 * s.min_heldout_gain:g} %")
+    eq += _worse_bands("equation error", current.equation_band_residual_db, after.equation_band_residual_db, s)
     p0, p1 = current.prediction_nmse_pct, after.prediction_nmse_pct
     if p0 is not None and p1 is None:
-        out.append(f"the model with it cannot be predicted ({after.prediction_unavailable})")
-    elif p0 is not None and not p1 < p0:
-        out.append(f"held-out prediction NMSE does not fall ({p0:.3g} % → {p1:.3g} %)")
-    pairs = [("equation error", current.equation_band_residual_db, after.equation_band_residual_db)]
-    if p0 is not None and p1 is not None:
-        pairs.insert(0, ("prediction error", current.band_residual_db, after.band_residual_db))
-    for what, b0, b1 in pairs:
-        worse = [f"{k} Hz {b0[k]:+.1f} → {b1[k]:+.1f} dB" for k in b0
-                 if k in b1 and np.isfinite(b0[k]) and np.isfinite(b1[k]) and b1[k] > b0[k] + s.max_band_rise_db]
-        if worse:
-            out.append(f"the held-out {what} grows by more than {s.max_band_rise_db:g} dB in " + ", ".join(worse))
-    return out
+        pred.append(f"the model with it cannot be predicted ({after.prediction_unavailable})")
+    elif p0 is not None:
+        if not p1 < p0:
+            pred.append(f"held-out prediction NMSE does not fall ({p0:.3g} % → {p1:.3g} %)")
+        pred += _worse_bands("prediction error", current.band_residual_db, after.band_residual_db, s)
+    return eq, pred
+
+
+def _worse_bands(what: str, b0, b1, s: LoopSettings) -> list[str]:
+    worse = [f"{k} Hz {b0[k]:+.1f} → {b1[k]:+.1f} dB" for k in b0
+             if k in b1 and np.isfinite(b0[k]) and np.isfinite(b1[k]) and b1[k] > b0[k] + s.max_band_rise_db]
+    return [f"the held-out {what} grows by more than {s.max_band_rise_db:g} dB in " + ", ".join(worse)] if worse else []
 
 
 def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Mapping | str] = (), *,
@@ -224,9 +225,11 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
                               f"not a strut effect")
             after = ev.errors([*terms, c.term])
             gain = 1 - after.equation_nmse_pct / current.equation_nmse_pct if current.equation_nmse_pct > 0 else 0.0
-            failed += _heldout_failures(current, after, s)
+            eq_failed, pred_failed = _heldout_failures(current, after, s)
+            failed += eq_failed + pred_failed
             t = Trial(candidate=c, tire_shift=shift, tire_excluded_fraction=frac, heldout_gain=gain, after=after,
-                      accepted=not failed, failed=tuple(failed))
+                      accepted=not failed, failed=tuple(failed),
+                      unconfirmed=bool(pred_failed) and len(failed) == len(pred_failed))
             trials.append(t)
             if t.accepted:
                 added = t
@@ -235,8 +238,12 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
         if added is None:
             text = pre + _nothing_text(i, ranked, trials)
             rounds.append(Round(i, tuple(terms), ranked, tuple(trials), current, None, None, text))
-            verdict = NOTHING_MISSING if i > 1 else f"The declared model lacks nothing the library can name. " \
-                                                     f"{NOTHING_MISSING}"
+            unconfirmed = [t for t in trials if t.unconfirmed]
+            if unconfirmed:
+                verdict = unconfirmed_text(unconfirmed, current)
+            else:
+                verdict = NOTHING_MISSING if i > 1 else f"The declared model lacks nothing the library can name. " \
+                                                         f"{NOTHING_MISSING}"
             break
         evid = _evidence(ev, terms, added.candidate.term, s)
         text = pre + _round_text(i, added, current, evid, m2_kg, len(recs), ranked)

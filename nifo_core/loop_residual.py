@@ -155,20 +155,32 @@ class _Evaluator:
         return out
 
     def model(self, terms: Sequence[Term]) -> IdentifiedModel:
-        """The model that predicts: the equation-error fit (default) or NIFO's static fit, on the fit part."""
+        """The model that predicts, fitted on the fit parts (``settings.prediction``).
+
+        ``'equation'``: the equation-error fit (k, c, θ_i) as a one-mass body; where that body is not
+        physical (a multi-mode structure read as one mass, e.g. F-16) NIFO's static fit of the same terms
+        with the linear part :func:`~nifo_core.linear_part.select_linear_part` chooses (a stable
+        rational model), the reason in ``provenance``. ``'nifo'``: NIFO's static fit always.
+        """
         s = self.settings
         terms = tuple(terms)
-        if s.prediction == "nifo":
+        theta = self.joint(terms)[0]
+        physical = theta[0] > 0 and theta[1] > 0
+        if s.prediction == "nifo" or not physical:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 res = identify_nifo(self.fit_recs, list(terms), settings=s.spectral, band=self.band,
                                     analysis_band_hz=s.analysis_band_hz, input_measured=False)
-            return IdentifiedModel.from_nifo(res, source="static")
-        theta = self.joint(terms)[0]
-        if not (theta[0] > 0 and theta[1] > 0):
-            raise ConfigError(f"the equation-error fit is not physical (k={theta[0]:.4g} 1/s², c={theta[1]:.4g} 1/s)")
-        body = BodyModel(float(theta[0]), float(theta[1]))
+            model = IdentifiedModel.from_nifo(res, source="static")
+            if s.prediction == "nifo":
+                return model
+            why = (f"the one-mass equation-error fit is not physical (k={theta[0]:.4g} 1/s², c={theta[1]:.4g} 1/s): "
+                   f"NIFO's static fit of the same terms on the fit parts predicts instead, with a "
+                   f"{model.linear.kind} linear part ({model.linear.reason})")
+            return replace(model, provenance={**dict(model.provenance), "from": "nifo loop", "why": why})
         f = s.spectral.freq_hz(self.fit_recs[0].fs_hz)
+        body = BodyModel(float(theta[0]), float(theta[1]))
+        body = replace(body, fit_rms=self._misfit(body))
         t21 = body.t21(f)
         w2 = (2 * np.pi * f) ** 2
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -179,6 +191,21 @@ class _Evaluator:
                                body=body, analysis_band_hz=s.analysis_band_hz, fs_hz=self.fit_recs[0].fs_hz,
                                settings=s.spectral, band=self.band, source="static",
                                provenance={"from": "nifo loop equation-error fit"})
+
+    def _misfit(self, body: BodyModel) -> float:
+        """Relative RMS of T21_body/H1 - 1 over the analysis band, H1 measured on the fit parts (levels pooled).
+
+        H1 at the test level holds the nonlinearity's equivalent linearisation: a strongly nonlinear
+        strut shows here as misfit even when the nominal body is right.
+        """
+        if "h1_fit" not in self._cache:
+            sp = [cross_spectra(np.stack([r.spindle_accel, r.body_accel]), r.fs_hz, self.spec) for r in self.fit_recs]
+            f = sp[0].freq_hz
+            self._cache["h1_fit"] = (f, np.mean([h1(x, 0, 1) for x in sp], axis=0))
+        f, t = self._cache["h1_fit"]
+        lo, hi = self.settings.analysis_band_hz
+        m = (f >= lo) & (f <= hi) & (np.abs(t) > 0)
+        return float(np.sqrt(np.mean(np.abs(body.t21(f[m]) / t[m] - 1) ** 2))) if m.any() else float("inf")
 
     def _predict(self, terms: tuple[Term, ...]):
         s = self.settings

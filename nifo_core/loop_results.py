@@ -205,11 +205,13 @@ class Trial:
     after: Errors | None
     accepted: bool
     failed: tuple[str, ...]
+    unconfirmed: bool = False  # passes everything but the held-out prediction
 
     def to_dict(self) -> dict:
         return {"candidate": self.candidate.to_dict(), "tire_shift": _fin(self.tire_shift),
                 "tire_excluded_fraction": self.tire_excluded_fraction,
                 "heldout_equation_gain": _fin(self.heldout_gain), "accepted": self.accepted,
+                "unconfirmed": self.unconfirmed,
                 "failed": list(self.failed), "after": None if self.after is None else self.after.to_dict()}
 
 
@@ -293,6 +295,13 @@ class LoopResult:
         return tuple(r.added.candidate for r in self.rounds if r.added is not None)
 
     @property
+    def unconfirmed(self) -> tuple[Candidate, ...]:
+        """Effects found in the last round that pass everything but the held-out prediction (not added)."""
+        if not self.rounds or self.rounds[-1].added is not None:
+            return ()
+        return tuple(t.candidate for t in self.rounds[-1].trials if t.unconfirmed)
+
+    @property
     def nothing_missing(self) -> bool:
         """True when the last round found nothing significant."""
         return self.verdict.endswith(NOTHING_MISSING)
@@ -317,6 +326,8 @@ class LoopResult:
         return {"declared_model": [t.to_dict() for t in self.declared],
                 "refined_model": [t.to_dict() for t in self.terms],
                 "effects_added": [_effect_dict(r.added) | {"round": r.index} for r in self.rounds if r.added],
+                "effects_unconfirmed": [_effect_dict(t) | {"round": self.rounds[-1].index}
+                                        for t in (self.rounds[-1].trials if self.unconfirmed else ()) if t.unconfirmed],
                 "errors_before": self.initial.to_dict(), "errors_after": self.final.to_dict(),
                 "rounds": [r.to_dict() for r in self.rounds], "verdict": self.verdict,
                 "nothing_missing": self.nothing_missing, "report": self.report(),
@@ -429,12 +440,26 @@ def _round_text(i: int, trial: Trial, before: Errors, ev: Evidence | None, m2: f
             f"{before_after_text(before, after)}.{alt}")
 
 
+def unconfirmed_text(trials: Sequence[Trial], current: Errors) -> str:
+    """The verdict when candidates pass everything on the equation error but the held-out prediction refuses them."""
+    names = "; ".join(f"{t.candidate.term.label} ({t.candidate.describe()}, explains {100 * t.candidate.err:.0f} % "
+                      f"of the equation residual)" for t in trials)
+    why = "; ".join(dict.fromkeys(f for t in trials for f in t.failed))
+    return (f"Found but not added: {names}. Significant, stable and lowering the held-out equation error with no "
+            f"band worse, but the held-out prediction does not confirm it ({why}). Either the effect is not "
+            f"there, or the predicting model (held-out prediction NMSE "
+            + (f"{current.prediction_nmse_pct:.2f} %" if current.prediction_nmse_pct is not None else "not computed")
+            + ") cannot use it at these levels: not proven missing, not proven absent.")
+
+
 def _nothing_text(i: int, ranked: Sequence[Candidate], trials: Sequence[Trial]) -> str:
     if trials:
         t = trials[0]
         why = "; ".join(t.failed)
+        end = ("Not added: the held-out prediction does not confirm it." if any(x.unconfirmed for x in trials)
+               else NOTHING_MISSING)
         return (f"Round {i}: the best remaining candidate, {t.candidate.term.label}, passes the significance "
-                f"tests but fails the acceptance: {why}. {NOTHING_MISSING}")
+                f"tests but fails the acceptance: {why}. {end}")
     if ranked:
         c = ranked[0]
         return (f"Round {i}: the best remaining candidate, {c.term.label}, explains "
