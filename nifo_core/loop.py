@@ -82,6 +82,7 @@ import numpy as np
 
 from .characterize import rank_beyond
 from .describing import Term, make_term
+from .detection import confounded_pairs, detection_limits
 from .errors import ConfigError, InputError, NifoError, RecordTooShortError
 from .integrate import IntegrationBand
 from .loop_residual import _Evaluator, _evidence, _retune, _tire_check
@@ -263,6 +264,18 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
     notes += ([band_note] if band_note else []) + ev.notes
     if band.f_lo_hz > 1.0:
         notes.append(f"the integration band starts at {band.f_lo_hz:g} Hz: motion below it is only partly in z, ż")
+    limits, confounded = (), ()
+    last = rounds[-1] if rounds else None
+    if last is not None and last.added is None:  # its ranking is on the final model's residual
+        say(0.97, "detection limits and confounding")
+        in_model = {t.kind for t in terms}
+        others = [c for c in last.ranked if c.kind not in in_model]
+        limits = detection_limits(ev.fit_rfs, terms, others, m2_kg=m2_kg, thresholds=s.thresholds,
+                                  n_grid=s.grid_points)
+        confounded = confounded_pairs(ev.fit_rfs, terms, [c.term for c in last.ranked] + list(terms))
+        if confounded and verdict.endswith(NOTHING_MISSING):
+            verdict = (verdict[: -len(NOTHING_MISSING)] + "Nothing these data can separate is missing, but "
+                       + "; ".join(c.text() for c in confounded) + ".")
     model = linear = unavailable = None
     try:  # the model whose held-out prediction was scored, fitted on the fit parts: what `nifo predict` takes
         model, linear = ev.model(terms), ev.model([])
@@ -273,4 +286,5 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
                       sources=tuple(r.source for r in recs),
                       fit_seconds=tuple(a.duration_s for a in ev.fit_recs),
                       test_seconds=tuple(b.duration_s for b in ev.test_recs), notes=tuple(notes), model=model,
-                      linear_model=linear, model_unavailable=unavailable)
+                      linear_model=linear, model_unavailable=unavailable, detection_limits=limits,
+                      confounded=confounded)

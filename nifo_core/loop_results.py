@@ -16,6 +16,7 @@ import numpy as np
 
 from .characterize import DEFAULT_KINDS, Candidate, Thresholds
 from .describing import Term
+from .detection import Confounding, DetectionLimit
 from .errors import ConfigError
 from .integrate import IntegrationBand
 from .model import IdentifiedModel
@@ -288,6 +289,8 @@ class LoopResult:
     model: IdentifiedModel | None = None
     linear_model: IdentifiedModel | None = None
     model_unavailable: str | None = None
+    detection_limits: tuple[DetectionLimit, ...] = ()
+    confounded: tuple[Confounding, ...] = ()
 
     @property
     def added(self) -> tuple[Candidate, ...]:
@@ -319,6 +322,9 @@ class LoopResult:
         if self.rounds and any(r.added for r in self.rounds):
             lines.append("After: " + _errors_line(self.final))
         lines.append(self.verdict)
+        if self.detection_limits:
+            lines.append("Could not have been seen in these data (detection limits given the noise, levels, length "
+                         "and the model's terms): " + "; ".join(d.text() for d in self.detection_limits) + ".")
         lines.extend(f"Note: {n}" for n in self.notes)
         return "\n".join(lines)
 
@@ -332,6 +338,8 @@ class LoopResult:
                 "rounds": [r.to_dict() for r in self.rounds], "verdict": self.verdict,
                 "nothing_missing": self.nothing_missing, "report": self.report(),
                 "model_unavailable": self.model_unavailable,
+                "detection_limits": [d.to_dict() for d in self.detection_limits],
+                "confounded": [c.to_dict() for c in self.confounded],
                 "band": self.band.to_dict(), "m2_kg": self.m2_kg, "settings": self.settings.to_dict(),
                 "records": [{"source": s, "fit_s": a, "test_s": b}
                             for s, a, b in zip(self.sources, self.fit_seconds, self.test_seconds)],
