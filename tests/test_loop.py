@@ -237,3 +237,46 @@ def test_thirty_second_records_say_what_was_adapted_and_a_linear_strut_adds_noth
     assert "lower edge raised" in text and "30 s" in text  # the band adapted, and it says so
     assert "spectral block 6144 →" in text                  # and so did the averages
     assert res.band.f_lo_hz == pytest.approx(1.6, abs=0.05)
+
+
+# --------------------------------------------------------------------------------------------
+# what the data could not reveal: detection limits hold, confounding is named
+# --------------------------------------------------------------------------------------------
+def _coulomb_run(force_n: float | None, seed: int = 5):
+    strut = () if force_n is None else (_sf("coulomb", force_n, eps=0.005),)
+    cfg = SimConfig(strut=strut, road=RandomRoad(rms_m=0.0025), duration_s=120.0, fs_hz=600.0,
+                    noise=SensorNoise(relative=0.02))
+    return close_loop(simulate(cfg, rng=seed).record, (), m2_kg=M2,
+                      settings=LoopSettings(max_rounds=1, kinds=("coulomb", "cubic_stiffness", "backlash")))
+
+
+@pytest.mark.slow
+def test_the_coulomb_detection_limit_separates_what_is_found_from_what_is_not():
+    clean = _coulomb_run(None)
+    assert clean.added == () and clean.nothing_missing, clean.report()
+    lim = {d.term.kind: d for d in clean.detection_limits}
+    assert "coulomb" in lim and "could not have been seen" in clean.report().lower()
+    y = lim["coulomb"].coefficient
+    assert 0 < y < 100.0, clean.report()                 # a strut's friction is tens to ~150 N
+    above, below = _coulomb_run(3.0 * y, seed=6), _coulomb_run(0.3 * y, seed=7)
+    assert [c.kind for c in above.added] == ["coulomb"], above.report()
+    assert below.added == (), below.report()
+    doc = json.loads(json.dumps(clean.to_dict()))
+    assert {d["kind"] for d in doc["detection_limits"]} >= {"coulomb"}
+
+
+def test_a_play_and_a_knee_are_named_as_confounded_where_nearly_all_motion_is_beyond_both():
+    # a 0.05 mm play at 2.5 mm road slides nearly all the time (≈ k·z ∓ k·b/2·sign ż) and ż is far beyond a
+    # 0.03 m/s knee (≈ ż ∓ v0·sign ż): beyond z and ż both are sign(ż); a lower level separates them
+    from nifo_core.detection import confounded_pairs
+    from nifo_core.restoring import restoring_force
+
+    cfg = SimConfig(strut=(_sf("velocity_deadzone", -700.0, knee=0.03),), road=RandomRoad(rms_m=0.0025),
+                    duration_s=60.0, fs_hz=600.0, noise=SensorNoise(relative=0.02))
+    rf = restoring_force(simulate(cfg, rng=3).record)
+    pairs = confounded_pairs([rf], [Term("velocity_deadzone", {"knee": 0.03})],
+                             [Term("backlash", {"deadband": 5e-5})])
+    assert len(pairs) == 1, pairs
+    c = pairs[0]
+    assert abs(c.rho) >= 0.8 and c.separating_scale is not None and c.separating_scale < 1
+    assert "cannot be told apart" in c.text() and "add a record at" in c.text()
