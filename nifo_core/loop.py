@@ -85,11 +85,12 @@ from .describing import Term, make_term
 from .detection import confounded_pairs, detection_limits
 from .errors import ConfigError, InputError, NifoError, RecordTooShortError
 from .integrate import IntegrationBand
-from .loop_residual import _Evaluator, _evidence, _retune, _tire_check
+from .loop_residual import _design, _Evaluator, _evidence, _retune, _tire_check
 from .loop_results import (NOTHING_MISSING, RESIDUAL_BANDS_HZ, Errors, Evidence, LoopResult, LoopSettings, Round,
                            Trial, _nothing_text, _round_text, before_after_text, unconfirmed_text)
 from .record import Record
 from .restoring import suggest_band
+from .uncertainty import coefficient_bounds
 
 __all__ = ["LoopSettings", "Errors", "Trial", "Evidence", "Round", "LoopResult", "close_loop",
            "RESIDUAL_BANDS_HZ", "NOTHING_MISSING"]
@@ -276,6 +277,8 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
         if confounded and verdict.endswith(NOTHING_MISSING):
             verdict = (verdict[: -len(NOTHING_MISSING)] + "Nothing these data can separate is missing, but "
                        + "; ".join(c.text() for c in confounded) + ".")
+    y_fit, x_fit = _design(ev.fit_parts, terms)
+    bounds = coefficient_bounds(x_fit, y_fit, recs[0].fs_hz, segments=[p.y.size for p in ev.fit_parts])
     model = linear = unavailable = None
     try:  # the model whose held-out prediction was scored, fitted on the fit parts: what `nifo predict` takes
         model, linear = ev.model(terms), ev.model([])
@@ -287,4 +290,4 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
                       fit_seconds=tuple(a.duration_s for a in ev.fit_recs),
                       test_seconds=tuple(b.duration_s for b in ev.test_recs), notes=tuple(notes), model=model,
                       linear_model=linear, model_unavailable=unavailable, detection_limits=limits,
-                      confounded=confounded)
+                      confounded=confounded, bounds=bounds)
