@@ -269,8 +269,8 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
     last = rounds[-1] if rounds else None
     if last is not None and last.added is None:  # its ranking is on the final model's residual
         say(0.97, "detection limits and confounding")
-        in_model = {t.kind for t in terms}
-        others = [c for c in last.ranked if c.kind not in in_model]
+        seen = {t.kind for t in terms} | {t.candidate.kind for t in last.trials}  # modelled, or seen and refused
+        others = [c for c in last.ranked if c.kind not in seen]
         limits = detection_limits(ev.fit_rfs, terms, others, m2_kg=m2_kg, thresholds=s.thresholds,
                                   n_grid=s.grid_points)
         confounded = confounded_pairs(ev.fit_rfs, terms, [c.term for c in last.ranked] + list(terms))
