@@ -333,6 +333,8 @@ class _Data:
                     raise ConfigError("body_stiffness needs x2: make the data with "
                                       "restoring_force(..., body_displacement=True)")
                 cols.append(rf.x2)
+            if rf.applied is not None:   # measured force on the body: coefficient -1/M2
+                cols.append(rf.applied)
             both = bandpass(np.vstack([rf.force, *cols]), rf.fs_hz, rf.band)[:, k]
             ys.append(both[0])
             xs.append(both[1:].T)
@@ -343,6 +345,13 @@ class _Data:
             groups.append(np.full(n, i) if len(self.rfs) > 1
                           else np.minimum(np.arange(n) * n_groups // n, n_groups - 1))
         self.y = np.concatenate(ys)
+        forced = {rf.applied is not None for rf in self.rfs}
+        if len(forced) > 1:
+            raise InputError("some records have a measured force and some not",
+                             hint="characterize records of one kind together")
+        self.forced = forced.pop()
+        #: the linear columns of every fit: z, ż (and the measured force)
+        self.lin = [0, 1] + ([len(xs[0][0]) - 1] if self.forced else [])
         self.x = np.concatenate(xs)
         self.group = np.concatenate(groups)
         self.fold = np.concatenate(folds)
@@ -788,12 +797,13 @@ def rank_beyond(rfs: Sequence[RestoringForce], declared: Sequence[Term], *, m2_k
 
 
 def _joint(data: _Data, terms: list[Term]) -> "FittedModel":
-    a = np.column_stack([data.x[:, :2], *[data.regressor(t) for t in terms]]) if terms else data.x[:, :2]
+    lin = data.x[:, data.lin]
+    a = np.column_stack([lin, *[data.regressor(t) for t in terms]]) if terms else lin
     c = _lstsq(a, data.y)
     res = data.y - a @ c
     tss = float(data.y @ data.y)
     return FittedModel(k_per_kg=float(c[0]), c_per_kg=float(c[1]),
-                       terms=tuple((t, float(th)) for t, th in zip(terms, c[2:])),
+                       terms=tuple((t, float(th)) for t, th in zip(terms, c[len(data.lin):])),
                        r2=1.0 - float(res @ res) / tss if tss > 0 else 0.0)
 
 
@@ -804,6 +814,8 @@ def _linear(data: _Data, m2: float | None, body_stiffness: bool) -> dict:
     out = {"k_per_kg": float(c[0]), "c_per_kg": float(c[1]), "r2": 1.0 - float(r @ r) / tss if tss > 0 else 0.0}
     if body_stiffness:
         out["k3_per_kg"] = float(c[2])
+    if data.forced and c[-1] < 0:                 # -ẍ2 = ... - F/M2
+        out["m2_from_force_kg"] = -1.0 / float(c[-1])
     if m2 is not None:
         out.update(k2_n_per_m=float(c[0]) * m2, c2_n_s_per_m=float(c[1]) * m2)
         if body_stiffness:
@@ -813,7 +825,7 @@ def _linear(data: _Data, m2: float | None, body_stiffness: bool) -> dict:
 
 def _summary(rf: RestoringForce, data: _Data, i: int) -> RecordSummary:
     m = data.rec == i
-    x, y = data.x[m][:, :2], data.y[m]
+    x, y = data.x[m][:, data.lin], data.y[m]
     coef = _lstsq(x, y)
     res = y - x @ coef
     return RecordSummary(source=rf.source, fs_hz=rf.fs_hz, duration_s=(rf.n + 2 * rf.start) / rf.fs_hz,

@@ -20,7 +20,8 @@ nonlinear state-space models). Two forms of Hz:
     Hz(s) = Σ_n r_n/(s - p_n), poles and residues in conjugate pairs, fitted
     to Hz = (1 - T21)/ω² over the analysis band by vector fitting (Gustavsen &
     Semlyen 1999, relaxed: Gustavsen 2006) with unstable poles flipped into the
-    left half plane, and residues constrained to Σ r_n = 0 so Hz has relative
+    left half plane, plus one fixed well-damped pole pair at 3× the band's top
+    for the modes above the band (their in-band residual flexibility), and residues constrained to Σ r_n = 0 so Hz has relative
     degree 2 (z and ż are states: no algebraic loop through the nonlinear
     feedback). The order is chosen or selected automatically (smallest within
     10 % of the best T21 error). A black box: stable, not physical.
@@ -31,7 +32,7 @@ fit error, and says why (``LinearPart.reason``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal, Mapping
 
 import numpy as np
@@ -39,7 +40,29 @@ import scipy.linalg
 
 from .errors import ConfigError
 
-__all__ = ["BodyModel", "LinearPart", "fit_body_model", "fit_rational", "select_linear_part"]
+__all__ = ["BodyModel", "LinearPart", "absorbed_rates", "fit_body_model", "fit_rational", "select_linear_part"]
+
+#: a physical one-mass body is kept unless its T21 misfit exceeds this (relative RMS over the band)
+BODY_FIT_LIMIT = 0.10
+
+#: the linear part each kind gives to the linear part of the model: g = α·z + β·ż + (a bounded remainder)
+_ABSORB = {"backlash": (1.0, 0.0), "clearance": (1.0, 0.0), "velocity_deadzone": (0.0, 1.0)}
+
+
+def absorbed_rates(terms, gammas) -> tuple[float, float]:
+    """(a, b) = (Σ γ_i·α_i [1/s²], Σ γ_i·β_i [1/s]) of the terms whose remainder g - α·z - β·ż is bounded.
+
+    A backlash (play) is z within ±deadband/2, a clearance z minus a clip,
+    a velocity dead zone ż minus a clip: their linear part belongs to the linear
+    part of the model. Left in the feedback it can make the nominal linear part
+    non-physical (the static fit splits K2 + c_play between them), e.g. k < 0.
+    """
+    a = b = 0.0
+    for t, g in zip(terms, gammas):
+        al, be = _ABSORB.get(t.kind, (0.0, 0.0))
+        a += float(g) * al
+        b += float(g) * be
+    return a, b
 
 
 # ---------------------------------------------------------------------------------------------
@@ -72,6 +95,11 @@ class BodyModel:
 
     def to_dict(self) -> dict:
         return {"k": self.k, "c": self.c, "k3": self.k3, "fit_rms": self.fit_rms}
+
+    @classmethod
+    def from_dict(cls, d: Mapping) -> "BodyModel":
+        """Inverse of :meth:`to_dict` (null, as JSON writes NaN, reads as NaN)."""
+        return cls(**{k: float("nan") if v is None else float(v) for k, v in d.items()})
 
 
 def _usable(freq_hz, t21, band_hz, weights):
@@ -146,6 +174,11 @@ class LinearPart:
         Why this linear part was chosen (filled by :func:`select_linear_part`).
     candidates : mapping
         The forms that were tried, each with its fit error, stability and physicality.
+    absorbed : (float, float)
+        (a [1/s²], b [1/s]): the linear part of the strut terms moved into this
+        linear part (:func:`absorbed_rates`); it realises Hz' = Hz/(1 - Hz·(a + s·b))
+        and the feedback subtracts a·z + b·ż again. ``hz``/``t21`` give the
+        nominal Hz, T21 (without it).
     """
 
     kind: Literal["body", "rational"]
@@ -156,8 +189,10 @@ class LinearPart:
     band_hz: tuple[float, float] = (float("nan"), float("nan"))
     reason: str = ""
     candidates: Mapping = field(default_factory=dict)
+    absorbed: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "absorbed", (float(self.absorbed[0]), float(self.absorbed[1])))
         if self.kind == "body":
             if not isinstance(self.body, BodyModel):
                 raise ConfigError("a linear part of kind 'body' needs a BodyModel")
@@ -206,7 +241,14 @@ class LinearPart:
         return float(1.0 / re.min()) if re.size and re.min() > 0 else float("inf")
 
     def hz(self, freq_hz) -> np.ndarray:
-        """Hz(jω) = Z/U [m per m/s²]."""
+        """Nominal Hz(jω) = Z/U [m per m/s²] (the absorbed strut part taken out again)."""
+        s = 2j * np.pi * np.asarray(freq_hz, float)
+        h = self.hz_realised(freq_hz)
+        a, b = self.absorbed
+        return h / (1 + h * (a + b * s)) if (a or b) else h
+
+    def hz_realised(self, freq_hz) -> np.ndarray:
+        """Hz'(jω) this part realises (``state_space``), with the absorbed strut part."""
         s = 2j * np.pi * np.asarray(freq_hz, float)
         if self.kind == "body":
             b = self.body
@@ -216,8 +258,8 @@ class LinearPart:
         return np.sum(self.residues[:, None] / (s[None, :] - self.poles[:, None]), axis=0)
 
     def t21(self, freq_hz) -> np.ndarray:
-        """T21 = 1 + s²·Hz of this linear part."""
-        if self.kind == "body":
+        """Nominal T21 = 1 + s²·Hz of this linear part."""
+        if self.kind == "body" and not any(self.absorbed):
             return self.body.t21(freq_hz)
         w = 2 * np.pi * np.asarray(freq_hz, float)
         return 1 - w**2 * self.hz(freq_hz)
@@ -250,7 +292,7 @@ class LinearPart:
     def to_dict(self) -> dict:
         d = {"kind": self.kind, "fit_rms": self.fit_rms, "band_hz": list(self.band_hz), "reason": self.reason,
              "stable": self.stable, "physical": self.physical, "order": self.order,
-             "candidates": dict(self.candidates)}
+             "candidates": dict(self.candidates), "absorbed": list(self.absorbed)}
         if self.kind == "body":
             d["body"] = self.body.to_dict()
         else:
@@ -264,9 +306,10 @@ class LinearPart:
         try:
             kw = {"fit_rms": float(d.get("fit_rms") if d.get("fit_rms") is not None else np.nan),
                   "band_hz": tuple(float(v) if v is not None else np.nan for v in d.get("band_hz", (np.nan,) * 2)),
-                  "reason": str(d.get("reason", "")), "candidates": dict(d.get("candidates") or {})}
+                  "reason": str(d.get("reason", "")), "candidates": dict(d.get("candidates") or {}),
+                  "absorbed": tuple(d.get("absorbed") or (0.0, 0.0))}
             if d["kind"] == "body":
-                return cls("body", body=BodyModel(**d["body"]), **kw)
+                return cls("body", body=BodyModel.from_dict(d["body"]), **kw)
             cx = lambda v: np.asarray(v["re"], float) + 1j * np.asarray(v["im"], float)  # noqa: E731
             return cls(str(d["kind"]), poles=cx(d["poles"]), residues=cx(d["residues"]), **kw)
         except KeyError as err:
@@ -315,6 +358,10 @@ def _real_block(poles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return a, b
 
 
+def _lstsq(a: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return scipy.linalg.lstsq(a, y, lapack_driver="gelsy", check_finite=False)[0]
+
+
 def _stack(a: np.ndarray) -> np.ndarray:
     return np.concatenate([a.real, a.imag])
 
@@ -338,10 +385,12 @@ def _residues(s, h, wgt, poles):
     y = _stack(h * wgt)
     # constraint row: sum of complex residues = Σ_real c + Σ_pairs 2·c1 = 0
     con = np.concatenate([[1.0] if p.imag == 0 else [2.0, 0.0] for p in poles if p.imag >= 0])
-    n = con.size
-    kkt = np.block([[a.T @ a, con[:, None]], [con[None, :], np.zeros((1, 1))]])
-    rhs = np.concatenate([a.T @ y, [0.0]])
-    x = np.linalg.lstsq(kkt, rhs, rcond=None)[0][:n]
+    # Σ r = 0 by elimination: x = N·y with N a basis of the constraint's null space
+    null = scipy.linalg.null_space(con[None, :])
+    an = a @ null
+    cn = np.linalg.norm(an, axis=0)
+    cn[cn == 0] = 1.0
+    x = null @ (_lstsq(an / cn, y) / cn)
     res, i = [], 0
     kept = [p for p in poles if p.imag >= 0]
     for p in kept:
@@ -372,7 +421,9 @@ def _vf(s, h, wgt, poles, n_iter):
         a = np.vstack([a, scale * norm_row])
         y = np.zeros(a.shape[0])
         y[-1] = scale * ns
-        x = np.linalg.lstsq(a, y, rcond=None)[0]
+        cn = np.linalg.norm(a, axis=0)
+        cn[cn == 0] = 1.0
+        x = _lstsq(a / cn, y) / cn          # columns scaled: conditioning
         ct, dt = x[m + 1: 2 * m + 1], x[-1]
         if abs(dt) < 1e-8:
             dt = 1e-8
@@ -389,7 +440,7 @@ def _start_poles(n_pairs: int, band_hz: tuple[float, float]) -> np.ndarray:
 
 
 def fit_rational(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[float, float], order: int | None = None,
-                 max_order: int = 24, weights: np.ndarray | None = None, n_iter: int = 12) -> LinearPart:
+                 max_order: int = 40, weights: np.ndarray | None = None, n_iter: int = 12) -> LinearPart:
     """A stable rational Hz = (1 - T21)/ω² fitted over ``band_hz`` by vector fitting (module docstring).
 
     Parameters
@@ -424,12 +475,18 @@ def fit_rational(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[float, 
     if weights is not None:
         wgt = wgt * np.sqrt(np.asarray(weights)[m])
     fits = []
+    # modes above the band act in it as a constant (residual flexibility): one fixed, well-damped pole pair
+    # at 3× the band's top frequency represents them with relative degree 2 (a bare constant would not)
+    w_res = 2 * np.pi * 3 * band_hz[1]
+    residual = w_res * np.array([-0.7 + 0.714j, -0.7 - 0.714j])
     for o in orders:
         poles = _vf(s, h, wgt, _start_poles(o // 2, band_hz), n_iter)
-        p, r = _residues(s, h, wgt, poles)
+        p, r = _residues(s, h, wgt, _conj_clean(np.concatenate([poles, residual])))
         err = float(np.sqrt(np.mean(np.abs(1 - w**2 * np.sum(r[:, None] / (s[None, :] - p[:, None]), axis=0)
                                            - t[m]) ** 2 / np.abs(t[m]) ** 2)))
         fits.append((o, err, p, r))
+        if err < 1e-9:       # exact: higher orders only add spurious poles
+            break
     best = min(e for _, e, _, _ in fits)
     o, err, p, r = next(x for x in fits if x[1] <= 1.1 * best + 1e-3)
     return LinearPart("rational", poles=p, residues=r, fit_rms=err, band_hz=(float(band_hz[0]), float(band_hz[1])),
@@ -438,13 +495,40 @@ def fit_rational(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[float, 
 
 def select_linear_part(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[float, float],
                        form: Literal["auto", "body", "rational"] = "auto", order: int | None = None,
-                       fit_k3: bool = False, weights: np.ndarray | None = None) -> LinearPart:
+                       fit_k3: bool = False, weights: np.ndarray | None = None,
+                       absorbed: tuple[float, float] = (0.0, 0.0), body: BodyModel | None = None) -> LinearPart:
     """Fit the one-mass body and a rational model to T21 and choose (module docstring).
 
-    ``form='auto'`` keeps the physical body unless it is not physical or the
-    rational model fits T21 clearly better (error below 2/3 of the body's and
-    at least 1 % lower); ``'body'`` or ``'rational'`` force a form (a forced
-    body must be physical).
+    With ``absorbed`` = (a, b) (:func:`absorbed_rates`) the forms are fitted to
+    T21' = 1 - ω²·Hz', Hz' = Hz/(1 - Hz·(a + jω·b)): the nominal linear part
+    plus the linear part of the strut terms. ``body`` gives the one-mass body
+    instead of fitting it (e.g. K2/M2, C2/M2 of a measured force path, where a
+    relative T21 error is meaningless).
+    """
+    a, b = float(absorbed[0]), float(absorbed[1])
+    f = np.asarray(freq_hz, float)
+    t = np.asarray(t21, complex)
+    if a or b:
+        w = 2 * np.pi * f
+        with np.errstate(divide="ignore", invalid="ignore"):
+            hz = (1 - t) / w**2
+            t = 1 - w**2 * hz / (1 - hz * (a + 1j * w * b))
+    given = None if body is None else BodyModel(body.k + a, body.c + b, body.k3, body.fit_rms)
+    out = _select(f, t, band_hz=band_hz, form=form, order=order, fit_k3=fit_k3, weights=weights, given=given)
+    if a or b:
+        out = replace(out, absorbed=(a, b), reason=out.reason + f" (fitted with the linear part of the strut terms, "
+                                                               f"{a:.4g} 1/s² and {b:.4g} 1/s, absorbed)")
+    return out
+
+
+def _select(freq_hz, t21, *, band_hz, form, order, fit_k3, weights, given) -> LinearPart:
+    """select_linear_part on the (absorbed) T21.
+
+    ``form='auto'`` keeps the physical body unless it is not physical, or it
+    misfits T21 by more than ``BODY_FIT_LIMIT`` and the rational model halves
+    that error (a rational model is only trusted inside the fitted band: the
+    body extrapolates physically, e.g. to a body mode below the band);
+    ``'body'`` or ``'rational'`` force a form (a forced body must be physical).
 
     Returns
     -------
@@ -456,7 +540,8 @@ def select_linear_part(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[f
     body = rational = None
     if form in ("auto", "body"):
         try:
-            body = fit_body_model(freq_hz, t21, band_hz=band, fit_k3=fit_k3, weights=weights, require_physical=False)
+            body = given or fit_body_model(freq_hz, t21, band_hz=band, fit_k3=fit_k3, weights=weights,
+                                           require_physical=False)
             cand["body"] = {"fit_rms": body.fit_rms, "physical": body.physical, "stable": body.physical,
                             "k": body.k, "c": body.c, "k3": body.k3}
         except ConfigError as err:
@@ -481,11 +566,11 @@ def select_linear_part(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[f
     if form != "auto":
         raise ConfigError(f"form={form!r} must be 'auto', 'body' or 'rational'")
     if body is not None and body.physical and (rational is None or not (
-            rational.fit_rms < 2 / 3 * body.fit_rms and rational.fit_rms < body.fit_rms - 0.01)):
+            body.fit_rms > BODY_FIT_LIMIT and rational.fit_rms < 0.5 * body.fit_rms)):
         why = (f"one-mass body: physical (k={body.k:.4g} 1/s², c={body.c:.4g} 1/s), T21 fit error "
                f"{100 * body.fit_rms:.2f} %" + ("" if rational is None else
                                                  f" vs {100 * rational.fit_rms:.2f} % for the rational model of "
-                                                 f"order {rational.order} (not clearly better)"))
+                                                 f"order {rational.order} (the body is kept below a misfit of 10 %)"))
         return LinearPart.from_body(body, band_hz=band, reason=why, candidates=cand)
     if rational is None:
         raise ConfigError(f"no linear part could be fitted to T21 in {band[0]:g}-{band[1]:g} Hz: "

@@ -36,7 +36,7 @@ transient (the record's past is unknown) and are best left out of comparisons
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal, Mapping
 
 import numpy as np
@@ -46,7 +46,7 @@ from .describing import Term, make_term
 from .errors import ConfigError, IllConditionedError, InputError
 from .fixed_point import contraction_bound, fixed_point_solve
 from .integrate import IntegrationBand, integrate
-from .linear_part import BodyModel, LinearPart, fit_body_model, fit_rational, select_linear_part
+from .linear_part import BodyModel, LinearPart, absorbed_rates, fit_body_model, select_linear_part
 from .nifo import NifoResult
 from .spectral import SpectralSettings, coherence, cross_spectra, h1
 from .timesim import simulate_response
@@ -59,7 +59,8 @@ Engine = Literal["time", "frequency"]
 
 #: a response whose |z| exceeds this many times the linear part's peak counts as diverged
 DIVERGENCE_FACTOR = 100.0
-DEFAULT_OVERSAMPLE = 8
+#: the time-domain engine steps at least this fast by default [Hz] (oversample = ceil(rate/fs), at least 2)
+FINE_RATE_HZ = 2400.0
 
 
 class PredictionDivergedError(IllConditionedError):
@@ -177,16 +178,22 @@ class IdentifiedModel:
             gam = np.nanmean(result.c_over_m2[:, result.in_band].real, axis=1)
         else:
             raise ConfigError(f"source={source!r} must be 'static', 'free' or 'h1'")
-        force_gain = 0.0
+        force_gain, given = 0.0, None
         m2 = getattr(st, "m2", None) if st is not None else None
-        if m2 is not None and np.isfinite(m2) and m2 > 0:
+        if m2 is not None and np.isfinite(m2) and m2 > 0:      # a measured force: M2, K2, C2 of its path
             force_gain = 1.0 / m2
-            if getattr(result, "spindle_fixed", False) and st.t2f is not None:
-                w2 = (2 * np.pi * result.freq_hz) ** 2
-                t21 = 1 + w2 * m2 * st.t2f            # Hz = Z/U = -M2·X2/F with a fixed spindle
-        lin = select_linear_part(result.freq_hz, t21, band_hz=result.analysis_band_hz, form=linear_form, order=order,
-                                 fit_k3=fit_k3)
-        body = lin.body if lin.kind == "body" else None
+            _, k2, c2, misfit = (float(v) for v in st.one_mass)
+            given = BodyModel(k2 / m2, c2 / m2, 0.0, misfit)
+        fit = dict(band_hz=result.analysis_band_hz, form=linear_form, order=order, fit_k3=fit_k3, body=given)
+        lin = select_linear_part(result.freq_hz, t21, absorbed=absorbed_rates(terms, gam), **fit)
+        if any(lin.absorbed) and not lin.physical:     # e.g. a softening clearance: absorbing its slope hurts
+            plain = select_linear_part(result.freq_hz, t21, **fit)
+            if plain.physical or plain.fit_rms < lin.fit_rms:
+                lin = plain
+        body = None
+        if lin.kind == "body":     # the nominal one-mass body (the absorbed strut part taken out again)
+            bm, (ka, ca) = lin.body, lin.absorbed
+            body = BodyModel(bm.k - ka, bm.c - ca, bm.k3, bm.fit_rms)
         return cls(freq_hz=result.freq_hz, t21=t21, b=b, terms=terms, c_over_m2=gam, body=body,
                    analysis_band_hz=result.analysis_band_hz, fs_hz=result.fs_hz, settings=result.settings,
                    band=result.band, source=source if terms else "h1", provenance=prov, linear=lin,
@@ -209,7 +216,7 @@ class IdentifiedModel:
         try:
             terms = tuple(make_term(t) for t in d["terms"])
             nf = len(d["freq_hz"])
-            body = None if d["body"] is None else BodyModel(**d["body"])
+            body = None if d["body"] is None else BodyModel.from_dict(d["body"])
             lin = LinearPart.from_dict(d["linear_part"]) if d.get("linear_part") else None
             return cls(freq_hz=np.asarray(d["freq_hz"], float), t21=_uncplx(d["t21"]),
                        b=np.array([_uncplx(x) for x in d["b"]], complex).reshape(len(terms), nf), terms=terms,
@@ -335,7 +342,7 @@ def _check_input(x, name: str, n: int | None) -> np.ndarray | None:
 
 def predict_body(model: IdentifiedModel, spindle_accel: np.ndarray | None, fs_hz: float, *,
                  force: np.ndarray | None = None, method: Method = "parametric", engine: Engine | None = None,
-                 oversample: int = DEFAULT_OVERSAMPLE, label: str | None = None, tol: float = 1e-6,
+                 oversample: int | None = None, label: str | None = None, tol: float = 1e-6,
                  max_iter: int = 200, relax: float = 1.0, pad_s: float = 5.0) -> Prediction:
     """Predict the body acceleration from a measured spindle acceleration (METHOD.md §4).
 
@@ -356,8 +363,9 @@ def predict_body(model: IdentifiedModel, spindle_accel: np.ndarray | None, fs_hz
         Force an engine: 'frequency' raises :class:`ConfigError` where its
         convergence is not guaranteed. Default: 'time' for 'parametric'; the
         frequency domain where provable, else time, for 'nonparametric'.
-    oversample : int
-        Fine steps per sample of the time-domain engine.
+    oversample : int, optional
+        Fine steps per sample of the time-domain engine; default: enough for
+        ``FINE_RATE_HZ`` (4 at 600 Hz), at least 2.
     label : str, optional
         Names the record in error messages.
     tol, max_iter : float, int
@@ -401,8 +409,9 @@ def predict_body(model: IdentifiedModel, spindle_accel: np.ndarray | None, fs_hz
         if engine == "frequency":
             raise ConfigError(f"the frequency-domain fixed point is not provably convergent for this model "
                               f"(contraction bound {rho:.3g} ≥ 1)", hint="use the time-domain engine (the default)")
-        linear = model.linear if model.linear.kind == "rational" else fit_rational(
-            model.freq_hz, model.t21, band_hz=model.analysis_band_hz)
+        linear = model.linear if model.linear.kind == "rational" else select_linear_part(
+            model.freq_hz, model.t21, band_hz=model.analysis_band_hz, form="rational",
+            absorbed=absorbed_rates(model.terms, model.c_over_m2))
         note = f" (frequency domain not provably convergent: contraction bound {rho:.3g})"
     elif engine == "frequency":
         nfft = scipy.fft.next_fast_len(n + 2 * int(round(pad_s * fs_hz)), real=True)
@@ -424,15 +433,25 @@ def _edge(linear: LinearPart, fs_hz: float, n: int) -> int:
     return int(min(n // 4, np.ceil(5 * linear.slowest_decay_s() * fs_hz)))
 
 
+def _linear_peak(linear: LinearPart, v: np.ndarray, fs_hz: float) -> float:
+    """max |z| of the stable realised linear part alone driven by v (FFT, zero-padded): the scale of "bounded"."""
+    nfft = scipy.fft.next_fast_len(v.size + int(5 * min(linear.slowest_decay_s(), 60.0) * fs_hz), real=True)
+    f = np.fft.rfftfreq(nfft, 1.0 / fs_hz)
+    hz = linear.hz_realised(f)
+    hz[f == 0] = 0
+    return float(np.max(np.abs(scipy.fft.irfft(hz * scipy.fft.rfft(v, nfft), nfft))))
+
+
 def _predict_time(model, linear, a1, force, fs_hz, oversample, label, what) -> Prediction:
     n = (a1 if a1 is not None else force).size
     v = _external(model, linear, a1, force, fs_hz, n)
-    lin = simulate_response(linear, (), (), v, fs_hz, spindle_accel=a1, oversample=oversample)
-    resp = lin
-    if model.terms:
-        limit = DIVERGENCE_FACTOR * max(float(np.max(np.abs(lin.z))), 1e-12)
-        resp = simulate_response(linear, model.terms, model.c_over_m2, v, fs_hz, spindle_accel=a1,
-                                 oversample=oversample, z_limit=limit)
+    q = int(oversample) if oversample is not None else max(2, int(np.ceil(FINE_RATE_HZ / fs_hz - 1e-9)))
+    limit = np.inf
+    if model.terms or any(linear.absorbed):
+        limit = DIVERGENCE_FACTOR * max(_linear_peak(linear, v, fs_hz), 1e-12)
+    resp = simulate_response(linear, model.terms, model.c_over_m2, v, fs_hz, spindle_accel=a1, oversample=q,
+                             z_limit=limit)
+    if model.terms or any(linear.absorbed):
         if resp.diverged_at >= 0:
             k = resp.diverged_at
             zk = resp.z[min(k, n - 1)]

@@ -318,7 +318,9 @@ def _nifo_with_force(spec: CrossSpectra, terms: Sequence[Term], *, band: Integra
     ``A2 - T21·A1 - H·F = -Σ c_i·H·Gn_i`` (weights 1/G_nn, as :func:`_static_fit`),
     then the H1 of A2 on [A1, F - Σ c_i·Gn_i]. M2 comes from the one-mass fit
     of H (:func:`one_mass_fit`), which makes c_i/M2 = γ_i and, for a fixed
-    spindle, the one-mass model's T21 = 1 - M2·H (it is not measured then).
+    spindle, the one-mass model's T21 = 1 - M2·H (it is not measured then;
+    ``t21_h1`` is then 1 - M2·H1 of the force → body acceleration, the
+    equivalent linearisation at the test level in the same form).
     """
     nt = len(terms)
     nch = spec.n_channels
@@ -381,7 +383,7 @@ def _nifo_with_force(spec: CrossSpectra, terms: Sequence[Term], *, band: Integra
     prov["force"] = {"spindle_fixed": bool(spindle_fixed), "m2_kg": float(m2), "k2_n_per_m": float(one[1]),
                      "c2_ns_per_m": float(one[2]), "one_mass_misfit": float(one[3]), "c": c.tolist()}
     return NifoResult(freq_hz=spec.freq_hz.copy(), t21=t21, b=b, mu_over_k2=mu, c_over_m2=c_free / m2,
-                      t21_h1=np.full(w.size, np.nan + 0j) if spindle_fixed else h1(spec, 0, 1),
+                      t21_h1=1 - m2 * h1(spec, fi, 1) if spindle_fixed else h1(spec, 0, 1),
                       coherence_h1=coherence(spec, fi, 1) if spindle_fixed else coherence(spec, 0, 1),
                       multiple_coherence=fit.multiple_coherence, partial_coherence=pc, cond=fit.cond,
                       random_error=err, n_avg=spec.n_avg, n_samples=int(n_samples), terms=tuple(terms),

@@ -273,8 +273,9 @@ class NifoResult:
         the one-mass fit (``static.one_mass``).
     spindle_fixed : bool
         The spindle did not move (force-driven single mass): T21 was not
-        regressed; ``t21`` is the one-mass model's 1 - M2·(-ω²·T2F) and row 0
-        of ``partial_coherence``/``random_error`` is NaN.
+        regressed; ``t21`` is the one-mass model's 1 - M2·(-ω²·T2F), ``t21_h1``
+        the same of the plain H1 force → body and ``coherence_h1`` its
+        coherence; row 0 of ``partial_coherence``/``random_error`` is NaN.
     """
 
     freq_hz: np.ndarray

@@ -135,6 +135,9 @@ class RestoringForce:
     source : str
     x2 : ndarray, shape (n,), optional
         Body displacement [m] integrated from ẍ2 alone (only when asked for: fitting K3·x2).
+    applied : ndarray, shape (n,), optional
+        The record's measured force on the body [N], band-passed like ``force``
+        (then -ẍ2 = k·z + c·ż + Σ γ_i·g_i - F/M2: one more linear column).
     """
 
     force: np.ndarray
@@ -147,6 +150,7 @@ class RestoringForce:
     start: int
     source: str = ""
     x2: np.ndarray | None = None
+    applied: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -156,7 +160,8 @@ class RestoringForce:
         """The samples ``index`` (a mask or index array; order kept) as a new object."""
         return RestoringForce(self.force[index], self.z[index], self.zdot[index], self.spindle_accel[index],
                               self.time_s[index], self.fs_hz, self.band, self.start, self.source,
-                              None if self.x2 is None else self.x2[index])
+                              None if self.x2 is None else self.x2[index],
+                              None if self.applied is None else self.applied[index])
 
     def linear_fit(self) -> tuple[float, float, float]:
         """Least squares ``force ≈ k·z + c·ż``: (k = K2/M2 [1/s²], c = C2/M2 [1/s], R²).
@@ -205,8 +210,9 @@ def restoring_force(record: Record, *, band: IntegrationBand | None = None,
     force = -bandpass(record.body_accel, fs, band)
     t = np.arange(record.n) / fs
     x2 = integrate(record.body_accel, fs, band=band).displacement[v] if body_displacement else None
+    applied = bandpass(record.force, fs, band)[v] if record.force is not None else None
     return RestoringForce(force[v], it.displacement[v], it.velocity[v], np.asarray(record.spindle_accel)[v],
-                          t[v], fs, band, v.start, record.source, x2)
+                          t[v], fs, band, v.start, record.source, x2, applied)
 
 
 # --------------------------------------------------------------------------------------------

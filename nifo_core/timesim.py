@@ -4,7 +4,8 @@ The model (:mod:`nifo_core.linear_part`) is a linear part Hz = Z/U with the
 nonlinear strut force fed back into its input::
 
     ẋ = A·x + b·u,   z = c·x,   ż = c·A·x   (c·b = 0),
-    u = v + n,       v = ẍ1 [+ k3·x1] [- F/M2] (external, measured),   n = Σ γ_i·g_i(z, ż)
+    u = v + n,       v = ẍ1 [+ k3·x1] [- F/M2] (external, measured),
+    n = Σ γ_i·g_i(z, ż) - a·z - b·ż     ((a, b): the strut terms' linear part the linear part absorbed)
 
 How it runs, and why it cannot diverge numerically for a stable linear part:
 
@@ -56,11 +57,12 @@ class TimeResponse:
     z, zdot : ndarray
         Relative displacement [m] and velocity [m/s] (exact states at the samples).
     zddot : ndarray
-        Relative acceleration [m/s²] (anti-aliased, decimated).
+        Relative acceleration body_accel - ẍ1 [m/s²].
     body_accel : ndarray
         ẍ1 + z̈ [m/s²] (anti-aliased at the fine rate, decimated).
     force : ndarray
-        Nonlinear force per unit body mass n = Σ γ_i·g_i [m/s²] at the samples.
+        Feedback per unit body mass n = Σ γ_i·g_i - a·z - b·ż [m/s²] at the samples
+        ((a, b) = ``linear.absorbed``).
     diverged_at : int
         Sample where the state left its bounds, -1 when it did not.
     oversample : int
@@ -97,42 +99,51 @@ def discretise(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.n
 
 
 @numba.njit(cache=True)
-def _solve(z0, zd0, alpha, beta, guess, codes, coef, p0, p1, play):  # pragma: no cover - compiled
-    """n = N(z0 + α·n, ż0 + β·n): fixed point, then bisection on a bracket. Returns (n, ok)."""
+def _fb(z, zd, codes, coef, p0, p1, play, commit, la, lb):  # pragma: no cover - compiled
+    """Feedback n = Σ γ_i·g_i(z, ż) - a·z - b·ż (the absorbed linear part taken out)."""
+    return strut_force(z, zd, codes, coef, p0, p1, play, commit) - la * z - lb * zd
+
+
+@numba.njit(cache=True)
+def _solve(z0, zd0, alpha, beta, guess, codes, coef, p0, p1, play, la, lb, atol):  # pragma: no cover - compiled
+    """n = N(z0 + α·n, ż0 + β·n): fixed point, then bisection on a bracket. Returns (n, ok).
+
+    Converged when the change is below 1e-13 relative or ``atol`` [m/s²] (rounding of the input's scale).
+    """
     n = guess
     for _ in range(40):
-        nn = strut_force(z0 + alpha * n, zd0 + beta * n, codes, coef, p0, p1, play, False)
-        if abs(nn - n) <= 1e-13 * max(abs(nn), abs(n)) + 1e-300:
+        nn = _fb(z0 + alpha * n, zd0 + beta * n, codes, coef, p0, p1, play, False, la, lb)
+        if abs(nn - n) <= 1e-13 * max(abs(nn), abs(n)) + atol:
             return nn, True
         n = nn
     # not contracting: bracket a sign change of f(n) = n - N(n) around the guess and bisect
     d = max(abs(guess), 1e-6)
     lo, hi = guess - d, guess + d
-    flo = lo - strut_force(z0 + alpha * lo, zd0 + beta * lo, codes, coef, p0, p1, play, False)
-    fhi = hi - strut_force(z0 + alpha * hi, zd0 + beta * hi, codes, coef, p0, p1, play, False)
+    flo = lo - _fb(z0 + alpha * lo, zd0 + beta * lo, codes, coef, p0, p1, play, False, la, lb)
+    fhi = hi - _fb(z0 + alpha * hi, zd0 + beta * hi, codes, coef, p0, p1, play, False, la, lb)
     k = 0
     while flo * fhi > 0 and k < 200:
         d *= 2.0
         lo, hi = guess - d, guess + d
-        flo = lo - strut_force(z0 + alpha * lo, zd0 + beta * lo, codes, coef, p0, p1, play, False)
-        fhi = hi - strut_force(z0 + alpha * hi, zd0 + beta * hi, codes, coef, p0, p1, play, False)
+        flo = lo - _fb(z0 + alpha * lo, zd0 + beta * lo, codes, coef, p0, p1, play, False, la, lb)
+        fhi = hi - _fb(z0 + alpha * hi, zd0 + beta * hi, codes, coef, p0, p1, play, False, la, lb)
         k += 1
     if flo * fhi > 0 or not np.isfinite(flo * fhi):
         return guess, False
     for _ in range(200):
         mid = 0.5 * (lo + hi)
-        fm = mid - strut_force(z0 + alpha * mid, zd0 + beta * mid, codes, coef, p0, p1, play, False)
+        fm = mid - _fb(z0 + alpha * mid, zd0 + beta * mid, codes, coef, p0, p1, play, False, la, lb)
         if (fm > 0) == (flo > 0):
             lo, flo = mid, fm
         else:
             hi = mid
-        if hi - lo <= 1e-14 * max(abs(lo), abs(hi)) + 1e-300:
+        if hi - lo <= 1e-14 * max(abs(lo), abs(hi)) + atol:
             break
     return 0.5 * (lo + hi), True
 
 
 @numba.njit(cache=True)
-def _run(phi, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, z_limit,
+def _run(phi, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, la, lb, z_limit, atol,
          out_z, out_zd, out_zdd, out_n):  # pragma: no cover - compiled
     """March the FOH-discretised linear part with the implicit strut feedback; returns the failing step or -1."""
     ns = phi.shape[0]
@@ -145,7 +156,9 @@ def _run(phi, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, z_limit,
     for i in range(ns):
         alpha += cz[i] * g1[i]
         beta += cd[i] * g1[i]
-    nk = strut_force(0.0, 0.0, codes, coef, p0, p1, play, True) if nt else 0.0
+    active = nt > 0 or la != 0.0 or lb != 0.0
+    nk = _fb(0.0, 0.0, codes, coef, p0, p1, play, True, la, lb) if active else 0.0
+    nprev = nk
     out_z[0], out_zd[0], out_zdd[0], out_n[0] = 0.0, 0.0, dd * (v[0] + nk), nk
     for j in range(v.size - 1):
         uk = v[j] + nk
@@ -160,8 +173,9 @@ def _run(phi, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, z_limit,
             z0 += cz[i] * acc
             zd0 += cd[i] * acc
         n = 0.0
-        if nt:
-            n, ok = _solve(z0, zd0, alpha, beta, nk, codes, coef, p0, p1, play)
+        if active:
+            n, ok = _solve(z0, zd0, alpha, beta, 2.0 * nk - nprev, codes, coef, p0, p1, play, la, lb, atol)
+            nprev = nk
             if not ok:
                 return j + 1
         zdd = dd * (un + n)
@@ -229,9 +243,18 @@ def simulate_response(linear: LinearPart, terms: Sequence[Term], gammas: Sequenc
     codes, coef, p0, p1 = strut_arrays(list(terms), list(gammas))
     nf = v.size
     z, zd, zdd, nn = (np.zeros(nf) for _ in range(4))
-    fail = _run(np.ascontiguousarray(phi), g0, g1, c, cd, ca, dd, v, codes, coef, p0, p1, float(z_limit),
-                z, zd, zdd, nn)
-    a1f = 0.0 if spindle_accel is None else _up(np.asarray(spindle_accel, float), q)
-    n = np.asarray(external).size
-    return TimeResponse(z=z[::q][:n], zdot=zd[::q][:n], zddot=_down(zdd, q)[:n], body_accel=_down(a1f + zdd, q)[:n],
-                        force=nn[::q][:n], diverged_at=-1 if fail < 0 else int(fail // q), oversample=q)
+    la, lb = linear.absorbed
+    atol = 1e-13 * float(np.max(np.abs(v))) if v.size else 0.0
+    fail = _run(np.ascontiguousarray(phi), g0, g1, c, cd, ca, dd, v, codes, coef, p0, p1, la, lb, float(z_limit),
+                atol, z, zd, zdd, nn)
+    ext = np.asarray(external, float)
+    n = ext.size
+    if spindle_accel is None:
+        a2 = _down(zdd, q)[:n]
+        a1 = 0.0
+    else:
+        a1 = np.asarray(spindle_accel, float)
+        a1f = v if np.array_equal(a1, ext) else _up(a1, q)      # the input's interpolation, once
+        a2 = _down(a1f + zdd, q)[:n]
+    return TimeResponse(z=z[::q][:n], zdot=zd[::q][:n], zddot=a2 - a1, body_accel=a2, force=nn[::q][:n],
+                        diverged_at=-1 if fail < 0 else int(fail // q), oversample=q)

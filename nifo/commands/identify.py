@@ -155,13 +155,19 @@ def accumulate(paths: list[Path], terms, cfg: dict, *, opts: dict, chunk_samples
         raise SampleRateError(f"the files have different sample rates ({names})", hint="resample to one rate first")
     fs = rates[0]
     totals = [int(c.meta.get("chunk", {}).get("total_samples", c.n)) for c in firsts]
-    has_tp = all(c.has_tire_patch for c in firsts)
+    has_force = all(c.has_force for c in firsts)   # a measured force on the body: one more input
+    fixed_sp = {c.spindle_fixed for c in firsts}
+    if len(fixed_sp) > 1:
+        raise ConfigError("some files have a fixed spindle and some a measured one",
+                          hint="identify files of one kind together")
+    spindle_fixed = fixed_sp.pop()
+    has_tp = all(c.has_tire_patch for c in firsts) and not has_force
     band = cfg["band"] or default_band(fs, min(totals) / fs)
 
     def fresh() -> StreamingNifo:
         return StreamingNifo(fs, terms, settings=cfg["spectral"], band=band, with_tire_patch=has_tp,
                              analysis_band_hz=cfg["analysis_band_hz"], on_ill_conditioned="warn",
-                             cond_limit=cfg["cond_limit"])
+                             cond_limit=cfg["cond_limit"], with_force=has_force, spindle_fixed=spindle_fixed)
 
     total, data, per_file = None, [], []
     # progress only for long work (a minute of data streams in well under a second)
@@ -171,7 +177,8 @@ def accumulate(paths: list[Path], terms, cfg: dict, *, opts: dict, chunk_samples
             n = 0
             meta = dict(first.meta)
             for chunk in _chain(first, gen):
-                one.push(chunk.spindle_accel, chunk.body_accel, chunk.tire_patch_disp if has_tp else None)
+                one.push(chunk.spindle_accel, chunk.body_accel, chunk.tire_patch_disp if has_tp else None,
+                         chunk.force if has_force else None)
                 n += chunk.n
                 bar.advance(chunk.n)
             if one.n_avg == 0:
@@ -257,6 +264,12 @@ def summarize(res, cond_limit: float) -> tuple[dict, list[str]]:
         "cond_median": float(np.nanmedian(res.cond[m])), "cond_max": float(np.nanmax(res.cond[m])),
         "ill_conditioned_fraction": frac, "cond_limit": cond_limit,
     }
+    if st.one_mass is not None:   # a measured force: the body mass and the coefficients in physical units
+        m2, k2, c2, misfit = (float(v) for v in st.one_mass)
+        summary["force"] = {"spindle_fixed": bool(res.spindle_fixed), "m2_kg": m2, "k2_n_per_m": k2,
+                            "c2_n_s_per_m": c2, "natural_frequency_hz": float(np.sqrt(k2 / m2) / (2 * np.pi)),
+                            "damping_ratio": float(c2 / (2 * np.sqrt(k2 * m2))), "one_mass_misfit": misfit,
+                            "c": [float(v) for v in st.c]}
     if frac > 0.1 and any(not f for f in res.fixed):
         warn.append(f"The per-line (paper Eq. 9) estimate is ill-conditioned on {frac:.0%} of the {lo:g}-{hi:g} Hz "
                     f"lines (median scaled cond {summary['cond_median']:.3g}, limit {cond_limit:.3g}): its T21 and "
@@ -298,8 +311,17 @@ def format_summary(summary: dict, warn: list[str], *, out: Path, files: int, mod
     d, df = summary["t21_static_vs_h1_rel_diff"], summary["t21_free_vs_static_rel_diff"]
     lines.append(f"nominal T21 vs plain H1 at this level: median {100 * d['median']:.1f} %, max {100 * d['max']:.1f} % "
                  f"apart; per-line vs pooled T21: median {100 * df['median']:.1f} %")
+    if "force" in summary:
+        fo = summary["force"]
+        lines.append(f"measured force{' (spindle fixed)' if fo['spindle_fixed'] else ''}: one-mass body M2 = "
+                     f"{fo['m2_kg']:.4g} kg, K2 = {fo['k2_n_per_m']:.4g} N/m, C2 = {fo['c2_n_s_per_m']:.4g} N·s/m "
+                     f"({fo['natural_frequency_hz']:.4g} Hz, damping {100 * fo['damping_ratio']:.3g} %; misfit "
+                     f"{100 * fo['one_mass_misfit']:.2g} %); coefficients c = "
+                     + ", ".join(f"{c:.4g}" for c in fo["c"]) + " (unit of c)")
     lines.append(f"coherence (plain H1) median {summary['coherence_h1_median']:.3f}; scaled cond(G_UU) median "
                  f"{summary['cond_median']:.3g}, max {summary['cond_max']:.3g}")
+    if "linear_part" in summary:
+        lines.append(f"linear part of model.json: {summary['linear_part']['reason']}")
     lines += [f"WARNING: {w}" for w in warn]
     lines.append(f"wrote {out}/identify.json" + (", model.json" if model_written else "") + " and figures")
     return "\n".join(lines)
@@ -402,11 +424,13 @@ def run(args: argparse.Namespace) -> int:
     warn += [str(w.message) for w in caught if not issubclass(w.category, IllConditionedWarning)
              and not issubclass(w.category, (DeprecationWarning, RuntimeWarning))]
     model = linear = None
-    try:
+    try:   # the linear part: the one-mass body where it fits, a stable rational model otherwise (says why)
         model = IdentifiedModel.from_nifo(res, source="static")
         linear = IdentifiedModel.from_nifo(res, source="h1")
+        summary["linear_part"] = {"kind": model.linear.kind, "order": model.linear.order,
+                                  "fit_rms": model.linear.fit_rms, "reason": model.linear.reason}
     except ConfigError as err:
-        warn.append(f"no model.json: the parametric body model could not be fitted to T21 ({err.message}); "
+        warn.append(f"no model.json: no linear part could be fitted to T21 ({err.message}); "
                     "identify.json holds the non-parametric result")
         model = None
     prov = {"data": data, "model_file": str(args.model), "settings": _settings_doc(cfg, res)}

@@ -1,9 +1,11 @@
 """``nifo predict``: apply an identified model to other data (METHOD.md §4, paper §3.3 validation).
 
-For each record the measured spindle acceleration drives the model
-(:func:`nifo_core.model.predict_transmissibility`: the feedback
-x2 = T21·x1 + Σ B_i·G_i(x2 - x1) solved for the whole record), and the
-predicted body acceleration is compared with the measured one:
+For each record the measured spindle acceleration (and a measured force on
+the body, for a model identified with one) drives the model
+(:func:`nifo_core.model.predict_body`: the identified model simulated in
+time, from its linear part — one-mass body or rational, as model.json says —
+with the strut forces fed back), and the predicted body acceleration is
+compared with the measured one:
 
 - NMSE in time, 100·Σ(y - ŷ)²/(N·σ_y²) % over the prediction's valid part
   (start-up edges left out; below 5 % good, below 1 % excellent);
@@ -15,7 +17,11 @@ predicted body acceleration is compared with the measured one:
 The same is done with the linear model stored beside it in model.json (the
 plain H1 at the identification level, i.e. the equivalent linearisation a
 linear identification would give), so the gain from the nonlinear terms is
-explicit. When a simulator truth file ``<DATA>.truth.json`` lies beside the
+explicit. A record that cannot be predicted (unreadable, or a model whose
+response grows without bound at that level) is named with the reason; every
+other record is still predicted and written, and the command then exits
+non-zero. MODEL may be a model.json or a directory holding one (from
+``nifo identify`` or ``nifo loop``). When a simulator truth file ``<DATA>.truth.json`` lies beside the
 data, the model's nominal T21 is also compared with the true linear T21.
 """
 
@@ -81,39 +87,54 @@ def _interp(f_new: np.ndarray, f: np.ndarray, h: np.ndarray) -> np.ndarray:
     return np.interp(f_new, f, h.real) + 1j * np.interp(f_new, f, h.imag)
 
 
+def _drive(record, model) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray, str]:
+    """(spindle acceleration or None, force or None, the signal the transmissibility is taken from, its name)."""
+    a1 = None if getattr(record, "spindle_fixed", False) else np.asarray(record.spindle_accel)
+    f = getattr(record, "force", None)
+    force = np.asarray(f) if f is not None and model.force_gain > 0 else None
+    if a1 is None:
+        return a1, force, force, "force"
+    return a1, force, a1, "spindle"
+
+
 def predict_one(path: Path, record, model, linear, *, band_hz, method: str) -> tuple[dict, dict]:
     """Numbers (JSON-able) and arrays (for the figures) for one record."""
-    from nifo_core.model import predict_transmissibility
+    from nifo_core.model import predict_body
     from nifo_core.spectral import coherence, cross_spectra, h1
 
     fs = record.fs_hz
     if abs(fs - model.fs_hz) > 1e-3 * model.fs_hz:
         raise InputError(f"the record is sampled at {fs:g} Hz but the model was identified at {model.fs_hz:g} Hz",
                          source=str(path), hint="resample the record to the model's rate")
-    a1, a2 = np.asarray(record.spindle_accel), np.asarray(record.body_accel)
-    pt = predict_transmissibility(model, a1, fs, method=method)
-    lt = predict_transmissibility(linear, a1, fs, method=method)
-    valid = pt.prediction.valid
-    meas_spec = cross_spectra(np.stack([a1[valid], a2[valid]]), fs, model.settings)
-    t_meas = h1(meas_spec, 0, 1)
-    f = meas_spec.freq_hz
+    a1, force, drive, drive_name = _drive(record, model)
+    if a1 is None and force is None:
+        raise InputError("the spindle is fixed and the model has no force input: nothing drives the model",
+                         source=str(path), hint="predict with a model identified with the measured force")
+    a2 = np.asarray(record.body_accel)
+    pm = predict_body(model, a1, fs, force=force, method=method, label=str(path))
+    pl = predict_body(linear, a1, fs, force=force, method=method, label=str(path))
+    valid = pm.valid
+    spec = cross_spectra(np.stack([drive[valid], a2[valid], pm.body_accel[valid], pl.body_accel[valid]]), fs,
+                         model.settings)
+    t_meas, t_model, t_lin = h1(spec, 0, 1), h1(spec, 0, 2), h1(spec, 0, 3)
+    f = spec.freq_hz
     mask = (f >= band_hz[0]) & (f <= band_hz[1])
     y = a2[valid]
     out = {
         "path": str(path), "name": path.name, "fs_hz": fs, "n_samples": record.n, "duration_s": record.duration_s,
-        "valid_samples": [valid.start, valid.stop], "n_avg": int(meas_spec.n_avg),
-        "model": {"nmse_percent": _nmse(y, pt.prediction.body_accel[valid]),
-                  "transmissibility_error": _rel(pt.t21, t_meas, mask),
-                  "iterations": pt.prediction.iterations, "residual": pt.prediction.residual},
-        "linear": {"nmse_percent": _nmse(y, lt.prediction.body_accel[valid]),
-                   "transmissibility_error": _rel(lt.t21, t_meas, mask), "source": linear.source},
-        "coherence_measured_median": float(np.median(coherence(meas_spec, 0, 1)[mask])),
+        "valid_samples": [valid.start, valid.stop], "n_avg": int(spec.n_avg), "transmissibility_from": drive_name,
+        "model": {"nmse_percent": _nmse(y, pm.body_accel[valid]),
+                  "transmissibility_error": _rel(t_model, t_meas, mask), "engine": pm.method,
+                  "iterations": pm.iterations, "residual": pm.residual},
+        "linear": {"nmse_percent": _nmse(y, pl.body_accel[valid]),
+                   "transmissibility_error": _rel(t_lin, t_meas, mask), "source": linear.source,
+                   "engine": pl.method},
+        "coherence_measured_median": float(np.median(coherence(spec, 0, 1)[mask])),
     }
-    arrays = {"f": f, "t_meas": t_meas, "t_model": pt.t21, "t_linear": lt.t21, "mask": mask,
-              "a2": a2, "a2_model": pt.prediction.body_accel, "a2_linear": lt.prediction.body_accel,
-              "valid": valid, "fs": fs}
+    arrays = {"f": f, "t_meas": t_meas, "t_model": t_model, "t_linear": t_lin, "mask": mask,
+              "a2": a2, "a2_model": pm.body_accel, "a2_linear": pl.body_accel, "valid": valid, "fs": fs}
     tp = truth_for(path)
-    if tp is not None:
+    if tp is not None and drive_name == "spindle":
         out["truth"] = _truth_comparison(tp, model, f, t_meas, mask)
         if out["truth"].get("t21") is not None:
             arrays["t_true"] = _from_cplx(out["truth"].pop("t21"))
@@ -136,7 +157,7 @@ def _truth_comparison(tp: Path, model, f: np.ndarray, t_meas: np.ndarray, mask: 
     t_nom = _interp(f, model.freq_hz, model.t21)
     return {"file": tp.name, "vehicle": doc["vehicle"], "strut": doc.get("strut"),
             "model_nominal_t21_vs_true": _rel(t_nom, t_true, mask),
-            "model_body_t21_vs_true": _rel(model.body.t21(f), t_true, mask),
+            "model_linear_part_t21_vs_true": _rel(model.linear.t21(f), t_true, mask),
             "measured_h1_vs_true": _rel(t_meas, t_true, mask),
             "t21": {"re": t_true.real.tolist(), "im": t_true.imag.tolist()}}
 
@@ -185,6 +206,7 @@ def _linear_part(model):
 def run(args: argparse.Namespace) -> int:
     from nifo.io.loader import load_record
     from nifo.io.results import PREDICT_JSON, read_model, write_json
+    from nifo_core.errors import NifoError
 
     lo, hi = args.freq_range
     if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):
@@ -193,20 +215,34 @@ def run(args: argparse.Namespace) -> int:
     if linear is None:
         linear = _linear_part(model)
     opts = input_options(args)
-    records = [(Path(p), load_record(p, **opts)) for p in args.data]   # all read before anything is written
-    results, figures = [], []
+    results, failed = [], []
     with staged_dir(args.out) as tmp:
-        for path, rec in records:
-            numbers, arrays = predict_one(path, rec, model, linear, band_hz=(lo, hi), method=args.method)
+        for p in args.data:   # every record it can do is written; the others are named at the end
+            path = Path(p)
+            try:
+                numbers, arrays = predict_one(path, load_record(path, **opts), model, linear, band_hz=(lo, hi),
+                                              method=args.method)
+            except NifoError as err:
+                failed.append((path, err.with_context(source=str(path))))
+                continue
             if not args.no_plots:
                 numbers["figures"] = _figures(tmp, path.name, arrays, (lo, hi), model)
-                figures += numbers["figures"]
             results.append(numbers)
         doc = {"nifo_predict": 1, "model": str(args.model), "model_terms": [t.to_dict() for t in model.terms],
-               "model_c_over_m2": model.c_over_m2.tolist(), "linear_model": linear.source,
-               "method": args.method, "freq_range_hz": [lo, hi], "records": results}
-        write_json(tmp / PREDICT_JSON, doc, atomic=False)
+               "model_c_over_m2": model.c_over_m2.tolist(), "linear_part": model.linear.to_dict(),
+               "linear_model": linear.source, "method": args.method, "freq_range_hz": [lo, hi], "records": results,
+               "failed": [{"path": str(pth), "error": str(err), "exit_code": err.exit_code} for pth, err in failed]}
+        if results:
+            write_json(tmp / PREDICT_JSON, doc, atomic=False)
+        else:
+            raise failed[0][1] if len(failed) == 1 else type(failed[0][1])(
+                f"none of the {len(failed)} records could be predicted: "
+                + "; ".join(str(err) for _, err in failed))
     print(_summary(results, (lo, hi), args.out))
+    if failed:
+        first = failed[0][1]
+        raise type(first)(f"{len(failed)} of {len(failed) + len(results)} records could not be predicted (the others "
+                          f"are in {args.out}/{PREDICT_JSON}): " + "; ".join(str(err) for _, err in failed))
     return 0
 
 

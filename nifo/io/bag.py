@@ -6,7 +6,11 @@ Layout of the bags nifo writes (and expects by default)
   in ``linear_acceleration.<axis>`` [m/s²];
 - ``/nifo/body/imu``: ``sensor_msgs/msg/Imu``, body (sprung) acceleration, likewise;
 - ``/nifo/tire_patch/displacement`` (optional): ``geometry_msgs/msg/PointStamped``,
-  tire-patch displacement in ``point.<axis>`` [m].
+  tire-patch displacement in ``point.<axis>`` [m];
+- ``/nifo/force`` (optional): ``geometry_msgs/msg/WrenchStamped``, a measured
+  force on the body (a shaker rig's load cell) in ``wrench.force.<axis>`` [N];
+  the standard stamped message for a force (what ROS force/torque sensor
+  drivers publish), frame_id ``"force"``.
 
 * One message per sample; ``header.stamp`` is the sample time
   ``t0_ns + round(i · 1e9 / fs_hz)`` and is also the bag's log time.
@@ -69,15 +73,15 @@ from nifo_core.errors import (ConfigError, DataFileError, MissingChannelError, N
 from nifo_core.record import Record
 
 from .atomic import staged_file
-from .cdr import AXES as _AXES, CDR_LE as _CDR_LE, IMU, IMU_BODY as _IMU_BODY, IMU_VALUE as _IMU_VALUE
-from .cdr import POINT_BODY as _POINT_BODY, POINT_STAMPED, POINT_VALUE as _POINT_VALUE, Axis
+from .cdr import AXES as _AXES, CDR_LE as _CDR_LE, IMU
+from .cdr import LAYOUT as _LAYOUT, POINT_STAMPED, WRENCH_STAMPED, Axis
 from .cdr import payloads as _payloads  # the message layout lives in nifo.io.cdr
 
 if TYPE_CHECKING:
     from rosbags.interfaces import Connection
 
 __all__ = ["BagTopics", "TopicData", "read_bag", "iter_bag_chunks", "write_bag", "write_channels",
-           "resolve_topics", "IMU", "POINT_STAMPED"]
+           "resolve_topics", "IMU", "POINT_STAMPED", "WRENCH_STAMPED"]
 
 
 #: rosbag2 metadata version written: 8 is read by Humble and Jazzy (9 is not read by Humble)
@@ -86,9 +90,11 @@ BAG_VERSION = 8
 _SPINDLE_WORDS = ("spindle", "wheel", "unsprung")
 _BODY_WORDS = ("body", "sprung", "chassis")
 _TIRE_WORDS = ("tire", "tyre", "patch", "road")
+_FORCE_WORDS = ("force", "load", "wrench")
+_FORCE_TOPIC = "/nifo/force"
 
 _ROLE_ALIASES = {"spindle": "spindle", "spindle_accel": "spindle", "body": "body", "body_accel": "body",
-                 "tire_patch": "tire_patch", "tire_patch_disp": "tire_patch"}
+                 "tire_patch": "tire_patch", "tire_patch_disp": "tire_patch", "force": "force"}
 
 
 @dataclass(frozen=True)
@@ -104,6 +110,8 @@ class BagTopics:
     spindle: str = "/nifo/spindle/imu"
     body: str = "/nifo/body/imu"
     tire_patch: str | None = "/nifo/tire_patch/displacement"
+    #: None: ``/nifo/force`` when the bag has it (a force is optional)
+    force: str | None = None
 
     @classmethod
     def parse(cls, text: str) -> "BagTopics":
@@ -119,7 +127,8 @@ class BagTopics:
         return cls(**given)
 
     def as_dict(self) -> dict[str, str | None]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        """Topic per role (``force`` only when set)."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "force" or self.force}
 
 
 _DEFAULT_TOPICS = BagTopics()
@@ -158,6 +167,8 @@ def _topic_data(record: Record, topics: BagTopics) -> list[TopicData]:
             raise ConfigError("the record has a tire-patch displacement but no topic was given for it",
                               channel="tire_patch", hint="set BagTopics(tire_patch=...)")
         out.append(TopicData(topics.tire_patch, POINT_STAMPED, "tire_patch", stamps, record.tire_patch_disp))
+    if record.force is not None:
+        out.append(TopicData(topics.force or _FORCE_TOPIC, WRENCH_STAMPED, "force", stamps, record.force))
     return out
 
 
@@ -207,11 +218,11 @@ def write_channels(path: str | os.PathLike, data: Sequence[TopicData], *, axis: 
     if axis not in _AXES:
         raise ConfigError(f"{axis=} is not one of x, y, z", channel="--axis", hint="use --axis x, y or z")
     for td in data:
-        if (td.msgtype not in (IMU, POINT_STAMPED) or np.shape(td.stamp_ns) != np.shape(td.values)
+        if (td.msgtype not in _LAYOUT or np.shape(td.stamp_ns) != np.shape(td.values)
                 or (td.log_ns is not None and np.shape(td.log_ns) != np.shape(td.values))):
             raise ConfigError(f"topic {td.topic}: {td.msgtype} with {np.size(td.stamp_ns)} stamps and "
                               f"{np.size(td.values)} values", channel=td.topic,
-                              hint=f"give {IMU} or {POINT_STAMPED} and one stamp per value")
+                              hint=f"give {IMU}, {POINT_STAMPED} or {WRENCH_STAMPED} and one stamp per value")
     names = [td.topic for td in data]
     if len(set(names)) != len(names):
         raise ConfigError(f"two roles share one topic: {names}", channel="--topics",
@@ -287,7 +298,9 @@ def resolve_topics(available: Mapping[str, str], topics: BagTopics | None, *,
     present; otherwise Imu topics are matched by name: spindle
     ("spindle", "wheel", "unsprung") and body ("body", "sprung", "chassis",
     but not a spindle word); a PointStamped with "tire", "tyre", "patch" or
-    "road" in its name is the tire patch. Raises :class:`MissingChannelError`
+    "road" in its name is the tire patch, a WrenchStamped ``/nifo/force`` or
+    the one with "force", "load" or "wrench" in its name the measured force
+    (the ``force`` role is listed only when found). Raises :class:`MissingChannelError`
     listing the Imu topics when a role is absent or ambiguous.
     """
     imus = sorted(t for t, ty in available.items() if ty == IMU)
@@ -302,11 +315,12 @@ def resolve_topics(available: Mapping[str, str], topics: BagTopics | None, *,
     if topics is not None and topics != _DEFAULT_TOPICS:
         out: dict[str, str | None] = {}
         for role, want, types in (("spindle", topics.spindle, (IMU,)), ("body", topics.body, (IMU,)),
-                                  ("tire_patch", topics.tire_patch, (POINT_STAMPED,))):
+                                  ("tire_patch", topics.tire_patch, (POINT_STAMPED,)),
+                                  ("force", topics.force or _FORCE_TOPIC, (WRENCH_STAMPED,))):
             if want is None:
                 out[role] = None
             elif want not in available:
-                if role == "tire_patch" and want == _DEFAULT_TOPICS.tire_patch:
+                if (role, want) in (("tire_patch", _DEFAULT_TOPICS.tire_patch), ("force", _FORCE_TOPIC)):
                     out[role] = None  # the optional default
                     continue
                 raise missing(role, f"topic {want} is not in the bag")
@@ -315,6 +329,8 @@ def resolve_topics(available: Mapping[str, str], topics: BagTopics | None, *,
                                           source=source, channel=role, hint=fix)
             else:
                 out[role] = want
+        if out.get("force", 0) is None:
+            del out["force"]
         return out
 
     d = _DEFAULT_TOPICS
@@ -334,6 +350,10 @@ def resolve_topics(available: Mapping[str, str], topics: BagTopics | None, *,
     else:
         found = _matching(points, _TIRE_WORDS)
         out["tire_patch"] = found[0] if len(found) == 1 else None
+    wrenches = sorted(t for t, ty in available.items() if ty == WRENCH_STAMPED)
+    found = [_FORCE_TOPIC] if available.get(_FORCE_TOPIC) == WRENCH_STAMPED else _matching(wrenches, _FORCE_WORDS)
+    if len(found) == 1:   # the force role is listed only when present
+        out["force"] = found[0]
     if out["spindle"] == out["body"]:
         raise missing("body", f"spindle and body resolve to the same topic {out['spindle']}")
     return out
@@ -352,7 +372,7 @@ def _decode_buffer(buf: np.ndarray, starts: np.ndarray, sizes: np.ndarray, *, ms
     where the size says, then read stamp and value with strided gathers.
     Anything else goes through rosbags' generic ``deserialize_cdr``.
     """
-    body, value = (_IMU_BODY, _IMU_VALUE) if msgtype == IMU else (_POINT_BODY, _POINT_VALUE)
+    body, value = _LAYOUT[msgtype]
     value += 8 * _AXES[axis]
     n = starts.size
     stamps = np.empty(n, np.int64)
@@ -380,7 +400,8 @@ def _decode_buffer(buf: np.ndarray, starts: np.ndarray, sizes: np.ndarray, *, ms
     for i in np.flatnonzero(~done).tolist():  # odd messages: the generic deserializer
         msg = typestore.deserialize_cdr(buf[starts[i]:starts[i] + sizes[i]].tobytes(), msgtype)
         stamps[i] = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        values[i] = getattr(msg.linear_acceleration if msgtype == IMU else msg.point, axis)
+        values[i] = getattr(msg.linear_acceleration if msgtype == IMU else
+                            msg.point if msgtype == POINT_STAMPED else msg.wrench.force, axis)
     return stamps, values
 
 
@@ -490,7 +511,8 @@ class _Channel:
     log_ns: np.ndarray
 
 
-_CHANNEL_OF_ROLE = {"spindle": "spindle_accel", "body": "body_accel", "tire_patch": "tire_patch_disp"}
+_CHANNEL_OF_ROLE = {"spindle": "spindle_accel", "body": "body_accel", "tire_patch": "tire_patch_disp",
+                    "force": "force"}
 
 
 def _open_checked(path: str | os.PathLike, axis: Axis) -> tuple[Path, str, Path]:
@@ -521,7 +543,8 @@ def read_bag(path: str | os.PathLike, *, topics: BagTopics | None = None, axis: 
     # header stamps, unless a recorder left them all zero: then the receive (log) time
     use_log_time = not any(ch.stamp_ns.any() for ch in chans.values())
     meta = {"format": "rosbag2", "storage": "sqlite3" if _is_sqlite(storage) else "mcap", "path": src,
-            "topics": {role: chans[role].topic if role in chans else None for role in _CHANNEL_OF_ROLE},
+            "topics": {role: chans[role].topic if role in chans else None for role in _CHANNEL_OF_ROLE
+                       if role != "force" or role in chans},   # a force only when there is one
             "axis": axis, "stamps": "receive_time" if use_log_time else "header"}
     if use_log_time:
         meta["stamps_note"] = "header stamps are all zero; the bag's receive (log) time was used"
@@ -582,7 +605,7 @@ def _read_channels(storage: Path, topics: BagTopics | None, axis: Axis, src: str
                                  "'ros2 bag reindex' (directory) or 'mcap recover' (.mcap file)") from err
     for role in list(out):
         if not out[role].values.size:
-            if role == "tire_patch":
+            if role in ("tire_patch", "force"):
                 del out[role]
                 continue
             raise DataFileError("the topic holds no messages", source=src, channel=out[role].topic,
@@ -756,7 +779,8 @@ class _ChunkAssembler:
             meta["chunk"] = {"index": self.index, "start": self.emitted, "total_samples": self.total}
             vals = {r: taken[r][1] for r in self.roles}
             try:
-                rec = Record(self.fs, vals["spindle"], vals["body"], vals.get("tire_patch"), t0_ns=int(ref[0]),
+                rec = Record(self.fs, vals["spindle"], vals["body"], vals.get("tire_patch"), force=vals.get("force"),
+                             t0_ns=int(ref[0]),
                              source=self.name, meta=meta)
             except NifoError as err:
                 raise err.with_context(source=self.src) from None
@@ -818,15 +842,17 @@ def iter_bag_chunks(path: str | os.PathLike, *, chunk_samples: int, topics: BagT
     except Exception as err:
         raise DataFileError(f"cannot read the bag ({str(err).rstrip('.') or type(err).__name__}); the file is "
                             "damaged or truncated", source=src, hint="re-copy the bag") from err
-    if expected.get("tire_patch", 1) == 0:
-        del wanted["tire_patch"], expected["tire_patch"]
+    for opt in ("tire_patch", "force"):
+        if expected.get(opt, 1) == 0:
+            del wanted[opt], expected[opt]
     for role in ("spindle", "body"):
         if expected[role] == 0:
             raise DataFileError("the topic holds no messages", source=src, channel=wanted[role][0],
                                 hint="record again and check that the sensor published")
-    roles = [r for r in ("spindle", "body", "tire_patch") if r in wanted]
+    roles = [r for r in ("spindle", "body", "tire_patch", "force") if r in wanted]
     meta = {"format": "rosbag2", "storage": "mcap", "path": src,
-            "topics": {role: wanted[role][0] if role in wanted else None for role in _CHANNEL_OF_ROLE},
+            "topics": {role: wanted[role][0] if role in wanted else None for role in _CHANNEL_OF_ROLE
+                       if role != "force" or role in wanted},
             "axis": axis, "stamps": "header", "streamed": True}
     asm = _ChunkAssembler(roles, chunk_samples=chunk_samples, src=src, name=path.name,
                           labels={r: wanted[r][0] for r in roles}, meta=meta, total=min(expected.values()))

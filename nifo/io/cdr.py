@@ -1,7 +1,8 @@
-"""The serialized (CDR, little-endian) layout of the two standard messages nifo reads and writes.
+"""The serialized (CDR, little-endian) layout of the standard messages nifo reads and writes.
 
-``sensor_msgs/msg/Imu`` (spindle, body) and ``geometry_msgs/msg/PointStamped``
-(tire patch): encapsulation ``00 01 00 00``, then ``std_msgs/Header`` (stamp
+``sensor_msgs/msg/Imu`` (spindle, body), ``geometry_msgs/msg/PointStamped``
+(tire patch) and ``geometry_msgs/msg/WrenchStamped`` (a measured force on the
+body, ``wrench.force.<axis>`` [N]): encapsulation ``00 01 00 00``, then ``std_msgs/Header`` (stamp
 sec int32, nanosec uint32, frame_id as a CDR string) padded to 8 bytes, then a
 fixed block of float64s. One place for that layout: the bag writer/reader
 (:mod:`nifo.io.bag`) and the ROS nodes (:mod:`nifo_nodes.messages`) both use it.
@@ -15,8 +16,9 @@ import numpy as np
 
 from nifo_core.errors import InputError
 
-__all__ = ["IMU", "POINT_STAMPED", "Axis", "AXES", "CDR_LE", "IMU_BODY", "IMU_VALUE", "POINT_BODY",
-           "POINT_VALUE", "header_size", "header", "payloads", "value_offset"]
+__all__ = ["IMU", "POINT_STAMPED", "WRENCH_STAMPED", "Axis", "AXES", "CDR_LE", "IMU_BODY", "IMU_VALUE", "POINT_BODY",
+           "POINT_VALUE", "WRENCH_BODY", "WRENCH_VALUE", "LAYOUT", "header_size", "header", "payloads",
+           "value_offset"]
 
 IMU = "sensor_msgs/msg/Imu"
 POINT_STAMPED = "geometry_msgs/msg/PointStamped"
@@ -28,6 +30,12 @@ IMU_BODY = 37 * 8
 IMU_VALUE = 25 * 8  # offset of linear_acceleration.x in that block
 POINT_BODY = 3 * 8
 POINT_VALUE = 0  # offset of point.x
+WRENCH_STAMPED = "geometry_msgs/msg/WrenchStamped"
+WRENCH_BODY = 6 * 8  # wrench.force xyz, wrench.torque xyz
+WRENCH_VALUE = 0  # offset of wrench.force.x
+#: (fixed block size, offset of the value's x component) per message type
+LAYOUT = {IMU: (IMU_BODY, IMU_VALUE), POINT_STAMPED: (POINT_BODY, POINT_VALUE),
+          WRENCH_STAMPED: (WRENCH_BODY, WRENCH_VALUE)}
 
 
 def header_size(frame_id: str) -> int:
@@ -36,8 +44,8 @@ def header_size(frame_id: str) -> int:
 
 
 def value_offset(msgtype: str, axis: Axis) -> int:
-    """Offset of the value (``linear_acceleration.<axis>`` or ``point.<axis>``) inside the fixed block."""
-    return (IMU_VALUE if msgtype == IMU else POINT_VALUE) + 8 * AXES[axis]
+    """Offset of the value (``linear_acceleration``/``point``/``wrench.force`` ``.<axis>``) inside the fixed block."""
+    return LAYOUT[msgtype][1] + 8 * AXES[axis]
 
 
 def header(stamp_ns: np.ndarray, frame_id: str) -> np.ndarray:
@@ -63,7 +71,7 @@ def payloads(stamp_ns: np.ndarray, values: np.ndarray, *, frame_id: str, msgtype
     """
     head = header(np.asarray(stamp_ns, np.int64), frame_id)
     values = np.asarray(values, np.float64)
-    body = np.zeros((values.size, (IMU_BODY if msgtype == IMU else POINT_BODY) // 8), "<f8")
+    body = np.zeros((values.size, LAYOUT[msgtype][0] // 8), "<f8")
     if msgtype == IMU:
         body[:, 4] = -1.0  # orientation_covariance[0]
         body[:, 16] = -1.0  # angular_velocity_covariance[0]

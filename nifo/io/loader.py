@@ -28,7 +28,13 @@ Silverbox's input and output::
     --columns force=um@SNJP_um_full_FNSI_50.mat,body_disp=ym,spindle_accel=fixed,fs=fs
 
 and ``spindle_accel=fixed`` declares a spindle that does not move (a single
-mass driven by the measured force). The channel from the other file must have
+mass driven by the measured force). So that one ``--columns`` serves many
+files, FILE may name the other file after the data file: ``{name}`` and
+``{stem}`` are the data file's name and stem, ``{name:OLD=NEW}`` its name with
+OLD replaced by NEW — for every Silverbox level at once::
+
+    --columns body_disp=ym,force=um@{name:_ym_=_um_},spindle_accel=fixed
+ The channel from the other file must have
 the same number of samples (and rate, when that file gives one).
 
 Transient start: ``skip_seconds`` drops that much from the start,
@@ -41,6 +47,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -249,7 +256,21 @@ def _skip(seconds, periods, period_samples, *, source: str) -> Skip:
                 None if period_samples is None else int(period_samples))
 
 
+_TEMPLATE = re.compile(r"\{(name|stem)(?::([^=}]*)=([^}]*))?\}")
+
+
 def _external_path(base: str | os.PathLike, name: str) -> Path:
+    b = Path(base)
+
+    def sub(m: re.Match) -> str:
+        out = b.name if m[1] == "name" else b.stem
+        if m[2] is not None:
+            if m[2] not in out:
+                raise ConfigError(f"{{{m[1]}:{m[2]}={m[3]}}}: {m[2]!r} does not occur in {out!r}", source=str(base),
+                                  channel="--columns", hint="give the part of the data file's name to replace")
+            out = out.replace(m[2], m[3])
+        return out
+    name = _TEMPLATE.sub(sub, name)
     p = Path(name).expanduser()
     if not p.is_absolute():
         near = Path(base).parent / p

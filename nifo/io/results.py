@@ -17,8 +17,12 @@
 
 ``model.json`` (``nifo_identified_model: 1``)
     :meth:`IdentifiedModel.to_dict` (T21, B_i, terms, pooled c_i/M2, the
-    parametric body model, settings, provenance: data files, model file,
-    identify settings), plus ``linear_h1``: the plain-H1 model at the
+    one-mass body model or null, ``linear_part``: the linear part predictions
+    use — ``kind`` body or rational, ``order``, ``fit_rms``, ``stable``,
+    ``physical``, ``reason`` it was chosen, the ``candidates`` tried, and for a
+    rational one its ``poles``/``residues`` —, ``force_gain`` 1/M2, settings,
+    provenance: data files, model file, identify settings; files without
+    ``linear_part`` are read with the body as linear part), plus ``linear_h1``: the plain-H1 model at the
     identification level (the equivalent linearisation) that ``nifo predict``
     compares against. :func:`read_model` returns both.
 """
@@ -175,11 +179,19 @@ def write_model(path: str | os.PathLike, model: IdentifiedModel, *, linear: Iden
 def read_model(path: str | os.PathLike) -> tuple[IdentifiedModel, IdentifiedModel | None]:
     """The identified model and (when stored) its plain-H1 linear counterpart from a ``model.json``.
 
-    ``path`` may also be the directory ``nifo identify`` wrote.
+    ``path`` may also be a directory holding ``model.json`` (what ``nifo identify``
+    or ``nifo loop`` wrote). A missing file is named, with what writes it.
     """
     p = Path(path)
     if p.is_dir():
+        if not (p / MODEL_JSON).is_file():
+            raise DataFileError(f"the directory has no {MODEL_JSON}", source=str(p),
+                                hint=f"give the output directory of nifo identify or nifo loop, or the {MODEL_JSON} "
+                                     "file itself (identify.json alone cannot predict)")
         p = p / MODEL_JSON
+    elif not p.exists():
+        raise DataFileError(f"identified model file {p.name} does not exist", source=str(p),
+                            hint=f"give the {MODEL_JSON} (or its directory) that nifo identify or nifo loop wrote")
     doc = read_json(p, what="identified model")
     if doc.get("nifo_identified_model") != 1:
         raise ConfigError("not an identified model file (no 'nifo_identified_model: 1')", source=str(p),
