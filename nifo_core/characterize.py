@@ -524,6 +524,8 @@ def _score(data: _Data, base: list[np.ndarray], term: Term, *, thresholds: Thres
         failed.append("coefficient stability unknown: the term acts in only one data group")
     elif spread > thresholds.max_spread:
         failed.append(f"coefficient spread {spread:.2f} > {thresholds.max_spread:g}")
+    elif np.any((np.sign(gth_a) != np.sign(theta)) & (w_a >= 0.1 * w_a.max())):
+        failed.append("the coefficient changes sign across the data groups: " + ", ".join(f"{g:.3g}" for g in gth_a))
     dr2 = max(rss0 - rss1, 0.0) / tss if tss > 0 else 0.0
     if dr2 < thresholds.min_delta_r2:
         failed.append(f"ΔR² {dr2:.1e} < {thresholds.min_delta_r2:g}")

@@ -47,12 +47,21 @@ class RandomRoad:
     rms_m : float
         RMS of the displacement xb [m]; 0.5-7 mm is typical (METHOD.md §6).
     f_lo_hz, f_hi_hz : float
-        Flat band of the displacement spectrum [Hz].
+        Band of the displacement spectrum [Hz].
+    spectrum : {'flat', 'iso8608'}
+        ``'flat'``: flat displacement spectrum in the band. ``'iso8608'``: displacement PSD
+        ∝ f⁻² (amplitude ∝ 1/f, constant velocity spectrum) from ``corner_hz`` up, as real
+        roads (ISO 8608 at constant speed; METHOD.md §6): a low RMS level then keeps ż small, so
+        a play is seen apart from a damper knee (the paper's two-step procedure).
+    corner_hz : float
+        Where the ISO-like spectrum starts to fall [Hz] (flat below).
     """
 
     rms_m: float
     f_lo_hz: float = 0.5
     f_hi_hz: float = 40.0
+    spectrum: str = "flat"
+    corner_hz: float = 1.0
 
     def __post_init__(self) -> None:
         rms = float(self.rms_m)
@@ -66,6 +75,9 @@ class RandomRoad:
         hi = _check_positive("road f_hi_hz", self.f_hi_hz)
         if lo >= hi:
             raise ConfigError(f"road band {lo:g}-{hi:g} Hz must satisfy f_lo < f_hi", hint="e.g. 0.5-40 Hz")
+        if self.spectrum not in ("flat", "iso8608"):
+            raise ConfigError(f"road spectrum {self.spectrum!r} must be 'flat' or 'iso8608'")
+        _check_positive("road corner_hz", self.corner_hz)
 
     @property
     def top_hz(self) -> float:
@@ -73,8 +85,11 @@ class RandomRoad:
         return EDGE_HI * self.f_hi_hz
 
     def to_dict(self) -> dict:
-        return {"kind": "random", "rms_m": float(self.rms_m), "f_lo_hz": float(self.f_lo_hz),
-                "f_hi_hz": float(self.f_hi_hz)}
+        d = {"kind": "random", "rms_m": float(self.rms_m), "f_lo_hz": float(self.f_lo_hz),
+             "f_hi_hz": float(self.f_hi_hz)}
+        if self.spectrum != "flat":
+            d |= {"spectrum": self.spectrum, "corner_hz": float(self.corner_hz)}
+        return d
 
 
 @dataclass(frozen=True)
@@ -158,6 +173,8 @@ def _random(road: RandomRoad, fs_hz: float, n: int, rng: np.random.Generator) ->
     f = np.fft.rfftfreq(nfft, 1.0 / fs_hz)
     re, im = rng.standard_normal((2, f.size))
     spec = (re + 1j * im) * _band_gain(f, road.f_lo_hz, road.f_hi_hz)
+    if road.spectrum == "iso8608":  # amplitude ∝ 1/f above the corner (displacement PSD ∝ f⁻²)
+        spec = spec * np.minimum(1.0, road.corner_hz / np.maximum(f, 1e-12))
     xb = sfft.irfft(spec, nfft)
     scale = road.rms_m / np.sqrt(np.mean(xb**2))
     xbd = sfft.irfft(spec * (2j * np.pi * f), nfft)  # exact derivative of the band-limited signal

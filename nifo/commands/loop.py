@@ -9,6 +9,10 @@ repeats (:mod:`nifo_core.loop`). Writes, atomically, to DIR:
 
 - ``loop.json``          declared model, ranked candidates of each round, effects added
                          (kind and parameters as in the library), errors before/after, verdict;
+- ``model.json``         the refined model as fitted by the loop (the one whose held-out prediction
+                         it reports), with its linear counterpart: ``nifo predict --model DIR/model.json``
+                         takes it directly; absent, with the reason in loop.json and on screen, when no
+                         predictive model could be made (e.g. a non-physical one-mass fit);
 - ``refined_model.yaml`` the declared model plus the added effects (``nifo identify`` reads it);
 - ``loop_errors.png``    held-out NMSE and per-band residual before and after each round;
 - ``loop_roundN.png``    the residual against the added effect's variable, before and after.
@@ -24,7 +28,7 @@ from nifo.io.atomic import check_output, staged_dir
 from nifo.io.loader import add_input_arguments, input_options, load_record
 from nifo.io.modelfile import load_model_spec, write_model_spec
 from nifo.io.provenance import add_system_argument, input_provenance, system_of
-from nifo.io.results import write_json
+from nifo.io.results import MODEL_JSON, write_json, write_model
 from nifo.progress import Progress
 from nifo_core import __version__
 from nifo_core.characterize import DEFAULT_KINDS, Thresholds
@@ -111,9 +115,16 @@ def run(args: argparse.Namespace) -> int:
         model_settings["band_hz"] = [res.band.f_lo_hz, res.band.f_hi_hz]
         write_model_spec(tmp / "refined_model.yaml", res.terms, settings=model_settings,
                          note=_note(res), suggested_by=f"nifo loop {__version__}")
+        written = ["loop.json", "refined_model.yaml", *figures]
+        if res.model is not None:
+            write_model(tmp / MODEL_JSON, res.model, linear=res.linear_model, atomic=False)
+            written.insert(1, MODEL_JSON)
     print(res.report())
-    print(f"wrote {args.out}/ (loop.json, refined_model.yaml, {', '.join(figures)})")
-    return {"out": str(args.out), "added": [c.term.label for c in res.added], "figures": figures,
+    if res.model is None:
+        print(f"no {MODEL_JSON} written: {res.model_unavailable}")
+    print(f"wrote {args.out}/ ({', '.join(written)})")
+    return {"out": str(args.out), "added": [c.term.label for c in res.added], "files": written,
+            "model_json": None if res.model is None else str(args.out / MODEL_JSON),
             **{k: doc[k] for k in ("errors_before", "errors_after") if k in doc}}
 
 

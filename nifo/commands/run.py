@@ -92,6 +92,45 @@ def _levels(char_dir: Path, data: list[Path]) -> list[Path]:
     return sorted(data, key=lambda p: rms.get(str(p), 0.0))
 
 
+def _two_step_model(ordered: list[Path], char_dir: Path,
+                    given: argparse.Namespace | None = None) -> tuple[Path, str] | None:
+    """The paper's two-step model (§3.3) when the levels call for it, else None.
+
+    The lowest and the highest level are characterized alone. The terms the
+    highest level suggests are identified on every level but the lowest (step 2);
+    the terms the lowest suggests on a different variable (a play in z where the
+    high level shows a damper knee in ż) are identified first on the lowest level,
+    where the high level's terms hardly act (step 1). Writes the model file
+    ``two_step_model.yaml`` beside characterize/ and returns it with one line
+    naming both steps.
+    """
+    import yaml
+
+    from nifo.io.modelfile import load_model_spec
+
+    base = char_dir.parent / "characterize_levels"
+    suggested = {}
+    for name, path in (("lowest", ordered[0]), ("highest", ordered[-1])):
+        _call("characterize", [str(path), "--out", str(base / name)], given)
+        suggested[name] = load_model_spec(base / name / "suggested_model.yaml").terms
+    high = list(suggested["highest"])
+    variables = {t.variable for t in high}
+    low = [t for t in suggested["lowest"] if t.variable not in variables and t.kind not in {h.kind for h in high}]
+    if not high or not low:
+        return None
+    doc = {"nifo_model": 1, "suggested_by": "nifo run (two-step from the levels)",
+           "steps": [{"name": f"{', '.join(t.kind for t in low)} on the lowest level",
+                      "nonlinearities": [t.to_dict() for t in low], "data": [str(ordered[0].resolve())]},
+                     {"name": f"{', '.join(t.kind for t in high)} on the higher level(s)",
+                      "nonlinearities": [t.to_dict() for t in high],
+                      "data": [str(p.resolve()) for p in ordered[1:]]}]}
+    path = base / "two_step_model.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    text = (f"step 1: {' + '.join(t.label for t in low)} on {ordered[0].name} (the lowest level); step 2: "
+            f"{' + '.join(t.label for t in high)} on {', '.join(p.name for p in ordered[1:])}")
+    return path, text
+
+
 def loop_available() -> bool:
     """Whether ``nifo loop`` is part of this build."""
     try:
@@ -133,9 +172,19 @@ def _run(args: argparse.Namespace, data: list[Path], out: Path) -> int:
     ident = ordered if args.identify_on == "all" else ordered[-1:]
     others = [p for p in ordered if p not in ident]
 
-    t = begin(f"identify (NIFO) on {', '.join(p.name for p in ident)} with the suggested model")
-    _call("identify", [*map(str, ident), "--model", str(model), "--out", str(dirs["identify"])], args)
+    two = _two_step_model(ordered, dirs["characterize"], args) if len(ordered) >= 2 else None
+    if two is not None:
+        model, text = two
+        ident = ordered
+        t = begin(f"identify (NIFO) in two steps: {text}")
+        print(text)
+        _call("identify", ["--model", str(model), "--out", str(dirs["identify"])], args)
+        notes.append(f"Two-step model chosen from the data: {text}")
+    else:
+        t = begin(f"identify (NIFO) on {', '.join(p.name for p in ident)} with the suggested model")
+        _call("identify", [*map(str, ident), "--model", str(model), "--out", str(dirs["identify"])], args)
     timings["identify"] = time.monotonic() - t
+    others = [p for p in ordered if p != ordered[-1]] if two is not None else others
 
     results = [dirs["characterize"], dirs["identify"]]
     pred_on = others or ([] if len(data) < 2 else ordered[:-1])

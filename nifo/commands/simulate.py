@@ -47,6 +47,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     road = p.add_mutually_exclusive_group()
     road.add_argument("--road-rms", type=float, metavar="MM", help="random road RMS displacement [mm] (default 2.5)")
     road.add_argument("--chirp", type=float, metavar="AMPLITUDE_MM", help="slow chirp road amplitude [mm]")
+    p.add_argument("--road-spectrum", choices=("flat", "iso8608"), default="flat",
+                   help="random road displacement spectrum: flat 0.5-40 Hz (default) or falling as 1/f above 1 Hz "
+                        "like a real road (ISO 8608)")
     p.add_argument("--duration", type=float, metavar="S", help="record length [s] (default 300, or the chirp sweep)")
     p.add_argument("--fs", type=float, default=600.0, metavar="HZ", help="sample rate [Hz] (default 600)")
     p.add_argument("--oversample", type=int, default=10, metavar="N", help="integration rate = fs·N (default 10)")
@@ -89,7 +92,7 @@ def config_from_args(args: argparse.Namespace) -> SimConfig:
     if args.chirp is not None:
         road = ChirpRoad(args.chirp * 1e-3)
     else:
-        road = RandomRoad((2.5 if args.road_rms is None else args.road_rms) * 1e-3)
+        road = RandomRoad((2.5 if args.road_rms is None else args.road_rms) * 1e-3, spectrum=args.road_spectrum)
     return SimConfig(strut=strut, tire_lift_off=args.tire_lift_off, road=road, duration_s=args.duration,
                      fs_hz=args.fs, oversample=args.oversample, noise=SensorNoise(relative=args.noise))
 

@@ -71,7 +71,7 @@ _SECTION_TITLES = {"characterize": "Characterization: which nonlinearities, how 
                    "predict": "Prediction at the other level(s)",
                    "loop": "Closing the loop: what the model lacked, error before and after"}
 
-_NMSE_KEYS = ("heldout_nmse_pct", "nmse_percent", "nmse", "held_out_nmse_percent")
+_NMSE_KEYS = ("prediction_nmse_pct", "nmse_percent", "nmse", "held_out_nmse_percent")
 _SETTING_KEYS = ("settings", "band", "band_choice", "thresholds", "freq_window_hz", "freq_range_hz", "method",
                  "model_file", "model", "linear_model", "input", "system")
 
@@ -269,10 +269,11 @@ def _terms_text(terms, element: str) -> str:
 def _errors_rows(before: Mapping, after: Mapping) -> list[list[str]]:
     """Metric | before | after, from the loop's error summaries (held-out NMSE, equation error, bands, T)."""
     rows = []
-    for key, label, fmt in (("heldout_nmse_pct", "held-out NMSE (output predicted) [%]", ".3g"),
-                            ("equation_nmse_pct", "equation error, held out (force balance) [%]", ".3g")):
-        if key in before or key in after:
-            rows.append([label, _num(before.get(key), fmt), _num(after.get(key), fmt)])
+    for key, label, fmt in (("prediction_nmse_pct", "held-out prediction NMSE (output simulated) [%]", ".3g"),
+                            ("equation_nmse_pct", "held-out equation error (force balance) [%]", ".3g")):
+        if key in before or key in after:  # a side without a prediction says so: never another metric instead
+            rows.append([label] + [_num(d.get(key), fmt) if d.get(key) is not None or key != "prediction_nmse_pct"
+                                   else "not computed" for d in (before, after)])
     bb, ba = before.get("band_residual_db") or {}, after.get("band_residual_db") or {}
     for band in bb or ba:
         rows.append([f"residual {band} Hz [dB]", _num(bb.get(band), ".1f"), _num(ba.get(band), ".1f")])

@@ -1,0 +1,195 @@
+"""What the data could not reveal: detection limits per kind, and confounded pairs (METHOD.md §5).
+
+"Nothing significant is missing" is only half an answer; the other half is how
+big an effect would have had to be to be seen in *these* data (their noise,
+levels, length and the terms already in the model), and which effects the
+data cannot tell apart at all.
+
+Detection limit
+    The loop accepts a candidate column g (band-limited after the map,
+    orthogonalised against z, ż and the model's terms: g⊥) only if the F-test
+    with N_eff effective samples passes at the Bonferroni level α/n_grid and it
+    explains ≥ ``min_err`` of the residual (:mod:`nifo_core.characterize`). Adding
+    θ·g to the truth lowers the residual sum of squares by θ²·Σg⊥² (in
+    expectation), so the smallest θ the test could have passed is
+
+        θ_min = sqrt( max(F_crit·RSS/dof, min_err·RSS) / Σg⊥² ),
+        F_crit = F⁻¹(1 - α/n_grid; 1, dof),   dof = N_eff - q,
+
+    with RSS the current model's residual. Reported as a coefficient (per kg,
+    or in N, N/m... with M2) and as the peak force θ_min·M2·|g|₉₉.₅ of the effect
+    on the measured motion [N or N/kg].
+
+Confounding
+    Two terms on different variables (z and ż: a play and a damper knee, say)
+    whose orthogonalised columns correlate at |ρ| ≥ ``rho_max`` (0.8: the shared part
+    is ≥ 64 % of each, the detection limit of either given the other grows
+    ≥ 1/sqrt(1 - ρ²) ≈ 1.7×) explain mostly the same residual: the fit splits it
+    between them almost arbitrarily. The motion is scaled (≈ linear
+    response) by factors below and above the data's levels until |ρ| falls
+    below ``rho_sep``: that level, relative to the lowest record, is where a
+    record would separate them (the paper's two-step procedure, §3.3).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from scipy import stats
+
+from .characterize import Candidate, Thresholds
+from .describing import Term
+from .restoring import RestoringForce, bandpass, bandpass_settle_samples
+
+__all__ = ["DetectionLimit", "Confounding", "detection_limits", "confounded_pairs"]
+
+
+@dataclass(frozen=True)
+class DetectionLimit:
+    """The smallest effect of one kind these data would have revealed.
+
+    Attributes
+    ----------
+    term : Term
+        The kind's best candidate (its parameters) on the current residual.
+    theta_per_kg : float
+        Smallest detectable coefficient c/M2 [unit of c per kg].
+    coefficient : float or None
+        The same times M2 [N, N/m, N·s/m...] when M2 is known.
+    peak_force : float
+        Peak (99.5 % quantile) force of that effect on the measured motion [N with M2, else N/kg].
+    unit : str
+        Unit of ``coefficient``.
+    """
+
+    term: Term
+    theta_per_kg: float
+    coefficient: float | None
+    peak_force: float
+    unit: str
+
+    def text(self) -> str:
+        f = (f"{self.peak_force:.3g} N" if self.coefficient is not None else f"{self.peak_force:.3g} N per kg of M2")
+        c = (f"{self.coefficient:.3g} {self.unit}" if self.coefficient is not None
+             else f"{self.theta_per_kg:.3g} {self.unit}/kg")
+        return f"{self.term.kind} ({self.term.label}) with a peak force below ±{f} (coefficient {c})"
+
+    def to_dict(self) -> dict:
+        return {"kind": self.term.kind, "term": self.term.to_dict(), "theta_per_kg": self.theta_per_kg,
+                "coefficient": self.coefficient, "coefficient_unit": self.unit, "peak_force": self.peak_force,
+                "peak_force_unit": "N" if self.coefficient is not None else "N/kg"}
+
+
+@dataclass(frozen=True)
+class Confounding:
+    """Two terms the data cannot tell apart, and the level that would (relative to the lowest record)."""
+
+    a: Term
+    b: Term
+    rho: float
+    separating_scale: float | None
+    reference: str
+    zdot_rms_at_scale: float | None
+
+    def text(self) -> str:
+        where = ("no level between 0.05× and 3× the data's separates them" if self.separating_scale is None else
+                 f"add a record at ≈ {self.separating_scale:.2g}× the excitation of {self.reference or 'the lowest record'}"
+                 f" (relative-velocity RMS ≈ {self.zdot_rms_at_scale:.2g} m/s)")
+        return (f"{self.a.kind} ({self.a.label}) and {self.b.kind} ({self.b.label}) cannot be told apart at these "
+                f"levels (correlation {self.rho:+.2f} beyond the linear terms; either hides up to "
+                f"{1 / np.sqrt(max(1 - self.rho ** 2, 1e-12)):.1f}× its own detection limit in the other): {where}")
+
+    def to_dict(self) -> dict:
+        return {"a": self.a.to_dict(), "b": self.b.to_dict(), "rho": self.rho,
+                "separating_scale": self.separating_scale, "reference": self.reference,
+                "zdot_rms_at_scale": self.zdot_rms_at_scale, "text": self.text()}
+
+
+def _columns(rfs: Sequence[RestoringForce], terms: Sequence[Term], scale: float = 1.0) -> np.ndarray:
+    """[z, ż, g_1, ...] band-passed after the map, edges settled, records stacked (rows × columns)."""
+    out = []
+    for rf in rfs:
+        s = bandpass_settle_samples(rf.fs_hz, rf.band)
+        z, v = scale * rf.z, scale * rf.zdot
+        cols = np.vstack([z, v, *[t.evaluate(z, v) for t in terms]])
+        out.append(bandpass(cols, rf.fs_hz, rf.band)[:, s:rf.n - s].T)
+    return np.vstack(out)
+
+
+def _orth(a: np.ndarray, basis: np.ndarray) -> np.ndarray:
+    q, _ = np.linalg.qr(basis)
+    return a - q @ (q.T @ a)
+
+
+def detection_limits(rfs: Sequence[RestoringForce], terms: Sequence[Term], candidates: Sequence[Candidate], *,
+                     m2_kg: float | None = None, thresholds: Thresholds = Thresholds(),
+                     n_grid: int = 24) -> tuple[DetectionLimit, ...]:
+    """Smallest detectable effect of each candidate's kind (module docstring), one per kind.
+
+    Parameters
+    ----------
+    rfs : sequence of RestoringForce
+        The data the loop traced (its fit parts).
+    terms : sequence of Term
+        The model's terms (besides the linear strut).
+    candidates : sequence of Candidate
+        Each kind's best candidate on the current residual (``rank_beyond``); their ``n_eff`` is used.
+    m2_kg : float, optional
+    thresholds : Thresholds
+        The loop's acceptance thresholds (α, min_err).
+    n_grid : int
+        Grid size of the Bonferroni correction.
+    """
+    x = _columns(rfs, terms)
+    y = np.concatenate([bandpass(rf.force, rf.fs_hz, rf.band)[bandpass_settle_samples(rf.fs_hz, rf.band):
+                                                                 rf.n - bandpass_settle_samples(rf.fs_hz, rf.band)]
+                        for rf in rfs])
+    coef = np.linalg.lstsq(x, y, rcond=None)[0]
+    rss = float(np.sum((y - x @ coef) ** 2))
+    out = []
+    for c in candidates:
+        g = _columns(rfs, [c.term])[:, 2]
+        gp = _orth(g, x)
+        info = float(gp @ gp)
+        if not info > 0:
+            continue
+        dof = max(float(c.n_eff) - x.shape[1] - 1, 1.0)
+        f_crit = float(stats.f.isf(min(thresholds.alpha / max(n_grid, 1), 0.5), 1, dof))
+        theta = float(np.sqrt(max(f_crit * rss / dof, thresholds.min_err * rss) / info))
+        raw = np.concatenate([np.abs(c.term.evaluate(rf.z, rf.zdot)) for rf in rfs])
+        peak = theta * float(np.quantile(raw, 0.995)) * (m2_kg or 1.0)
+        out.append(DetectionLimit(term=c.term, theta_per_kg=theta,
+                                  coefficient=None if m2_kg is None else theta * m2_kg, peak_force=peak,
+                                  unit=c.term.spec.coef_unit))
+    return tuple(out)
+
+
+def confounded_pairs(rfs: Sequence[RestoringForce], terms: Sequence[Term], candidates: Sequence[Term], *,
+                     rho_max: float = 0.8, rho_sep: float = 0.5) -> tuple[Confounding, ...]:
+    """Model terms and candidates on different variables that the data cannot tell apart (module docstring)."""
+    out = []
+    lowest = min(rfs, key=lambda rf: float(np.std(rf.zdot)))
+    for a in terms:
+        for b in candidates:
+            if b.variable == a.variable or b.kind == a.kind:
+                continue
+            rho = _rho(rfs, a, b, 1.0)
+            if not abs(rho) >= rho_max:
+                continue
+            scale = None
+            for s in [*np.geomspace(0.9, 0.05, 24), *np.geomspace(1.1, 3.0, 12)]:
+                if abs(_rho([lowest], a, b, float(s))) < rho_sep:
+                    scale = float(s)
+                    break
+            out.append(Confounding(a, b, rho, scale, lowest.source,
+                                   None if scale is None else scale * float(np.std(lowest.zdot))))
+    return tuple(out)
+
+
+def _rho(rfs: Sequence[RestoringForce], a: Term, b: Term, scale: float) -> float:
+    x = _columns(rfs, [a, b], scale)
+    ga, gb = _orth(x[:, 2], x[:, :2]), _orth(x[:, 3], x[:, :2])
+    d = float(np.linalg.norm(ga) * np.linalg.norm(gb))
+    return float(ga @ gb / d) if d > 0 else 0.0

@@ -1,0 +1,54 @@
+"""Coverage of the loop's coefficient bounds (nifo_core.uncertainty) over 20 simulated seeds.
+
+The equation-error fit of the loop (k, c, θ of the true term) on 60 s records
+with 2 % sensor noise; the 95 % random-error bound must hold the truth in at
+least 18 of 20 seeds for a term the noise does not bias (quadratic damping).
+A Coulomb term is biased by noise reaching tanh(ż/ε) through ż (paper §2.2):
+measured and printed, not asserted as covered.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from nifo_core.describing import Term
+from nifo_core.loop import LoopSettings, loop_band
+from nifo_core.loop_residual import _design, _Evaluator
+from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
+from nifo_core.uncertainty import coefficient_bounds
+
+M2 = 300.0
+
+
+def _coverage(term: Term, coef: float) -> tuple[np.ndarray, np.ndarray]:
+    hits, est = [], []
+    for seed in range(20):
+        cfg = SimConfig(strut=(StrutForce(term, coef),), road=RandomRoad(rms_m=0.0025), duration_s=60.0,
+                        fs_hz=600.0, noise=SensorNoise(relative=0.02))
+        sim = simulate(cfg, rng=500 + seed)
+        band, _ = loop_band([sim.record])
+        ev = _Evaluator([sim.record], band, LoopSettings(prediction="none"))
+        y, x = _design(ev.fit_parts, [term])
+        b = coefficient_bounds(x, y, 600.0, segments=[p.y.size for p in ev.fit_parts])
+        v = sim.truth.vehicle
+        truth = np.array([v.k2 / M2, v.c2 / M2, coef / M2])
+        hits.append(np.abs(b.theta - truth) <= b.half_width)
+        est.append(b.theta[-1] * M2)
+    return np.mean(hits, axis=0), np.array(est)
+
+
+@pytest.mark.slow
+def test_quadratic_damping_bounds_hold_the_truth_in_18_of_20_seeds():
+    cov, est = _coverage(Term("quadratic_damping"), 2000.0)
+    print(f"quadratic damping: coverage k {cov[0]:.2f}, c {cov[1]:.2f}, θ {cov[2]:.2f}; θ·M2 median {np.median(est):.0f}")
+    assert np.all(cov >= 0.9)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=False, reason="measured: Coulomb 100 N comes back ≈ 95 N with a ±0.6 N random-error bound "
+                   "(bias from noise through ż, not in the bound)")
+def test_coulomb_bounds_hold_the_truth():
+    cov, est = _coverage(Term("coulomb", {"eps": 0.005}), 100.0)
+    print(f"coulomb: coverage k {cov[0]:.2f}, c {cov[1]:.2f}, θ {cov[2]:.2f}; θ·M2 median {np.median(est):.1f} N")
+    assert np.all(cov >= 0.9)
