@@ -159,7 +159,8 @@ def assemble_record(channels: Mapping[str, tuple[np.ndarray | None, np.ndarray]]
     src = str(path)
     meta = dict(meta)
     asm = assembly or Assembly()
-    names = [c for c in READ_ROLES if c in channels]
+    # a fixed spindle: a spindle column the file may still hold (zeros) is not a channel of this record
+    names = [c for c in READ_ROLES if c in channels and not (asm.spindle_fixed and c == "spindle_accel")]
     values = {c: np.asarray(channels[c][1], dtype=np.float64).ravel() for c in names}
     stamps = {c: channels[c][0] for c in names}
     if all(s is None for s in stamps.values()):
