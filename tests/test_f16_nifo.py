@@ -11,8 +11,10 @@ from pathlib import Path
 
 import pytest
 
+from conftest import SHARED_DATA
+
 ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT.parent / "shared" / "data" / "f16"
+DATA = SHARED_DATA / "f16"
 
 pytestmark = pytest.mark.skipif(not (DATA / "F16Data_FullMSine_Level7.mat").is_file(),
                                 reason="F-16 benchmark data not available")
