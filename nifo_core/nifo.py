@@ -73,7 +73,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from .describing import Term
-from .errors import ConfigError, InputError, SampleRateError
+from .errors import ConfigError, InputError, NifoError, SampleRateError
 from .integrate import IntegrationBand, default_band
 from .nifo_estimate import nifo_from_spectra
 from .nifo_result import (A1, DEFAULT_ANALYSIS_BAND_HZ, DEFAULT_COND_LIMIT, FORCE, XB, FixedTerms,
@@ -165,7 +165,10 @@ def identify_nifo(records: Sequence[Record] | Record, terms: Sequence[Term], *,
                          hint="give the force channel (--columns force=NAME)")
     if use_force:
         input_measured = False
-    band = band or default_band(fs, min(r.duration_s for r in recs))
+    try:
+        band = band or default_band(fs, min(r.duration_s for r in recs))
+    except NifoError as err:   # name the record that is too short
+        raise err.with_context(source=min(recs, key=lambda r: r.duration_s).source) from None
     proto = StreamingNifo(fs, terms, settings=settings, band=band, fixed=fixed, with_tire_patch=input_measured,
                           spindle_noise_psd=spindle_noise_psd, analysis_band_hz=analysis_band_hz,
                           on_ill_conditioned=on_ill_conditioned,

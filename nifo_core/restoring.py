@@ -33,7 +33,7 @@ import numpy as np
 from scipy import fft as sfft
 from scipy import signal, stats
 
-from .errors import ConfigError, InputError, RecordTooShortError
+from .errors import ConfigError, InputError, NifoError, RecordTooShortError
 from .integrate import IntegrationBand, default_band, integrate, integrator_taps
 from .record import Record
 
@@ -195,7 +195,10 @@ def restoring_force(record: Record, *, band: IntegrationBand | None = None,
         -ẍ2 (band-passed), z and ż, with the integrator's edge samples dropped.
     """
     fs = float(record.fs_hz)
-    band = (band or default_band(fs, record.duration_s)).validate(fs)
+    try:
+        band = (band or default_band(fs, record.duration_s)).validate(fs)
+    except NifoError as err:
+        raise err.with_context(source=record.source) from None
     rel = np.asarray(record.body_accel) - np.asarray(record.spindle_accel)  # subtract first
     try:
         it = integrate(rel, fs, band=band)
@@ -257,7 +260,10 @@ def suggest_band(record: Record, *, min_snr_db: float = 10.0, check_to_hz: float
     (METHOD.md §3), for which a lower edge may be chosen knowingly.
     """
     fs = float(record.fs_hz)
-    base = default_band(fs, record.duration_s)
+    try:
+        base = default_band(fs, record.duration_s)
+    except NifoError as err:
+        raise err.with_context(source=record.source) from None
     f_hi = float(f_hi_hz) if f_hi_hz is not None else base.f_hi_hz
     rel = np.asarray(record.body_accel) - np.asarray(record.spindle_accel)
     nper = int(min(2 ** np.ceil(np.log2(fs / 0.05)), max(256, record.n // 4)))

@@ -22,7 +22,8 @@ from nifo.io.atomic import check_output, staged_dir
 from nifo.io.loader import add_input_arguments, input_options
 from nifo.io.provenance import add_system_argument, input_provenance, system_of
 from nifo.progress import Progress
-from nifo_core.errors import ConfigError, IllConditionedError, InputError, RecordTooShortError, SampleRateError
+from nifo_core.errors import (ConfigError, IllConditionedError, InputError, NifoError, RecordTooShortError,
+                              SampleRateError)
 
 HELP = "identify the nominal linear transmissibility and the nonlinear coefficient functions (NIFO)"
 DESCRIPTION = f"""{HELP}.
@@ -163,7 +164,10 @@ def accumulate(paths: list[Path], terms, cfg: dict, *, opts: dict, chunk_samples
                           hint="identify files of one kind together")
     spindle_fixed = fixed_sp.pop()
     has_tp = all(c.has_tire_patch for c in firsts) and not has_force
-    band = cfg["band"] or default_band(fs, min(totals) / fs)
+    try:
+        band = cfg["band"] or default_band(fs, min(totals) / fs)
+    except NifoError as err:   # name the record that is too short
+        raise err.with_context(source=str(paths[int(np.argmin(totals))])) from None
 
     def fresh() -> StreamingNifo:
         return StreamingNifo(fs, terms, settings=cfg["spectral"], band=band, with_tire_patch=has_tp,
