@@ -107,6 +107,17 @@ def _error_doc(err: BaseException, code: int) -> dict:
     return {"type": type(err).__name__, "exit_code": code, "message": str(err)}
 
 
+def _interrupted(exc: BaseException) -> bool:
+    """Whether ``exc`` was raised while a KeyboardInterrupt was being handled (its context chain holds one)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__context__
+    return False
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     first = next((a for a in argv if not a.startswith("-")), None)
@@ -138,6 +149,15 @@ def main(argv: list[str] | None = None) -> int:
         from nifo.io.atomic import interrupt_note
 
         err, code = e, 130
+        print(f"nifo {args.command}: {interrupt_note()}", file=sys.stderr)
+    except Exception as e:
+        # a Ctrl-C/SIGTERM inside a library's clean-up can surface as another error raised while handling
+        # it (matplotlib's savefig: AttributeError in restore_bbox): still an interruption, not a bug
+        if not _interrupted(e):
+            raise
+        from nifo.io.atomic import interrupt_note
+
+        err, code = KeyboardInterrupt(), 130
         print(f"nifo {args.command}: {interrupt_note()}", file=sys.stderr)
     if args.json:
         doc = {"command": args.command, "ok": code == 0, "exit_code": code,

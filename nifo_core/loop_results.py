@@ -394,8 +394,8 @@ def _effect_dict(t: Trial) -> dict:
 def _errors_line(e: Errors) -> str:
     parts = []
     if e.prediction_nmse_pct is not None:
-        parts.append(f"held-out prediction NMSE {e.prediction_nmse_pct:.2f} % (body acceleration simulated from the "
-                     f"measured spindle)")
+        parts.append(f"held-out prediction NMSE {e.prediction_nmse_pct:.2f} % (output acceleration simulated from the "
+                     f"measured input)")
     else:
         parts.append(f"held-out prediction NMSE not computed ({e.prediction_unavailable or 'prediction off'})")
     parts.append(f"held-out equation error {e.equation_nmse_pct:.2f} % (force balance, band-limited)")

@@ -153,7 +153,8 @@ def test_report_of_sample_and_f16_loads_every_figure_and_fills_every_provenance_
     assert len(seen["imgs"]) >= 5, seen["imgs"]
     assert all(i["complete"] and i["width"] > 0 for i in seen["imgs"]), seen["imgs"]
     assert not any(i["external"] for i in seen["imgs"]) and not seen["ext"] and not seen["errors"]
-    assert len(seen["prov"]) == 2, seen["prov"]              # one row per data file (two levels)
+    # one row per data file: the sample's three levels, two F-16 levels
+    assert len(seen["prov"]) == (3 if which == "sample_report" else 2), seen["prov"]
     for row in seen["prov"]:
         assert len(row) == 6, row                            # path, format, fs, duration, size, channels
         for cell in row:

@@ -135,7 +135,7 @@ def test_log_functions_write_what_the_live_node_publishes(tmp_path):
 def test_live_viewer_node_logs_the_pipeline_topics_with_the_shared_layout(ran, tmp_path):
     """The node's callbacks, fed the messages the integrator and identifier publish (no graph needed)."""
     rclpy = pytest.importorskip("rclpy")
-    from std_msgs.msg import String
+    from nifo_msgs.msg import LoopStatus
 
     from nifo.viz import rerun_log as rl
     from nifo_nodes.messages import Block, block_to_msg
@@ -157,8 +157,15 @@ def test_live_viewer_node_logs_the_pipeline_topics_with_the_shared_layout(ran, t
         motion = rng.standard_normal((n, 6))
         node._on_motion(block_to_msg(Block(t0, fs, ("spindle_vel", "spindle_disp", "body_vel", "body_disp",
                                                     "rel_vel", "rel_disp"), motion)))
-        node._on_result(String(data=json.dumps({**doc, "stamp_ns": t0 + 10**9})))
-        node._on_result(String(data="not json"))   # logged and skipped
+        # the identifier's status message names its result document (a file, never a JSON topic)
+        res_file = tmp_path / "result.json"
+        res_file.write_text(json.dumps({**doc, "stamp_ns": t0 + 10**9}))
+        st = LoopStatus(state="accumulating", message="live", n_avg=int(doc["n_avg"]), samples_used=n,
+                        samples_lost=0, gaps=0, result_file=str(res_file))
+        st.header.stamp.sec, st.header.stamp.nanosec = divmod(t0 + 10**9, 10**9)
+        node._on_status(st)
+        (tmp_path / "bad.json").write_text("not json")
+        node._on_status(LoopStatus(state="accumulating", result_file=str(tmp_path / "bad.json")))  # logged, skipped
         node.destroy_node()
     finally:
         rclpy.shutdown()
