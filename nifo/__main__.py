@@ -1,12 +1,18 @@
+import os
 import signal
 import sys
+import threading
 
 
 def _interrupt_again(unraisable) -> None:
     """A Ctrl-C that lands in a finalizer (weakref callback, __del__) is not lost with an 'Exception
     ignored' traceback: the signal is raised again and reaches the command, which cleans up and says so."""
     if isinstance(unraisable.exc_value, KeyboardInterrupt):
-        signal.raise_signal(signal.SIGINT)
+        # not raised here (it would be "ignored in sys.unraisablehook" with a traceback): a moment later,
+        # from a helper thread, so that the main thread receives it where it runs the command
+        t = threading.Timer(0.05, os.kill, (os.getpid(), signal.SIGINT))
+        t.daemon = True
+        t.start()
         return
     sys.__unraisablehook__(unraisable)
 
