@@ -36,7 +36,7 @@ transient (the record's past is unknown) and are best left out of comparisons
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Literal, Mapping
 
 import numpy as np
@@ -48,6 +48,7 @@ from .fixed_point import contraction_bound, fixed_point_solve
 from .integrate import IntegrationBand, integrate
 from .linear_part import BodyModel, LinearPart, absorbed_rates, fit_body_model, select_linear_part
 from .nifo import NifoResult
+from .nifo_result import _cplx, _ro, _uncplx  # one home for the JSON forms of complex arrays
 from .spectral import SpectralSettings, coherence, cross_spectra, h1
 from .timesim import simulate_response
 
@@ -67,20 +68,6 @@ class PredictionDivergedError(IllConditionedError):
     """The identified model's response to this input grows without bound (the model is unstable at this level)."""
 
     exit_code = 12
-
-
-def _ro(a) -> np.ndarray:
-    a = np.array(a)
-    a.flags.writeable = False
-    return a
-
-
-def _cplx(a) -> dict:
-    return {"re": np.real(a).tolist(), "im": np.imag(a).tolist()}
-
-
-def _uncplx(d) -> np.ndarray:
-    return np.asarray(d["re"], float) + 1j * np.asarray(d["im"], float)
 
 
 # ---------------------------------------------------------------------------------------------
