@@ -52,7 +52,29 @@ def test_predict_takes_the_directory_a_loop_wrote_and_predicts_every_sample_reco
     assert [r["name"] for r in doc["records"]] == ["road_1mm", "road_2p5mm"] and doc["failed"] == []
     for r in doc["records"]:     # the true backlash + dead zone: far better than the linear part alone
         assert r["model"]["nmse_percent"] < 0.1 * r["linear"]["nmse_percent"]
+        band = r["model"]["band_nmse"]          # the band-limited metric beside it, on the same footing
+        assert band["band_hz"] == [2.0, 30.0] and "start-up edge" in band["how"]
+        assert band["percent"] < 0.1 * r["linear"]["band_nmse"]["percent"]
     assert doc["linear_part"]["kind"] == "body"
+
+
+def test_predict_scores_periodic_data_on_the_period_average_after_the_transient_period(shared_data, tmp_path, capsys):
+    """F-16 convention (issue 10): --period-samples scores the steady state's period average on the band."""
+    data = shared_data / "f16" / "F16Data_FullMSine_Level1.mat"
+    f16 = ["--columns", "spindle_accel=Acceleration[1],body_accel=Acceleration[2],fs=Fs"]
+    model = tmp_path / "m.yaml"
+    model.write_text("nifo_model: 1\nnonlinearities: []\n")
+    ident = tmp_path / "id"
+    assert _quietly(["identify", data, *f16, "--model", model, "--out", ident, "--no-plots", "--block", "8192",
+                     "--overlap", "0", "--window", "boxcar", "--band", "1.5", "40", "--freq-range", "2", "15",
+                     "--skip-periods", "1", "--period-samples", "8192"]) == 0
+    assert _quietly(["predict", data, *f16, "--model", ident, "--out", tmp_path / "p", "--no-plots",
+                     "--freq-range", "2", "15", "--period-samples", "8192"]) == 0
+    out = capsys.readouterr().out
+    rec = json.loads((tmp_path / "p" / "predict.json").read_text())["records"][0]
+    band = rec["model"]["band_nmse"]
+    print(out, band)
+    assert "period average" in band["how"] and 0 < band["percent"] < 2.0
 
 
 def test_a_multi_file_predict_writes_what_it_can_and_exits_naming_the_rest(truth_dir, tmp_path, capsys):
@@ -87,3 +109,4 @@ def test_a_directory_without_model_json_is_named(tmp_path):
         read_model(tmp_path)
     with pytest.raises(DataFileError, match=r"model\.json does not exist"):
         read_model(tmp_path / "model.json")
+

@@ -66,8 +66,8 @@ def test_the_true_model_reproduces_the_simulator_where_the_old_solver_diverged(c
                                            ("cubic 2e8 N/m³ at 5 mm", 0.0025)])
 def test_identified_at_one_level_and_seed_predicts_another_within_one_percent(case, test_rms):
     strut, rms = STRONG[case]
-    # the cubic is identified noise-free: with 2 % sensor noise the twice-integrated noise in z biases its
-    # coefficient low (an estimator matter, reported in issue 10); friction is identified with noise
+    # the cubic is identified noise-free here: with 2 % sensor noise NIFO's coefficient is biased low (noise
+    # integrated twice into z); the output-error refinement removes it (tests/test_refine.py)
     noise = SensorNoise(relative=0.0 if "cubic" in case else 0.02)
     fit = simulate(SimConfig(strut=strut, road=RandomRoad(rms), duration_s=300, fs_hz=FS, noise=noise), rng=1)
     res = identify_nifo(fit.record, [s.term for s in strut])

@@ -163,9 +163,24 @@ def test_the_main_job_gets_t21_within_2_percent_and_2_degrees_and_the_knee_withi
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason="measured +20 % (9.58e3 vs 8e3 N/m): the step-1 play coefficient is biased "
-                   "with a deadband 4 % short of the truth; the loop's re-tuned equation-error fit gets 7.6e3 ± 2.7e3")
-def test_the_main_job_gets_the_play_coefficient_within_10_percent(sample_run):
-    out, _ = sample_run
-    _, coef = _coefficients(out)
-    assert coef["backlash"] == pytest.approx(_sample_truth()[1]["backlash"]["coefficient"], rel=0.1)
+def test_the_main_job_model_gets_the_play_the_knee_and_the_body_within_10_percent(sample_run):
+    """model.json — what the user takes away — holds the output-error refined model (nifo_core.refine):
+    NIFO's step-1 play coefficient is +20 % (noise through z); refined, every parameter is close."""
+    from nifo.io.results import read_model
+
+    out, stdout = sample_run
+    model, _ = read_model(out / "identify")
+    v, strut = _sample_truth()
+    _, nifo = _coefficients(out)
+    assert "refined" in model.provenance and "output-error refinement" in stdout
+    coef = {t.kind: float(c) * v["m2"] for t, c in zip(model.terms, model.c_over_m2)}
+    params = {t.kind: dict(t.params) for t in model.terms}
+    print(f"play: NIFO {nifo['backlash']:.4g}, refined {coef['backlash']:.4g} N/m (true "
+          f"{strut['backlash']['coefficient']:.4g}); knee: NIFO {nifo['velocity_deadzone']:.4g}, refined "
+          f"{coef['velocity_deadzone']:.4g} N·s/m; deadband {params['backlash']['deadband'] * 1e3:.3f} mm; "
+          f"body k {model.body.k * v['m2']:.5g} N/m, c {model.body.c * v['m2']:.5g} N·s/m")
+    for kind in ("backlash", "velocity_deadzone"):
+        assert coef[kind] == pytest.approx(strut[kind]["coefficient"], rel=0.1), kind
+    assert params["backlash"]["deadband"] == pytest.approx(strut["backlash"]["params"]["deadband"], rel=0.1)
+    assert model.body.k * v["m2"] == pytest.approx(v["k2"], rel=0.05)
+    assert model.body.c * v["m2"] == pytest.approx(v["c2"], rel=0.05)

@@ -50,6 +50,7 @@ from nifo_core.errors import NifoError  # noqa: E402
 from nifo_core.integrate import IntegrationBand  # noqa: E402
 from nifo_core.model import IdentifiedModel, predict_body  # noqa: E402
 from nifo_core.nifo import identify_nifo  # noqa: E402
+from nifo_core.prediction_error import band_nmse  # noqa: E402
 from nifo_core.spectral import SpectralSettings  # noqa: E402
 
 DATA = Path(os.environ.get("NIFO_SHARED_DATA", ROOT.parent / "shared" / "data")) / "f16"
@@ -77,20 +78,28 @@ def load(level: int, data: Path, *, skip: int) -> "object":
 
 def score(y: np.ndarray, yhat: np.ndarray, fs_hz: float) -> float:
     """NMSE [%] over the 2-15 Hz lines of the period average of periods 2.. (the first dropped)."""
-    def avg(x):
-        p = np.asarray(x)[PERIOD:]
-        return p[:p.size // PERIOD * PERIOD].reshape(-1, PERIOD).mean(axis=0)
-    f = np.fft.rfftfreq(PERIOD, 1 / fs_hz)
-    band = (f >= ANALYSIS[0]) & (f <= ANALYSIS[1])
-    y_f, yh_f = np.fft.rfft(avg(y))[band], np.fft.rfft(avg(yhat))[band]
-    return float(100 * np.sum(np.abs(y_f - yh_f) ** 2) / np.sum(np.abs(y_f) ** 2))
+    return band_nmse(y, yhat, fs_hz, band_hz=ANALYSIS, period_samples=PERIOD, skip_samples=PERIOD)
+
+
+def refine(model, linear, full: dict, ids, periods: int, log=print):
+    """Output-error refinement (:func:`nifo_core.refine.refine_model`) on the first ``periods`` periods of the
+    identification levels, from rest, scored as the study scores (2-15 Hz, period average, first period dropped)."""
+    from nifo_core.refine import refine_model
+
+    recs = [full[lv].slice(0, periods * PERIOD) for lv in ids]
+    return refine_model(model, recs, linear=linear, band_hz=ANALYSIS, period_samples=PERIOD, skip_samples=PERIOD)
 
 
 def study(data: Path, out: Path | None, *, sets: dict, forms: dict, linear_parts: dict, sources=("static",),
-          log=print, partial: Path | None = None) -> list[dict]:
-    """Identify and predict every (set, linear part, form, source); rows of results (``partial``: JSON after each)."""
+          log=print, partial: Path | None = None, refine_periods: int = 0) -> list[dict]:
+    """Identify and predict every (set, linear part, form, source); rows of results (``partial``: JSON after each).
+
+    ``refine_periods`` > 0: every nonlinear model is also refined (output error) on that many periods of its
+    identification levels and predicted again (row ``source`` + " refined").
+    """
     steady = {lv: load(lv, data, skip=1) for lv in LEVELS}      # identification: periods 2-9
     full = {lv: load(lv, data, skip=0) for lv in LEVELS}        # prediction: the whole record, from rest
+    linear_models = {}
     rows = []
     for set_name, ids in sets.items():
         for lp_name, order in linear_parts.items():
@@ -105,6 +114,8 @@ def study(data: Path, out: Path | None, *, sets: dict, forms: dict, linear_parts
                             res = identify_nifo([steady[lv] for lv in ids], [make_term(t) for t in spec],
                                                 settings=SETTINGS, band=BAND, analysis_band_hz=ANALYSIS)
                             model = IdentifiedModel.from_nifo(res, source=source, order=order)
+                            if not spec:
+                                linear_models[(set_name, lp_name)] = model
                         except NifoError as err:
                             row["errors"]["identify"] = str(err)
                             rows.append(row)
@@ -133,6 +144,27 @@ def study(data: Path, out: Path | None, *, sets: dict, forms: dict, linear_parts
                         + f"   [{model.linear.kind} {model.linear.order}] {row['seconds']:.0f}s")
                     if partial is not None:
                         partial.write_text(json.dumps({"rows": rows}, indent=1, default=str))
+                    if refine_periods and spec:
+                        t0 = time.perf_counter()
+                        with warnings.catch_warnings():
+                            warnings.simplefilter("ignore")
+                            ref = refine(model, linear_models.get((set_name, lp_name)), full, ids, refine_periods)
+                        rrow = {**row, "source": source + " refined", "nmse": {}, "errors": {},
+                                "refinement": ref.to_dict()}
+                        for lv in LEVELS:
+                            rec = full[lv]
+                            try:
+                                p = predict_body(ref.model, rec.spindle_accel, rec.fs_hz, label=rec.source)
+                                rrow["nmse"][lv] = score(rec.body_accel, p.body_accel, rec.fs_hz)
+                            except NifoError as err:
+                                rrow["errors"][lv] = str(err)
+                        rrow["seconds"] = time.perf_counter() - t0
+                        rows.append(rrow)
+                        log(f"{set_name:14} {lp_name:11} {form_name:28} {'refined':6} " + " ".join(
+                            f"L{lv} {rrow['nmse'].get(lv, float('nan')):7.3f}" for lv in LEVELS)
+                            + f"   [from the {ref.start} start] {rrow['seconds']:.0f}s")
+                        if out is not None:
+                            write_model(Path(row["model_json"]).with_name("model_refined.json"), ref.model)
     return rows
 
 
@@ -164,6 +196,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--free", action="store_true", help="also per-line (free) coefficients")
     ap.add_argument("--all", action="store_true", help="also backlash + friction")
     ap.add_argument("--order", type=int, default=None, help="a rational linear part of this order for every model")
+    ap.add_argument("--refine", type=int, default=0, metavar="PERIODS",
+                    help="also refine every nonlinear model (output error) on this many periods of its levels")
     args = ap.parse_args(argv)
     sets, forms, lps = SETS, FORMS, {"auto": None}
     if args.quick:
@@ -177,7 +211,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.all:
         forms = {k: v for k, v in forms.items() if k != "backlash 0.14 mm + friction"}
     rows = study(args.data, args.out, sets=sets, forms=forms, linear_parts=lps, sources=sources,
-                 partial=args.json)
+                 partial=args.json, refine_periods=args.refine)
     ver = verdicts(rows)
     print("\nnonlinear below linear (same set, same linear part) at every level / at the held-out levels:")
     for v in ver:

@@ -9,6 +9,11 @@ compared with the measured one:
 
 - NMSE in time, 100·Σ(y - ŷ)²/(N·σ_y²) % over the prediction's valid part
   (start-up edges left out; below 5 % good, below 1 % excellent);
+- the band NMSE, 100·Σ|Y - Ŷ|²/Σ|Y|² over the DFT lines of ``--freq-range``
+  (:mod:`nifo_core.prediction_error`; the same number ``nifo identify --refine``
+  minimises): after the start-up edge, or — with ``--period-samples`` — on the
+  period average after the first, transient period of the prediction (the
+  multisine benchmarks' convention);
 - the transmissibility error |T_pred/T_meas - 1|, median and max over the
   lines of ``--freq-range`` (default 2-30 Hz), where T is the H1 from the
   measured spindle signal to the predicted or the measured body signal, on
@@ -101,7 +106,22 @@ def _drive(record, model) -> tuple[np.ndarray | None, np.ndarray | None, np.ndar
     return a1, force, a1, "spindle"
 
 
-def predict_one(path: Path, record, model, linear, *, band_hz, method: str) -> tuple[dict, dict]:
+def _band_nmse(a2, pred, fs: float, band_hz, period_samples: int | None) -> dict:
+    """Band NMSE [%] of a prediction, or why it could not be computed."""
+    from nifo_core.prediction_error import band_nmse
+
+    skip = int(period_samples) if period_samples else pred.valid.start
+    how = (f"period average after the first period of {period_samples} samples" if period_samples
+           else f"after the first {skip} samples (start-up edge)")
+    try:
+        return {"percent": band_nmse(a2, pred.body_accel, fs, band_hz=tuple(band_hz), period_samples=period_samples,
+                                     skip_samples=skip), "band_hz": list(band_hz), "how": how}
+    except (InputError, ConfigError) as err:
+        return {"percent": None, "band_hz": list(band_hz), "how": how, "not_computed": err.message}
+
+
+def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
+                period_samples: int | None = None) -> tuple[dict, dict]:
     """Numbers (JSON-able) and arrays (for the figures) for one record."""
     from nifo_core.model import predict_body
     from nifo_core.spectral import coherence, cross_spectra, h1
@@ -128,9 +148,11 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str) -> t
         "path": str(path), "name": path.name, "fs_hz": fs, "n_samples": record.n, "duration_s": record.duration_s,
         "valid_samples": [valid.start, valid.stop], "n_avg": int(spec.n_avg), "transmissibility_from": drive_name,
         "model": {"nmse_percent": _nmse(y, pm.body_accel[valid]),
+                  "band_nmse": _band_nmse(a2, pm, fs, band_hz, period_samples),
                   "transmissibility_error": _rel(t_model, t_meas, mask), "engine": pm.method,
                   "iterations": pm.iterations, "residual": pm.residual},
         "linear": {"nmse_percent": _nmse(y, pl.body_accel[valid]),
+                   "band_nmse": _band_nmse(a2, pl, fs, band_hz, period_samples),
                    "transmissibility_error": _rel(t_lin, t_meas, mask), "source": linear.source,
                    "engine": pl.method},
         "coherence_measured_median": float(np.median(coherence(spec, 0, 1)[mask])),
@@ -234,7 +256,7 @@ def run(args: argparse.Namespace) -> int:
             path = Path(p)
             try:
                 numbers, arrays = predict_one(path, load_record(path, **opts), model, linear, band_hz=(lo, hi),
-                                              method=args.method)
+                                              method=args.method, period_samples=opts.get("period_samples"))
             except NifoError as err:
                 failed.append((path, err.with_context(source=str(path))))
                 continue
@@ -267,11 +289,14 @@ def _pct(x) -> str:
 
 
 def _summary(results: list[dict], band, out: Path) -> str:
-    lines = [f"{'record':<24} {'NMSE model':>11} {'NMSE linear':>12}   |T| error {band[0]:g}-{band[1]:g} Hz "
-             "model (median/max) | linear (median/max)"]
+    lines = [f"{'record':<24} {'NMSE model':>11} {'NMSE linear':>12}   band NMSE {band[0]:g}-{band[1]:g} Hz "
+             f"model | linear   |T| error model (median/max) | linear (median/max)"]
     for r in results:
         m, li = r["model"], r["linear"]
-        lines.append(f"{r['name'][:24]:<24} {m['nmse_percent']:10.2f}% {li['nmse_percent']:11.2f}%   "
+        bm, bl = (x["band_nmse"]["percent"] for x in (m, li))
+        band_txt = ("not computed: " + m["band_nmse"].get("not_computed", "") if bm is None
+                    else f"{bm:.3f}% | {bl:.3f}%")
+        lines.append(f"{r['name'][:24]:<24} {m['nmse_percent']:10.2f}% {li['nmse_percent']:11.2f}%   {band_txt}   "
                      f"{_pct(m['transmissibility_error']['median'])} / {_pct(m['transmissibility_error']['max'])}"
                      f" | {_pct(li['transmissibility_error']['median'])} / {_pct(li['transmissibility_error']['max'])}")
         if "truth" in r and "model_nominal_t21_vs_true" in r["truth"]:

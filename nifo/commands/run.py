@@ -6,7 +6,9 @@ at two road levels). Steps, each into its own subdirectory of ``--out``
 options their command lines take:
 
 1. ``characterize/``  restoring-force plots and the suggested model (all DATA as levels);
-2. ``identify/``      NIFO with the suggested model on the highest level (``--identify-on all``: on all);
+2. ``identify/``      NIFO with the suggested model on the highest level (``--identify-on all``: on all;
+   several levels: the paper's two-step model), then the output-error refinement of its
+   coefficients (``nifo identify --refine``; ``--no-refine``: NIFO's equation-error values);
 3. ``predict/``       the identified model at the other level(s);
 4. ``loop/``          search for what the model lacks, error before and after (``nifo loop``);
 5. ``report/report.html``  the self-contained HTML report of all of the above;
@@ -39,6 +41,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--identify-on", choices=("highest", "all"), default="highest",
                    help="identify on the highest level and predict the others (default), or on all levels")
     p.add_argument("--no-loop", action="store_true", help="skip the loop step")
+    p.add_argument("--no-refine", action="store_true",
+                   help="keep NIFO's coefficients (skip identify's output-error refinement)")
     p.add_argument("--no-recording", action="store_true", help="skip the Rerun recording")
     add_input_arguments(p)   # passed through to every step that reads data
     add_system_argument(p)
@@ -173,16 +177,17 @@ def _run(args: argparse.Namespace, data: list[Path], out: Path) -> int:
     others = [p for p in ordered if p not in ident]
 
     two = _two_step_model(ordered, dirs["characterize"], args) if len(ordered) >= 2 else None
+    refine = [] if getattr(args, "no_refine", False) else ["--refine"]
     if two is not None:
         model, text = two
         ident = ordered
         t = begin(f"identify (NIFO) in two steps: {text}")
         print(text)
-        _call("identify", ["--model", str(model), "--out", str(dirs["identify"])], args)
+        _call("identify", ["--model", str(model), "--out", str(dirs["identify"]), *refine], args)
         notes.append(f"Two-step model chosen from the data: {text}")
     else:
         t = begin(f"identify (NIFO) on {', '.join(p.name for p in ident)} with the suggested model")
-        _call("identify", [*map(str, ident), "--model", str(model), "--out", str(dirs["identify"])], args)
+        _call("identify", [*map(str, ident), "--model", str(model), "--out", str(dirs["identify"]), *refine], args)
     timings["identify"] = time.monotonic() - t
     others = [p for p in ordered if p != ordered[-1]] if two is not None else others
 

@@ -1,0 +1,388 @@
+"""Output-error refinement: the identified coefficients that make the model *predict* the data best.
+
+NIFO (paper Eq. 8) is an equation-error estimator: it regresses the body
+equation on z, ż integrated from noisy accelerations. That is fast, needs no
+iteration and gives good starting values, but it is biased where the
+regressors are noisy or the model class misses something (sensor noise
+integrated twice into z pulls a cubic coefficient towards zero; on a real
+multi-mode structure the static fit splits stiffness between the linear part
+and the terms). The model's job is to predict, so the final step minimises
+the prediction error itself — the output-error / simulation-error criterion
+of system identification (Ljung 1999, §7; the refinement step of FNSI and of
+nonlinear state-space models, Noël & Kerschen 2017; Paduart et al. 2010):
+
+    θ* = argmin_θ Σ_r NMSE_r(θ)/100,   NMSE_r = band-limited prediction error of record r
+                                        (:mod:`nifo_core.prediction_error`)
+
+with every record simulated in time by the identified model
+(:func:`nifo_core.model.predict_body`) from its measured spindle acceleration
+(or force). Each record counts by its *relative* error, so a low level weighs
+as much as a high one. θ holds
+
+- the coefficients γ_i = c_i/M2 of the terms (scaled by their NIFO values),
+- the key parameter of each term that has one (gap, deadband, knee…; log
+  scale, within ¼-4× of its start) unless ``shape=False``,
+- for a one-mass body, its stiffness and damping per unit mass (log scale);
+  a rational linear part is kept as fitted.
+
+Two starting points: the NIFO model itself, and — when a linear model
+identified on the same data is given — that linear model with the terms added
+at zero coefficient, its linear part kept as the *realised* one so that a term
+adds only its bounded remainder (a play's or a clearance's force minus its
+slope, :func:`~nifo_core.linear_part.absorbed_rates`): no coefficient can
+destabilise it. A trust-region step is accepted only when it lowers the cost,
+so from the linear start the result predicts the identification data at least
+as well as the linear model — the nonlinear model *nests* the linear one on
+this metric. The linear start is refined when the refined NIFO model does not
+already beat the linear model (``both_starts=True``: always); the better
+result is kept. A step whose simulation diverges counts as a very poor fit
+and is refused.
+
+Minimised by :func:`scipy.optimize.least_squares` (trust-region reflective,
+finite-difference Jacobian: one simulation per parameter and record per
+iteration). The refinement never makes the model worse on the records it is
+given; whether it predicts *other* levels better is measured, not assumed
+(``tools/f16_predict.py``, ``tests/test_refine.py``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+import scipy.optimize
+
+from .describing import KINDS, Term
+from .errors import ConfigError, IllConditionedError, InputError
+from .linear_part import BodyModel, absorbed_rates
+from .model import IdentifiedModel, PredictionDivergedError, predict_body
+from .prediction_error import band_spectra
+from .record import Record
+
+__all__ = ["Refinement", "refine_model", "model_nmse"]
+
+#: relative error a diverged simulation counts as (per record; 1 = predicting zero)
+_DIVERGED = 10.0
+#: range of a key parameter around its start (factor)
+_SHAPE_RANGE = 4.0
+
+
+@dataclass(frozen=True)
+class Refinement:
+    """The refined model and what the refinement did.
+
+    Attributes
+    ----------
+    model : IdentifiedModel
+        The refined model (``provenance['refined']`` says how it was made).
+    start : {'nifo', 'linear'}
+        The starting point the kept result came from.
+    nmse_before : mapping
+        Per starting point, the band NMSE [%] of every record before refinement.
+    nmse : list of float
+        Band NMSE [%] of every record with the refined model.
+    parameters : list of dict
+        name, unit, before (of the kept start), after.
+    evaluations : int
+        Simulations of the whole record set (all starts).
+    message : str
+    """
+
+    model: IdentifiedModel
+    start: str
+    nmse_before: Mapping[str, list]
+    nmse: list
+    parameters: list
+    evaluations: int
+    message: str
+    labels: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {"start": self.start, "nmse_before_pct": {k: list(v) for k, v in self.nmse_before.items()},
+                "nmse_pct": list(self.nmse), "records": list(self.labels), "parameters": list(self.parameters),
+                "evaluations": self.evaluations, "message": self.message}
+
+
+@dataclass(frozen=True)
+class _Space:
+    """θ ↔ model for one starting model."""
+
+    base: IdentifiedModel
+    gamma_scale: np.ndarray
+    shape_idx: tuple[int, ...]        # terms whose key parameter is refined
+    body: bool                        # refine k, c of a one-mass body
+    track_absorbed: bool = False      # absorbed = absorbed_rates(terms, γ) as γ moves (bounded feedback)
+
+    @property
+    def size(self) -> int:
+        return self.gamma_scale.size + len(self.shape_idx) + (2 if self.body else 0)
+
+    def x0(self, gammas: np.ndarray) -> np.ndarray:
+        return np.concatenate([gammas / self.gamma_scale, np.zeros(len(self.shape_idx) + (2 if self.body else 0))])
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        nt, ns = self.gamma_scale.size, len(self.shape_idx)
+        lo = np.concatenate([np.full(nt, -np.inf), np.full(ns, -np.log(_SHAPE_RANGE)), np.full(2 if self.body else 0, -2.0)])
+        hi = np.concatenate([np.full(nt, np.inf), np.full(ns, np.log(_SHAPE_RANGE)), np.full(2 if self.body else 0, 2.0)])
+        return lo, hi
+
+    def names(self) -> list[tuple[str, str, float]]:
+        """(name, unit, value at θ = x0-independent start) for every entry of θ (values from ``base``)."""
+        out = [(f"c/M2 of {t.kind}", f"{KINDS[t.kind].coef_unit}/kg", 0.0) for t in self.base.terms]
+        for i in self.shape_idx:
+            t = self.base.terms[i]
+            key = KINDS[t.kind].key_param
+            out.append((f"{t.kind}.{key}", KINDS[t.kind].params[key][1], float(t.params[key])))
+        if self.body:
+            b = self.base.linear.body
+            out += [("k = K2/M2 (linear part)", "1/s²", b.k), ("c = C2/M2 (linear part)", "1/s", b.c)]
+        return out
+
+    def model(self, x: np.ndarray) -> IdentifiedModel:
+        m = self.base
+        nt = self.gamma_scale.size
+        gam = x[:nt] * self.gamma_scale
+        terms = list(m.terms)
+        for j, i in enumerate(self.shape_idx):
+            t = terms[i]
+            key = KINDS[t.kind].key_param
+            terms[i] = Term(t.kind, {**dict(t.params), key: float(t.params[key]) * float(np.exp(x[nt + j]))})
+        lin, body = m.linear, m.body
+        if self.body:
+            kb, cb = x[nt + len(self.shape_idx):]
+            bm = lin.body
+            lin = replace(lin, body=BodyModel(bm.k * float(np.exp(kb)), bm.c * float(np.exp(cb)), bm.k3, bm.fit_rms))
+        if self.track_absorbed:       # the realised linear part stays; the terms' linear part moves with γ
+            lin = replace(lin, absorbed=absorbed_rates(terms, gam))
+        if lin.kind == "body":        # the nominal body: the realised one without the absorbed strut part
+            bm, (ka, ca) = lin.body, lin.absorbed
+            body = BodyModel(bm.k - ka, bm.c - ca, bm.k3, bm.fit_rms)
+        w = 2 * np.pi * m.freq_hz
+        with np.errstate(divide="ignore", invalid="ignore"):
+            hz = (1 - m.t21) / np.where(w > 0, w, np.nan) ** 2
+        b = gam[:, None] * hz[None, :]
+        return replace(m, terms=tuple(terms), c_over_m2=gam, b=b, linear=lin, body=body)
+
+
+def _inputs(rec: Record, model: IdentifiedModel):
+    a1 = None if getattr(rec, "spindle_fixed", False) else np.asarray(rec.spindle_accel, float)
+    f = getattr(rec, "force", None)
+    force = np.asarray(f, float) if f is not None and model.force_gain > 0 else None
+    return a1, force
+
+
+def model_nmse(model: IdentifiedModel, records: Sequence[Record], *, band_hz: tuple[float, float],
+               period_samples: int | None = None, skip_samples: int | Sequence[int] = 0,
+               oversample: int | None = None) -> list[float]:
+    """Band NMSE [%] of the model's prediction of every record (:mod:`nifo_core.prediction_error`).
+
+    A record whose prediction diverges gives ``inf``.
+    """
+    skips = _skips(skip_samples, len(records))
+    out = []
+    for rec, skip in zip(records, skips):
+        try:
+            r = _residual(model, rec, band_hz, period_samples, skip, oversample)
+            out.append(float(100 * np.sum(np.abs(r) ** 2)))
+        except PredictionDivergedError:
+            out.append(float("inf"))
+    return out
+
+
+def _skips(skip_samples, n: int) -> list[int]:
+    if np.ndim(skip_samples) == 0:
+        return [int(skip_samples)] * n
+    s = [int(v) for v in skip_samples]
+    if len(s) != n:
+        raise ConfigError(f"{len(s)} skips for {n} records")
+    return s
+
+
+def _residual(model, rec, band_hz, period_samples, skip, oversample) -> np.ndarray:
+    """(Ŷ - Y)/‖Y‖ on the band's lines (complex)."""
+    a1, force = _inputs(rec, model)
+    p = predict_body(model, a1, rec.fs_hz, force=force, oversample=oversample, label=rec.source)
+    y, yh = band_spectra(rec.body_accel, p.body_accel, rec.fs_hz, band_hz=band_hz, period_samples=period_samples,
+                         skip_samples=skip)
+    return (yh - y) / np.sqrt(np.sum(np.abs(y) ** 2))
+
+
+def _space(start: IdentifiedModel, scale_from: IdentifiedModel, *, shape: bool, linear_params: bool,
+           track_absorbed: bool) -> _Space:
+    g = np.abs(np.asarray(scale_from.c_over_m2, float))
+    scale = np.where((g > 0) & np.isfinite(g), g, 1.0)
+    idx = tuple(i for i, t in enumerate(start.terms)
+                if shape and KINDS[t.kind].key_param is not None
+                and isinstance(t.params.get(KINDS[t.kind].key_param), float) and t.params[KINDS[t.kind].key_param] > 0)
+    body = bool(linear_params and start.linear.kind == "body" and start.linear.body.k > 0 and start.linear.body.c > 0)
+    return _Space(start, scale, idx, body, track_absorbed)
+
+
+def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: tuple[float, float] | None = None,
+                 period_samples: int | None = None, skip_samples: int | Sequence[int] | None = None,
+                 linear: IdentifiedModel | None = None, shape: bool = True, linear_params: bool = True,
+                 max_iterations: int = 30, oversample: int | None = None, both_starts: bool = False,
+                 progress: Callable[[str, int, float], None] | None = None) -> Refinement:
+    """Refine ``model`` on ``records`` by minimising the band-limited prediction error (module docstring).
+
+    Parameters
+    ----------
+    model : IdentifiedModel
+        The NIFO model (its terms, coefficients, linear part).
+    records : sequence of Record
+        The identification records, each predicted whole from rest.
+    band_hz : (float, float), optional
+        Band of the metric [Hz]; default: the model's analysis band.
+    period_samples : int, optional
+        Periodic data: score the period-averaged steady state.
+    skip_samples : int or sequence of int, optional
+        Start-up samples left out of the score; default one period for
+        periodic data, else five time constants of the slowest pole of the
+        linear part (at most a quarter of the record).
+    linear : IdentifiedModel, optional
+        The linear model identified on the same data: a second start (terms at
+        zero coefficient, its linear part), which makes the result at least as
+        good as the linear model on these records.
+    shape, linear_params : bool
+        Also refine the terms' key parameters / a one-mass body's k and c.
+    both_starts : bool
+        Refine the linear start even when the refined NIFO model already beats the linear model.
+    max_iterations : int
+        Trust-region iterations per start (each costs 1 + len(θ) simulations of every record).
+    oversample : int, optional
+        Fine steps per sample of the simulation (default: the predictor's).
+    progress : callable(start, evaluations, cost), optional
+
+    Returns
+    -------
+    Refinement
+
+    Raises
+    ------
+    ConfigError
+        For a model without terms (nothing to refine) or bad options.
+    IllConditionedError
+        When no start can be simulated on these records.
+    """
+    if not model.terms:
+        raise ConfigError("the model has no nonlinear term to refine")
+    if not records:
+        raise InputError("refinement needs at least one record")
+    band = tuple(band_hz) if band_hz is not None else model.analysis_band_hz
+    if skip_samples is None:
+        skip_samples = [int(period_samples) if period_samples else
+                        int(min(len(r.body_accel) // 4, np.ceil(5 * model.linear.slowest_decay_s() * r.fs_hz)))
+                        for r in records]
+    skips = _skips(skip_samples, len(records))
+    # the NIFO model keeps its convention: the terms' linear part absorbed into the linear part (bounded
+    # feedback) when from_nifo chose so, else not
+    tracked = any(model.linear.absorbed) and np.allclose(model.linear.absorbed,
+                                                         absorbed_rates(model.terms, model.c_over_m2))
+    starts = {"nifo": _space(model, model, shape=shape, linear_params=linear_params, track_absorbed=tracked)}
+    if linear is not None:
+        if linear.terms:
+            raise ConfigError("linear= must be a model without terms (source 'h1')")
+        base = replace(linear, terms=model.terms, c_over_m2=np.zeros(len(model.terms)),
+                       b=np.zeros((len(model.terms), linear.freq_hz.size), complex), source=model.source,
+                       provenance=dict(model.provenance))
+        # the linear model's linear part is the realised one: the terms add only their bounded remainder
+        # (a play's or a clearance's force minus its slope), so no γ can destabilise it
+        starts["linear"] = _space(base, model, shape=shape, linear_params=linear_params, track_absorbed=True)
+    n_eval = 0
+    # a record whose simulation diverges counts as relative error _DIVERGED, spread over its lines
+    penalty = [np.full(band_spectra(r.body_accel, r.body_accel, r.fs_hz, band_hz=band, period_samples=period_samples,
+                                    skip_samples=s)[0].size, 1.0) for r, s in zip(records, skips)]
+    penalty = [np.sqrt(_DIVERGED / p.size) * p for p in penalty]
+    sizes = np.cumsum([p.size for p in penalty])[:-1]
+    diverged: set = set()
+
+    def per_record(out: np.ndarray) -> list[float]:
+        """Band NMSE [%] per record from a residual vector (inf where the simulation diverged)."""
+        r = out[:out.size // 2] + 1j * out[out.size // 2:]
+        return [float("inf") if k in diverged else float(100 * np.sum(np.abs(part) ** 2))
+                for k, part in enumerate(np.split(r, sizes))]
+
+    def run(name: str, sp: _Space):
+        nonlocal n_eval
+
+        def fun(x):
+            nonlocal n_eval
+            n_eval += 1
+            m = sp.model(x)
+            parts = []
+            diverged.clear()
+            for k, (rec, skip, pen) in enumerate(zip(records, skips, penalty)):
+                try:
+                    parts.append(_residual(m, rec, band, period_samples, skip, oversample))
+                except PredictionDivergedError:
+                    diverged.add(k)
+                    parts.append(pen.astype(complex))
+            r = np.concatenate(parts)
+            out = np.concatenate([r.real, r.imag])
+            if progress is not None:
+                progress(name, n_eval, float(np.sum(out ** 2)))
+            return out
+
+        x0 = sp.x0(np.asarray(sp.base.c_over_m2, float))
+        r0 = fun(x0)
+        before[name] = per_record(r0)
+        if not np.all(np.isfinite(before[name])):
+            return None
+        lo, hi = sp.bounds()
+        sol = scipy.optimize.least_squares(fun, x0, bounds=(lo, hi), method="trf", diff_step=1e-3,
+                                           x_scale=1.0, max_nfev=max_iterations * (sp.size + 1), f_scale=1.0)
+        if sol.cost <= 0.5 * float(np.sum(r0 ** 2)):
+            fun(sol.x)                      # sets the divergence flags of the solution
+            return sol.x, sp, sol, per_record(sol.fun)
+        return x0, sp, sol, before[name]
+
+    results, before = {}, {}
+    results["nifo"] = run("nifo", starts["nifo"])
+    if "linear" in starts:
+        # the linear start (terms at zero) guarantees "no worse than the linear model on these records";
+        # it is only needed when the refined NIFO model is not already better than the linear one
+        lin0 = starts["linear"]
+        x0 = lin0.x0(np.zeros(len(model.terms)))
+        nifo_sum = float(np.sum(results["nifo"][3])) if results["nifo"] is not None else np.inf
+        r_lin = model_nmse(lin0.model(x0), records, band_hz=band, period_samples=period_samples,
+                           skip_samples=skips, oversample=oversample)
+        n_eval += 1
+        if both_starts or nifo_sum > float(np.sum(r_lin)):
+            results["linear"] = run("linear", lin0)
+        else:
+            before["linear"] = r_lin
+    ok = {k: v for k, v in results.items() if v is not None}
+    if not ok:
+        raise IllConditionedError("the model cannot be simulated on these records from any start "
+                                  f"({', '.join(r.source for r in records)})",
+                                  hint="identify on data that covers these levels, or leave the term out")
+    finals = {k: v[3] for k, v in ok.items()}
+    best = min(finals, key=lambda k: float(np.sum(finals[k])))
+    x, sp, sol, _ = ok[best]
+    refined = sp.model(x)
+    params = [{"name": n, "unit": u, "before": float(v0), "after": float(v1)}
+              for (n, u, _), v0, v1 in zip(sp.names(), _values(sp, sp.x0(np.asarray(sp.base.c_over_m2, float))),
+                                           _values(sp, x))]
+    msg = (f"output-error refinement from the {best} start: mean band NMSE "
+           f"{np.mean(before[best]):.4g} % → {np.mean(finals[best]):.4g} % on {len(records)} record(s) "
+           f"({band[0]:g}-{band[1]:g} Hz{', period-averaged' if period_samples else ''}); {sol.message}")
+    prov = {**dict(refined.provenance), "refined": {
+        "method": "output-error (simulation-error) least squares, nifo_core.refine", "start": best,
+        "band_hz": list(band), "period_samples": period_samples, "skip_samples": skips,
+        "nmse_before_pct": {k: v for k, v in before.items()}, "nmse_pct": finals[best],
+        "records": [r.source for r in records], "parameters": params}}
+    refined = replace(refined, provenance=prov)
+    return Refinement(model=refined, start=best, nmse_before=before, nmse=finals[best], parameters=params,
+                      evaluations=n_eval, message=msg, labels=[r.source for r in records])
+
+
+def _values(sp: _Space, x: np.ndarray) -> list[float]:
+    m = sp.model(x)
+    vals = [float(g) for g in m.c_over_m2]
+    for i in sp.shape_idx:
+        t = m.terms[i]
+        vals.append(float(t.params[KINDS[t.kind].key_param]))
+    if sp.body:
+        vals += [m.linear.body.k, m.linear.body.c]
+    return vals

@@ -1,0 +1,158 @@
+"""Output-error refinement (nifo_core.refine) and the band-limited prediction metric it minimises.
+
+Every accuracy figure is printed beside the NIFO start and the linear model of the same run.
+"""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from nifo_core.describing import Term
+from nifo_core.errors import ConfigError, InputError
+from nifo_core.linear_part import BodyModel
+from nifo_core.model import IdentifiedModel, predict_body
+from nifo_core.nifo import identify_nifo
+from nifo_core.prediction_error import band_nmse
+from nifo_core.refine import model_nmse, refine_model
+from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
+
+FS = 600.0
+
+
+def _nmse(y, yhat) -> float:
+    return float(100 * np.mean((y - yhat) ** 2) / np.var(y))
+
+
+# ---------------------------------------------------------------------------------------------
+# the metric
+# ---------------------------------------------------------------------------------------------
+def test_band_nmse_is_zero_for_a_perfect_prediction_one_hundred_for_none_and_ignores_out_of_band_error():
+    rng = np.random.default_rng(0)
+    t = np.arange(6000) / FS          # 0.1 Hz lines: 5 Hz and 100 Hz fall on lines
+    y = np.sin(2 * np.pi * 5 * t) + 0.1 * rng.standard_normal(t.size)
+    assert band_nmse(y, y, FS, band_hz=(2, 30)) == 0.0
+    assert band_nmse(y, np.zeros_like(y), FS, band_hz=(2, 30)) == pytest.approx(100.0)
+    off_band = y + 0.5 * np.sin(2 * np.pi * 100 * t)          # error only at 100 Hz
+    assert band_nmse(y, off_band, FS, band_hz=(2, 30)) < 1e-3
+    assert band_nmse(y, off_band, FS, band_hz=(2, 150)) > 10
+
+
+def test_band_nmse_of_periodic_data_scores_the_period_average_after_the_skipped_transient():
+    rng = np.random.default_rng(1)
+    period = rng.standard_normal(512)
+    y = np.tile(period, 5)
+    yhat = y.copy()
+    yhat[:512] += 3.0 * rng.standard_normal(512)               # a start-up transient in the first period
+    yhat[512:] += 0.05 * rng.standard_normal(4 * 512)          # noise that averaging over 4 periods reduces
+    with_transient = band_nmse(y, yhat, FS, band_hz=(1, 290))
+    steady = band_nmse(y, yhat, FS, band_hz=(1, 290), period_samples=512, skip_samples=512)
+    assert steady < 0.15 * 100 * 0.05 ** 2 / np.var(period) * 4 and steady < 0.01 * with_transient
+
+
+def test_band_nmse_says_what_is_wrong():
+    y = np.ones(100)
+    with pytest.raises(InputError, match="no whole period"):
+        band_nmse(y, y, FS, band_hz=(1, 10), period_samples=200)
+    with pytest.raises(ConfigError, match="holds no spectral line"):
+        band_nmse(np.arange(100.0), np.arange(100.0), FS, band_hz=(1.0, 1.1))
+    with pytest.raises(InputError, match="differ in length"):
+        band_nmse(y, y[:50], FS, band_hz=(1, 10))
+
+
+# ---------------------------------------------------------------------------------------------
+# refinement on simulated truth
+# ---------------------------------------------------------------------------------------------
+def _identified(strut, rms, duration_s, *, noise=0.02, rng=1):
+    sim = simulate(SimConfig(strut=strut, road=RandomRoad(rms), duration_s=duration_s, fs_hz=FS,
+                             noise=SensorNoise(relative=noise)), rng=rng)
+    res = identify_nifo(sim.record, [s.term for s in strut])
+    return sim, IdentifiedModel.from_nifo(res), IdentifiedModel.from_nifo(res, source="h1")
+
+
+def test_refinement_recovers_coulomb_friction_from_noisy_data_and_never_ends_worse_than_its_starts():
+    strut = (StrutForce(Term("coulomb", {"eps": 0.005}), 30.0),)
+    sim, model, linear = _identified(strut, 0.0005, 60.0)
+    m2 = sim.truth.vehicle.m2
+    ref = refine_model(model, [sim.record], linear=linear)
+    c_nifo, c_ref = model.c_over_m2[0] * m2, ref.model.c_over_m2[0] * m2
+    print(f"\nCoulomb 30 N, 60 s at 0.5 mm, 2 % noise: NIFO {c_nifo:.2f} N, refined {c_ref:.2f} N "
+          f"(from the {ref.start} start, {ref.evaluations} simulations); band NMSE {ref.nmse_before} → {ref.nmse}")
+    assert abs(c_ref / 30.0 - 1) < 0.05
+    for before in ref.nmse_before.values():          # never worse than where it started, on the data it was given
+        assert sum(ref.nmse) <= sum(before) + 1e-12
+    assert ref.model.provenance["refined"]["start"] == ref.start
+    # the refined model round-trips through JSON with its provenance
+    back = IdentifiedModel.from_dict(json.loads(json.dumps(ref.model.to_dict())))
+    assert np.allclose(back.c_over_m2, ref.model.c_over_m2)
+    assert model_nmse(back, [sim.record], band_hz=back.analysis_band_hz,
+                      skip_samples=ref.model.provenance["refined"]["skip_samples"]) == pytest.approx(ref.nmse, rel=1e-9)
+
+
+def test_refinement_needs_a_term_and_records():
+    sim, model, linear = _identified((StrutForce(Term("coulomb", {"eps": 0.005}), 30.0),), 0.0005, 30.0)
+    with pytest.raises(ConfigError, match="no nonlinear term"):
+        refine_model(linear, [sim.record])
+    with pytest.raises(InputError, match="at least one record"):
+        refine_model(model, [])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["cubic", "bump stop"])
+def test_noisy_identification_refined_predicts_other_levels_at_the_noise_floor(kind):
+    """Issue 10: with 2 % sensor noise NIFO's coefficient is biased low (noise integrated twice into z);
+    refined, the model predicts as well as the true model does on the same noisy test data (the floor:
+    2 % noise on both accelerometers; noise-free, test_predict_engine holds the 1 % bound)."""
+    if kind == "cubic":
+        strut, rms = (StrutForce(Term("cubic_stiffness", {}), 2e8),), 0.005
+    else:
+        strut, rms = (StrutForce(Term("bump_stop", {"gap": 0.008, "side": "compression"}), 2e5),), 0.005
+    sim, model, linear = _identified(strut, rms, 180.0)
+    ref = refine_model(model, [sim.record], linear=linear)
+    car = sim.truth.vehicle
+    truth = IdentifiedModel.from_body(BodyModel(car.k2 / car.m2, car.c2 / car.m2), [s.term for s in strut],
+                                      [s.coefficient / car.m2 for s in strut], fs_hz=FS)
+    print(f"\n{kind}: coefficient true {strut[0].coefficient:.4g}, NIFO {model.c_over_m2[0] * car.m2:.4g}, "
+          f"refined {ref.model.c_over_m2[0] * car.m2:.4g}; {ref.message}")
+    for test_rms in (rms, rms / 2):
+        test = simulate(SimConfig(strut=strut, road=RandomRoad(test_rms), duration_s=120, fs_hz=FS,
+                                  noise=SensorNoise(relative=0.02)), rng=7)
+        a1, y = test.record.spindle_accel, test.record.body_accel
+        e = {}
+        for name, m in (("true model", truth), ("linear", linear), ("NIFO", model), ("refined", ref.model)):
+            p = predict_body(m, a1, FS)
+            e[name] = _nmse(y[p.valid], p.body_accel[p.valid])
+        print(f"  predicting {test_rms * 1e3:g} mm seed 7: " + ", ".join(f"{k} {v:.3f} %" for k, v in e.items()))
+        assert e["refined"] < 1.1 * e["true model"] and e["refined"] < 0.6 * e["linear"]
+        assert e["refined"] <= e["NIFO"] * 1.02
+    assert abs(ref.model.c_over_m2[0] * car.m2 / strut[0].coefficient - 1) < 0.25
+
+
+def test_identify_refine_writes_the_refined_model_and_predict_takes_it(tmp_path):
+    strut = (StrutForce(Term("coulomb", {"eps": 0.005}), 30.0),)
+    sim = simulate(SimConfig(strut=strut, road=RandomRoad(0.0005), duration_s=40, fs_hz=FS,
+                             noise=SensorNoise(relative=0.02)), rng=3)
+    from nifo.io.results import read_model
+    from nifo.io.tabular import write_csv
+    data = tmp_path / "road.csv"
+    write_csv(data, sim.record)
+    spec = tmp_path / "m.yaml"
+    spec.write_text("nifo_model: 1\nnonlinearities: [{kind: coulomb, params: {eps: 0.005}}]\n")
+    out = tmp_path / "id"
+    run = subprocess.run([sys.executable, "-m", "nifo", "--json", "identify", str(data), "--model", str(spec),
+                          "--out", str(out), "--no-plots", "--refine", "--refine-seconds", "30"],
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr
+    doc = json.loads((out / "identify.json").read_text())
+    ref = doc["summary"]["refinement"]
+    model, _ = read_model(out)
+    assert model.provenance["refined"]["start"] == ref["start"]
+    c = ref["parameters"][0]["after"] * sim.truth.vehicle.m2
+    print(f"\nnifo identify --refine: Coulomb {ref['parameters'][0]['before'] * sim.truth.vehicle.m2:.2f} N → "
+          f"{c:.2f} N (true 30 N)")
+    assert abs(c / 30 - 1) < 0.1
+    pred = subprocess.run([sys.executable, "-m", "nifo", "predict", str(data), "--model", str(out), "--out",
+                           str(tmp_path / "pred"), "--no-plots"], capture_output=True, text=True, timeout=600)
+    assert pred.returncode == 0, pred.stderr
