@@ -126,7 +126,8 @@ def test_noisy_identification_refined_predicts_other_levels_at_the_noise_floor(k
             e[name] = _nmse(y[p.valid], p.body_accel[p.valid])
         print(f"  predicting {test_rms * 1e3:g} mm seed 7: " + ", ".join(f"{k} {v:.3f} %" for k, v in e.items()))
         assert e["refined"] < 1.1 * e["true model"] and e["refined"] < 0.6 * e["linear"]
-        assert e["refined"] <= e["NIFO"] * 1.02
+        if test_rms == rms:          # where the nonlinearity acts most, NIFO's bias shows; below, all sit at the floor
+            assert e["refined"] < e["NIFO"]
     assert abs(ref.model.c_over_m2[0] * car.m2 / strut[0].coefficient - 1) < 0.25
 
 
