@@ -66,6 +66,7 @@ from .characterize_data import GridSearch, RegressionData, candidate_grid
 from .characterize_result import (DEFAULT_KINDS, POSITIVE_KINDS, Candidate, Characterization, FittedModel,
                                   RecordSummary, Thresholds)
 from .characterize_score import lstsq, score_candidate
+from .characterize_static import static_bump_stops
 from .describing import Term, kind as lookup_kind
 from .errors import ConfigError, InputError
 from .integrate import IntegrationBand
@@ -146,6 +147,15 @@ def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None
         v = search.unit(j, extra)
         extra = np.column_stack([extra, v])
         r = r - v * (v @ r)
+    # --- bump stops: the gap from the static position, which sits elsewhere in every record ----
+    static_terms, static_off = static_bump_stops(data, [c.term for c in chosen])
+    base = []
+    for i, (t, o) in enumerate(zip(static_terms, static_off)):
+        if o is not None:
+            new = score_candidate(data, base, t, thresholds=thresholds, n_grid=n_grid[t.kind], m2=m2_kg,
+                                  names=tuple(c.term.label for c in chosen[:i]), offsets=o)
+            chosen[i] = replace(new, status="suggested")
+        base.append(data.regressor(t, offsets=o))
     # --- what the suggestion explains of the other kinds ----------------------------------------
     out = []
     chosen_kinds = [c.kind for c in chosen]
@@ -180,12 +190,18 @@ def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None
             out.append(replace(c, status="unselected", failed=tuple(f"given the suggestion: {w}" for w in why)))
     out = sorted(out, key=lambda c: (c.status != "suggested",
                                      chosen_kinds.index(c.kind) if c.status == "suggested" else 0))
-    model = _joint(data, [c.term for c in chosen])
+    model = _joint(data, [c.term for c in chosen], [c.offsets or None for c in chosen])
     lin = _linear(data, m2_kg, body_stiffness)
     notes = []
     if not chosen:
         notes.append("no nonlinear candidate met the thresholds: no form of the library explains what the "
                      "linear fit leaves")
+    for c in chosen:
+        if c.offsets:
+            where = ", ".join(f"{1e3 * -o:+.2f} mm ({rf.source or f'record {i}'})"
+                              for i, (o, rf) in enumerate(zip(c.offsets, rfs)))
+            notes.append(f"{c.term.label}: gap from the static position; the mean position sat {where} from it "
+                         f"(rebound positive), found from the balance of the mean force")
     if lin["r2"] < 0.9:
         notes.append(f"the linear fit explains only {100 * lin['r2']:.0f} % of the force: the rest is noise or "
                      f"dynamics outside the one-mass equation of the output side (another mode, a second load "
@@ -246,9 +262,9 @@ def rank_beyond(rfs: Sequence[RestoringForce], declared: Sequence[Term], *, m2_k
     return tuple(sorted(out, key=lambda c: -c.err))
 
 
-def _joint(data: RegressionData, terms: list[Term]) -> "FittedModel":
+def _joint(data: RegressionData, terms: list[Term], offsets: list) -> "FittedModel":
     lin = data.x[:, data.lin]
-    a = np.column_stack([lin, *[data.regressor(t) for t in terms]]) if terms else lin
+    a = np.column_stack([lin, *[data.regressor(t, offsets=o) for t, o in zip(terms, offsets)]]) if terms else lin
     c = lstsq(a, data.y)
     res = data.y - a @ c
     tss = float(data.y @ data.y)

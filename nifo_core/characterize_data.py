@@ -89,15 +89,22 @@ class RegressionData:
         self.zpos = float(np.quantile(z, 0.998))
         self._cache: dict = {}
 
-    def regressor(self, term: Term) -> np.ndarray:
-        """g(z, ż) band-passed per record like every other column; kept rows, stacked."""
-        key = (term.kind, tuple(sorted(term.params.items())))
+    def regressor(self, term: Term, *, offsets: Sequence[float] | None = None) -> np.ndarray:
+        """g(z, ż) band-passed per record like every other column; kept rows, stacked.
+
+        ``offsets``: one ``offset`` [m] per record replacing the term's own (a bump stop measured
+        from the static position, which sits elsewhere in each record: :mod:`.characterize_static`).
+        """
+        if offsets is not None and len(offsets) != len(self.rfs):
+            raise ConfigError(f"{len(offsets)} offsets for {len(self.rfs)} records")
+        key = (term.kind, tuple(sorted(term.params.items())), None if offsets is None else tuple(offsets))
         hit = self._cache.get(key)
         if hit is not None:
             return hit
         parts = []
-        for rf, k in zip(self.rfs, self.keep):
-            parts.append(bandpass(term.evaluate(rf.z, rf.zdot), rf.fs_hz, rf.band)[k])
+        for i, (rf, k) in enumerate(zip(self.rfs, self.keep)):
+            t = term if offsets is None else Term(term.kind, {**term.params, "offset": float(offsets[i])})
+            parts.append(bandpass(t.evaluate(rf.z, rf.zdot), rf.fs_hz, rf.band)[k])
         out = np.concatenate(parts)
         if len(self._cache) < 48:
             self._cache[key] = out

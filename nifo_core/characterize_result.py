@@ -79,6 +79,9 @@ class Candidate:
         The thresholds not met.
     relative_param : float or None
         The key parameter relative to the observed range (|z| or |ż| peak).
+    offsets : tuple of float
+        A bump stop's ``offset`` [m] on every record: where the static position lies in z measured
+        from the record's mean (the gap is from the static position; :mod:`.characterize_static`).
     """
 
     term: Term
@@ -98,6 +101,7 @@ class Candidate:
     equivalent: str | None = None
     failed: tuple[str, ...] = ()
     relative_param: float | None = None
+    offsets: tuple[float, ...] = ()
 
     @property
     def kind(self) -> str:
@@ -124,7 +128,8 @@ class Candidate:
                 "n_eff": self.n_eff, "spread": _finite(self.spread), "group_theta": list(self.group_theta),
                 "present": self.present, "status": self.status, "alternative_to": self.alternative_to,
                 "conditional_on": list(self.conditional_on), "equivalent": self.equivalent,
-                "failed": list(self.failed), "meaning": self.describe()}
+                "failed": list(self.failed), "meaning": self.describe(),
+                "offset_per_record_m": list(self.offsets)}
 
 
 def _finite(x: float) -> float | None:
@@ -242,7 +247,7 @@ def describe(c: Candidate) -> str:
         return f"stiffness saturates beyond ±{1e3 * p['limit']:.3g} mm"
     if t.kind == "bump_stop":
         return (f"one-sided {'stiffening' if th > 0 else 'softening'} beyond {1e3 * p['gap']:.3g} mm "
-                f"of {p['side']} (from the mean position)")
+                f"of {p['side']} from the {'static' if c.offsets else 'mean'} position")
     if t.kind == "backlash":
         if th < 0:
             return (f"spring in series with dry friction (stick-slip, Jenkins element): slips after "

@@ -48,11 +48,11 @@ def _cv_rss(a: np.ndarray, y: np.ndarray, fold: np.ndarray) -> float:
 
 
 def score_candidate(data: RegressionData, base: list[np.ndarray], term: Term, *, thresholds: Thresholds, n_grid: int,
-           m2: float | None, names: tuple[str, ...]) -> Candidate:
+           m2: float | None, names: tuple[str, ...], offsets: Sequence[float] | None = None) -> Candidate:
     """Full-length fit of ``term`` on top of the linear columns and the ``base`` regressors."""
     y = data.y
     a0 = np.column_stack([data.x, *base]) if base else data.x
-    a1 = np.column_stack([a0, data.regressor(term)])
+    a1 = np.column_stack([a0, data.regressor(term, offsets=offsets)])
     c1 = lstsq(a1, y)
     r0 = y - a0 @ lstsq(a0, y)
     r1 = y - a1 @ c1
@@ -106,7 +106,7 @@ def score_candidate(data: RegressionData, base: list[np.ndarray], term: Term, *,
                      err=err, delta_r2=dr2, err_cv=float(err_cv),
                      p_value=p, n_eff=float(neff), spread=spread, group_theta=tuple(sign * gth_a),
                      present=not failed, conditional_on=names, equivalent=equiv, failed=tuple(failed),
-                     relative_param=_relative(term, data))
+                     relative_param=_relative(term, data), offsets=() if offsets is None else tuple(offsets))
 
 
 def _relative(term: Term, data: RegressionData) -> float | None:
