@@ -57,3 +57,22 @@ def test_with_the_low_level_record_the_loop_has_nothing_to_add(records):
     res = close_loop(list(records.values()), MODEL)
     assert res.undetermined == () and res.nothing_missing, res.verdict
     assert np.isfinite(res.bounds.half_width).all()
+
+
+@pytest.mark.slow
+def test_the_report_of_the_loop_on_1_and_2p5_mm_says_what_it_cannot_pin(tmp_path):
+    import yaml
+
+    from nifo.cli import main
+    from nifo.viz.report_html import build_report
+    from nifo.viz.results import read_results
+
+    model = tmp_path / "model.yaml"
+    model.write_text(yaml.safe_dump({"nifo_model": 1, "nonlinearities": [t.to_dict() for t in MODEL]}))
+    out = tmp_path / "loop"
+    assert main(["-q", "loop", str(SAMPLE / "road_1mm"), str(SAMPLE / "road_2p5mm"), "--model", str(model),
+                 "--out", str(out)]) == 0
+    html = build_report(read_results([out]))
+    assert "can hardly be told apart" in html and "add a record at" in html
+    assert "nothing significant missing" not in html
+    assert "not everything could be told apart" in html

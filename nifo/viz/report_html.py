@@ -338,8 +338,13 @@ def _loop(r: ResultDir, words: Mapping) -> tuple[dict, list]:
             "errors": _errors_rows(eb, ea) if isinstance(eb, Mapping) and isinstance(ea, Mapping) else [],
             "rounds": rows, "coefficients": _loop_coefficients(d)}
     added = [_effect_label(x.get("added") or x.get("effect")) for x in rounds if x.get("added") or x.get("effect")]
-    return view, [{"key": "loop", "lines": [{"text": (", ".join(added) + " added") if added
-                                              else "nothing significant missing"}]}]
+    if added:
+        text = ", ".join(added) + " added"
+    elif d.get("nothing_missing", True):
+        text = "nothing significant missing"
+    else:   # nothing added, but the verdict says what these data cannot pin or tell apart
+        text = "nothing added; not everything could be told apart (see the loop's verdict)"
+    return view, [{"key": "loop", "lines": [{"text": text}]}]
 
 
 # ------------------------------------------------------------------------------------ provenance
