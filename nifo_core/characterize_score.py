@@ -6,11 +6,12 @@ from __future__ import annotations
 from typing import Sequence
 
 import numpy as np
-from scipy import signal, stats
+from scipy import stats
 
 from .characterize_data import RegressionData
 from .characterize_result import POSITIVE_KINDS, Candidate, Thresholds
 from .describing import Term
+from .uncertainty import effective_samples
 
 __all__ = ["score_candidate", "lstsq"]
 
@@ -23,14 +24,11 @@ _EQUIVALENT = {"clearance": ("saturation", "gap", "limit"),
 # statistics
 # --------------------------------------------------------------------------------------------
 def _n_eff(res: np.ndarray, rec: np.ndarray, fs: Sequence[float]) -> float:
-    """Effective sample count of coloured residuals: Σ_records n·mean(S)²/mean(S²)."""
+    """Effective sample count of coloured residuals: Σ_records n·mean(S)²/mean(S²) (the one spectral engine)."""
     total = 0.0
     for i, f in enumerate(fs):
         r = res[rec == i]
-        nper = int(min(4096, max(64, r.size // 8)))
-        _, s = signal.welch(r, f, nperseg=nper)
-        s = s[1:]
-        total += r.size * float(np.mean(s)) ** 2 / max(float(np.mean(s ** 2)), 1e-300)
+        total += effective_samples(r, f, block=int(min(4096, max(64, r.size // 8))))
     return total
 
 
