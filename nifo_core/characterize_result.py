@@ -79,6 +79,9 @@ class Candidate:
         The thresholds not met.
     relative_param : float or None
         The key parameter relative to the observed range (|z| or |ż| peak).
+    theta_half_width : float
+        Half-width of the 95 % bound of ``theta`` (random error, N_eff degrees of freedom as the F-test;
+        :mod:`nifo_core.uncertainty`); times M2 for ``coefficient``.
     offsets : tuple of float
         A bump stop's ``offset`` [m] on every record: where the static position lies in z measured
         from the record's mean (the gap is from the static position; :mod:`.characterize_static`).
@@ -102,6 +105,12 @@ class Candidate:
     failed: tuple[str, ...] = ()
     relative_param: float | None = None
     offsets: tuple[float, ...] = ()
+    theta_half_width: float = float("nan")
+
+    @property
+    def m2_factor(self) -> float | None:
+        """M2 [kg] (coefficient/θ) when the coefficient is known in physical units."""
+        return None if self.coefficient is None or self.theta == 0 else self.coefficient / self.theta
 
     @property
     def kind(self) -> str:
@@ -123,6 +132,9 @@ class Candidate:
                 "key_param": None if kp is None else {"name": kp[0], "value": kp[1],
                                                        "relative_to_range": self.relative_param},
                 "theta_per_kg": self.theta, "coefficient": self.coefficient,
+                "theta_half_width_per_kg": _finite(self.theta_half_width),
+                "coefficient_half_width": None if self.coefficient is None or self.m2_factor is None
+                else _finite(self.theta_half_width * self.m2_factor),
                 "coefficient_unit": self.term.spec.coef_unit,
                 "err": self.err, "delta_r2": self.delta_r2, "err_cv": self.err_cv, "p_value": self.p_value,
                 "n_eff": self.n_eff, "spread": _finite(self.spread), "group_theta": list(self.group_theta),

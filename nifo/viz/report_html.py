@@ -187,8 +187,10 @@ def _characterize(r: ResultDir, system: Mapping) -> tuple[dict, list]:
     cands, classes = [], []
     for c in (d.get("candidates") or [])[:8]:
         unit = c.get("coefficient_unit", "")
-        coef = (f"{_num(c['coefficient'])} {unit}" if c.get("coefficient") is not None
-                else f"{_num(c.get('theta_per_kg'))} ({unit})/kg")
+        hw = c.get("coefficient_half_width") if c.get("coefficient") is not None else c.get("theta_half_width_per_kg")
+        pm = "" if hw is None else f" ± {_num(hw, '.2g')}"
+        coef = (f"{_num(c['coefficient'])}{pm} {unit}" if c.get("coefficient") is not None
+                else f"{_num(c.get('theta_per_kg'))}{pm} ({unit})/kg")
         status = c.get("status", "") + (f" (≈ {c['alternative_to']})" if c.get("alternative_to") else "")
         cands.append([_term_text(c, system), coef, _num(c.get("err"), ".3f"), _num(c.get("p_value"), ".1e"),
                       status, c.get("meaning", "")])
