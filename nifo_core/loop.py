@@ -82,7 +82,7 @@ import numpy as np
 
 from .characterize import rank_beyond
 from .describing import Term, make_term
-from .detection import confounded_pairs, detection_limits
+from .detection import confounded_pairs, detection_limits, undetermined_terms
 from .errors import ConfigError, InputError, NifoError, RecordTooShortError
 from .integrate import IntegrationBand
 from .loop_residual import _design, _Evaluator, _evidence, _retune, _tire_check
@@ -279,6 +279,11 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
                        + "; ".join(c.text() for c in confounded) + ".")
     y_fit, x_fit = _design(ev.fit_parts, terms)
     bounds = coefficient_bounds(x_fit, y_fit, recs[0].fs_hz, segments=[p.y.size for p in ev.fit_parts])
+    undetermined = undetermined_terms(ev.fit_rfs, terms, bounds.half_width[2:] /
+                                      np.maximum(np.abs(bounds.theta[2:]), 1e-300)) if terms else ()
+    if undetermined and verdict.endswith(NOTHING_MISSING):  # not the same as "nothing is missing": say so
+        verdict = (verdict[: -len(NOTHING_MISSING)] + "Nothing these data can separate is missing, but "
+                   + "; ".join(u.text() for u in undetermined) + ".")
     model = linear = unavailable = None
     try:  # the model whose held-out prediction was scored, fitted on the fit parts: what `nifo predict` takes
         model, linear = ev.model(terms), ev.model([])
@@ -290,4 +295,4 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
                       fit_seconds=tuple(a.duration_s for a in ev.fit_recs),
                       test_seconds=tuple(b.duration_s for b in ev.test_recs), notes=tuple(notes), model=model,
                       linear_model=linear, model_unavailable=unavailable, detection_limits=limits,
-                      confounded=confounded, bounds=bounds)
+                      confounded=confounded, bounds=bounds, undetermined=undetermined)

@@ -17,7 +17,7 @@ import numpy as np
 from .characterize import DEFAULT_KINDS, Candidate, Thresholds
 from .describing import Term
 from .uncertainty import CoefficientBounds
-from .detection import Confounding, DetectionLimit
+from .detection import Confounding, DetectionLimit, Undetermined
 from .errors import ConfigError
 from .integrate import IntegrationBand
 from .model import IdentifiedModel
@@ -293,6 +293,7 @@ class LoopResult:
     detection_limits: tuple[DetectionLimit, ...] = ()
     confounded: tuple[Confounding, ...] = ()
     bounds: CoefficientBounds | None = None
+    undetermined: tuple[Undetermined, ...] = ()
 
     def coefficients(self) -> list[dict]:
         """The final model's equation-error coefficients with 95 % random-error bounds (per kg, and × M2).
@@ -366,6 +367,7 @@ class LoopResult:
                 "detection_limits": [d.to_dict() for d in self.detection_limits],
                 "coefficients": self.coefficients(),
                 "confounded": [c.to_dict() for c in self.confounded],
+                "undetermined": [u.to_dict() for u in self.undetermined],
                 "band": self.band.to_dict(), "m2_kg": self.m2_kg, "settings": self.settings.to_dict(),
                 "records": [{"source": s, "fit_s": a, "test_s": b}
                             for s, a, b in zip(self.sources, self.fit_seconds, self.test_seconds)],

@@ -129,3 +129,47 @@ def test_record_units_and_system_words_carry_into_the_figures(tmp_path):
     doc = json.loads((out / "characterize.json").read_text())
     assert doc["system"] == {"description": "Duffing circuit", "units": "V", "vehicle": False}
     assert not np.isnan(doc["linear"]["r2"])
+
+
+def _bands(fig) -> list:
+    """The shaded 95 % bands (fill_between collections labelled as bounds) of a figure."""
+    from matplotlib.collections import PolyCollection
+
+    return [c for ax in fig.axes for c in ax.collections
+            if isinstance(c, PolyCollection) and "95 % bound" in str(c.get_label())]
+
+
+def test_coefficient_and_t21_figures_shade_the_95_percent_bounds_of_the_result(ran, monkeypatch):
+    from nifo.io.results import read_identify
+    from nifo.plots import nifo as pnifo
+    from nifo.viz import report_html
+    from nifo.viz.results import read_results
+
+    figs = _captured(monkeypatch, pnifo)
+    res, doc = read_identify(ran / "identify")
+    pnifo.plot_coefficients(ran / "unused.png", res)
+    bands = _bands(figs[-1])
+    free = [i for i, fx in enumerate(res.fixed) if not fx]
+    assert len(bands) == 2 * len(free)              # Re and Im of every free term
+    # the band spans μ ± 2|μ|·sqrt(ε_B² + ε_T²) at each line: check its widest point against the result
+    i = free[0]
+    eps = np.sqrt(res.random_error[1 + i] ** 2 + res.random_error[0] ** 2)
+    half = 2 * np.abs(res.mu_over_k2[i]) * eps
+    ys = bands[0].get_paths()[0].vertices[:, 1]
+    m = pnifo._view(res.freq_hz, res.analysis_band_hz, pad=0.2)
+    assert np.nanmax(ys) - np.nanmin(ys) >= np.nanmax(2 * half[m]) * 0.99
+
+    figs.clear()
+    report_html.levels_figure(read_results([ran / "identify"]), ran / "unused_levels.png")
+    (band,) = [b for b in _bands(figs[-1])]        # the pooled T21's band on the magnitude axis
+    lower, upper = (np.asarray(doc["bounds"]["t21_static"][k]) for k in ("lower", "upper"))
+    v = band.get_paths()[0].vertices
+    f0 = v[np.argmin(np.abs(v[:, 0] - np.mean(res.analysis_band_hz))), 0]
+    j = int(np.argmin(np.abs(res.freq_hz - f0)))
+    assert np.min(np.abs(v[np.isclose(v[:, 0], f0), 1] - upper[j])) < 1e-9 * upper[j] + 1e-12
+
+
+def test_the_report_shows_the_t21_and_coefficient_bounds(ran):
+    html = (ran / "report" / "report.html").read_text()
+    assert "95 % bounds of the nominal T21" in html and "median half-width" in html
+    assert "Final model with 95 % bounds" in html and "±" in html

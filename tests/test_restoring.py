@@ -271,3 +271,46 @@ def test_body_stiffness_fits_a_rig_restraint_k3_from_the_body_displacement():
     assert ch.linear["k3_n_per_m"] == pytest.approx(10e3, rel=0.1)
     assert ch.linear["k2_n_per_m"] == pytest.approx(22e3, rel=0.1)
     assert ch.nothing_found
+
+
+# --------------------------------------------------------------------------------------------
+# bump stops are measured from the static position; quadratic damping is named
+# --------------------------------------------------------------------------------------------
+def test_mean_shift_solves_the_force_balance_of_the_mean():
+    from nifo_core.characterize_static import mean_shift
+
+    t = np.linspace(0.0, 20.0, 20_001)
+    z = 0.006 * np.sin(2 * np.pi * 1.3 * t)           # zero-mean: measured from its mean
+    m_true, k, stop = 0.0012, 70.0, Term("bump_stop", {"gap": 0.004, "side": "compression"})
+    g = stop.evaluate(z + m_true, 0 * z)               # the stop in static coordinates
+    theta = -k * m_true / float(np.mean(g))            # θ for which the mean force vanishes at m_true
+    assert mean_shift(z, 0 * z, k, [(stop, theta)]) == pytest.approx(m_true, rel=1e-6)
+    assert mean_shift(z, 0 * z, k, []) == 0.0          # nothing one-sided: the mean is the static position
+
+
+def test_bump_stop_gap_is_measured_from_the_static_position_at_every_level():
+    # a stiff stop pushes the mean position into rebound, more at the higher level: measured from the
+    # mean the gap read 8.5 and 9.9 mm; from the static position it is one gap, with one offset per level
+    strut = (StrutForce(Term("bump_stop", {"gap": 0.008, "side": "compression"}), 2e5),)
+    sims = [simulate(SimConfig(strut=strut, road=RandomRoad(rms_m=r), duration_s=120.0, fs_hz=600.0,
+                               noise=SensorNoise(relative=0.02)), rng=7 + i) for i, r in enumerate((0.005, 0.007))]
+    for recs in ([sims[1].record], [s.record for s in sims]):
+        ch = characterize(recs, m2_kg=M2)
+        stop = ch.suggested[0]
+        assert stop.kind == "bump_stop" and stop.term.params["side"] == "compression"
+        assert stop.term.params["gap"] == pytest.approx(0.008, rel=0.1)
+        true_mean = [float(np.mean(s.truth.z)) for s in (sims[1:] if len(recs) == 1 else sims)]
+        np.testing.assert_allclose(-np.array(stop.offsets), true_mean, atol=0.3e-3)
+        assert "from the static position" in stop.describe()
+        assert stop.to_dict()["offset_per_record_m"] == list(stop.offsets)
+
+
+@pytest.mark.parametrize("spectrum,rms", [("flat", 0.0025), ("iso8608", 0.0025), ("flat", 0.0005)])
+def test_quadratic_damping_is_named_not_a_rising_knee(spectrum, rms):
+    strut = (StrutForce(Term("quadratic_damping"), 2000.0),)
+    sim = simulate(SimConfig(strut=strut, road=RandomRoad(rms_m=rms, spectrum=spectrum), duration_s=120.0,
+                             fs_hz=600.0, noise=SensorNoise(relative=0.02)), rng=5)
+    ch = characterize(sim.record, m2_kg=M2)
+    assert [c.kind for c in ch.suggested] == ["quadratic_damping"]
+    assert ch.suggested[0].coefficient == pytest.approx(2000.0, rel=0.1)
+    assert ch.candidate("velocity_deadzone").status in ("alternative", "redundant", "weak")

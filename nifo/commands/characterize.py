@@ -321,21 +321,23 @@ def _model_note(char: Characterization) -> str:
 
 def _fmt_coef(c, m2: float | None) -> str:
     unit = c.term.spec.coef_unit
+    hw = c.theta_half_width * (m2 or 1.0)
+    pm = f" ± {hw:.2g}" if np.isfinite(hw) else ""
     if m2:
-        return f"{c.coefficient:10.4g} {unit}"
-    return f"{c.theta:10.4g} ({unit})/kg"
+        return f"{c.coefficient:.4g}{pm} {unit}"
+    return f"{c.theta:.4g}{pm} ({unit})/kg"
 
 
 def _table(char: Characterization, top: int, paths: list[str], mixed_rates: bool) -> str:
     lines = [f"characterized {len(paths)} file(s) in band {char.band.f_lo_hz:g}-{char.band.f_hi_hz:g} Hz; "
              f"linear fit R² {char.linear['r2']:.4f}",
-             f"{'#':>2}  {'candidate':<44} {'coefficient':>18}  {'ERR':>7} {'ERR_cv':>7} {'p':>8} {'spread':>6}  status",
+             f"{'#':>2}  {'candidate':<44} {'coefficient ± 95 %':>26}  {'ERR':>7} {'ERR_cv':>7} {'p':>8} {'spread':>6}  status",
              "    (suggested terms first, each scored given the ones above it; then the rest, ranked alone)"]
     shown = [c for i, c in enumerate(char.candidates) if i < top or c.status == "suggested"]
     for i, c in enumerate(shown, 1):
         spread = f"{c.spread:6.2f}" if np.isfinite(c.spread) else "     -"
         status = c.status + (f" (≈ {c.alternative_to})" if c.alternative_to else "")
-        lines.append(f"{i:>2}  {c.term.label[:44]:<44} {_fmt_coef(c, char.m2_kg):>18}  {c.err:7.4f} {c.err_cv:7.4f} "
+        lines.append(f"{i:>2}  {c.term.label[:44]:<44} {_fmt_coef(c, char.m2_kg):>26}  {c.err:7.4f} {c.err_cv:7.4f} "
                      f"{c.p_value:8.1e} {spread}  {status}")
     if char.nothing_found:
         lines.append("nothing nonlinear found: no candidate met the thresholds "

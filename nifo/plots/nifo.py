@@ -4,7 +4,8 @@
   magnitude(s) and the NIFO estimate of the nominal linear T21, log scale
   (paper Fig. 9b/12b); also used by ``predict`` for predicted vs measured.
 - :func:`plot_coefficients`: real and imaginary parts of μ_i(ω)/K2, per line
-  (paper Eq. 9) and from the pooled constant-coefficient fit (Fig. 10/13).
+  (paper Eq. 9, with its shaded 95 % random-error band) and from the pooled
+  constant-coefficient fit (Fig. 10/13).
 - :func:`plot_conditioning`: coherences and the scaled condition number of G_UU.
 - :func:`plot_tire`: tire-patch→spindle H11·(K1 + jωC1), nominal vs measured (Fig. 11/14).
 - :func:`plot_time_excerpt`: measured vs predicted body acceleration.
@@ -53,16 +54,31 @@ def _view(f: np.ndarray, band_hz: tuple[float, float], pad: float = 0.6) -> np.n
 
 def plot_transmissibility(path: str | Path, curves: Sequence[Curve], *, band_hz: tuple[float, float],
                           title: str, ylabel: str = "|T21| = |X2/X1| [–]", phase: bool = True) -> Path:
-    """Magnitude (log-log) and optionally phase of complex transmissibilities."""
+    """Magnitude (log-log) and optionally phase of complex transmissibilities.
+
+    A curve whose style holds ``random_error`` (the normalized random error ε per line, same shape
+    as its values) is drawn with its about-95 % band shaded: |H|·(1 ∓ 2ε) and phase ± 2ε rad.
+    """
     plt = pyplot()
     fig, axes = plt.subplots(2 if phase else 1, 1, figsize=(7.5, 6.2 if phase else 4.2), sharex=True,
                              squeeze=False, gridspec_kw={"height_ratios": [2.2, 1]} if phase else None)
     ax = axes[0, 0]
     for label, f, h, style in curves:
+        style = dict(style)
+        eps = style.pop("random_error", None)
         m = _view(f, band_hz)
-        ax.loglog(f[m], np.abs(h[m]), label=label, **style)
+        line, = ax.loglog(f[m], np.abs(h[m]), label=label, **style)
+        if eps is not None:   # about 95 %: |H|(1 ∓ 2ε), phase ± 2ε rad (Bendat & Piersol)
+            e = 2 * np.asarray(eps, float)[m]
+            mag = np.abs(h[m])
+            ax.fill_between(f[m], mag * np.where(e < 1, 1 - e, np.nan), mag * (1 + e), color=line.get_color(), alpha=0.22,
+                            lw=0, label="95 % bound (random error)")
         if phase:
-            axes[1, 0].semilogx(f[m], np.degrees(np.angle(h[m])), **style)
+            ph = np.degrees(np.angle(h[m]))
+            axes[1, 0].semilogx(f[m], ph, **style)
+            if eps is not None:
+                axes[1, 0].fill_between(f[m], ph - np.degrees(e), ph + np.degrees(e), color=line.get_color(),
+                                        alpha=0.22, lw=0)
     _band(ax, band_hz, "analysis band")
     ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=10)
@@ -103,7 +119,11 @@ def plot_coefficients(path: str | Path, result: NifoResult, *, title: str = "") 
             ax = axes[i, j]
             _band(ax, result.analysis_band_hz)
             if not result.fixed[i]:
-                ax.semilogx(f[m], part(result.mu_over_k2[i][m]), color="C0", lw=1.0, label="per line (Eq. 9)")
+                mu = result.mu_over_k2[i][m]
+                ax.semilogx(f[m], part(mu), color="C0", lw=1.0, label="per line (Eq. 9)")
+                hw = 2 * np.abs(mu) * _mu_error(result, i)[m]
+                ax.fill_between(f[m], part(mu) - hw, part(mu) + hw, color="C0", alpha=0.2, lw=0,
+                                label="95 % bound per line (random error)")
             ax.semilogx(f[m], part(result.static.mu_over_k2[i][m]), color="C3", lw=1.4, ls="--",
                         label="pooled constant c/M2" + (" (held fixed)" if result.fixed[i] else ""))
             ax.axhline(0, color="0.5", lw=0.6)
@@ -122,6 +142,13 @@ def plot_coefficients(path: str | Path, result: NifoResult, *, title: str = "") 
         _freq_axis(ax)
     fig.suptitle(title or r"coefficient functions $\mu_i(\omega)/K_2$ (paper Eq. 8-9)", fontsize=10)
     return save_figure(fig, path)
+
+
+def _mu_error(result: NifoResult, i: int) -> np.ndarray:
+    """Normalized random error of μ_i/K2 = B_i/T21 per line: sqrt(ε_B² + ε_T²) (first order, the two
+    errors' correlation neglected); NaN where unknown."""
+    eb, et = np.asarray(result.random_error[1 + i], float), np.asarray(result.random_error[0], float)
+    return np.sqrt(eb ** 2 + et ** 2)
 
 
 def _robust_ylim(ax, *series) -> None:

@@ -187,8 +187,10 @@ def _characterize(r: ResultDir, system: Mapping) -> tuple[dict, list]:
     cands, classes = [], []
     for c in (d.get("candidates") or [])[:8]:
         unit = c.get("coefficient_unit", "")
-        coef = (f"{_num(c['coefficient'])} {unit}" if c.get("coefficient") is not None
-                else f"{_num(c.get('theta_per_kg'))} ({unit})/kg")
+        hw = c.get("coefficient_half_width") if c.get("coefficient") is not None else c.get("theta_half_width_per_kg")
+        pm = "" if hw is None else f" ± {_num(hw, '.2g')}"
+        coef = (f"{_num(c['coefficient'])}{pm} {unit}" if c.get("coefficient") is not None
+                else f"{_num(c.get('theta_per_kg'))}{pm} ({unit})/kg")
         status = c.get("status", "") + (f" (≈ {c['alternative_to']})" if c.get("alternative_to") else "")
         cands.append([_term_text(c, system), coef, _num(c.get("err"), ".3f"), _num(c.get("p_value"), ".1e"),
                       status, c.get("meaning", "")])
@@ -212,9 +214,39 @@ def _identify(r: ResultDir, system: Mapping) -> tuple[dict, list]:
              "held fixed" if t.get("fixed") else
              f"{_num(t.get('per_line_mean_re'))} {_num(t.get('per_line_mean_im'), '+.3g')}j"] for t in terms]
     lines = [{"text": f"{t.get('label')}: {_num(t.get('c_over_m2'))} {t.get('unit', '')}"} for t in terms]
-    return {"terms": rows}, [{"key": "pooled coefficients", "lines": lines or [{"text": "none (linear)"}]},
+    return {"terms": rows, "t21_bounds": _t21_bounds(r.doc)}, [{"key": "pooled coefficients", "lines": lines or [{"text": "none (linear)"}]},
                              {"key": "coherence, median",
                               "lines": [{"text": _num(s.get("coherence_h1_median"), ".3f")}]}]
+
+
+def _t21_bounds(doc: Mapping) -> list[list]:
+    """Rows (estimate, median and largest half-width of the ~95 % band of |T21| over the analysis band [%])."""
+    res, b = doc.get("result") or {}, doc.get("bounds") or {}
+    f = np.asarray(res.get("freq_hz") or [], float)
+    lo, hi = (res.get("analysis_band_hz") or [0.0, 0.0])[:2]
+    rows = []
+    for key, name in (("t21_static", "pooled (recommended)"), ("t21_free", "per line (Eq. 9)")):
+        lower, upper = (np.asarray((b.get(key) or {}).get(k) or [], float) for k in ("lower", "upper"))
+        if f.size == 0 or lower.size != f.size or upper.size != f.size:
+            continue
+        m = (f >= lo) & (f <= hi) & np.isfinite(lower) & np.isfinite(upper) & (upper + lower > 0)
+        if not m.any():
+            continue
+        rel = (upper[m] - lower[m]) / (upper[m] + lower[m])   # half-width / |T21|
+        rows.append([name, f"± {_num(100 * float(np.median(rel)), '.2g')} %", f"± {_num(100 * float(rel.max()), '.2g')} %"])
+    return rows
+
+
+def _loop_coefficients(d: Mapping) -> list[list]:
+    """Rows (coefficient, value ± 95 % half-width, unit; × M2 when known) of a loop.json."""
+    rows = []
+    for c in d.get("coefficients") or []:
+        if not isinstance(c, Mapping):
+            continue
+        m2 = c.get("value_times_m2")
+        rows.append([c.get("name"), f"{_num(c.get('value'))} ± {_num(c.get('half_width'), '.2g')}", c.get("unit", ""),
+                     "–" if m2 is None else f"{_num(m2)} ± {_num(c.get('half_width_times_m2'), '.2g')}"])
+    return rows
 
 
 def _predict(r: ResultDir) -> tuple[dict, list]:
@@ -306,10 +338,15 @@ def _loop(r: ResultDir, words: Mapping) -> tuple[dict, list]:
             "refined": _terms_text(d.get("refined_model"), words["element"]) if "refined_model" in d else "",
             "report_lines": [ln for ln in report.splitlines() if ln.strip()] if isinstance(report, str) else [],
             "errors": _errors_rows(eb, ea) if isinstance(eb, Mapping) and isinstance(ea, Mapping) else [],
-            "rounds": rows}
+            "rounds": rows, "coefficients": _loop_coefficients(d)}
     added = [_effect_label(x.get("added") or x.get("effect")) for x in rounds if x.get("added") or x.get("effect")]
-    return view, [{"key": "loop", "lines": [{"text": (", ".join(added) + " added") if added
-                                              else "nothing significant missing"}]}]
+    if added:
+        text = ", ".join(added) + " added"
+    elif d.get("nothing_missing", True):
+        text = "nothing significant missing"
+    else:   # nothing added, but the verdict says what these data cannot pin or tell apart
+        text = "nothing added; not everything could be told apart (see the loop's verdict)"
+    return view, [{"key": "loop", "lines": [{"text": text}]}]
 
 
 # ------------------------------------------------------------------------------------ provenance
@@ -410,7 +447,8 @@ def levels_figure(results: Sequence[ResultDir], out_png: Path) -> Path | None:
         return None
     curves.sort(key=lambda c: c[0])
     st = res.static if res.static is not None else res
-    curves.append(("NIFO nominal linear T21 (pooled)", res.freq_hz, st.t21, {"color": "C3", "lw": 1.8, "ls": "--"}))
+    curves.append(("NIFO nominal linear T21 (pooled)", res.freq_hz, st.t21,
+                   {"color": "C3", "lw": 1.8, "ls": "--", "random_error": st.random_error}))
     if truth is not None:
         curves.append(("true nominal linear T21 (simulator)", truth[0], truth[1],
                        {"color": "k", "lw": 0.9, "ls": ":"}))
