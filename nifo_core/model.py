@@ -452,6 +452,17 @@ def _linear_peak(linear: LinearPart, v: np.ndarray, fs_hz: float) -> float:
     return float(np.max(np.abs(scipy.fft.irfft(hz * scipy.fft.rfft(v, nfft), nfft))))
 
 
+def _static_frame(terms) -> list[Term]:
+    """The terms in the simulation's frame: z from the static position (the response starts from rest).
+
+    A bump stop's ``offset`` places the static position in the mean-centred z the
+    terms were identified on (:mod:`nifo_core.characterize_static`: a one-sided stop
+    moves the mean); the simulation measures z from the static position itself, where
+    the gap is, and its own mean moves with the stop as the strut's does.
+    """
+    return [Term(t.kind, {**dict(t.params), "offset": 0.0}) if t.kind == "bump_stop" else t for t in terms]
+
+
 def _predict_time(model, linear, a1, force, fs_hz, oversample, label, what) -> Prediction:
     n = (a1 if a1 is not None else force).size
     v = _external(model, linear, a1, force, fs_hz, n)
@@ -459,8 +470,8 @@ def _predict_time(model, linear, a1, force, fs_hz, oversample, label, what) -> P
     limit = np.inf
     if model.terms or any(linear.absorbed):
         limit = DIVERGENCE_FACTOR * max(_linear_peak(linear, v, fs_hz), 1e-12)
-    resp = simulate_response(linear, model.terms, model.c_over_m2, v, fs_hz, spindle_accel=a1, oversample=q,
-                             z_limit=limit)
+    resp = simulate_response(linear, _static_frame(model.terms), model.c_over_m2, v, fs_hz, spindle_accel=a1,
+                             oversample=q, z_limit=limit)
     if model.terms or any(linear.absorbed):
         if resp.diverged_at >= 0:
             k = resp.diverged_at
