@@ -22,8 +22,9 @@ as much as a high one. θ holds
 - the coefficients γ_i = c_i/M2 of the terms (scaled by their NIFO values),
 - the key parameter of each term that has one (gap, deadband, knee…; log
   scale, within ¼-4× of its start) unless ``shape=False``,
-- for a one-mass body, its stiffness and damping per unit mass (log scale);
-  a rational linear part is kept as fitted.
+- for a one-mass body, its realised stiffness and damping per unit mass (log
+  scale; reported as the nominal body's, the terms' absorbed linear part taken
+  out); a rational linear part is kept as fitted.
 
 Two starting points: the NIFO model itself, and — when a linear model
 identified on the same data is given — that linear model with the terms added
@@ -135,8 +136,8 @@ class _Space:
             key = KINDS[t.kind].key_param
             out.append((f"{t.kind}.{key}", KINDS[t.kind].params[key][1], float(t.params[key])))
         if self.body:
-            b = self.base.linear.body
-            out += [("k = K2/M2 (linear part)", "1/s²", b.k), ("c = C2/M2 (linear part)", "1/s", b.c)]
+            b = self.base.body
+            out += [("k = K2/M2 (nominal body)", "1/s²", b.k), ("c = C2/M2 (nominal body)", "1/s", b.c)]
         return out
 
     def model(self, x: np.ndarray) -> IdentifiedModel:
@@ -383,6 +384,6 @@ def _values(sp: _Space, x: np.ndarray) -> list[float]:
     for i in sp.shape_idx:
         t = m.terms[i]
         vals.append(float(t.params[KINDS[t.kind].key_param]))
-    if sp.body:
-        vals += [m.linear.body.k, m.linear.body.c]
+    if sp.body:      # the nominal body: the realised one without the terms' absorbed linear part
+        vals += [m.body.k, m.body.c]
     return vals
