@@ -224,7 +224,8 @@ def _identify(r: ResultDir, system: Mapping) -> tuple[dict, list]:
         "message": (f"from the {ref.get('start')} start; mean band NMSE of the {len(ref.get('records') or [])} "
                     f"record(s) {_num(_mean(ref.get('nmse_before_pct', {}).get(ref.get('start')) or []), '.3g')} % → "
                     f"{_num(_mean(ref.get('nmse_pct') or []), '.3g')} %"),
-        "rows": [[p.get("name"), _num(p.get("before")), _num(p.get("after")), p.get("unit", "")]
+        "rows": [[p.get("name"), _num(p.get("before")), _num(p.get("after")) + (
+            "" if p.get("half_width_95") is None else f" ± {_num(p['half_width_95'], '.2g')}"), p.get("unit", "")]
                  for p in ref.get("parameters") or []]}
     if refinement:
         lines = lines + [{"text": "refined (model.json): " + ", ".join(f"{p[0]} {p[2]} {p[3]}" for p in
