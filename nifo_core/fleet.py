@@ -34,7 +34,7 @@ import numpy as np
 
 from .errors import ConfigError
 
-__all__ = ["reduction_plan", "tree_reduce", "standard_error", "interval_halfwidth", "Estimate", "HealthSettings", "CoefficientHealth",
+__all__ = ["batch_plan", "reduction_plan", "tree_reduce", "standard_error", "interval_halfwidth", "Estimate", "HealthSettings", "CoefficientHealth",
            "GroupHealth", "robust_z", "assess_health", "MAD_TO_SIGMA"]
 
 T = TypeVar("T")
@@ -46,6 +46,33 @@ MAD_TO_SIGMA = 1.482602218505602
 # ---------------------------------------------------------------------------------------------
 # tree reduction
 # ---------------------------------------------------------------------------------------------
+def batch_plan(n: int, *, n_workers: int, batch: int | None = None, tasks_per_worker: int = 8,
+               max_batch: int = 32) -> list[range]:
+    """Consecutive index ranges cutting ``n`` items into tasks of several items each.
+
+    ``batch`` items per task when given; else ``ceil(n / (tasks_per_worker * n_workers))``,
+    at most ``max_batch``: a few tasks per worker (enough to balance the load at the
+    end of a run), each carrying many items, so the scheduler's cost per task
+    (milliseconds) is spread over the items.
+
+    Examples
+    --------
+    >>> batch_plan(5, n_workers=1, batch=2)
+    [range(0, 2), range(2, 4), range(4, 5)]
+    >>> [len(r) for r in batch_plan(200, n_workers=2)]   # 16 tasks of 13 items, the last of 5
+    [13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 13, 5]
+    """
+    if isinstance(n, bool) or int(n) != n or n < 0:
+        raise ConfigError(f"n={n!r} must be a whole number of items >= 0")
+    if isinstance(n_workers, bool) or int(n_workers) != n_workers or n_workers < 1:
+        raise ConfigError(f"n_workers={n_workers!r} must be a whole number >= 1")
+    if batch is None:
+        batch = min(max(1, -(-int(n) // (tasks_per_worker * int(n_workers)))), max_batch)
+    elif isinstance(batch, bool) or int(batch) != batch or batch < 1:
+        raise ConfigError(f"batch={batch!r} must be a whole number of items per task >= 1")
+    return [range(i, min(i + int(batch), int(n))) for i in range(0, int(n), int(batch))]
+
+
 def reduction_plan(n: int, *, fanout: int = 2) -> list[list[tuple[int, ...]]]:
     """The levels of a ``fanout``-way tree merging ``n`` items into one.
 
