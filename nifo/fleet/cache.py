@@ -3,10 +3,10 @@
 Key = SHA-256 of (the bag's bytes: every file of a rosbag2 folder by relative
 path, or the file) and (the JSON of everything that changes the partial: terms,
 spectral settings, integration band, tire patch, analysis band, chunk length,
-input options, :data:`CACHE_FORMAT`). The band and the tire patch are those
-the bag was given: "open" on the first pass (the bag then takes its own,
-a function of its content), the group's when a bag is accumulated again, so
-a rerun finds every entry from the bag's hash alone, without opening the bag.
+input options, :data:`CACHE_FORMAT`). Beside the partials, a small JSON note
+per bag (key: its content hash and the input options) keeps its rate, length
+and channels, so a rerun fixes every group's set-up, and so finds the
+partials' keys, without opening a finished bag.
 Renaming or moving a bag keeps its key; touching one byte or a setting makes
 a new one. An entry is one ``.npz``
 written to a temporary name and renamed into place, so a run killed at any
@@ -27,7 +27,8 @@ from typing import Mapping
 
 import numpy as np
 
-__all__ = ["content_hash", "settings_hash", "cache_key", "load_partial", "store_partial", "CACHE_FORMAT"]
+__all__ = ["content_hash", "settings_hash", "cache_key", "load_partial", "store_partial", "load_note", "store_note",
+           "CACHE_FORMAT"]
 
 #: bump when the content of a cached partial changes meaning
 CACHE_FORMAT = 2
@@ -92,6 +93,32 @@ def store_partial(cache_dir: str | os.PathLike | None, key: str, state: Mapping[
             np.savez(f, __info__=np.array(json.dumps(info, default=str)),
                      **{f"state.{k}": np.asarray(v) for k, v in state.items()})
         os.replace(tmp, path)   # no fsync: a killed process leaves whole files; a torn one (power loss) reads as absent
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+def load_note(cache_dir: str | os.PathLike | None, key: str) -> dict | None:
+    """A small cached JSON note (a bag's rate, length and channels) or None."""
+    if cache_dir is None:
+        return None
+    try:
+        return json.loads((Path(cache_dir) / "notes" / f"{key}.json").read_text())
+    except FileNotFoundError:
+        return None
+    except Exception:  # noqa: BLE001 - torn or foreign: recomputed
+        return None
+
+
+def store_note(cache_dir: str | os.PathLike | None, key: str, note: Mapping) -> None:
+    """Write a small JSON note atomically."""
+    if cache_dir is None:
+        return
+    folder = Path(cache_dir) / "notes"
+    folder.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{key}.", suffix=".tmp", dir=folder)
+    try:
+        with os.fdopen(fd, "w") as f:
+            json.dump(note, f)
+        os.replace(tmp, folder / f"{key}.json")
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise

@@ -28,12 +28,11 @@ worker fails alone.
 from __future__ import annotations
 
 import argparse
-from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from nifo.fleet.manifest import BagEntry
-from nifo.fleet.tasks import (GroupSetup, batch_status, characterize_group, compute_batch, loop_group,
+from nifo.fleet.tasks import (GroupSetup, batch_status, characterize_group, compute_batch, group_setup, loop_group,
                               merge_outcomes, solve_group)
 from nifo.progress import Progress
 from nifo_core.errors import ConfigError
@@ -133,23 +132,6 @@ def base_setups(entries: list[BagEntry], *, opts: dict, chunk_samples: int) -> d
     return out
 
 
-def group_setup(base: GroupSetup, probes: dict[int, dict], *, label: str) -> tuple[GroupSetup | None, dict[int, str]]:
-    """The group's set-up from its bags' rates, lengths and channels, as ``nifo identify`` chooses it.
-
-    Returns the set-up (None when no bag is left) and the reason for every bag left out (another rate).
-    """
-    from nifo_core.integrate import default_band
-
-    if not probes:
-        return None, {}
-    fs = Counter(p["fs_hz"] for p in probes.values()).most_common(1)[0][0]
-    left = {i: f"sample rate {p['fs_hz']:g} Hz differs from the other bags of {label} ({fs:g} Hz); resample it"
-            for i, p in probes.items() if p["fs_hz"] != fs}
-    ok = [p for i, p in probes.items() if i not in left]
-    band = base.band or default_band(fs, min(p["n_samples"] for p in ok) / fs)
-    return replace(base, band=band, with_tire_patch=all(p["has_tire_patch"] for p in ok)), left
-
-
 def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSettings = FleetSettings(),
               quiet: bool = False) -> FleetRun:
     """Run the fleet on ``client`` (module docstring); failed bags are recorded, never raised."""
@@ -173,14 +155,23 @@ def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSet
     ac = as_completed()
 
     def submit(idx: list[int], setup_of, *, batch: int | None = s.batch) -> None:
-        """Accumulation tasks for bags ``idx`` (in this order), batched."""
-        for r in batch_plan(len(idx), n_workers=n_threads, batch=batch):
-            chunk = [idx[j] for j in r]
-            for i in chunk:
-                rows[i]["passes"] += 1
-                used[i] = setup_of(i)
-            fut = client.submit(compute_batch, [(i, paths[i], group_of[i], used[i]) for i in chunk], s.cache_dir,
-                                pure=False)
+        """Accumulation tasks for bags ``idx`` (in groups' order), batched by :func:`batch_plan`."""
+        by_group: dict[tuple[str, str], list[int]] = {}
+        for i in idx:
+            by_group.setdefault(group_of[i], []).append(i)
+        keys = list(by_group)
+        for task in batch_plan([len(by_group[g]) for g in keys], n_workers=n_threads, batch=batch):
+            spec, chunk = [], []
+            for k, r, whole in task:
+                g = keys[k]
+                these = [by_group[g][j] for j in r]
+                whole = whole and set(these) == set(members[g])    # all the group's bags: set-up fixed there
+                for i in these:
+                    rows[i]["passes"] += 1
+                    used[i] = setup_of(i)
+                spec.append((g, used[these[0]], [(i, paths[i]) for i in these], whole))
+                chunk += these
+            fut = client.submit(compute_batch, spec, s.cache_dir, pure=False)
             st = client.submit(batch_status, fut, pure=False)
             status[st] = chunk
             for i in chunk:

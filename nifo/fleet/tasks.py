@@ -30,7 +30,7 @@ from nifo_core.errors import NifoError
 from nifo_core.integrate import IntegrationBand
 from nifo_core.spectral import SpectralSettings
 
-__all__ = ["GroupSetup", "coefficient_specs", "bag_setup", "bag_coefficients", "compute_batch", "batch_status", "pick",
+__all__ = ["GroupSetup", "coefficient_specs", "bag_setup", "group_setup", "bag_coefficients", "compute_batch", "batch_status", "pick",
            "merge_outcomes", "solve_group", "loop_group", "characterize_group"]
 
 @dataclass(frozen=True)
@@ -188,66 +188,145 @@ def bag_coefficients(one, setup: GroupSetup) -> dict[str, float]:
         return {n: float("nan") for n, _, _ in coefficient_specs(setup.terms)}
 
 
-def _bag(path: str, base: GroupSetup, cache_dir: str | None):
-    """One bag, read once: (its accumulated StreamingNifo, its status), or (None, failed status).
+def group_setup(base: GroupSetup, probes: dict[int, dict], *, label: str) -> tuple[GroupSetup | None, dict[int, str]]:
+    """The group's set-up from its bags' rates, lengths and channels, as ``nifo identify`` chooses it.
 
-    The cache key is the bag's content hash and the set-up it was given
-    (``base``, whose band and tire patch may still be open: the bag then takes
-    its own, a function of its content), so a rerun finds the partial without
-    opening the bag; the entry keeps what the client needs (the bag's rate,
-    length and channels, the set-up it was accumulated with, its coefficients).
+    Returns the set-up (None when no bag is left) and the reason for every bag left out (another rate).
     """
-    from itertools import chain
+    from collections import Counter
 
-    from nifo.fleet.cache import cache_key, content_hash, load_partial, settings_hash, store_partial
-    from nifo.io.loader import detect_format, iter_record_chunks
+    from nifo_core.integrate import default_band
+
+    if not probes:
+        return None, {}
+    fs = Counter(p["fs_hz"] for p in probes.values()).most_common(1)[0][0]
+    left = {i: f"sample rate {p['fs_hz']:g} Hz differs from the other bags of {label} ({fs:g} Hz); resample it"
+            for i, p in probes.items() if p["fs_hz"] != fs}
+    ok = [p for i, p in probes.items() if i not in left]
+    band = base.band or default_band(fs, min(p["n_samples"] for p in ok) / fs)
+    return replace(base, band=band, with_tire_patch=all(p["has_tire_patch"] for p in ok)), left
+
+
+def _open(path: str, base: GroupSetup):
+    """(chunk iterator, first chunk, probe: the bag's rate, length and channels) of an opened bag."""
+    from nifo.io.loader import iter_record_chunks
     from nifo_core.errors import RecordTooShortError
-    from nifo_core.nifo import StreamingNifo
 
-    t0 = time.perf_counter()
-    raw = None
+    raw = iter_record_chunks(path, chunk_samples=base.chunk_samples, **base.opts)
     try:
-        detect_format(path)          # a missing or foreign file: the loader's one-line reason
-        digest = content_hash(path)
-        key = cache_key(digest, settings_hash(base.cache_settings()))
-        hit = load_partial(cache_dir, key)
-        if hit is not None:
-            return StreamingNifo.from_state(hit["state"]), {**hit["info"], "ok": True, "cached": True,
-                                                            "hash": digest, "key": key}
-        raw = iter_record_chunks(path, chunk_samples=base.chunk_samples, **base.opts)
         first = next(raw, None)
         if first is None:
             raise RecordTooShortError("the file holds no samples", source=path)
-        probe = {"fs_hz": float(first.fs_hz), "has_tire_patch": bool(first.has_tire_patch),
-                 "n_samples": int(first.meta.get("chunk", {}).get("total_samples", first.n))}
-        setup = bag_setup(base, probe)
-        one, n = _accumulate(chain([first], raw), path, setup)
-        one.end_record()          # the partial keeps the sums, not the stream's edge samples
-        coefs = bag_coefficients(one, setup)
-    except Exception as err:  # noqa: BLE001 - a bad bag is recorded, the fleet goes on
-        return None, {"ok": False, "reason": _one_line(err)}
+    except BaseException:
+        raw.close()
+        raise
+    probe = {"fs_hz": float(first.fs_hz), "has_tire_patch": bool(first.has_tire_patch),
+             "n_samples": int(first.meta.get("chunk", {}).get("total_samples", first.n))}
+    return raw, first, probe
+
+
+def _group_bags(group: tuple, base: GroupSetup, bags: list[tuple[int, str]], whole: bool, cache_dir: str | None):
+    """Yield (index, status, accumulated StreamingNifo or None) for bags of one group, in their order.
+
+    As ``nifo identify`` does: every bag is opened first (its first chunk tells its
+    rate, length and channels; a rerun reads them from a small note in the cache
+    instead), then, when ``whole`` (these are all the group's bags), the group's
+    set-up is fixed from them (:func:`group_setup`: the band of its shortest bag, the
+    tire patch if every bag has it) and each bag streamed with it; otherwise each bag
+    takes its own set-up (:func:`bag_setup`) and the client accumulates again those
+    that differ from the group's. A bag's partial is read from the cache when there
+    (key: content hash and set-up), else accumulated and cached at once.
+    """
+    from nifo.fleet.cache import cache_key, content_hash, load_note, settings_hash, store_note
+    from nifo.io.loader import detect_format
+
+    found, failed, spent = {}, {}, {}
+    try:
+        for index, path in bags:                                  # 1. open (or recall) every bag
+            t0 = time.perf_counter()
+            try:
+                detect_format(path)          # a missing or foreign file: the loader's one-line reason
+                digest = content_hash(path)
+                note_key = cache_key(digest, settings_hash({"note": base.cache_settings()["opts"]}))
+                probe, opened = load_note(cache_dir, note_key), None
+                if probe is None:
+                    raw, first, probe = _open(path, base)
+                    opened = (raw, first)
+                    store_note(cache_dir, note_key, probe)
+                found[index] = {"path": path, "hash": digest, "probe": probe, "opened": opened}
+            except Exception as err:  # noqa: BLE001 - a bad bag is recorded, the fleet goes on
+                failed[index] = _one_line(err)
+            spent[index] = time.perf_counter() - t0
+        setup, left = base, {}                                    # 2. the set-up
+        if whole:
+            setup, left = group_setup(base, {i: b["probe"] for i, b in found.items()}, label=f"{group[0]}/{group[1]}")
+            failed.update({i: f"{found[i]['path']}: {why}" for i, why in left.items()})
+        for index, path in bags:                                  # 3. accumulate (or read the cache)
+            if index in failed:
+                yield index, {"ok": False, "reason": failed[index]}, None
+                continue
+            b = found[index]
+            t0 = time.perf_counter()
+            try:
+                one, st = _partial(b, bag_setup(setup, b["probe"]), cache_dir)
+            except Exception as err:  # noqa: BLE001
+                yield index, {"ok": False, "reason": _one_line(err)}, None
+                continue
+            finally:
+                if b["opened"] is not None:
+                    b["opened"][0].close()
+                    b["opened"] = None
+            st["seconds"] = spent[index] + time.perf_counter() - t0     # this run's time for the bag
+            yield index, st, one
     finally:
-        if raw is not None:
+        for b in found.values():
+            if b["opened"] is not None:
+                b["opened"][0].close()
+
+
+def _partial(b: dict, setup: GroupSetup, cache_dir: str | None):
+    """(StreamingNifo, status) of one opened or recalled bag with its set-up: from the cache, else accumulated."""
+    from itertools import chain
+
+    from nifo.fleet.cache import cache_key, load_partial, settings_hash, store_partial
+    from nifo.io.loader import iter_record_chunks
+    from nifo_core.nifo import StreamingNifo
+
+    setup_hash = settings_hash(setup.cache_settings())
+    key = cache_key(b["hash"], setup_hash)
+    common = {"ok": True, "hash": b["hash"], "key": key, "probe": b["probe"], "setup_hash": setup_hash}
+    hit = load_partial(cache_dir, key)
+    if hit is not None:
+        return StreamingNifo.from_state(hit["state"]), {**hit["info"], **common, "cached": True}
+    if b["opened"] is not None:
+        raw, first = b["opened"]
+        one, n = _accumulate(chain([first], raw), b["path"], setup)
+    else:
+        raw = iter_record_chunks(b["path"], chunk_samples=setup.chunk_samples, **setup.opts)
+        try:
+            one, n = _accumulate(raw, b["path"], setup)
+        finally:
             raw.close()
-    info = {"path": str(path), "n_samples": int(n), "fs_hz": one.fs_hz, "probe": probe,
-            "setup_hash": settings_hash(setup.cache_settings()), "coefs": coefs,
-            "seconds": time.perf_counter() - t0}
+    one.end_record()          # the partial keeps the sums, not the stream's edge samples
+    info = {"path": b["path"], "n_samples": int(n), "fs_hz": one.fs_hz, "coefs": bag_coefficients(one, setup)}
     try:
         store_partial(cache_dir, key, one.state_dict(), info)
     except OSError as err:
         info["cache_note"] = f"not cached: {err}"
-    return one, {**info, "ok": True, "cached": False, "hash": digest, "key": key}
+    return one, {**info, **common, "cached": False}
 
 
-def compute_batch(items: list[tuple[int, str, tuple, GroupSetup]], cache_dir: str | None) -> dict:
+def compute_batch(groups: list[tuple[tuple, GroupSetup, list[tuple[int, str]], bool]], cache_dir: str | None) -> dict:
     """Several bags in one task: per-bag statuses, and the partials merged per group and set-up.
 
     Parameters
     ----------
-    items : list of (index, path, group, set-up)
-        The bags of this task (``index`` is the client's number for the bag).
+    groups : list of (group, set-up, [(index, path)], whole)
+        The bags of this task, by group (``index`` is the client's number for the
+        bag); ``whole``: these are all the bags of the group, whose set-up is then
+        fixed here as ``nifo identify`` fixes it (:func:`_group_bags`).
     cache_dir : str or None
-        Every bag's partial is cached on its own, as soon as it is done (:func:`_bag`).
+        Every bag's partial is cached on its own, as soon as it is done.
 
     Returns
     -------
@@ -261,17 +340,17 @@ def compute_batch(items: list[tuple[int, str, tuple, GroupSetup]], cache_dir: st
     """
     acc: dict[tuple, list] = {}
     status = []
-    for index, path, group, base in items:
-        one, st = _bag(path, base, cache_dir)
-        status.append((index, st))
-        if one is None:
-            continue
-        part = (*group, st["setup_hash"])
-        if part in acc:
-            acc[part][0] = acc[part][0].merge(one)
-            acc[part][1].append(st)
-        else:
-            acc[part] = [one, [st]]
+    for group, base, bags, whole in groups:
+        for index, st, one in _group_bags(tuple(group), base, bags, whole, cache_dir):
+            status.append((index, st))
+            if one is None:
+                continue
+            part = (*group, st["setup_hash"])
+            if part in acc:
+                acc[part][0] = acc[part][0].merge(one)
+                acc[part][1].append(st)
+            else:
+                acc[part] = [one, [st]]
     return {"status": status,
             "parts": {p: {"ok": True, "state": a.state_dict(), "bags": bags} for p, (a, bags) in acc.items()}}
 
