@@ -1,14 +1,14 @@
 """Per-bag partials on disk, keyed by the bag's content and the settings (restart-safe).
 
-Key = SHA-256 of (the bag's bytes: every file of a rosbag2 folder by relative
-path, or the file) and (the JSON of everything that changes the partial: terms,
-spectral settings, integration band, tire patch, analysis band, chunk length,
-input options, :data:`CACHE_FORMAT`). Beside the partials, a small JSON note
-per bag (key: its content hash and the input options) keeps its rate, length
-and channels, so a rerun fixes every group's set-up, and so finds the
-partials' keys, without opening a finished bag.
-Renaming or moving a bag keeps its key; touching one byte or a setting makes
-a new one. An entry is one ``.npz``
+Key = SHA-256 of (the hash of the bag's bytes, :func:`content_hash`: every
+file of a rosbag2 folder by relative path, or the file) and (the JSON of
+everything that changes the partial: terms, spectral settings, integration
+band, tire patch, analysis band, chunk length, input options,
+:data:`CACHE_FORMAT`). Beside the partials, a small JSON note per bag (key:
+its content hash and the input options) keeps its rate, length and
+channels, so a rerun fixes every group's set-up, and so finds the partials'
+keys, without opening a finished bag. Renaming or moving a bag keeps its
+key; touching one byte or a setting makes a new one. An entry is one ``.npz``
 written to a temporary name and renamed into place, so a run killed at any
 instant (SIGKILL included) leaves whole entries or none: the next run reuses
 the finished bags and recomputes the rest. Entries are not fsync'ed (a
@@ -32,22 +32,38 @@ __all__ = ["content_hash", "settings_hash", "cache_key", "load_partial", "store_
 
 #: bump when the content of a cached partial changes meaning
 CACHE_FORMAT = 2
-_CHUNK = 1 << 20
+_CHUNK = 1 << 22
+
+
+def _hasher():
+    """XXH3-128 (xxhash, ~20 GB/s) when installed, else SHA-256 (~2 GB/s): (name, hash object)."""
+    try:
+        import xxhash
+    except ImportError:
+        return "sha256", hashlib.sha256()
+    return "xxh3-128", xxhash.xxh3_128()
 
 
 def content_hash(path: str | os.PathLike) -> str:
-    """SHA-256 hex digest of a file, or of a folder's files (relative names and bytes, sorted)."""
+    """Hash of a file's bytes, or of a folder's files (relative names and bytes, sorted): ``"ALGO:HEX"``.
+
+    XXH3-128, a non-cryptographic 128-bit hash: it names a bag in the user's own
+    cache (accidental collisions ~2⁻⁶⁴), not proof against a forger. It costs
+    ~1 ms per 5-MB bag (SHA-256: ~4 ms, 5 % of the bag's whole accumulation).
+    """
     p = Path(path)
-    h = hashlib.sha256()
+    algo, h = _hasher()
     files = sorted(q for q in p.rglob("*") if q.is_file()) if p.is_dir() else [p]
+    buf = bytearray(_CHUNK)
+    view = memoryview(buf)
     for q in files:
         if p.is_dir():
             h.update(q.relative_to(p).as_posix().encode() + b"\0")
-        with q.open("rb") as f:
-            while block := f.read(_CHUNK):
-                h.update(block)
+        with q.open("rb", buffering=0) as f:
+            while n := f.readinto(buf):
+                h.update(view[:n])
         h.update(b"\0\0")
-    return h.hexdigest()
+    return f"{algo}:{h.hexdigest()}"
 
 
 def settings_hash(settings: Mapping) -> str:
