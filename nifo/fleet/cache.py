@@ -80,6 +80,37 @@ def _entry(cache_dir: Path, key: str) -> Path:
     return cache_dir / key[:2] / f"{key}.npz"
 
 
+def _pack(state: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Arrays to store: a stack of exactly Hermitian matrices (the accumulated cross-spectra) as its upper triangles."""
+    out = {}
+    for k, v in state.items():
+        a = np.asarray(v)
+        if a.dtype.kind == "c" and a.ndim == 3 and a.shape[1] == a.shape[2] > 1 and \
+                np.array_equal(a, np.conj(np.swapaxes(a, 1, 2))):
+            iu = np.triu_indices(a.shape[1])
+            out[f"triu.{a.shape[1]}.{k}"] = a[:, iu[0], iu[1]]      # 10 of 16 entries for 4 channels
+        else:
+            out[f"state.{k}"] = a
+    return out
+
+
+def _unpack(z) -> dict[str, np.ndarray]:
+    state = {}
+    for name in z.files:
+        if name.startswith("state."):
+            state[name[6:]] = z[name]
+        elif name.startswith("triu."):
+            _, n, k = name.split(".", 2)
+            n = int(n)
+            t = z[name]
+            iu = np.triu_indices(n)
+            a = np.empty((t.shape[0], n, n), t.dtype)
+            a[:, iu[1], iu[0]] = np.conj(t)
+            a[:, iu[0], iu[1]] = t           # the diagonal (real) last: as stored
+            state[k] = a
+    return state
+
+
 def load_partial(cache_dir: str | os.PathLike | None, key: str) -> dict | None:
     """The cached partial (``{"state": {...}, "info": {...}}``) or None (absent or unreadable: recompute)."""
     if cache_dir is None:
@@ -88,7 +119,7 @@ def load_partial(cache_dir: str | os.PathLike | None, key: str) -> dict | None:
     try:
         with np.load(path, allow_pickle=False) as z:
             info = json.loads(str(z["__info__"]))
-            state = {k[6:]: z[k] for k in z.files if k.startswith("state.")}
+            state = _unpack(z)
     except FileNotFoundError:
         return None
     except Exception:  # noqa: BLE001 - a torn or foreign entry is recomputed, never trusted
@@ -98,7 +129,12 @@ def load_partial(cache_dir: str | os.PathLike | None, key: str) -> dict | None:
 
 def store_partial(cache_dir: str | os.PathLike | None, key: str, state: Mapping[str, np.ndarray],
                   info: Mapping) -> None:
-    """Write one entry atomically (temporary file in the same folder, then rename)."""
+    """Write one entry atomically (temporary file in the same folder, then rename).
+
+    A Hermitian stack (the partial's cross-spectral sums, exactly Hermitian as
+    accumulated) is stored as its upper triangles: 0.49 instead of 0.79 MB for
+    four channels, read back bit for bit.
+    """
     if cache_dir is None:
         return
     path = _entry(Path(cache_dir), key)
@@ -106,12 +142,13 @@ def store_partial(cache_dir: str | os.PathLike | None, key: str, state: Mapping[
     fd, tmp = tempfile.mkstemp(prefix=f".{key}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
-            np.savez(f, __info__=np.array(json.dumps(info, default=str)),
-                     **{f"state.{k}": np.asarray(v) for k, v in state.items()})
+            np.savez(f, __info__=np.array(json.dumps(info, default=str)), **_pack(state))
         os.replace(tmp, path)   # no fsync: a killed process leaves whole files; a torn one (power loss) reads as absent
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
 def load_note(cache_dir: str | os.PathLike | None, key: str) -> dict | None:
     """A small cached JSON note (a bag's rate, length and channels) or None."""
     if cache_dir is None:
