@@ -8,21 +8,23 @@
     compute_batch(bags 39-51) ── merge ─┘            (loop_group, with --loop)
 
 Bags are taken in groups' order and cut into batches (:func:`nifo_core.fleet.batch_plan`:
-about 8 tasks per worker thread, at most 32 bags each), so a run has tens of
-tasks, not several per bag. A batch returns a small status per bag to the
-client and keeps, on its worker, one partial per group and set-up it holds;
-merges pick the group's partial out of each batch holding its bags.
+about 8 tasks per worker thread, at most 32 bags each; a group of up to 32
+bags stays in one task), so a run has tens of tasks, not several per bag. A
+batch returns a small status per bag to the client and keeps, on its worker,
+one partial per group and set-up it holds; merges and solves pick the group's
+partial out of each batch holding its bags.
 
-Each bag is accumulated with its own integration band and tire patch until
-its group is complete; then the group's set-up is fixed as ``nifo identify``
+A task holding a whole group fixes the group's set-up as ``nifo identify``
 would (band from the model file, else ``default_band(fs, shortest bag)``; tire
-patch when every bag has one; bags at another rate left out) and only the
-bags whose set-up differs (a bag shorter than 64 s in the group, a bag
-without tire patch) are accumulated again. Only paths, settings and cache
-keys go out to the workers; partials move worker-to-worker into the merges;
-the client gathers the statuses and one result per group. A batch whose task
-dies (a worker lost) is run again one bag per task, so a bag that kills its
-worker fails alone.
+patch when every bag has one; bags at another rate left out) before it
+streams the bags. A group cut over several tasks is accumulated with each
+bag's own band and tire patch; when all its bags are in, the client fixes the
+group's set-up the same way and accumulates again only the bags whose set-up
+differs (a bag shorter than 64 s in the group, a bag without tire patch).
+Only paths, settings and cache keys go out to the workers; partials move
+worker-to-worker into the merges; the client gathers the statuses and one
+result per group. A batch whose task dies (a worker lost) is run again one
+bag per task, so a bag that kills its worker fails alone.
 """
 
 from __future__ import annotations
