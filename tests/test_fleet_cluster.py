@@ -262,3 +262,24 @@ def test_an_unreachable_scheduler_is_one_line_and_its_exit_code(fleet, capsys):
     assert rc == 20 and err.count("\n") == 1
     assert "cannot reach the Dask scheduler tcp://127.0.0.1:9" in err and "Fix:" in err
     assert not (fleet / "never").exists()
+
+
+def test_a_bag_too_short_to_integrate_fails_alone_in_its_groups_task(fleet, tmp_path):
+    from nifo.fleet.manifest import load_fleet_input
+    from nifo.fleet.runner import base_setups
+    from nifo.fleet.simulated import NOMINAL_DEADZONE, NOMINAL_KNEE, _write_bag
+    from nifo.fleet.tasks import compute_batch
+    from nifo_core.describing import Term
+    from nifo_core.simulate import RandomRoad, SimConfig, StrutForce
+
+    short = tmp_path / "short.mcap"
+    strut = (StrutForce(Term("velocity_deadzone", {"knee": NOMINAL_KNEE}), NOMINAL_DEADZONE),)
+    _write_bag({"config": SimConfig(strut=strut, road=RandomRoad(0.0025), duration_s=4.0), "seed": 7,
+                "path": str(short)})
+    e = [x for x in load_fleet_input(fleet / "manifest.csv", default_model=fleet / "model.yaml")
+         if x.vehicle == "v00"][0]
+    base = base_setups([e], opts={}, chunk_samples=2 ** 18)[e.group]
+    out = compute_batch([(e.group, base, [(0, str(e.path)), (1, str(short))], True)], None)
+    st = dict(out["status"])
+    assert st[0]["ok"] and not st[1]["ok"] and "too short" in st[1]["reason"] and "\n" not in st[1]["reason"]
+    assert len(out["parts"]) == 1

@@ -259,7 +259,11 @@ def _group_bags(group: tuple, base: GroupSetup, bags: list[tuple[int, str]], who
             spent[index] = time.perf_counter() - t0
         setup, left = base, {}                                    # 2. the set-up
         if whole:
-            setup, left = group_setup(base, {i: b["probe"] for i, b in found.items()}, label=f"{group[0]}/{group[1]}")
+            try:
+                setup, left = group_setup(base, {i: b["probe"] for i, b in found.items()},
+                                          label=f"{group[0]}/{group[1]}")
+            except NifoError:     # e.g. a bag too short to integrate: each bag on its own, that one fails alone
+                setup, left = base, {}
             failed.update({i: f"{found[i]['path']}: {why}" for i, why in left.items()})
         for index, path in bags:                                  # 3. accumulate (or read the cache)
             if index in failed:
