@@ -35,7 +35,7 @@ under ``--cache``, ~1.3 GB, which takes a few minutes the first time) is reused.
 
 Usage::
 
-    PYTHONPATH=. .venv/bin/python benchmarks/bench_fleet.py     # ~2.5 min on an idle 2-core machine once the fleet exists
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_fleet.py   # ~2.5 min idle, 2 cores, once the fleet exists
 
 Options: ``--quick`` (10 × 3 bags of 60 s: a smoke run, no verdict on flags),
 ``--vehicles N`` (first N vehicles only), ``--memory-bags N`` (default 200: N and
@@ -149,7 +149,7 @@ def run(client, entries, cache_dir=None):
 
 
 def cpu_seconds(client) -> tuple[float, float]:
-    """CPU time [s] of (this process: client, and scheduler and nannies of an embedded cluster; ``client``'s workers)."""
+    """CPU time [s] of (this process: client, scheduler and nannies of an embedded cluster; ``client``'s workers)."""
     import psutil
 
     workers = 0.0
@@ -254,7 +254,7 @@ def main() -> int:
     ap.add_argument("--memory-bags", type=int, default=200, metavar="N", help="scheduler memory at N and 10·N bags")
     ap.add_argument("--no-memory", action="store_true", help="skip the scheduler-memory part")
     ap.add_argument("--rounds", type=int, default=2, metavar="K",
-                    help="rounds of (serial, 1 worker, 2 workers), interleaved; the best time of each counts (default 2)")
+                    help="rounds of (serial, 1 worker, 2 workers), interleaved; the best of each counts (default 2)")
     args = ap.parse_args()
     from nifo.fleet.manifest import load_fleet_input
 
@@ -299,7 +299,8 @@ def main() -> int:
                 for w, c in clients.items():
                     res, t, cpu = timed_fleet(c, entries, tmp / f"w{w}")
                     runs[w] = (res, t, cpu, load())
-                print(f"round {k + 1}: serial baseline {runs['serial'][1]:.1f} s ({runs['serial'][3]}); fleet, 1 worker "
+                print(f"round {k + 1}: serial baseline {runs['serial'][1]:.1f} s ({runs['serial'][3]}); "
+                      f"fleet, 1 worker "
                       f"{runs[1][1]:.1f} s ({runs[1][3]}); 2 workers {runs[2][1]:.1f} s ({runs[2][3]})", flush=True)
                 for key, r in runs.items():
                     if key not in best or r[1] < best[key][1]:
@@ -315,7 +316,8 @@ def main() -> int:
           f"{1e3 * base['seconds'] / n:.1f} ms per bag (accumulate {1e3 * base['accumulate_s'] / n:.1f}, "
           f"per-vehicle solve {1e3 * base['solve_s'] / n:.1f}) ({best['serial'][3]})")
     for w in (1, 2):
-        print(f"fleet, {w} worker(s): {times[w]:.1f} s = {1e3 * times[w] / n:.1f} ms per bag (fresh cache) ({loads[w]})")
+        print(f"fleet, {w} worker(s): {times[w]:.1f} s = {1e3 * times[w] / n:.1f} ms per bag (fresh cache) "
+              f"({loads[w]})")
     speedup = times[1] / times[2]
     verdicts.append(("speed-up 1 -> 2 workers", f"{speedup:.2f}x", ">= 1.8x", speedup >= 1.8, loads[2]))
     overhead = times[1] / base["seconds"] - 1
@@ -325,7 +327,8 @@ def main() -> int:
           f"{1e3 * base['accumulate_s'] / n:.1f}), {1e3 * (times[1] / n - in_task):.1f} ms the rest (per-vehicle "
           f"solves: identify {1e3 * base['solve_s'] / n:.1f}; merges, Dask, client)")
     print(f"  CPU time (also inflated by load): serial baseline {base['cpu_s']:.1f} s; "
-          + "; ".join(f"fleet on {w} worker(s): workers {cpus[w][1]:.1f} s ({100 * (cpus[w][1] / base['cpu_s'] - 1):+.1f} %)"
+          + "; ".join(f"fleet on {w} worker(s): workers {cpus[w][1]:.1f} s "
+                      f"({100 * (cpus[w][1] / base['cpu_s'] - 1):+.1f} %)"
                       f" + client and scheduler {cpus[w][0]:.1f} s" for w in (1, 2)))
     verdicts.append(("per-bag overhead, 1-worker fleet vs serial baseline", f"{100 * overhead:+.1f} %", "<= 5 %",
                      overhead <= 0.05, loads[1]))
@@ -352,7 +355,8 @@ def main() -> int:
             mem[k] = memory_run(base_tiny, linked(mroot, base_tiny, k), mroot / "partials")
             m = mem[k]
             print(f"scheduler process, {k:5d} bags in 20 groups: RSS {m['before']:.1f} MB after warm-up, "
-                  f"{m['after']:.1f} MB after the run ({m['after'] - m['before']:+.1f}), peak during the run {m['peak']:.1f} MB; "
+                  f"{m['after']:.1f} MB after the run ({m['after'] - m['before']:+.1f}), "
+                  f"peak during the run {m['peak']:.1f} MB; "
                   f"run {m['seconds']:.1f} s ({load()})", flush=True)
         shutil.rmtree(mroot / "links", ignore_errors=True)
         a, b = mem[args.memory_bags], mem[10 * args.memory_bags]

@@ -30,7 +30,7 @@ bag per task, so a bag that kills its worker fails alone.
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from nifo.fleet.manifest import BagEntry

@@ -30,8 +30,8 @@ from nifo_core.errors import NifoError
 from nifo_core.integrate import IntegrationBand
 from nifo_core.spectral import SpectralSettings
 
-__all__ = ["GroupSetup", "coefficient_specs", "bag_setup", "group_setup", "bag_coefficients", "compute_batch", "batch_status", "pick",
-           "merge_outcomes", "solve_group", "loop_group", "characterize_group"]
+__all__ = ["GroupSetup", "coefficient_specs", "bag_setup", "group_setup", "bag_coefficients", "compute_batch",
+           "batch_status", "pick", "merge_outcomes", "solve_group", "loop_group", "characterize_group"]
 
 @dataclass(frozen=True)
 class GroupSetup:
