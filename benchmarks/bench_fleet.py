@@ -1,68 +1,76 @@
-"""``nifo fleet`` on a simulated fleet of 20 vehicles × 10 bags: flags, equality, speed-up, overhead, memory.
+"""``nifo fleet`` on a simulated fleet: speed-up, per-bag overhead, scheduler memory, flags, equality.
 
-Makes (once, cached under ``--cache``, default /tmp/nifo_bench/fleet_20x10) a
-fleet with :func:`nifo.fleet.simulated.write_simulated_fleet`: 20 vehicles,
-10 random-road bags of 60-120 s each (real .mcap bags), every vehicle's m2,
-k1, k2, c2 and deadzone coefficient varied ±10 %, v03 and v11 with a worn
-damper (C2 -30 %), v07 with the damper knee moved (0.03 → 0.06 m/s). The
-simulations run on a 2-process LocalCluster. Then prints, measured in this run:
+Everything is measured in this run, on this machine, against a baseline measured in the same run:
 
-1. strut health: which vehicles are flagged (target: exactly v03, v07, v11), the
-   planted ones' z-scores and the largest |z| of a healthy one;
-2. equality: per-vehicle coefficients vs ``nifo identify`` on that vehicle's
-   bags (in-process ``nifo.cli.main``), largest relative difference (target ≤ 1e-9);
-3. speed-up: wall time of the fleet on a LocalCluster of 1 and of 2 worker
-   processes (clusters started and warmed up beforehand, partials written to a fresh cache as in a
-   user's run; target ≥ 1.8×);
-4. per-bag overhead: the 1-worker fleet against ``nifo identify``'s own
-   accumulate-and-solve per vehicle, in this process (target ≤ 5 %);
-5. scheduler memory vs number of bags: a fresh 2-worker cluster per size runs
-   200, 1000 and 2000 bags (hard links of the 200 bags, every one a cache hit)
-   and the scheduler's resident memory is read before and after.
+1. serial baseline: ``nifo identify``'s own work on every vehicle's bags (its
+   ``accumulate``, ``result``, ``check_usable``, ``summarize`` and body model, the
+   library calls ``nifo identify`` makes), in this process, no Dask;
+2. ``run_fleet`` (what ``nifo fleet`` runs) on an embedded LocalCluster of 1 and on
+   one of 2 single-threaded worker processes (``nifo.fleet.cluster.fleet_client``),
+   each run with a fresh partial cache (as a user's first run). Cluster start-up
+   and first calls (imports, numba) are NOT timed: both clusters are started and
+   every worker warmed up first; every bag is read once before anything is timed
+   (page cache), so no run pays the disk. (1) and (2) are interleaved for
+   ``--rounds`` rounds (default 2) and the best time of each counts (other jobs
+   on the machine only ever slow a run down);
+3. scheduler memory: a Dask scheduler in its own process (``SubprocessCluster``,
+   2 workers; the fleet connects to it as to ``--scheduler``), fresh for each size,
+   runs N and 10·N tiny bags (20-s bags hard-linked many times, 20 vehicles;
+   the links share the cache entries of their 40 distinct bags, so most are cache hits);
+   the scheduler process's RSS (psutil, via ``run_on_scheduler``) after warm-up
+   and after the run, and its peak RSS during the run (VmHWM, reset after warm-up), are printed.
 
-The machine's load average is printed beside every timing: other jobs share
-the cores, and a speed-up needs two free ones.
+Prints speed-up 1 → 2 workers (target ≥ 1.8×), the per-bag overhead of the
+1-worker fleet against the serial baseline (target ≤ 5 %) with where it goes,
+scheduler memory growth from N to 10·N bags (target: flat, ≤ 5 MB), the
+flagged vehicles (target: exactly the planted ones) and the largest relative
+difference of a coefficient from the baseline (target ≤ 1e-9), each with the
+load average (the speed-up needs two idle cores). BLAS/OpenMP run one thread
+per process here as in Dask's workers (set below), so the baseline uses one
+core like one worker.
+
+The fleet (20 vehicles × 10 bags of 60-120 s, v03 and v11 with a worn damper,
+v07 with the knee moved; made once with :func:`nifo.fleet.simulated.write_simulated_fleet`
+under ``--cache``, ~1.3 GB, which takes a few minutes the first time) is reused.
 
 Usage::
 
-    .venv/bin/python benchmarks/bench_fleet.py [--cache /tmp/nifo_bench/fleet_20x10] [--quick]
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_fleet.py   # ~2.5 min idle, 2 cores, once the fleet exists
 
-``--quick`` makes a 10 × 3 fleet of 60 s bags instead (a smoke run). Exits 1 when a target is missed.
+Options: ``--quick`` (10 × 3 bags of 60 s: a smoke run, no verdict on flags),
+``--vehicles N`` (first N vehicles only), ``--memory-bags N`` (default 200: N and
+10·N), ``--no-memory``. Exits 1 when a target is missed.
 """
 
 from __future__ import annotations
 
-import argparse
-import csv
-import json
 import os
-import shutil
-import sys
-import time
-from pathlib import Path
+
+for _v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):   # before numpy: one thread, as Dask's
+    os.environ[_v] = "1"                                                      # nanny sets for its workers
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import shutil  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+os.environ["PYTHONPATH"] = os.pathsep.join([str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])])  # workers
 
 OPTS = {"topics": None, "columns": None, "fs_hz": None, "axis": "z"}
 
 
 def load() -> str:
     a, b, c = os.getloadavg()
-    return f"load average {a:.1f} {b:.1f} {c:.1f} on {os.cpu_count()} cores"
-
-
-def cluster(n: int):
-    import logging
-
-    from distributed import Client, LocalCluster
-
-    c = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                     silence_logs=logging.ERROR)
-    return c, Client(c)
+    return f"load {a:.2f} {b:.2f} {c:.2f} on {os.cpu_count()} cores"
 
 
 def make_fleet(root: Path, quick: bool) -> Path:
+    from nifo.fleet.cluster import fleet_client
     from nifo.fleet.simulated import write_simulated_fleet
 
     manifest = root / "manifest.csv"
@@ -70,27 +78,16 @@ def make_fleet(root: Path, quick: bool) -> Path:
         return manifest
     shape = dict(n_vehicles=10, bags_per_vehicle=3, duration_s=60.0, worn=(3,), knee_moved=(7,)) if quick else \
         dict(n_vehicles=20, bags_per_vehicle=10, duration_s=(60.0, 120.0), worn=(3, 11), knee_moved=(7,))
-    c, client = cluster(2)
     t0 = time.perf_counter()
-    try:
+    print(f"simulating the fleet once into {root} ...", flush=True)
+    with fleet_client(dashboard_address=None) as client:
         write_simulated_fleet(root, seed=0, mapper=lambda f, xs: client.gather(client.map(f, xs)), **shape)
-    finally:
-        client.close()
-        c.close()
-    print(f"simulated the fleet in {time.perf_counter() - t0:.0f} s -> {root}")
+    print(f"simulated the fleet in {time.perf_counter() - t0:.0f} s")
     return manifest
 
 
-def run(client, entries, cache_dir=None):
-    from nifo.fleet.runner import FleetSettings, run_fleet
-
-    t0 = time.perf_counter()
-    res = run_fleet(client, entries, opts=OPTS, settings=FleetSettings(cache_dir=cache_dir), quiet=True)
-    return res, time.perf_counter() - t0
-
-
-def identify_alone(entries) -> tuple[float, dict]:
-    """What nifo identify does per vehicle (accumulate, solve, summarize, body model), in this process."""
+def identify_alone(entries) -> dict:
+    """``nifo identify``'s work per vehicle (accumulate; solve, summarize, body model), in this process."""
     import warnings
 
     from nifo.commands.identify import accumulate, check_usable, resolve_settings, summarize
@@ -104,146 +101,275 @@ def identify_alone(entries) -> tuple[float, dict]:
     ns = argparse.Namespace(block=None, overlap=None, window=None, band=None, freq_range=None, cond_limit=1e4,
                             chunk_samples=2 ** 18)
     cfg = resolve_settings(ns, spec.settings)
-    out = {}
-    t0 = time.perf_counter()
+    out, t_acc, t_solve = {}, 0.0, 0.0
     for g, es in groups.items():
+        t0 = time.perf_counter()
         acc, _, _ = accumulate([e.path for e in es], spec.terms, cfg, opts=OPTS, quiet=True)
+        t1 = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             res = acc.result()
         check_usable(res, cfg["cond_limit"])
         summarize(res, cfg["cond_limit"])
         body = IdentifiedModel.from_nifo(res, source="static").body
+        t_acc += t1 - t0
+        t_solve += time.perf_counter() - t1
         out[g] = {"k2_over_m2": body.k, "c2_over_m2": body.c,
                   "c_over_m2_velocity_deadzone": float(res.static.c_over_m2[0])}
-    return time.perf_counter() - t0, out
+    return {"values": out, "seconds": t_acc + t_solve, "accumulate_s": t_acc, "solve_s": t_solve}
 
 
-def scheduler_rss(client) -> float:
-    def rss():
-        import psutil
-        return psutil.Process().memory_info().rss
-    return client.run_on_scheduler(rss) / 2 ** 20
+def _warm(path: str, group: tuple, setup) -> bool:
+    """On a worker: every import and numba function of a bag's accumulation and a group's solve, once."""
+    from nifo.fleet.tasks import compute_batch, solve_group
+
+    b = compute_batch([(group, setup, [(0, path)], True)], None)
+    part = next(iter(b["parts"]))
+    solve_group(b, freqs_hz=(2.0,), plot_max_hz=50.0, part=part)
+    return True
 
 
-def linked_entries(root: Path, entries, copies: int):
-    """``copies`` × the fleet's bags as hard links under new names (same content: every one a cache hit)."""
+def warm_up(client, entries) -> None:
+    """Run one bag and one group's solve in every worker process, then a small fleet (not timed)."""
+    from nifo.fleet.runner import base_setups
+
+    e = entries[0]
+    setup = base_setups([e], opts=OPTS, chunk_samples=2 ** 18)[e.group]
+    client.run(_warm, str(e.path), e.group, setup)
+    first = [x for x in entries if x.group == e.group]
+    run(client, first)
+
+
+def run(client, entries, cache_dir=None):
+    from nifo.fleet.runner import FleetSettings, run_fleet
+
+    t0 = time.perf_counter()
+    res = run_fleet(client, entries, opts=OPTS, settings=FleetSettings(cache_dir=cache_dir), quiet=True)
+    return res, time.perf_counter() - t0
+
+
+def cpu_seconds(client) -> tuple[float, float]:
+    """CPU time [s] of (this process: client, scheduler and nannies of an embedded cluster; ``client``'s workers)."""
+    import psutil
+
+    workers = 0.0
+    for pid in client.run(os.getpid).values():
+        workers += sum(psutil.Process(pid).cpu_times()[:2])
+    return sum(psutil.Process().cpu_times()[:2]), workers
+
+
+def timed_fleet(client, entries, cache: Path):
+    """(result, wall time [s], CPU time [s] of (client and scheduler, workers)) of one fleet run, fresh cache."""
+    shutil.rmtree(cache, ignore_errors=True)
+    c0 = cpu_seconds(client)
+    res, t = run(client, entries, cache_dir=str(cache))
+    c1 = cpu_seconds(client)
+    shutil.rmtree(cache, ignore_errors=True)
+    failed = [b for b in res.bags if b["status"] != "ok"]
+    if failed:
+        raise SystemExit(f"{len(failed)} bag(s) failed: {failed[0]['reason']}")
+    return res, t, (c1[0] - c0[0], c1[1] - c0[1])
+
+
+# --- scheduler memory ---------------------------------------------------------------------------
+def _scheduler_memory(reset: bool = False) -> tuple[float, float]:
+    """In the scheduler's process: (RSS now, peak RSS since the last reset) [MB]; ``reset`` starts a new peak.
+
+    The peak is Linux's VmHWM, reset by writing 5 to /proc/self/clear_refs (else the
+    process's lifetime peak, ``getrusage``).
+    """
+    import resource
+
+    import psutil
+
+    if reset:
+        try:
+            with open("/proc/self/clear_refs", "w") as f:
+                f.write("5")
+        except OSError:
+            pass
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 10
+    try:
+        with open("/proc/self/status") as f:
+            peak = next(int(line.split()[1]) for line in f if line.startswith("VmHWM:")) / 2 ** 10
+    except (OSError, StopIteration):
+        pass
+    return psutil.Process().memory_info().rss / 2 ** 20, peak
+
+
+def tiny_fleet(root: Path):
+    """20 vehicles × 2 distinct 20-s bags (block 1024): cheap bags to run thousands of."""
+    from nifo.fleet.manifest import load_fleet_input
+    from nifo.fleet.simulated import write_simulated_fleet
+
+    if not (root / "manifest.csv").is_file():
+        write_simulated_fleet(root, n_vehicles=20, bags_per_vehicle=2, duration_s=20.0, block=1024, worn=(),
+                              knee_moved=(), seed=5)
+    return load_fleet_input(root / "manifest.csv", default_model=root / "model.yaml")
+
+
+def linked(root: Path, base, n: int):
+    """``n`` bags: the tiny fleet's bags hard-linked under new names, same 20 vehicles (groups)."""
     from nifo.fleet.manifest import BagEntry
 
     out = []
-    for k in range(copies):
-        for e in entries:
-            p = root / "links" / f"c{k}" / e.vehicle / e.path.name
-            if not p.exists():
-                p.parent.mkdir(parents=True, exist_ok=True)
-                os.link(e.path, p)
-            out.append(BagEntry(vehicle=f"{e.vehicle}c{k}", corner=e.corner, path=p, model=e.model,
-                                m2_kg=e.m2_kg))
+    for k in range(n):
+        e = base[k % len(base)]
+        p = root / "links" / f"{k:05d}.mcap"
+        if not p.exists():
+            p.parent.mkdir(parents=True, exist_ok=True)
+            os.link(e.path, p)
+        out.append(BagEntry(vehicle=e.vehicle, corner=e.corner, path=p, model=e.model, m2_kg=e.m2_kg))
     return out
 
 
+def memory_run(base, entries, cache: Path) -> dict:
+    import logging
+
+    from distributed.deploy.subprocess import SubprocessCluster
+
+    from nifo.fleet.cluster import fleet_client
+
+    cluster = SubprocessCluster(n_workers=2, threads_per_worker=1, dashboard_address=None,
+                                silence_logs=logging.ERROR)
+    try:
+        with fleet_client(cluster.scheduler_address) as client:     # as nifo fleet --scheduler ADDRESS
+            warm_up(client, base)
+            rss0, _ = client.run_on_scheduler(_scheduler_memory, reset=True)
+            res, t = run(client, entries, cache_dir=str(cache))
+            rss1, peak = client.run_on_scheduler(_scheduler_memory)
+    finally:
+        cluster.close()
+    assert all(b["status"] == "ok" for b in res.bags), [b["reason"] for b in res.bags if b["reason"]][:3]
+    return {"before": rss0, "after": rss1, "peak": peak, "seconds": t, "n": len(entries)}
+
+
+# --- main ---------------------------------------------------------------------------------------
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--cache", type=Path, default=Path("/tmp/nifo_bench/fleet_20x10"))
-    ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--vehicles", type=int, metavar="N", help="only the first N vehicles (no flag check)")
-    ap.add_argument("--band", type=float, nargs=2, metavar=("LO", "HI"),
-                    help="integration band [Hz] in the model file (nifo identify then uses it too): no bag is "
-                         "accumulated twice")
-    ap.add_argument("--no-memory", action="store_true", help="skip section 5")
+    ap.add_argument("--cache", type=Path, default=Path("/tmp/nifo_bench/fleet_20x10"),
+                    help="where the simulated fleet is kept (made once)")
+    ap.add_argument("--quick", action="store_true", help="a 10 × 3 fleet of 60-s bags (smoke run)")
+    ap.add_argument("--vehicles", type=int, metavar="N", help="only the first N vehicles (no flag verdict)")
+    ap.add_argument("--memory-bags", type=int, default=200, metavar="N", help="scheduler memory at N and 10·N bags")
+    ap.add_argument("--no-memory", action="store_true", help="skip the scheduler-memory part")
+    ap.add_argument("--rounds", type=int, default=2, metavar="K",
+                    help="rounds of (serial, 1 worker, 2 workers), interleaved; the best of each counts (default 2)")
     args = ap.parse_args()
     from nifo.fleet.manifest import load_fleet_input
 
+    t_start = time.perf_counter()
     root = args.cache.with_name(args.cache.name + "_quick") if args.quick else args.cache
     manifest = make_fleet(root, args.quick)
-    model = root / "model.yaml"
-    if args.band:
-        from nifo.io.modelfile import load_model_spec, write_model_spec
-
-        spec = load_model_spec(model)
-        model = root / f"model_band_{args.band[0]:g}_{args.band[1]:g}.yaml"
-        write_model_spec(model, spec.terms, settings={**spec.settings, "band_hz": list(args.band)})
-    entries = load_fleet_input(manifest, default_model=model)
+    entries = load_fleet_input(manifest, default_model=root / "model.yaml")
     truth = json.loads((root / "fleet_truth.json").read_text())
     if args.vehicles:
         keep = sorted(truth)[: args.vehicles]
         entries = [e for e in entries if e.vehicle in keep]
         truth = {v: truth[v] for v in keep}
-    n_bags = len(entries)
-    print(f"fleet: {len(truth)} vehicles, {n_bags} bags; {load()}")
-    ok = True
+    n = len(entries)
+    print(f"fleet: {len(truth)} vehicles, {n} bags ({load()}); BLAS/OpenMP 1 thread per process")
+    verdicts = []
 
-    # --- 3./1. speed-up (and the 2-worker result for the flags) ---------------------------------
-    times = {}
-    results = {}
-    cache = root / "partials"
-    shutil.rmtree(cache, ignore_errors=True)
-    for n in (1, 2):
-        c, client = cluster(n)
+    for e in entries:              # every bag in the page cache first: no run pays the disk and another not
+        with open(e.path, "rb") as f:
+            while f.read(1 << 24):
+                pass
+
+    # 1./2. serial baseline and the fleet on 1 and 2 workers, interleaved, best of --rounds each
+    import contextlib
+
+    from nifo.fleet.cluster import fleet_client
+
+    identify_alone([e for e in entries if e.group == entries[0].group])    # warm-up: imports, numba
+    tmp = Path(tempfile.mkdtemp(prefix="nifo_bench_fleet_"))
+    best: dict = {}
+    with contextlib.ExitStack() as stack:
+        clients = {w: stack.enter_context(fleet_client(workers=w, dashboard_address=None)) for w in (1, 2)}
+        for c in clients.values():          # start-up and first calls not timed
+            warm_up(c, entries)
+        print(f"clusters of 1 and 2 workers started and warmed up (not timed); {args.rounds} round(s), best of each "
+              "counts", flush=True)
         try:
-            run(client, entries[:4])            # warm-up: imports and numba on every worker
-            # as a user runs it: partials written to a fresh cache (the 2-worker run's is reused in 5.)
-            results[n], times[n] = run(client, entries, cache_dir=str(cache / f"w{n}"))
-            print(f"fleet on {n} worker(s): {times[n]:.1f} s for {n_bags} bags, {results[n].n_redone} accumulated "
-                  f"twice ({load()})")
+            for k in range(args.rounds):
+                c0 = time.process_time()
+                b = identify_alone(entries)
+                b["cpu_s"] = time.process_time() - c0
+                runs = {"serial": (b, b["seconds"], (b["cpu_s"], 0.0), load())}
+                for w, c in clients.items():
+                    res, t, cpu = timed_fleet(c, entries, tmp / f"w{w}")
+                    runs[w] = (res, t, cpu, load())
+                print(f"round {k + 1}: serial baseline {runs['serial'][1]:.1f} s ({runs['serial'][3]}); "
+                      f"fleet, 1 worker "
+                      f"{runs[1][1]:.1f} s ({runs[1][3]}); 2 workers {runs[2][1]:.1f} s ({runs[2][3]})", flush=True)
+                for key, r in runs.items():
+                    if key not in best or r[1] < best[key][1]:
+                        best[key] = r
         finally:
-            client.close()
-            c.close()
+            shutil.rmtree(tmp, ignore_errors=True)
+    base = best["serial"][0]
+    times = {w: best[w][1] for w in (1, 2)}
+    loads = {w: best[w][3] for w in (1, 2)}
+    results = {w: best[w][0] for w in (1, 2)}
+    cpus = {w: best[w][2] for w in (1, 2)}
+    print(f"serial baseline (nifo identify's work, this process): {base['seconds']:.1f} s = "
+          f"{1e3 * base['seconds'] / n:.1f} ms per bag (accumulate {1e3 * base['accumulate_s'] / n:.1f}, "
+          f"per-vehicle solve {1e3 * base['solve_s'] / n:.1f}) ({best['serial'][3]})")
+    for w in (1, 2):
+        print(f"fleet, {w} worker(s): {times[w]:.1f} s = {1e3 * times[w] / n:.1f} ms per bag (fresh cache) "
+              f"({loads[w]})")
     speedup = times[1] / times[2]
-    print(f"speed-up 1 -> 2 workers: {speedup:.2f}x (target >= 1.8x)")
-    ok &= speedup >= 1.8
+    verdicts.append(("speed-up 1 -> 2 workers", f"{speedup:.2f}x", ">= 1.8x", speedup >= 1.8, loads[2]))
+    overhead = times[1] / base["seconds"] - 1
+    in_task = sum(b["seconds"] for b in results[1].bags) / n
+    print(f"  where the 1-worker fleet's time goes, per bag: {1e3 * in_task:.1f} ms inside the bag tasks (read, "
+          f"accumulate, content hash, per-bag coefficients, cache write; identify's accumulate: "
+          f"{1e3 * base['accumulate_s'] / n:.1f}), {1e3 * (times[1] / n - in_task):.1f} ms the rest (per-vehicle "
+          f"solves: identify {1e3 * base['solve_s'] / n:.1f}; merges, Dask, client)")
+    print(f"  CPU time (also inflated by load): serial baseline {base['cpu_s']:.1f} s; "
+          + "; ".join(f"fleet on {w} worker(s): workers {cpus[w][1]:.1f} s "
+                      f"({100 * (cpus[w][1] / base['cpu_s'] - 1):+.1f} %)"
+                      f" + client and scheduler {cpus[w][0]:.1f} s" for w in (1, 2)))
+    verdicts.append(("per-bag overhead, 1-worker fleet vs serial baseline", f"{100 * overhead:+.1f} %", "<= 5 %",
+                     overhead <= 0.05, loads[1]))
 
+    # flags and equality, on the 2-worker result
     res = results[2]
     flagged = sorted(g[0] for g, r in res.groups.items() if r["ok"] and r["health"].flagged)
     planted = sorted(v for v, t in truth.items() if t["planted"])
-    print(f"flagged: {flagged}; planted: {planted} -> {'OK' if flagged == planted else 'MISMATCH'}"
-          + (" (subset: not a target)" if args.vehicles else ""))
-    ok &= flagged == planted or bool(args.vehicles)
-    worst_healthy = 0.0
-    worst_name = ""
-    for g, r in res.groups.items():
-        zs = {c.name: c.z for c in r["health"].coefficients}
-        if truth[g[0]]["planted"]:
-            print(f"  {g[0]} ({truth[g[0]]['planted']}): " + ", ".join(f"{k} z={v:+.1f}" for k, v in zs.items()))
-        else:
-            for k, v in zs.items():
-                if abs(v) > worst_healthy:
-                    worst_healthy, worst_name = abs(v), f"{g[0]} {k}"
-    print(f"  largest |z| of a healthy vehicle: {worst_healthy:.2f} ({worst_name}; limit "
-          f"{res.settings.health.z_limit:g})")
+    print(f"flagged: {flagged}; planted: {planted}")
+    if not args.quick and not args.vehicles:
+        verdicts.append(("flagged = planted", ", ".join(flagged) or "none", ", ".join(planted), flagged == planted,
+                         ""))
+    worst = max(abs(res.groups[g]["coefficients"][k]["value"] / v - 1)
+                for g, vals in base["values"].items() for k, v in vals.items())
+    verdicts.append(("coefficients vs nifo identify, largest rel. difference", f"{worst:.1e}", "<= 1e-9",
+                     worst <= 1e-9, ""))
 
-    # --- 2./4. equality and overhead against nifo identify alone --------------------------------
-    t_ident, ident = identify_alone(entries)
-    worst = 0.0
-    for g, vals in ident.items():
-        for k, v in vals.items():
-            worst = max(worst, abs(res.groups[g]["coefficients"][k]["value"] / v - 1))
-    print(f"coefficients vs nifo identify per vehicle: largest relative difference {worst:.2e} (target <= 1e-9)")
-    ok &= worst <= 1e-9
-    overhead = times[1] / t_ident - 1
-    print(f"nifo identify alone, {len(ident)} vehicles in this process: {t_ident:.1f} s ({load()})")
-    print(f"per-bag overhead of the 1-worker fleet vs identify alone: {100 * overhead:+.1f} % "
-          f"({1e3 * times[1] / n_bags:.0f} vs {1e3 * t_ident / n_bags:.0f} ms per bag; target <= 5 %)")
-    ok &= overhead <= 0.05
+    # 3. scheduler memory
+    if not args.no_memory:
+        mroot = root.with_name(root.name + "_tiny")
+        base_tiny = tiny_fleet(mroot)
+        mem = {}
+        for k in (args.memory_bags, 10 * args.memory_bags):
+            mem[k] = memory_run(base_tiny, linked(mroot, base_tiny, k), mroot / "partials")
+            m = mem[k]
+            print(f"scheduler process, {k:5d} bags in 20 groups: RSS {m['before']:.1f} MB after warm-up, "
+                  f"{m['after']:.1f} MB after the run ({m['after'] - m['before']:+.1f}), "
+                  f"peak during the run {m['peak']:.1f} MB; "
+                  f"run {m['seconds']:.1f} s ({load()})", flush=True)
+        shutil.rmtree(mroot / "links", ignore_errors=True)
+        a, b = mem[args.memory_bags], mem[10 * args.memory_bags]
+        growth = max(b["after"] - a["after"], b["peak"] - a["peak"])
+        verdicts.append((f"scheduler memory, {a['n']} -> {b['n']} bags (after run / peak)",
+                         f"{b['after'] - a['after']:+.1f} / {b['peak'] - a['peak']:+.1f} MB", "flat (<= 5 MB)",
+                         growth <= 5.0, load()))
 
-    # --- 5. scheduler memory vs number of bags ----------------------------------------------------
-    if args.no_memory:
-        print("all targets met" if ok else "TARGET MISSED")
-        return 0 if ok else 1
-    for copies in (1, 5, 10):
-        es = linked_entries(root, entries, copies)
-        c, client = cluster(2)
-        try:
-            before = scheduler_rss(client)
-            r, t = run(client, es, cache_dir=str(cache / "w2"))
-            after = scheduler_rss(client)
-        finally:
-            client.close()
-            c.close()
-        print(f"scheduler RSS, {len(es):5d} bags ({r.n_cached} cache hits): {before:.0f} MB before, {after:.0f} MB "
-              f"after ({after - before:+.0f} MB), run {t:.1f} s")
-    shutil.rmtree(root / "links", ignore_errors=True)
-    print("all targets met" if ok else "TARGET MISSED")
+    print(f"\nVERDICTS (whole benchmark {time.perf_counter() - t_start:.0f} s)")
+    for name, value, target, ok, ld in verdicts:
+        print(f"  {'PASS' if ok else 'MISS'}  {name}: {value} (target {target})" + (f"  [{ld}]" if ld else ""))
+    ok = all(v[3] for v in verdicts)
+    print("all targets met" if ok else "TARGET MISSED (a speed-up needs 2 idle cores: check the load averages)")
     return 0 if ok else 1
 
 

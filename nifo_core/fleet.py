@@ -34,7 +34,7 @@ import numpy as np
 
 from .errors import ConfigError
 
-__all__ = ["reduction_plan", "tree_reduce", "standard_error", "interval_halfwidth", "Estimate", "HealthSettings", "CoefficientHealth",
+__all__ = ["batch_plan", "reduction_plan", "tree_reduce", "standard_error", "interval_halfwidth", "Estimate", "HealthSettings", "CoefficientHealth",
            "GroupHealth", "robust_z", "assess_health", "MAD_TO_SIGMA"]
 
 T = TypeVar("T")
@@ -46,6 +46,58 @@ MAD_TO_SIGMA = 1.482602218505602
 # ---------------------------------------------------------------------------------------------
 # tree reduction
 # ---------------------------------------------------------------------------------------------
+def batch_plan(group_sizes: Sequence[int], *, n_workers: int, batch: int | None = None,
+               tasks_per_worker: int = 8, max_batch: int = 32) -> list[list[tuple[int, range, bool]]]:
+    """Cut items that come in groups into tasks of several items each.
+
+    Each task is a list of (group number, range of that group's items, whole:
+    the range is the whole group). Tasks hold about ``target`` items: ``batch``
+    when given, else ``ceil(n / (tasks_per_worker * n_workers))`` at most
+    ``max_batch`` (a few tasks per worker, enough to balance the load at the end
+    of a run, each carrying many items, so the scheduler's cost per task is spread
+    over them). Small groups are packed whole into one task up to ``target``; a
+    group of up to ``max_batch`` items (``batch`` when given) is never split (its
+    task may then exceed ``target``); a larger one is cut into ranges of ``target``.
+
+    Examples
+    --------
+    >>> batch_plan([2, 2, 5], n_workers=1, batch=4)
+    [[(0, range(0, 2), True), (1, range(0, 2), True)], [(2, range(0, 4), False)], [(2, range(4, 5), False)]]
+    >>> [sum(len(r) for _, r, _ in t) for t in batch_plan([10] * 20, n_workers=2)]   # a vehicle per task
+    [10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10]
+    """
+    sizes = [int(m) for m in group_sizes]
+    if any(m < 0 for m in sizes):
+        raise ConfigError(f"group sizes {sizes!r} must be whole numbers >= 0")
+    if isinstance(n_workers, bool) or int(n_workers) != n_workers or n_workers < 1:
+        raise ConfigError(f"n_workers={n_workers!r} must be a whole number >= 1")
+    if batch is not None and (isinstance(batch, bool) or int(batch) != batch or batch < 1):
+        raise ConfigError(f"batch={batch!r} must be a whole number of items per task >= 1")
+    n = sum(sizes)
+    target = int(batch) if batch else min(max(1, -(-n // (tasks_per_worker * int(n_workers)))), max_batch)
+    limit = int(batch) if batch else max(max_batch, target)
+    tasks: list[list[tuple[int, range, bool]]] = []
+    cur: list[tuple[int, range, bool]] = []
+    filled = 0
+    for g, m in enumerate(sizes):
+        if m == 0:
+            continue
+        if m > limit:                       # too large for one task: cut (the group's set-up is fixed later)
+            if cur:
+                tasks.append(cur)
+                cur, filled = [], 0
+            tasks.extend([[(g, range(i, min(i + target, m)), False)] for i in range(0, m, target)])
+            continue
+        if cur and filled + m > target:
+            tasks.append(cur)
+            cur, filled = [], 0
+        cur.append((g, range(m), True))
+        filled += m
+    if cur:
+        tasks.append(cur)
+    return tasks
+
+
 def reduction_plan(n: int, *, fanout: int = 2) -> list[list[tuple[int, ...]]]:
     """The levels of a ``fanout``-way tree merging ``n`` items into one.
 

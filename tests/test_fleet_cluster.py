@@ -145,10 +145,69 @@ def test_group_coefficients_equal_nifo_identify_on_the_groups_bags(result, fleet
     for name, v in ident.items():
         assert g[name] == pytest.approx(v, rel=1e-9, abs=0), name
     assert g["n_avg"] == doc["summary"]["n_avg"]
-    if vehicle == "vmix":
+    if vehicle == "vmix":     # its two bags in one task: the band fixed there, as identify does, each read once
         passes = {Path(r["path"]).name: r["passes"] for r in pq.read_table(result / "bags.parquet").to_pylist()
                   if r["vehicle"] == "vmix"}
-        assert passes == {"bag00.mcap": 1, "bag01.mcap": 2}
+        assert passes == {"bag00.mcap": 1, "bag01.mcap": 1}
+
+
+def test_a_batch_of_several_bags_gives_the_partials_of_one_bag_per_task(fleet, tmp_path):
+    from nifo.fleet.manifest import load_fleet_input
+    from nifo.fleet.runner import base_setups
+    from nifo.fleet.tasks import compute_batch, group_setup, merge_outcomes
+
+    entries = [e for e in load_fleet_input(fleet / "manifest.csv", default_model=fleet / "model.yaml")
+               if e.vehicle == "vmix"]
+    g = entries[0].group
+    base = base_setups(entries, opts={}, chunk_samples=2 ** 18)[g]
+    bags = [(i, str(e.path)) for i, e in enumerate(entries)]
+    batch = compute_batch([(g, base, bags, True)], str(tmp_path / "batched"))
+    # the group's set-up (band of the 30-s bag) fixed in the task, as nifo identify fixes it
+    probes = {i: st["probe"] for i, st in batch["status"]}
+    fixed, left = group_setup(base, probes, label="vmix")
+    assert not left and {st["setup_hash"] for _, st in batch["status"]} == {
+        next(iter(batch["parts"]))[2]} and len(batch["parts"]) == 1
+    alone = [compute_batch([(g, fixed, [b], False)], str(tmp_path / "alone")) for b in bags]
+    part = next(iter(batch["parts"]))
+    merged = merge_outcomes(*alone, part=part)
+    assert merged["ok"] and [b["path"] for b in merged["bags"]] == [p for _, p in bags]
+    a, b = batch["parts"][part]["state"], merged["state"]
+    assert a.keys() == b.keys()
+    for k in a:
+        if np.asarray(a[k]).dtype.kind in "fc":
+            np.testing.assert_allclose(a[k], b[k], rtol=1e-13, atol=0, err_msg=k)
+        else:
+            assert np.array_equal(a[k], b[k]), k
+    for x, y in zip(batch["parts"][part]["bags"], merged["bags"]):
+        assert x["coefs"] == pytest.approx(y["coefs"], rel=1e-12)
+    # one cache entry per bag (named by its key), the same key whether batched or alone
+    entries_b = sorted(p.stem for p in (tmp_path / "batched").rglob("*.npz"))
+    entries_a = sorted(p.stem for p in (tmp_path / "alone").rglob("*.npz"))
+    assert entries_b == entries_a == sorted(st["key"] for _, st in batch["status"]) and len(entries_b) == 2
+    again = compute_batch([(g, base, bags, True)], str(tmp_path / "batched"))   # a rerun: every bag from the cache
+    assert all(st["cached"] for _, st in again["status"])
+    np.testing.assert_array_equal(again["parts"][part]["state"]["acc.sum"], a["acc.sum"])
+
+
+def test_one_bag_per_task_accumulates_again_the_bags_whose_set_up_differs(fleet, cluster):
+    from distributed import Client
+
+    from nifo.fleet.manifest import load_fleet_input
+    from nifo.fleet.runner import FleetSettings, run_fleet
+
+    entries = [e for e in load_fleet_input(fleet / "manifest.csv", default_model=fleet / "model.yaml")
+               if e.vehicle in ("vmix", "v00")]
+    with Client(cluster) as client:
+        one = run_fleet(client, entries, opts={}, settings=FleetSettings(batch=1), quiet=True)
+        batched = run_fleet(client, entries, opts={}, settings=FleetSettings(), quiet=True)
+    # split over tasks, vmix's 45-s bag first takes its own band, then its group's (the 30-s bag's)
+    assert {Path(b["path"]).name: b["passes"] for b in one.bags if b["vehicle"] == "vmix"} == {
+        "bag00.mcap": 1, "bag01.mcap": 2}
+    assert all(b["passes"] == 1 for b in batched.bags)
+    for g, r in batched.groups.items():
+        assert r["ok"] and one.groups[g]["n_avg"] == r["n_avg"]
+        for name, c in r["coefficients"].items():
+            assert one.groups[g]["coefficients"][name]["value"] == pytest.approx(c["value"], rel=1e-12), (g, name)
 
 
 def test_a_killed_fleet_run_resumes_without_recomputing_finished_bags(result, fleet, tmp_path):
@@ -203,3 +262,24 @@ def test_an_unreachable_scheduler_is_one_line_and_its_exit_code(fleet, capsys):
     assert rc == 20 and err.count("\n") == 1
     assert "cannot reach the Dask scheduler tcp://127.0.0.1:9" in err and "Fix:" in err
     assert not (fleet / "never").exists()
+
+
+def test_a_bag_too_short_to_integrate_fails_alone_in_its_groups_task(fleet, tmp_path):
+    from nifo.fleet.manifest import load_fleet_input
+    from nifo.fleet.runner import base_setups
+    from nifo.fleet.simulated import NOMINAL_DEADZONE, NOMINAL_KNEE, _write_bag
+    from nifo.fleet.tasks import compute_batch
+    from nifo_core.describing import Term
+    from nifo_core.simulate import RandomRoad, SimConfig, StrutForce
+
+    short = tmp_path / "short.mcap"
+    strut = (StrutForce(Term("velocity_deadzone", {"knee": NOMINAL_KNEE}), NOMINAL_DEADZONE),)
+    _write_bag({"config": SimConfig(strut=strut, road=RandomRoad(0.0025), duration_s=4.0), "seed": 7,
+                "path": str(short)})
+    e = [x for x in load_fleet_input(fleet / "manifest.csv", default_model=fleet / "model.yaml")
+         if x.vehicle == "v00"][0]
+    base = base_setups([e], opts={}, chunk_samples=2 ** 18)[e.group]
+    out = compute_batch([(e.group, base, [(0, str(e.path)), (1, str(short))], True)], None)
+    st = dict(out["status"])
+    assert st[0]["ok"] and not st[1]["ok"] and "too short" in st[1]["reason"] and "\n" not in st[1]["reason"]
+    assert len(out["parts"]) == 1

@@ -96,3 +96,20 @@ def test_cache_round_trip_is_atomic_and_a_torn_entry_reads_as_absent(tmp_path):
     assert not list(tmp_path.rglob("*.tmp"))
     (tmp_path / "ab" / f"{key}.npz").write_bytes(b"PK\x03\x04 torn")
     assert load_partial(tmp_path, key) is None
+
+
+def test_a_hermitian_stack_is_stored_as_its_upper_triangles_and_read_back_bit_for_bit(tmp_path):
+    import numpy as np
+
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=(7, 4, 50)) + 1j * rng.normal(size=(7, 4, 50))
+    g = np.einsum("fak,fbk->fab", x, x.conj())          # exactly Hermitian, as accumulated
+    g = (g + np.conj(np.swapaxes(g, 1, 2))) / 2
+    skew = g.copy()
+    skew[0, 0, 1] += 1e-3                               # not Hermitian: stored whole
+    store_partial(tmp_path, "cd" + "1" * 38, {"acc.sum": g, "other": skew, "n": np.array(3)}, {})
+    with np.load(tmp_path / "cd" / ("cd" + "1" * 38 + ".npz")) as z:
+        assert sorted(z.files) == ["__info__", "state.n", "state.other", "triu.4.acc.sum"]
+        assert z["triu.4.acc.sum"].shape == (7, 10)
+    got = load_partial(tmp_path, "cd" + "1" * 38)["state"]
+    assert np.array_equal(got["acc.sum"], g) and np.array_equal(got["other"], skew) and got["n"] == 3

@@ -58,6 +58,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     d.add_argument("--cache", type=Path, metavar="DIR", help="cache of per-bag partials (default OUT.cache)")
     d.add_argument("--no-cache", action="store_true", help="recompute every bag, keep nothing")
     d.add_argument("--fanout", type=int, default=2, metavar="K", help="partials merged per reduction task (default 2)")
+    d.add_argument("--batch", type=int, metavar="N", help="bags per task (default: about 8 tasks per worker of "
+                   "at most 32 bags; a vehicle/corner with no more bags than that stays in one task)")
     h = p.add_argument_group("strut health")
     h.add_argument("--z-limit", type=float, default=3.5, metavar="Z", help="robust |z| that flags (default 3.5)")
     h.add_argument("--min-bags", type=int, default=2, metavar="N", help="fewest bags to assess a group (default 2)")
@@ -81,6 +83,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _check(args) -> None:
     if args.workers is not None and args.workers < 1:
         raise ConfigError(f"--workers {args.workers} must be at least 1", channel="--workers")
+    if args.batch is not None and args.batch < 1:
+        raise ConfigError(f"--batch {args.batch} must be at least 1", channel="--batch")
     if args.fanout < 2:
         raise ConfigError(f"--fanout {args.fanout} must be at least 2", channel="--fanout")
     if args.chunk_samples < 2:
@@ -103,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
                             min_groups=args.min_groups)
     cache = None if args.no_cache else str((args.cache or Path(str(args.out) + ".cache")).resolve())
     settings = FleetSettings(chunk_samples=args.chunk_samples, freqs_hz=tuple(args.freqs), fanout=args.fanout,
+                             batch=args.batch,
                              cache_dir=cache, loop=args.loop, characterize=args.characterize,
                              health=health)
     n_groups = len({e.group for e in entries})

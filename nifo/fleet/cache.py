@@ -1,10 +1,14 @@
 """Per-bag partials on disk, keyed by the bag's content and the settings (restart-safe).
 
-Key = SHA-256 of (the bag's bytes: every file of a rosbag2 folder by relative
-path, or the file) and (the JSON of everything that changes the partial: terms,
-spectral settings, integration band, tire patch, analysis band, chunk length,
-input options, :data:`CACHE_FORMAT`). Renaming or moving a bag keeps its key;
-touching one byte or a setting makes a new one. An entry is one ``.npz``
+Key = SHA-256 of (the hash of the bag's bytes, :func:`content_hash`: every
+file of a rosbag2 folder by relative path, or the file) and (the JSON of
+everything that changes the partial: terms, spectral settings, integration
+band, tire patch, analysis band, chunk length, input options,
+:data:`CACHE_FORMAT`). Beside the partials, a small JSON note per bag (key:
+its content hash and the input options) keeps its rate, length and
+channels, so a rerun fixes every group's set-up, and so finds the partials'
+keys, without opening a finished bag. Renaming or moving a bag keeps its
+key; touching one byte or a setting makes a new one. An entry is one ``.npz``
 written to a temporary name and renamed into place, so a run killed at any
 instant (SIGKILL included) leaves whole entries or none: the next run reuses
 the finished bags and recomputes the rest. Entries are not fsync'ed (a
@@ -27,23 +31,39 @@ __all__ = ["content_hash", "settings_hash", "cache_key", "load_partial", "store_
            "CACHE_FORMAT"]
 
 #: bump when the content of a cached partial changes meaning
-CACHE_FORMAT = 1
-_CHUNK = 1 << 20
+CACHE_FORMAT = 2
+_CHUNK = 1 << 22
+
+
+def _hasher():
+    """XXH3-128 (xxhash, ~20 GB/s) when installed, else SHA-256 (~2 GB/s): (name, hash object)."""
+    try:
+        import xxhash
+    except ImportError:
+        return "sha256", hashlib.sha256()
+    return "xxh3-128", xxhash.xxh3_128()
 
 
 def content_hash(path: str | os.PathLike) -> str:
-    """SHA-256 hex digest of a file, or of a folder's files (relative names and bytes, sorted)."""
+    """Hash of a file's bytes, or of a folder's files (relative names and bytes, sorted): ``"ALGO:HEX"``.
+
+    XXH3-128, a non-cryptographic 128-bit hash: it names a bag in the user's own
+    cache (accidental collisions ~2⁻⁶⁴), not proof against a forger. It costs
+    ~1 ms per 5-MB bag (SHA-256: ~4 ms, 5 % of the bag's whole accumulation).
+    """
     p = Path(path)
-    h = hashlib.sha256()
+    algo, h = _hasher()
     files = sorted(q for q in p.rglob("*") if q.is_file()) if p.is_dir() else [p]
+    buf = bytearray(_CHUNK)
+    view = memoryview(buf)
     for q in files:
         if p.is_dir():
             h.update(q.relative_to(p).as_posix().encode() + b"\0")
-        with q.open("rb") as f:
-            while block := f.read(_CHUNK):
-                h.update(block)
+        with q.open("rb", buffering=0) as f:
+            while n := f.readinto(buf):
+                h.update(view[:n])
         h.update(b"\0\0")
-    return h.hexdigest()
+    return f"{algo}:{h.hexdigest()}"
 
 
 def settings_hash(settings: Mapping) -> str:
@@ -60,6 +80,37 @@ def _entry(cache_dir: Path, key: str) -> Path:
     return cache_dir / key[:2] / f"{key}.npz"
 
 
+def _pack(state: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Arrays to store: a stack of exactly Hermitian matrices (the accumulated cross-spectra) as its upper triangles."""
+    out = {}
+    for k, v in state.items():
+        a = np.asarray(v)
+        if a.dtype.kind == "c" and a.ndim == 3 and a.shape[1] == a.shape[2] > 1 and \
+                np.array_equal(a, np.conj(np.swapaxes(a, 1, 2))):
+            iu = np.triu_indices(a.shape[1])
+            out[f"triu.{a.shape[1]}.{k}"] = a[:, iu[0], iu[1]]      # 10 of 16 entries for 4 channels
+        else:
+            out[f"state.{k}"] = a
+    return out
+
+
+def _unpack(z) -> dict[str, np.ndarray]:
+    state = {}
+    for name in z.files:
+        if name.startswith("state."):
+            state[name[6:]] = z[name]
+        elif name.startswith("triu."):
+            _, n, k = name.split(".", 2)
+            n = int(n)
+            t = z[name]
+            iu = np.triu_indices(n)
+            a = np.empty((t.shape[0], n, n), t.dtype)
+            a[:, iu[1], iu[0]] = np.conj(t)
+            a[:, iu[0], iu[1]] = t           # the diagonal (real) last: as stored
+            state[k] = a
+    return state
+
+
 def load_partial(cache_dir: str | os.PathLike | None, key: str) -> dict | None:
     """The cached partial (``{"state": {...}, "info": {...}}``) or None (absent or unreadable: recompute)."""
     if cache_dir is None:
@@ -68,7 +119,7 @@ def load_partial(cache_dir: str | os.PathLike | None, key: str) -> dict | None:
     try:
         with np.load(path, allow_pickle=False) as z:
             info = json.loads(str(z["__info__"]))
-            state = {k[6:]: z[k] for k in z.files if k.startswith("state.")}
+            state = _unpack(z)
     except FileNotFoundError:
         return None
     except Exception:  # noqa: BLE001 - a torn or foreign entry is recomputed, never trusted
@@ -78,7 +129,12 @@ def load_partial(cache_dir: str | os.PathLike | None, key: str) -> dict | None:
 
 def store_partial(cache_dir: str | os.PathLike | None, key: str, state: Mapping[str, np.ndarray],
                   info: Mapping) -> None:
-    """Write one entry atomically (temporary file in the same folder, then rename)."""
+    """Write one entry atomically (temporary file in the same folder, then rename).
+
+    A Hermitian stack (the partial's cross-spectral sums, exactly Hermitian as
+    accumulated) is stored as its upper triangles: 0.49 instead of 0.79 MB for
+    four channels, read back bit for bit.
+    """
     if cache_dir is None:
         return
     path = _entry(Path(cache_dir), key)
@@ -86,8 +142,7 @@ def store_partial(cache_dir: str | os.PathLike | None, key: str, state: Mapping[
     fd, tmp = tempfile.mkstemp(prefix=f".{key}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
-            np.savez(f, __info__=np.array(json.dumps(info, default=str)),
-                     **{f"state.{k}": np.asarray(v) for k, v in state.items()})
+            np.savez(f, __info__=np.array(json.dumps(info, default=str)), **_pack(state))
         os.replace(tmp, path)   # no fsync: a killed process leaves whole files; a torn one (power loss) reads as absent
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -1,36 +1,44 @@
-"""The fleet's task graph on a Dask client: accumulate per bag → tree-merge per group → solve.
+"""The fleet's task graph on a Dask client: accumulate batches of bags → tree-merge per group → solve.
 
 ::
 
-    compute_bag(path) ─┐      (reads the bag once; a cache hit reads the partial, not the bag)
-    compute_bag(path) ─┼─ merge ─┐
-    compute_bag(path) ─┘         ├─ merge ── solve_group ──► row of the fleet table
-    compute_bag(path) ── merge ──┘            (loop_group, with --loop)
+    compute_batch(bags 0-12) ─┐   (each bag read once, or its partial read from the cache;
+    compute_batch(bags 13-25) ┼─ merge ─┐      the bags of one group merged within the task)
+    compute_batch(bags 26-38) ┘         ├─ merge ── solve_group ──► row of the fleet table
+    compute_batch(bags 39-51) ── merge ─┘            (loop_group, with --loop)
 
-Each bag is accumulated with its own integration band and tire patch until
-its group is complete; then the group's set-up is fixed as ``nifo identify``
+Bags are taken in groups' order and cut into batches (:func:`nifo_core.fleet.batch_plan`:
+about 8 tasks per worker thread, at most 32 bags each; a group of up to 32
+bags stays in one task), so a run has tens of tasks, not several per bag. A
+batch returns a small status per bag to the client and keeps, on its worker,
+one partial per group and set-up it holds; merges and solves pick the group's
+partial out of each batch holding its bags.
+
+A task holding a whole group fixes the group's set-up as ``nifo identify``
 would (band from the model file, else ``default_band(fs, shortest bag)``; tire
-patch when every bag has one; bags at another rate left out) and only the
-bags whose set-up differs (a bag shorter than 64 s in the group, a bag
-without tire patch) are accumulated again. Only paths, settings and cache
-keys go out to the workers; partials stay on the workers and move
-worker-to-worker into the merges; the client gathers a small status per bag
-and one result per group.
+patch when every bag has one; bags at another rate left out) before it
+streams the bags. A group cut over several tasks is accumulated with each
+bag's own band and tire patch; when all its bags are in, the client fixes the
+group's set-up the same way and accumulates again only the bags whose set-up
+differs (a bag shorter than 64 s in the group, a bag without tire patch).
+Only paths, settings and cache keys go out to the workers; partials move
+worker-to-worker into the merges; the client gathers the statuses and one
+result per group. A batch whose task dies (a worker lost) is run again one
+bag per task, so a bag that kills its worker fails alone.
 """
 
 from __future__ import annotations
 
 import argparse
-from collections import Counter
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from nifo.fleet.manifest import BagEntry
-from nifo.fleet.tasks import (GroupSetup, bag_status, characterize_group, compute_bag, loop_group, merge_outcomes,
-                              solve_group)
+from nifo.fleet.tasks import (GroupSetup, batch_status, characterize_group, compute_batch, group_setup, loop_group,
+                              merge_outcomes, solve_group)
 from nifo.progress import Progress
 from nifo_core.errors import ConfigError
-from nifo_core.fleet import Estimate, HealthSettings, assess_health, reduction_plan
+from nifo_core.fleet import Estimate, HealthSettings, assess_health, batch_plan, reduction_plan
 
 __all__ = ["FleetSettings", "FleetRun", "run_fleet", "base_setups", "group_setup"]
 
@@ -49,6 +57,9 @@ class FleetSettings:
         Highest frequency of the T21 curves kept for the page and Rerun [Hz].
     fanout : int
         Partials merged per reduction task.
+    batch : int or None
+        Bags per accumulation task; None: :func:`nifo_core.fleet.batch_plan`'s choice
+        (about 8 tasks per worker thread, at most 32 bags each).
     cache_dir : str or None
         Where partials are cached (must be visible to every worker); None: no cache.
     loop : bool
@@ -62,6 +73,7 @@ class FleetSettings:
     freqs_hz: tuple[float, ...] = (2.0, 5.0, 10.0, 20.0)
     plot_max_hz: float = 50.0
     fanout: int = 2
+    batch: int | None = None
     cache_dir: str | None = None
     loop: bool = False
     characterize: bool = False
@@ -122,23 +134,6 @@ def base_setups(entries: list[BagEntry], *, opts: dict, chunk_samples: int) -> d
     return out
 
 
-def group_setup(base: GroupSetup, probes: dict[int, dict], *, label: str) -> tuple[GroupSetup | None, dict[int, str]]:
-    """The group's set-up from its bags' rates, lengths and channels, as ``nifo identify`` chooses it.
-
-    Returns the set-up (None when no bag is left) and the reason for every bag left out (another rate).
-    """
-    from nifo_core.integrate import default_band
-
-    if not probes:
-        return None, {}
-    fs = Counter(p["fs_hz"] for p in probes.values()).most_common(1)[0][0]
-    left = {i: f"sample rate {p['fs_hz']:g} Hz differs from the other bags of {label} ({fs:g} Hz); resample it"
-            for i, p in probes.items() if p["fs_hz"] != fs}
-    ok = [p for i, p in probes.items() if i not in left]
-    band = base.band or default_band(fs, min(p["n_samples"] for p in ok) / fs)
-    return replace(base, band=band, with_tire_patch=all(p["has_tire_patch"] for p in ok)), left
-
-
 def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSettings = FleetSettings(),
               quiet: bool = False) -> FleetRun:
     """Run the fleet on ``client`` (module docstring); failed bags are recorded, never raised."""
@@ -155,21 +150,39 @@ def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSet
     members: dict[tuple[str, str], list[int]] = {}
     for i, e in enumerate(entries):
         members.setdefault(e.group, []).append(i)
-    outs, status, waiting, probes, final_setup = {}, {}, {}, {}, {}
+    group_of = {i: e.group for i, e in enumerate(entries)}
+    n_threads = max(1, sum(client.nthreads().values()))
+    holder, used, status, waiting, probes, final_setup, digests = {}, {}, {}, {}, {}, {}, {}
     solves, loops, chars = {}, {}, {}
     ac = as_completed()
 
-    def submit(i: int, setup: GroupSetup) -> None:
-        rows[i]["passes"] += 1
-        outs[i] = client.submit(compute_bag, paths[i], setup, s.cache_dir, pure=False)
-        st = client.submit(bag_status, outs[i], pure=False)
-        status[st] = i
-        ac.add(st)
+    def submit(idx: list[int], setup_of, *, batch: int | None = s.batch) -> None:
+        """Accumulation tasks for bags ``idx`` (in groups' order), batched by :func:`batch_plan`."""
+        by_group: dict[tuple[str, str], list[int]] = {}
+        for i in idx:
+            by_group.setdefault(group_of[i], []).append(i)
+        keys = list(by_group)
+        for task in batch_plan([len(by_group[g]) for g in keys], n_workers=n_threads, batch=batch):
+            spec, chunk = [], []
+            for k, r, whole in task:
+                g = keys[k]
+                these = [by_group[g][j] for j in r]
+                whole = whole and set(these) == set(members[g])    # all the group's bags: set-up fixed there
+                for i in these:
+                    rows[i]["passes"] += 1
+                    used[i] = setup_of(i)
+                spec.append((g, used[these[0]], [(i, paths[i]) for i in these], whole))
+                chunk += these
+            fut = client.submit(compute_batch, spec, s.cache_dir, pure=False)
+            st = client.submit(batch_status, fut, pure=False)
+            status[st] = chunk
+            for i in chunk:
+                holder[i] = fut       # the task holding this bag's partial of its latest pass
+            ac.add(st)
 
     for g, idx in members.items():
         waiting[g] = set(idx)
-        for i in idx:
-            submit(i, bases[g])
+    submit([i for idx in members.values() for i in idx], lambda i: bases[group_of[i]])
 
     def group_ready(g) -> None:
         ok = [i for i in members[g] if rows[i]["status"] == "ok"]
@@ -178,50 +191,65 @@ def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSet
             for i, why in left.items():
                 rows[i].update(status="failed", reason=f"{paths[i]}: {why}")
             final_setup[g] = setup
-            digest = None if setup is None else settings_hash(setup.cache_settings())
-            redo = [i for i in ok if i not in left and probes[i]["setup_hash"] != digest]
+            digests[g] = None if setup is None else settings_hash(setup.cache_settings())
+            redo = [i for i in ok if i not in left and probes[i]["setup_hash"] != digests[g]]
             if redo:
                 bar.total += len(redo)
                 waiting[g] = set(redo)
-                for i in redo:
-                    submit(i, setup)
+                submit(redo, lambda i: setup)
                 return
         ok = [i for i in members[g] if rows[i]["status"] == "ok"]
-        parts = [outs[i] for i in ok]
+        for i in ok:
+            if probes[i]["setup_hash"] != digests[g]:     # never expected: say so rather than merge it wrongly
+                rows[i].update(status="failed", reason=f"{paths[i]}: accumulated with another set-up than its "
+                                                       "group's (internal error; please report)")
+        ok = [i for i in ok if rows[i]["status"] == "ok"]
+        parts = list(dict.fromkeys(holder[i] for i in ok))     # the batches holding this group's partials
         for i in members[g]:
-            outs.pop(i, None)
+            holder.pop(i, None)
         if not parts:
             return
+        part = (*g, digests[g])
         for level in reduction_plan(len(parts), fanout=s.fanout):
             parts = [parts[ix[0]] if len(ix) == 1 else
-                     client.submit(merge_outcomes, *[parts[j] for j in ix], pure=False) for ix in level]
+                     client.submit(merge_outcomes, *[parts[j] for j in ix], part=part, pure=False) for ix in level]
         m2 = entries[members[g][0]].m2_kg
         solves[g] = client.submit(solve_group, parts[0], freqs_hz=tuple(s.freqs_hz), plot_max_hz=s.plot_max_hz,
-                                  m2_kg=m2, pure=False)
+                                  m2_kg=m2, part=part, pure=False)
         ac.add(solves[g])
         if s.loop:
             loops[g] = client.submit(loop_group, [paths[i] for i in ok], final_setup[g], pure=False)
         if s.characterize:
             chars[g] = client.submit(characterize_group, [paths[i] for i in ok], final_setup[g], m2, pure=False)
 
-    group_of = {i: e.group for i, e in enumerate(entries)}
     with Progress(float(len(entries) + len(members)), "fleet: bags and groups", enabled=not quiet) as bar:
         for fut in ac:
-            bar.advance(1)
             if fut not in status:
+                bar.advance(1)
                 continue
-            i = status.pop(fut)
-            r = _result(fut)
-            if r["ok"]:
-                rows[i].update(status="ok", reason="", cached=r["cached"], seconds=r["seconds"], key=r["key"],
-                               hash=r["hash"])
-                probes[i] = {**r["probe"], "setup_hash": r["setup_hash"]}
-            else:
-                rows[i].update(status="failed", reason=r["reason"])
-            g = group_of[i]
-            waiting[g].discard(i)
-            if not waiting[g]:
-                group_ready(g)
+            chunk = status.pop(fut)
+            try:
+                results = fut.result()
+            except Exception:  # noqa: BLE001 - the task died (worker lost): each bag again on its own
+                if len(chunk) > 1:
+                    for i in chunk:
+                        rows[i]["passes"] -= 1
+                    submit(chunk, lambda i: used[i], batch=1)
+                    continue
+                r = _result(fut)
+                results = [(chunk[0], {**r, "reason": f"{paths[chunk[0]]}: {r['reason']}"})]
+            bar.advance(len(chunk))
+            for i, r in results:
+                if r["ok"]:
+                    rows[i].update(status="ok", reason="", cached=r["cached"], seconds=r["seconds"], key=r["key"],
+                                   hash=r["hash"])
+                    probes[i] = {**r["probe"], "setup_hash": r["setup_hash"]}
+                else:
+                    rows[i].update(status="failed", reason=r["reason"])
+                g = group_of[i]
+                waiting[g].discard(i)
+                if not waiting[g]:
+                    group_ready(g)
     groups = {g: _result(f) for g, f in solves.items()}
     for g, f in loops.items():
         lr = _result(f)
@@ -230,7 +258,7 @@ def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSet
         cr = _result(f)
         groups[g]["characterization"] = cr if "text" in cr else {
             "ok": False, "text": f"characterization not run: {cr['reason']}", "suggested": []}
-    del solves, loops, chars, outs, status
+    del solves, loops, chars, holder, status
     for g in members:   # groups with no usable bag at all
         if g not in groups:
             groups[g] = {"ok": False, "reason": "no usable bag", "bags": []}
