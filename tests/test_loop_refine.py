@@ -136,3 +136,21 @@ def test_refinement_can_be_switched_off_and_the_command_says_which_model_it_wrot
         assert ref["heldout_prediction_nmse_before_pct"] == pytest.approx(
             doc["errors_after"]["prediction_nmse_pct"], rel=1e-9)
         assert ref["text"] in capsys.readouterr().out
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="measured: beside a declared damper knee (-700 N·s/m beyond 0.03 m/s) at 2.5 mm "
+                   "road, Coulomb 30 N is added at 52.2 N (+74 %): beyond the knee both carry a sign(ż) part and "
+                   "share it; the final equation-error fit holds 36.2 N, the refined 28.3 N, but the refined model "
+                   "predicts the held-out third worse (0.911 % vs 0.871 %) and is not kept")
+def test_coulomb_beside_a_declared_knee_is_within_10_percent_at_first_addition():
+    knee = Term("velocity_deadzone", {"knee": 0.03})
+    sim = _sim((StrutForce(knee, -700.0), StrutForce(Term("coulomb", {"eps": 0.005}), COULOMB_N)), 0.0025, 120.0, 11)
+    res = close_loop(sim.record, (knee,), m2_kg=M2, settings=LoopSettings(max_rounds=3))
+    added = [c for c in res.added if c.kind == "coulomb"]
+    assert added, res.report()
+    ref = res.refinement.parameter("coulomb coefficient")
+    print(f"\nCoulomb {COULOMB_N:g} N hidden beside a declared knee, 120 s at 2.5 mm road, 2 % noise: first addition "
+          f"{added[0].coefficient:.1f} N, final equation-error fit {ref['equation_error_times_m2']:.1f} N, refined "
+          f"{ref['refined_times_m2']:.1f} N; {_held_out_line(res)}")
+    assert added[0].coefficient == pytest.approx(COULOMB_N, rel=0.10)
