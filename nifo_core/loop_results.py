@@ -475,7 +475,8 @@ def _effect_dict(t: Trial) -> dict:
             "key_param": None if kp is None else {"name": kp[0], "value": kp[1]},
             "theta_per_kg": c.theta, "coefficient": c.coefficient, "coefficient_unit": c.term.spec.coef_unit,
             "meaning": c.describe(), "err": c.err, "err_cv": c.err_cv, "p_value": c.p_value, "spread": _fin(c.spread),
-            "group_theta": list(c.group_theta), "tire_shift": _fin(t.tire_shift),
+            "group_theta": list(c.group_theta), "offset_per_record_m": list(c.offsets),
+            "tire_shift": _fin(t.tire_shift),
             "heldout_equation_gain": _fin(t.heldout_gain)}
 
 

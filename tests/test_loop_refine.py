@@ -96,6 +96,7 @@ def test_bump_stop_gap_from_static_stiffness_refined_and_nothing_spurious(bump):
     assert gap_ref == pytest.approx(GAP_M, rel=0.10)
     np.testing.assert_allclose(-np.array(stop.offsets), true_mean, atol=0.3e-3)
     assert "from the static position" in res.report()
+    assert json.loads(json.dumps(res.to_dict()))["effects_added"][0]["offset_per_record_m"] == list(stop.offsets)
     _consistent(res)
     assert ref.kept, res.report()                       # the refined model predicts the held-out parts better
     assert res.model.provenance["refined"]["start"] in ("nifo", "linear")
