@@ -22,8 +22,9 @@ as much as a high one. θ holds
 - the coefficients γ_i = c_i/M2 of the terms (scaled by their NIFO values),
 - the key parameter of each term that has one (gap, deadband, knee…; log
   scale, within ¼-4× of its start) unless ``shape=False``,
-- for a one-mass body, its stiffness and damping per unit mass (log scale);
-  a rational linear part is kept as fitted.
+- for a one-mass body, its realised stiffness and damping per unit mass (log
+  scale; reported as the nominal body's, the terms' absorbed linear part taken
+  out); a rational linear part is kept as fitted.
 
 Two starting points: the NIFO model itself, and — when a linear model
 identified on the same data is given — that linear model with the terms added
@@ -135,8 +136,8 @@ class _Space:
             key = KINDS[t.kind].key_param
             out.append((f"{t.kind}.{key}", KINDS[t.kind].params[key][1], float(t.params[key])))
         if self.body:
-            b = self.base.linear.body
-            out += [("k = K2/M2 (linear part)", "1/s²", b.k), ("c = C2/M2 (linear part)", "1/s", b.c)]
+            b = self.base.body
+            out += [("k = K2/M2 (nominal body)", "1/s²", b.k), ("c = C2/M2 (nominal body)", "1/s", b.c)]
         return out
 
     def model(self, x: np.ndarray) -> IdentifiedModel:
@@ -361,9 +362,10 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
     best = min(finals, key=lambda k: float(np.sum(finals[k])))
     x, sp, sol, _ = ok[best]
     refined = sp.model(x)
-    params = [{"name": n, "unit": u, "before": float(v0), "after": float(v1)}
-              for (n, u, _), v0, v1 in zip(sp.names(), _values(sp, sp.x0(np.asarray(sp.base.c_over_m2, float))),
-                                           _values(sp, x))]
+    hw = _half_widths(sp, x, sol) if x is sol.x else [None] * len(sp.names())
+    params = [{"name": n, "unit": u, "before": float(v0), "after": float(v1), "half_width_95": h}
+              for (n, u, _), v0, v1, h in zip(sp.names(), _values(sp, sp.x0(np.asarray(sp.base.c_over_m2, float))),
+                                              _values(sp, x), hw)]
     msg = (f"output-error refinement from the {best} start: mean band NMSE "
            f"{np.mean(before[best]):.4g} % → {np.mean(finals[best]):.4g} % on {len(records)} record(s) "
            f"({band[0]:g}-{band[1]:g} Hz{', period-averaged' if period_samples else ''}); {sol.message}")
@@ -377,12 +379,35 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
                       evaluations=n_eval, message=msg, labels=[r.source for r in records])
 
 
+def _half_widths(sp: _Space, x: np.ndarray, sol) -> list[float | None]:
+    """95 % half-widths of the reported values from the Gauss-Newton covariance at the solution.
+
+    cov(θ) = s²·(JᵀJ)⁻¹, s² = Σr²/(m - p) (asymptotic output-error covariance, Ljung 1999 §9.3),
+    carried to the reported values by their derivatives in θ. Random error only, under the
+    assumption that the residual lines are independent: model error is not in it.
+    """
+    jac, r = np.asarray(sol.jac, float), np.asarray(sol.fun, float)
+    m, p = jac.shape
+    if m <= p:
+        return [None] * len(sp.names())
+    cov = float(r @ r) / (m - p) * np.linalg.pinv(jac.T @ jac)
+    v0 = np.asarray(_values(sp, x))
+    d = np.zeros((v0.size, p))
+    for j in range(p):
+        step = 1e-6 * max(1.0, abs(x[j]))
+        xx = np.array(x, float)
+        xx[j] += step
+        d[:, j] = (np.asarray(_values(sp, xx)) - v0) / step
+    var = np.einsum("ij,jk,ik->i", d, cov, d)
+    return [float(1.96 * np.sqrt(v)) if np.isfinite(v) and v >= 0 else None for v in var]
+
+
 def _values(sp: _Space, x: np.ndarray) -> list[float]:
     m = sp.model(x)
     vals = [float(g) for g in m.c_over_m2]
     for i in sp.shape_idx:
         t = m.terms[i]
         vals.append(float(t.params[KINDS[t.kind].key_param]))
-    if sp.body:
-        vals += [m.linear.body.k, m.linear.body.c]
+    if sp.body:      # the nominal body: the realised one without the terms' absorbed linear part
+        vals += [m.body.k, m.body.c]
     return vals

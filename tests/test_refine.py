@@ -157,3 +157,25 @@ def test_identify_refine_writes_the_refined_model_and_predict_takes_it(tmp_path)
     pred = subprocess.run([sys.executable, "-m", "nifo", "predict", str(data), "--model", str(out), "--out",
                            str(tmp_path / "pred"), "--no-plots"], capture_output=True, text=True, timeout=600)
     assert pred.returncode == 0, pred.stderr
+
+
+@pytest.mark.slow
+def test_refined_bounds_cover_the_coulomb_force_over_seeds_and_say_what_they_miss():
+    """95 % Gauss-Newton bounds of the refined parameters, 6 seeds of 40 s at 0.5 mm with 2 % noise.
+
+    Measured: the Coulomb coefficient is covered in 6/6 (±0.6 %); the body stiffness carries a small
+    bias from the noise on the measured input (−0.6 % on average) that its random-error bound
+    (±0.7 %) does not always hold — printed, asserted only loosely."""
+    strut = (StrutForce(Term("coulomb", {"eps": 0.005}), 30.0),)
+    hits = {"coulomb": [], "k": [], "c": []}
+    for seed in range(6):
+        sim = simulate(SimConfig(strut=strut, road=RandomRoad(0.0005), duration_s=40, fs_hz=FS,
+                                 noise=SensorNoise(relative=0.02)), rng=100 + seed)
+        res = identify_nifo(sim.record, [s.term for s in strut])
+        ref = refine_model(IdentifiedModel.from_nifo(res), [sim.record],
+                           linear=IdentifiedModel.from_nifo(res, source="h1"))
+        car = sim.truth.vehicle
+        for key, p, truth in zip(hits, ref.parameters, (30.0 / car.m2, car.k2 / car.m2, car.c2 / car.m2)):
+            hits[key].append(p["half_width_95"] is not None and abs(p["after"] - truth) <= p["half_width_95"])
+    print("\nrefined 95 % bounds hold the truth in: " + ", ".join(f"{k} {sum(v)}/{len(v)}" for k, v in hits.items()))
+    assert sum(hits["coulomb"]) >= 5 and sum(hits["c"]) >= 4 and sum(hits["k"]) >= 2

@@ -81,6 +81,17 @@ def score(y: np.ndarray, yhat: np.ndarray, fs_hz: float) -> float:
     return band_nmse(y, yhat, fs_hz, band_hz=ANALYSIS, period_samples=PERIOD, skip_samples=PERIOD)
 
 
+def predict_levels(model, full: dict, row: dict) -> None:
+    """Predict every level from rest; its score into ``row['nmse']``, or why not into ``row['errors']``."""
+    for lv in LEVELS:
+        rec = full[lv]
+        try:
+            p = predict_body(model, rec.spindle_accel, rec.fs_hz, label=rec.source)
+            row["nmse"][lv] = score(rec.body_accel, p.body_accel, rec.fs_hz)
+        except NifoError as err:
+            row["errors"][lv] = str(err)
+
+
 def refine(model, linear, full: dict, ids, periods: int, log=print):
     """Output-error refinement (:func:`nifo_core.refine.refine_model`) on the first ``periods`` periods of the
     identification levels, from rest, scored as the study scores (2-15 Hz, period average, first period dropped)."""
@@ -130,13 +141,7 @@ def study(data: Path, out: Path | None, *, sets: dict, forms: dict, linear_parts
                         d.mkdir(parents=True, exist_ok=True)
                         write_model(d / "model.json", model)
                         row["model_json"] = str(d / "model.json")
-                    for lv in LEVELS:
-                        rec = full[lv]
-                        try:
-                            p = predict_body(model, rec.spindle_accel, rec.fs_hz, label=rec.source)
-                            row["nmse"][lv] = score(rec.body_accel, p.body_accel, rec.fs_hz)
-                        except NifoError as err:
-                            row["errors"][lv] = str(err)
+                    predict_levels(model, full, row)
                     row["seconds"] = time.perf_counter() - t0
                     rows.append(row)
                     log(f"{set_name:14} {lp_name:11} {form_name:28} {source:6} " + " ".join(
@@ -151,13 +156,7 @@ def study(data: Path, out: Path | None, *, sets: dict, forms: dict, linear_parts
                             ref = refine(model, linear_models.get((set_name, lp_name)), full, ids, refine_periods)
                         rrow = {**row, "source": source + " refined", "nmse": {}, "errors": {},
                                 "refinement": ref.to_dict()}
-                        for lv in LEVELS:
-                            rec = full[lv]
-                            try:
-                                p = predict_body(ref.model, rec.spindle_accel, rec.fs_hz, label=rec.source)
-                                rrow["nmse"][lv] = score(rec.body_accel, p.body_accel, rec.fs_hz)
-                            except NifoError as err:
-                                rrow["errors"][lv] = str(err)
+                        predict_levels(ref.model, full, rrow)
                         rrow["seconds"] = time.perf_counter() - t0
                         rows.append(rrow)
                         log(f"{set_name:14} {lp_name:11} {form_name:28} {'refined':6} " + " ".join(

@@ -493,7 +493,9 @@ def run(args: argparse.Namespace) -> int:
     if refinement is not None:
         print(refinement.message)
         for prm in refinement.parameters:
-            print(f"  {prm['name']}: {prm['before']:.5g} → {prm['after']:.5g} {prm['unit']}")
+            hw = prm.get("half_width_95")
+            print(f"  {prm['name']}: {prm['before']:.5g} → {prm['after']:.5g}"
+                  + ("" if hw is None else f" ± {hw:.2g}") + f" {prm['unit']}")
     return {"out": str(args.out), "model_written": model is not None, "figures": figures, "warnings": warn,
             "summary": summary}
 

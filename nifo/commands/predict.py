@@ -301,8 +301,9 @@ def _summary(results: list[dict], band, out: Path) -> str:
                      f" | {_pct(li['transmissibility_error']['median'])} / {_pct(li['transmissibility_error']['max'])}")
         if "truth" in r and "model_nominal_t21_vs_true" in r["truth"]:
             tr = r["truth"]
-            lines.append(f"  truth ({tr['file']}): model nominal T21 vs true linear T21 median "
-                         f"{_pct(tr['model_nominal_t21_vs_true']['median'])}, measured H1 vs true "
+            lines.append(f"  truth ({tr['file']}): vs the true linear T21, median: model's linear part "
+                         f"{_pct(tr['model_linear_part_t21_vs_true']['median'])}, NIFO nominal T21 "
+                         f"{_pct(tr['model_nominal_t21_vs_true']['median'])}, measured H1 "
                          f"{_pct(tr['measured_h1_vs_true']['median'])}")
     lines.append(f"wrote {out}/predict.json")
     return "\n".join(lines)

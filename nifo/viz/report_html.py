@@ -207,6 +207,11 @@ def _characterize(r: ResultDir, system: Mapping) -> tuple[dict, list]:
             [{"key": "suggested model", "lines": lines}])
 
 
+def _mean(v) -> float | None:
+    v = [x for x in v if x is not None]
+    return sum(v) / len(v) if v else None
+
+
 def _identify(r: ResultDir, system: Mapping) -> tuple[dict, list]:
     s = r.doc.get("summary", {})
     terms = [{**t, "label": _term_text(t.get("term") or t, system)} for t in s.get("terms", [])]
@@ -214,7 +219,18 @@ def _identify(r: ResultDir, system: Mapping) -> tuple[dict, list]:
              "held fixed" if t.get("fixed") else
              f"{_num(t.get('per_line_mean_re'))} {_num(t.get('per_line_mean_im'), '+.3g')}j"] for t in terms]
     lines = [{"text": f"{t.get('label')}: {_num(t.get('c_over_m2'))} {t.get('unit', '')}"} for t in terms]
-    return {"terms": rows, "t21_bounds": _t21_bounds(r.doc)}, [{"key": "pooled coefficients", "lines": lines or [{"text": "none (linear)"}]},
+    ref = s.get("refinement")
+    refinement = None if not ref else {
+        "message": (f"from the {ref.get('start')} start; mean band NMSE of the {len(ref.get('records') or [])} "
+                    f"record(s) {_num(_mean(ref.get('nmse_before_pct', {}).get(ref.get('start')) or []), '.3g')} % → "
+                    f"{_num(_mean(ref.get('nmse_pct') or []), '.3g')} %"),
+        "rows": [[p.get("name"), _num(p.get("before")), _num(p.get("after")) + (
+            "" if p.get("half_width_95") is None else f" ± {_num(p['half_width_95'], '.2g')}"), p.get("unit", "")]
+                 for p in ref.get("parameters") or []]}
+    if refinement:
+        lines = lines + [{"text": "refined (model.json): " + ", ".join(f"{p[0]} {p[2]} {p[3]}" for p in
+                                                                       refinement["rows"][:len(terms)])}]
+    return {"terms": rows, "t21_bounds": _t21_bounds(r.doc), "refinement": refinement}, [{"key": "pooled coefficients", "lines": lines or [{"text": "none (linear)"}]},
                              {"key": "coherence, median",
                               "lines": [{"text": _num(s.get("coherence_h1_median"), ".3f")}]}]
 
