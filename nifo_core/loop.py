@@ -340,7 +340,8 @@ def _refine_final(ev: _Evaluator, model: IdentifiedModel, linear: IdentifiedMode
         return LoopRefinement(False, None, None, seconds=secs, unavailable=str(err)), model
     (b, bper), (a, aper) = _heldout(ev, model), _heldout(ev, ref.model)
     kept = a is not None and (b is None or a <= b)
-    out = LoopRefinement(kept, b, a, bper, aper, tuple(_compare(model, ref.model, m2_kg)), secs, ref.to_dict())
+    out = LoopRefinement(kept, b, a, bper, aper, tuple(_compare(model, ref.model, m2_kg, ref.parameters)), secs,
+                         ref.to_dict())
     return out, (ref.model if kept else model)
 
 
@@ -352,21 +353,37 @@ def _heldout(ev: _Evaluator, model: IdentifiedModel) -> tuple[float | None, tupl
     return float(nmse), tuple(float(v) for v in per)
 
 
-def _compare(before: IdentifiedModel, after: IdentifiedModel, m2: float | None) -> list[dict]:
-    """Every refined parameter: the equation-error value and the refined one (× M2 where it scales)."""
-    def entry(name, unit, v0, v1, unit_m2=None):
-        d = {"name": name, "unit": unit, "equation_error": float(v0), "refined": float(v1)}
+def _compare(before: IdentifiedModel, after: IdentifiedModel, m2: float | None,
+             refined: Sequence[Mapping] = ()) -> list[dict]:
+    """Every refined parameter: the equation-error value and the refined one (× M2 where it scales).
+
+    ``refined``: :attr:`~nifo_core.refine.Refinement.parameters`, whose 95 % half-widths (where given)
+    are carried as ``refined_half_width_95`` (and × M2).
+    """
+    widths = [p.get("half_width_95") for p in refined]
+    n_terms = len(before.terms)
+    coef_w = widths[:n_terms] + [None] * (n_terms - len(widths[:n_terms]))
+    named = {p["name"]: p.get("half_width_95") for p in refined[n_terms:]}
+
+    def width(prefix):
+        return next((w for n, w in named.items() if n.startswith(prefix)), None)
+
+    def entry(name, unit, v0, v1, unit_m2=None, hw=None):
+        d = {"name": name, "unit": unit, "equation_error": float(v0), "refined": float(v1),
+             "refined_half_width_95": None if hw is None else float(hw)}
         if m2 is not None and unit_m2 is not None:
-            d.update(equation_error_times_m2=float(v0) * m2, refined_times_m2=float(v1) * m2, unit_times_m2=unit_m2)
+            d.update(equation_error_times_m2=float(v0) * m2, refined_times_m2=float(v1) * m2, unit_times_m2=unit_m2,
+                     refined_half_width_95_times_m2=None if hw is None else float(hw) * m2)
         return d
 
     out = []
-    for t0, t1, g0, g1 in zip(before.terms, after.terms, before.c_over_m2, after.c_over_m2):
-        out.append(entry(f"{t0.kind} coefficient", f"{t0.spec.coef_unit}/kg", g0, g1, t0.spec.coef_unit))
+    for i, (t0, t1, g0, g1) in enumerate(zip(before.terms, after.terms, before.c_over_m2, after.c_over_m2)):
+        out.append(entry(f"{t0.kind} coefficient", f"{t0.spec.coef_unit}/kg", g0, g1, t0.spec.coef_unit, coef_w[i]))
         key = t0.spec.key_param
         if key is not None and isinstance(t0.params.get(key), float):
-            out.append(entry(f"{t0.kind}.{key}", t0.spec.params[key][1], t0.params[key], t1.params[key]))
+            out.append(entry(f"{t0.kind}.{key}", t0.spec.params[key][1], t0.params[key], t1.params[key],
+                             hw=named.get(f"{t0.kind}.{key}")))
     if before.body is not None and after.body is not None:
-        out.append(entry("k = K2/M2", "1/s²", before.body.k, after.body.k, "N/m"))
-        out.append(entry("c = C2/M2", "1/s", before.body.c, after.body.c, "N·s/m"))
+        out.append(entry("k = K2/M2", "1/s²", before.body.k, after.body.k, "N/m", width("k = K2/M2")))
+        out.append(entry("c = C2/M2", "1/s", before.body.c, after.body.c, "N·s/m", width("c = C2/M2")))
     return out

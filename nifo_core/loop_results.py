@@ -350,10 +350,13 @@ def _pct(v: float | None) -> str:
 
 
 def _value_text(p: Mapping, which: str) -> str:
-    if p.get(which + "_times_m2") is not None:
-        return f"{p[which + '_times_m2']:.4g} {p['unit_times_m2']}"
-    v = p[which]
-    return f"{1e3 * v:.4g} mm" if p["unit"] == "m" else f"{v:.4g} {p['unit']}"
+    """``which`` ('equation_error' or 'refined') of a parameter in its unit (× M2 when given), ± its 95 % bound."""
+    m2 = p.get(which + "_times_m2") is not None
+    v, hw = (p[which + "_times_m2"], p.get(which + "_half_width_95_times_m2")) if m2 else \
+        (p[which], p.get(which + "_half_width_95"))
+    unit = p["unit_times_m2"] if m2 else p["unit"]
+    scale, unit = (1e3, "mm") if unit == "m" else (1.0, unit)
+    return f"{scale * v:.4g}" + (f" ± {scale * hw:.2g}" if hw is not None else "") + f" {unit}"
 
 
 @dataclass(frozen=True)

@@ -155,3 +155,43 @@ def test_coulomb_beside_a_declared_knee_is_within_10_percent_at_first_addition()
           f"{added[0].coefficient:.1f} N, final equation-error fit {ref['equation_error_times_m2']:.1f} N, refined "
           f"{ref['refined_times_m2']:.1f} N; {_held_out_line(res)}")
     assert added[0].coefficient == pytest.approx(COULOMB_N, rel=0.10)
+
+
+@pytest.fixture(scope="module")
+def bump_beside_knee():
+    # issue 13's strut: the stop beside a damper knee; the knee is declared, the stop hidden
+    knee = Term("velocity_deadzone", {"knee": 0.03})
+    strut = (StrutForce(knee, -700.0), StrutForce(Term("bump_stop", {"gap": GAP_M, "side": "compression"}), STOP_N_M))
+    sims = [_sim(strut, rms, 120.0, 7 + i) for i, rms in enumerate((0.005, 0.007))]
+    return sims, close_loop([s.record for s in sims], (knee,), m2_kg=M2)
+
+
+@pytest.mark.slow
+def test_bump_stop_beside_a_declared_knee_gap_from_static_and_nothing_spurious(bump_beside_knee):
+    sims, res = bump_beside_knee
+    assert [c.kind for c in res.added] == ["bump_stop"], res.report()
+    stop, ref = res.added[0], res.refinement
+    gap_ref = ref.parameter("bump_stop.gap")["refined"]
+    k_ref = ref.parameter("bump_stop coefficient")["refined_times_m2"]
+    knee = ref.parameter("velocity_deadzone coefficient")
+    true_mean = [float(np.mean(s.truth.z)) for s in sims]
+    print(f"\nbump stop {STOP_N_M:.3g} N/m beyond {1e3 * GAP_M:g} mm beside a declared knee (-700 N·s/m beyond "
+          f"0.03 m/s), 2 × 120 s at 5 and 7 mm: gap from static {1e3 * stop.term.params['gap']:.2f} mm at first "
+          f"addition, refined {1e3 * gap_ref:.2f} mm; stiffness {stop.coefficient:.4g} N/m "
+          f"({100 * (stop.coefficient / STOP_N_M - 1):+.1f} %) → refined {k_ref:.4g} N/m "
+          f"({100 * (k_ref / STOP_N_M - 1):+.1f} %); knee coefficient {knee['equation_error_times_m2']:.0f} → "
+          f"{knee['refined_times_m2']:.0f} N·s/m; mean position from static {[round(-1e3 * o, 2) for o in stop.offsets]}"
+          f" mm (truth {[round(1e3 * m, 2) for m in true_mean]}); {_held_out_line(res)}")
+    assert stop.term.params["gap"] == pytest.approx(GAP_M, rel=0.10)
+    assert gap_ref == pytest.approx(GAP_M, rel=0.10)
+    np.testing.assert_allclose(-np.array(stop.offsets), true_mean, atol=0.4e-3)
+    _consistent(res)
+    assert ref.kept and knee["refined_times_m2"] == pytest.approx(-700.0, rel=0.10)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="measured: beside the knee the refined stop holds 1.67e5 N/m for 2e5 (-16.5 %; "
+                   "first addition 1.53e5, -24 %): the refinement trades it against the linear stiffness (k +12 %)")
+def test_bump_stop_beside_a_declared_knee_refined_stiffness_within_15_percent(bump_beside_knee):
+    _, res = bump_beside_knee
+    assert res.refinement.parameter("bump_stop coefficient")["refined_times_m2"] == pytest.approx(STOP_N_M, rel=0.15)
