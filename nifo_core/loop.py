@@ -274,7 +274,7 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
     else:
         verdict = (f"Stopped after the limit of {s.max_rounds} round(s); more may be missing: run again with more "
                    f"rounds.")
-    say(1.0, "done")
+    say(0.95, "rounds done")
     n_added = sum(1 for r in rounds if r.added)
     if n_added:
         verdict = (f"Added {n_added} effect(s): " + ", ".join(r.added.candidate.term.label for r in rounds if r.added)
@@ -311,6 +311,7 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
     if model is not None and terms and s.refine and s.prediction != "none":  # it simulates: not with prediction off
         say(0.98, "output-error refinement")
         refinement, model = _refine_final(ev, model, linear, m2_kg, say)
+    say(1.0, "done")
     return LoopResult(declared=tuple(make_term(t) for t in declared), terms=tuple(terms), rounds=tuple(rounds),
                       initial=initial, final=current, verdict=verdict, band=band, m2_kg=m2_kg, settings=s,
                       sources=tuple(r.source for r in recs),
