@@ -218,7 +218,8 @@ def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None
 def rank_beyond(rfs: Sequence[RestoringForce], declared: Sequence[Term], *, m2_kg: float | None = None,
                 kinds: Sequence[str] = DEFAULT_KINDS, thresholds: Thresholds = Thresholds(),
                 grid_points: int = 24, n_groups: int = 4,
-                progress: Callable[[float], None] | None = None) -> tuple[Candidate, ...]:
+                progress: Callable[[float], None] | None = None,
+                offsets: Sequence[Sequence[float] | None] | None = None) -> tuple[Candidate, ...]:
     """Each kind's best candidate on top of a linear strut AND the ``declared`` terms, ranked by ERR.
 
     What a model holding ``declared`` still lacks (the tracing step of the
@@ -227,7 +228,8 @@ def rank_beyond(rfs: Sequence[RestoringForce], declared: Sequence[Term], *, m2_k
     (coefficients refitted) in the base. ERR is then the fraction of what the
     linear + declared fit leaves that the candidate explains; every statistic of
     :class:`Candidate` is given the declared terms (``conditional_on``).
-    A candidate identical to a declared term is not listed.
+    A candidate identical to a declared term is not listed. ``offsets``: per declared term, None or
+    one ``offset`` [m] per record (a bump stop from the static position, :mod:`.characterize_static`).
     """
     if not rfs:
         raise InputError("no restoring-force data to rank candidates on")
@@ -235,7 +237,7 @@ def rank_beyond(rfs: Sequence[RestoringForce], declared: Sequence[Term], *, m2_k
     declared = tuple(declared)
     data = RegressionData(rfs, n_groups=n_groups, body_stiffness=False)
     search = GridSearch(data, kinds, grid_points, progress)
-    base = [data.regressor(t) for t in declared]
+    base = [data.regressor(t, offsets=o) for t, o in zip(declared, offsets or [None] * len(declared))]
     extra, r = np.empty((data.rows.size, 0)), search.r0
     for b in base:  # orthonormal basis of the declared columns beyond the linear ones (subsample rows)
         v = b[data.rows] - search.q @ (search.q.T @ b[data.rows])

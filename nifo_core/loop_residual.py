@@ -11,11 +11,15 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, replace
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
 from .characterize import candidate_grid
+from .characterize_data import RegressionData
+from .characterize_result import Candidate
+from .characterize_score import score_candidate
+from .characterize_static import STATIC_KINDS, static_bump_stops
 from .describing import Term
 from .errors import ConfigError, InputError, NifoError
 from .integrate import IntegrationBand
@@ -35,9 +39,10 @@ class _Part:
     zdot: np.ndarray        # band-passed ż [m/s]
     rf: RestoringForce
     keep: np.ndarray        # indices into rf of the rows
+    index: int = 0          # which record (per-record offsets of bump stops)
 
 
-def _part(rf: RestoringForce) -> _Part:
+def _part(rf: RestoringForce, index: int = 0) -> _Part:
     s = bandpass_settle_samples(rf.fs_hz, rf.band)
     if rf.n - 2 * s < max(64, int(4 * rf.fs_hz / rf.band.f_lo_hz)):
         raise InputError(f"{rf.n / rf.fs_hz:.1f} s of data is too short for the loop (the band-pass settles over "
@@ -45,20 +50,27 @@ def _part(rf: RestoringForce) -> _Part:
                          hint="record longer, or raise the band's lower edge")
     keep = np.arange(s, rf.n - s)
     b = bandpass(np.vstack([rf.force, rf.z, rf.zdot]), rf.fs_hz, rf.band)[:, keep]
-    return _Part(b[0], b[1], b[2], rf, keep)
+    return _Part(b[0], b[1], b[2], rf, keep, index)
 
 
-def _g(part: _Part, term: Term) -> np.ndarray:
-    """g(z, ż) on the part's motion, band-passed AFTER the map (METHOD.md §5 step 3)."""
+def _g(part: _Part, term: Term, offsets: Mapping[str, Sequence[float]] | None = None) -> np.ndarray:
+    """g(z, ż) on the part's motion, band-passed AFTER the map (METHOD.md §5 step 3).
+
+    ``offsets``: term label → one ``offset`` [m] per record (a bump stop measured from the static
+    position, which sits elsewhere in each record: :mod:`nifo_core.characterize_static`).
+    """
     rf = part.rf
+    if offsets and term.label in offsets:
+        term = Term(term.kind, {**term.params, "offset": float(offsets[term.label][part.index])})
     return bandpass(term.evaluate(rf.z, rf.zdot), rf.fs_hz, rf.band)[part.keep]
 
 
-def _design(parts: Sequence[_Part], terms: Sequence[Term]) -> tuple[np.ndarray, np.ndarray]:
+def _design(parts: Sequence[_Part], terms: Sequence[Term],
+            offsets: Mapping[str, Sequence[float]] | None = None) -> tuple[np.ndarray, np.ndarray]:
     ys, xs = [], []
     for p in parts:
         ys.append(p.y)
-        xs.append(np.column_stack([p.z, p.zdot, *[_g(p, t) for t in terms]]))
+        xs.append(np.column_stack([p.z, p.zdot, *[_g(p, t, offsets) for t in terms]]))
     return np.concatenate(ys), np.vstack(xs)
 
 
@@ -96,8 +108,11 @@ class _Evaluator:
             self.test_rfs.append(replace(rf.select(slice(k, rf.n)), start=rf.start + k))
             self.fit_recs.append(rec.slice(0, rf.start + k))
             self.test_recs.append(rec.slice(rf.start + k, rec.n))
-        self.fit_parts = [_part(rf) for rf in self.fit_rfs]
-        self.test_parts = [_part(rf) for rf in self.test_rfs]
+        self.fit_parts = [_part(rf, i) for i, rf in enumerate(self.fit_rfs)]
+        self.test_parts = [_part(rf, i) for i, rf in enumerate(self.test_rfs)]
+        #: bump stops measured from the static position: term label → offset -m_i per record [m]
+        self.static: dict[str, tuple[float, ...]] = {}
+        self.regression: RegressionData | None = None   # characterize's rows of the fit parts (made on demand)
         spec = settings.spectral
         self.notes: list[str] = []
         shortest = min(r.n for r in self.test_recs)
@@ -113,7 +128,7 @@ class _Evaluator:
 
     def joint(self, terms: Sequence[Term]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(θ = [k, c, θ_i...], fit rows y, X) of the equation-error fit on the fit part."""
-        y, x = _design(self.fit_parts, terms)
+        y, x = _design(self.fit_parts, terms, self.static)
         return np.linalg.lstsq(x, y, rcond=None)[0], y, x
 
     def errors(self, terms: Sequence[Term]) -> Errors:
@@ -123,7 +138,7 @@ class _Evaluator:
         terms = tuple(terms)
         theta, y, x = self.joint(terms)
         fit_nmse = _nmse_pct(y, y - x @ theta)
-        yt, xt = _design(self.test_parts, terms)
+        yt, xt = _design(self.test_parts, terms, self.static)
         eq_nmse = _nmse_pct(yt, yt - xt @ theta)
         notes: list[str] = []
         pred_nmse, per_rec, trans, pairs = None, (), (), []
@@ -139,7 +154,7 @@ class _Evaluator:
                 notes.append(f"no held-out prediction for this model ({err}); equation error only")
         eq_pairs = []  # per-band residual of the equation error (always: the gate compares like with like)
         for p in self.test_parts:
-            e = p.y - np.column_stack([p.z, p.zdot, *[_g(p, t) for t in terms]]) @ theta
+            e = p.y - np.column_stack([p.z, p.zdot, *[_g(p, t, self.static) for t in terms]]) @ theta
             if e.size >= self.spec.block:
                 s = cross_spectra(np.stack([p.y, e]), p.rf.fs_hz, self.spec)
                 eq_pairs.append((s.freq_hz, auto_spectrum(s, 0), auto_spectrum(s, 1)))
@@ -208,8 +223,14 @@ class _Evaluator:
         return float(np.sqrt(np.mean(np.abs(body.t21(f[m]) / t[m] - 1) ** 2))) if m.any() else float("inf")
 
     def _predict(self, terms: tuple[Term, ...]):
+        return self.predict_model(self.model(terms))
+
+    def predict_model(self, model: IdentifiedModel):
+        """Held-out prediction of ``model``: (pooled NMSE [%], per record [%], transmissibility errors, spectra).
+
+        The one metric every model of the loop is scored on (the refined one too).
+        """
         s = self.settings
-        model = self.model(terms)
         lo, hi = s.analysis_band_hz
         num = den = 0.0
         per, trans, pairs = [], [], []
@@ -255,6 +276,32 @@ def _tire_check(ev: _Evaluator, terms: Sequence[Term], cand: Term, s: LoopSettin
     return float(shift), float(events.mean())
 
 
+def _static_candidate(ev: _Evaluator, terms: Sequence[Term], cand: Candidate, s: LoopSettings,
+                      m2_kg: float | None) -> Candidate:
+    """A bump-stop candidate re-measured from the static position (:mod:`nifo_core.characterize_static`).
+
+    The ranking measures its gap from each record's mean position, which a one-sided stop pushes away
+    from it, the more the harder the excitation. The gap from the static position and one offset
+    -m_i per record come from the balance of the mean force; the candidate is re-scored with them and
+    its offsets registered in ``ev.static`` (the loop's columns use them from then on).
+    """
+    if cand.kind not in STATIC_KINDS:
+        return cand
+    if ev.regression is None:
+        ev.regression = RegressionData(ev.fit_rfs, n_groups=4, body_stiffness=False)
+    data = ev.regression
+    # the other terms keep their own (already static) frame; only the candidate is re-measured
+    new, offs = static_bump_stops(data, [*terms, cand.term])
+    term, off = new[-1], offs[-1]
+    if off is None:
+        return cand
+    base = [data.regressor(t, offsets=ev.static.get(t.label)) for t in terms]
+    out = score_candidate(data, base, term, thresholds=s.thresholds, n_grid=2 * s.grid_points, m2=m2_kg,
+                          names=tuple(t.label for t in terms), offsets=off)
+    ev.static[term.label] = tuple(off)
+    return out
+
+
 def _evidence(ev: _Evaluator, terms: Sequence[Term], cand: Term, s: LoopSettings, n_bins: int = 30) -> Evidence:
     th0, y, x0 = ev.joint(terms)
     th1, _, x1 = ev.joint([*terms, cand])
@@ -276,7 +323,7 @@ def _evidence(ev: _Evaluator, terms: Sequence[Term], cand: Term, s: LoopSettings
     for p in ev.fit_parts:
         if p.y.size < ev.spec.block:
             continue
-        chans = np.vstack([p.y, p.z, p.zdot, *[_g(p, t) for t in [*terms, cand]]])
+        chans = np.vstack([p.y, p.z, p.zdot, *[_g(p, t, ev.static) for t in [*terms, cand]]])
         sp = cross_spectra(chans, p.rf.fs_hz, ev.spec)
         m = (sp.freq_hz >= s.analysis_band_hz[0]) & (sp.freq_hz <= s.analysis_band_hz[1])
         pc = partial_coherence(sp, 0, list(range(1, chans.shape[0])))[-1][m]
@@ -300,18 +347,20 @@ def _retune(ev: "_Evaluator", terms: Sequence[Term], s: LoopSettings) -> tuple[l
                z_neg=float(np.quantile(-z, 0.998)), z_pos=float(np.quantile(z, 0.998)))
     out, notes = list(terms), []
     for i, t in enumerate(terms):
+        if t.label in ev.static:  # a bump stop from the static position: its gap was fitted with its offsets
+            continue
         grid = [g for g in candidate_grid(t.kind, points=s.grid_points, **rng)
                 if g.params.get("side") == t.params.get("side")]
         vary = [k for k in t.params if k not in ("side", "offset") and len({g.params[k] for g in grid}) > 1]
         if not vary:
             continue
         key = vary[0]
-        y, x0 = _design(ev.fit_parts, out[:i] + out[i + 1:])
+        y, x0 = _design(ev.fit_parts, out[:i] + out[i + 1:], ev.static)
         q, _ = np.linalg.qr(x0)
         r = y - q @ (q.T @ y)
 
         def err(term: Term) -> float:
-            g = np.concatenate([_g(p, term) for p in ev.fit_parts])
+            g = np.concatenate([_g(p, term, ev.static) for p in ev.fit_parts])
             g = g - q @ (q.T @ g)
             d = float(g @ g)
             return float(g @ r) ** 2 / d if d > 0 else 0.0

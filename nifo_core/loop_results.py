@@ -23,8 +23,8 @@ from .integrate import IntegrationBand
 from .model import IdentifiedModel
 from .spectral import SpectralSettings
 
-__all__ = ["LoopSettings", "Errors", "Trial", "Evidence", "Round", "LoopResult", "RESIDUAL_BANDS_HZ",
-           "NOTHING_MISSING"]
+__all__ = ["LoopSettings", "Errors", "Trial", "Evidence", "Round", "LoopRefinement", "LoopResult",
+           "RESIDUAL_BANDS_HZ", "NOTHING_MISSING"]
 
 #: bands of the per-band residual [Hz]
 RESIDUAL_BANDS_HZ = ((2.0, 5.0), (5.0, 10.0), (10.0, 20.0), (20.0, 30.0))
@@ -75,6 +75,14 @@ class LoopSettings:
         over its grid (a key parameter within a factor 2 of its value) (declared terms state the form; the data set the parameter). Without it a
         declared term whose parameter does not match the band-limited motion leaves a residual
         that a second term of the same kind "explains".
+    refine : bool
+        After the rounds, refine the final model by output error (:func:`nifo_core.refine.refine_model`:
+        the coefficients, gaps/knees and a one-mass body's k, c that make it predict the fit parts
+        best) and keep the refined model when its held-out prediction NMSE is not worse. A final
+        step: the acceptance of terms does not use it.
+    refine_seconds : float
+        Leading seconds of each fit part the refinement simulates [s] (each iteration simulates
+        every record once per parameter).
     """
 
     max_rounds: int = 4
@@ -92,6 +100,8 @@ class LoopSettings:
     analysis_band_hz: tuple[float, float] = (2.0, 30.0)
     prediction: Prediction = "equation"
     retune: bool = True
+    refine: bool = True
+    refine_seconds: float = 60.0
 
     def __post_init__(self) -> None:
         if isinstance(self.max_rounds, bool) or not isinstance(self.max_rounds, (int, np.integer)) \
@@ -111,6 +121,8 @@ class LoopSettings:
         lo, hi = (float(v) for v in self.analysis_band_hz)
         if not 0 < lo < hi:
             raise ConfigError(f"analysis_band_hz={self.analysis_band_hz!r} must satisfy 0 < lo < hi")
+        if not (np.isfinite(float(self.refine_seconds)) and float(self.refine_seconds) >= 5):
+            raise ConfigError(f"refine_seconds={self.refine_seconds!r} must be at least 5 s")
         if self.prediction not in ("equation", "nifo", "none"):
             raise ConfigError(f"prediction={self.prediction!r} must be 'equation', 'nifo' or 'none'")
         object.__setattr__(self, "kinds", tuple(self.kinds))
@@ -124,7 +136,8 @@ class LoopSettings:
                 "tire_quantile": self.tire_quantile, "tire_guard_s": self.tire_guard_s,
                 "max_tire_shift": self.max_tire_shift, "top_tried": self.top_tried,
                 "spectral": self.spectral.to_dict(), "analysis_band_hz": list(self.analysis_band_hz),
-                "prediction": self.prediction, "retune": self.retune}
+                "prediction": self.prediction, "retune": self.retune, "refine": self.refine,
+                "refine_seconds": self.refine_seconds}
 
 
 # --------------------------------------------------------------------------------------------
@@ -271,6 +284,82 @@ class Round:
 
 
 @dataclass(frozen=True)
+class LoopRefinement:
+    """The loop's final output-error refinement and both models' held-out prediction (one metric).
+
+    Attributes
+    ----------
+    kept : bool
+        True when the refined model is the loop's model (its held-out prediction NMSE is not worse).
+    heldout_before_pct, heldout_after_pct : float or None
+        Held-out prediction NMSE [%] of the equation-error model and of the refined one, records
+        pooled, scored alike (``_Evaluator.predict_model`` of :mod:`nifo_core.loop_residual`);
+        None: could not be predicted.
+    heldout_before_per_record_pct, heldout_after_per_record_pct : tuple of float
+    parameters : tuple of dict
+        name, unit, ``equation_error`` (the loop's fit), ``refined`` and, with M2, both × M2
+        (``*_times_m2``, ``unit_times_m2``).
+    seconds : tuple of float
+        Seconds of each fit part simulated [s].
+    refinement : mapping or None
+        :meth:`nifo_core.refine.Refinement.to_dict` (band NMSE on the fit parts before and after).
+    unavailable : str or None
+        Why there is no refinement (None when there is one).
+    """
+
+    kept: bool
+    heldout_before_pct: float | None
+    heldout_after_pct: float | None
+    heldout_before_per_record_pct: tuple[float, ...] = ()
+    heldout_after_per_record_pct: tuple[float, ...] = ()
+    parameters: tuple[Mapping, ...] = ()
+    seconds: tuple[float, ...] = ()
+    refinement: Mapping | None = None
+    unavailable: str | None = None
+
+    def parameter(self, name: str) -> Mapping:
+        """The entry of ``parameters`` called ``name``."""
+        return next(p for p in self.parameters if p["name"] == name)
+
+    def text(self) -> str:
+        if self.unavailable:
+            return f"Output-error refinement: not done ({self.unavailable}); model.json holds the equation-error fit."
+        what = "; ".join(f"{p['name']} {_value_text(p, 'equation_error')} → {_value_text(p, 'refined')}"
+                         for p in self.parameters)
+        score = (f"held-out prediction NMSE {_pct(self.heldout_before_pct)} (equation-error fit) → "
+                 f"{_pct(self.heldout_after_pct)} (refined)")
+        which = ("model.json holds the refined model" if self.kept else
+                 "not better on held-out data: model.json holds the equation-error fit")
+        secs = ", ".join(f"{v:.0f}" for v in self.seconds)
+        return (f"Output-error refinement (every record simulated from its measured input, the prediction error "
+                f"minimised over the coefficients, gaps/knees and the body's k, c; on the first {secs} s of the "
+                f"fit parts), equation-error fit → refined: {what}; {score}: {which}.")
+
+    def to_dict(self) -> dict:
+        return {"kept": self.kept, "heldout_prediction_nmse_before_pct": self.heldout_before_pct,
+                "heldout_prediction_nmse_after_pct": self.heldout_after_pct,
+                "heldout_prediction_nmse_before_per_record_pct": list(self.heldout_before_per_record_pct),
+                "heldout_prediction_nmse_after_per_record_pct": list(self.heldout_after_per_record_pct),
+                "parameters": [dict(p) for p in self.parameters], "seconds": list(self.seconds),
+                "refinement": None if self.refinement is None else dict(self.refinement),
+                "unavailable": self.unavailable, "text": self.text()}
+
+
+def _pct(v: float | None) -> str:
+    return "not computed" if v is None else f"{v:.3g} %"
+
+
+def _value_text(p: Mapping, which: str) -> str:
+    """``which`` ('equation_error' or 'refined') of a parameter in its unit (× M2 when given), ± its 95 % bound."""
+    m2 = p.get(which + "_times_m2") is not None
+    v, hw = (p[which + "_times_m2"], p.get(which + "_half_width_95_times_m2")) if m2 else \
+        (p[which], p.get(which + "_half_width_95"))
+    unit = p["unit_times_m2"] if m2 else p["unit"]
+    scale, unit = (1e3, "mm") if unit == "m" else (1.0, unit)
+    return f"{scale * v:.4g}" + (f" ± {scale * hw:.2g}" if hw is not None else "") + f" {unit}"
+
+
+@dataclass(frozen=True)
 class LoopResult:
     """What :func:`close_loop` found: rounds, the refined model, errors before and after, the verdict."""
 
@@ -294,6 +383,7 @@ class LoopResult:
     confounded: tuple[Confounding, ...] = ()
     bounds: CoefficientBounds | None = None
     undetermined: tuple[Undetermined, ...] = ()
+    refinement: LoopRefinement | None = None
 
     def coefficients(self) -> list[dict]:
         """The final model's equation-error coefficients with 95 % random-error bounds (per kg, and × M2).
@@ -348,6 +438,8 @@ class LoopResult:
                 f"{d['name']} {d['value']:.4g} ± {d['half_width']:.2g} {d['unit']}"
                 + (f" (× M2: {d['value_times_m2']:.4g} ± {d['half_width_times_m2']:.2g})" if m else "")
                 for d in self.coefficients()) + ".")
+        if self.refinement is not None:
+            lines.append(self.refinement.text())
         if self.detection_limits:
             lines.append("Could not have been seen in these data (detection limits given the noise, levels, length "
                          "and the model's terms): " + "; ".join(d.text() for d in self.detection_limits) + ".")
@@ -364,6 +456,7 @@ class LoopResult:
                 "rounds": [r.to_dict() for r in self.rounds], "verdict": self.verdict,
                 "nothing_missing": self.nothing_missing, "report": self.report(),
                 "model_unavailable": self.model_unavailable,
+                "refinement": None if self.refinement is None else self.refinement.to_dict(),
                 "detection_limits": [d.to_dict() for d in self.detection_limits],
                 "coefficients": self.coefficients(),
                 "confounded": [c.to_dict() for c in self.confounded],
@@ -385,7 +478,8 @@ def _effect_dict(t: Trial) -> dict:
             "key_param": None if kp is None else {"name": kp[0], "value": kp[1]},
             "theta_per_kg": c.theta, "coefficient": c.coefficient, "coefficient_unit": c.term.spec.coef_unit,
             "meaning": c.describe(), "err": c.err, "err_cv": c.err_cv, "p_value": c.p_value, "spread": _fin(c.spread),
-            "group_theta": list(c.group_theta), "tire_shift": _fin(t.tire_shift),
+            "group_theta": list(c.group_theta), "offset_per_record_m": list(c.offsets),
+            "tire_shift": _fin(t.tire_shift),
             "heldout_equation_gain": _fin(t.heldout_gain)}
 
 

@@ -9,10 +9,13 @@ repeats (:mod:`nifo_core.loop`). Writes, atomically, to DIR:
 
 - ``loop.json``          declared model, ranked candidates of each round, effects added
                          (kind and parameters as in the library), errors before/after, verdict;
-- ``model.json``         the refined model as fitted by the loop (the one whose held-out prediction
-                         it reports), with its linear counterpart: ``nifo predict --model DIR/model.json``
-                         takes it directly; absent, with the reason in loop.json and on screen, when no
-                         predictive model could be made (e.g. a non-physical one-mass fit);
+- ``model.json``         the loop's final model with its linear counterpart: ``nifo predict --model
+                         DIR/model.json`` takes it directly. The equation-error fit on the fit parts,
+                         refined by output error (:mod:`nifo_core.refine`, ``--no-refine``: not) when the
+                         refined model's held-out prediction NMSE is not worse; loop.json's
+                         ``refinement`` holds both fits' parameters and held-out NMSE and says which was
+                         written. Absent, with the reason in loop.json and on screen, when no predictive
+                         model could be made (e.g. a non-physical one-mass fit);
 - ``refined_model.yaml`` the declared model plus the added effects (``nifo identify`` reads it);
 - ``loop_errors.png``    held-out NMSE and per-band residual before and after each round;
 - ``loop_roundN.png``    the residual against the added effect's variable, before and after.
@@ -47,7 +50,11 @@ significant (F-test with effective degrees of freedom), explains at least
 2 % of what is left (also on alternate held-out blocks), has a stable
 coefficient across the files (levels) or the quarters of one record, lowers
 the held-out error, and survives the tire check. Stops when nothing
-significant is missing, or after --max-rounds.
+significant is missing, or after --max-rounds. Then the final model is
+refined by output error (every fit part simulated from its measured input,
+the prediction error minimised over the coefficients, gaps/knees and the
+body's k, c) and model.json holds the refined model when its held-out
+prediction is not worse (--no-refine: the equation-error fit).
 
 Example:
   nifo loop road_1mm.mcap road_2.5mm.mcap --model declared.yaml --out loop/ --m2 300"""
@@ -75,6 +82,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="model that predicts the held-out body acceleration (default: the equation-error fit)")
     g.add_argument("--no-retune", action="store_true",
                    help="keep the declared terms' parameters as given (default: re-tune them to the data)")
+    g.add_argument("--no-refine", action="store_true",
+                   help="write the equation-error fit (default: refine the final model by output error on the fit "
+                        "parts and keep it when its held-out prediction is not worse)")
+    g.add_argument("--refine-seconds", type=float, default=60.0, metavar="S",
+                   help="leading seconds of each fit part the refinement simulates (default 60)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -92,7 +104,8 @@ def run(args: argparse.Namespace) -> int:
                                                      ("window", fileset.get("window"))) if v is not None})
     settings = LoopSettings(max_rounds=args.max_rounds, fit_fraction=args.fit_fraction, kinds=kinds,
                             grid_points=args.grid, spectral=spectral, prediction=args.prediction,
-                            retune=not args.no_retune, thresholds=Thresholds())
+                            retune=not args.no_retune, refine=not args.no_refine,
+                            refine_seconds=args.refine_seconds, thresholds=Thresholds())
     with Progress(1.0, "loop") as prog:
         last = [0.0]
 
