@@ -209,7 +209,8 @@ def _run(args: argparse.Namespace, data: list[Path], out: Path) -> int:
     if do_loop:
         t = begin("loop: search the residual for what the model lacks, error before and after")
         try:
-            _call("loop", [*map(str, ordered), "--model", str(model), "--out", str(dirs["loop"])], args)
+            _call("loop", [*map(str, ordered), "--model", str(model), "--out", str(dirs["loop"]),
+                           *([] if refine else ["--no-refine"])], args)
             results.append(dirs["loop"])
         except NifoError as err:   # the report still shows everything else; the exit code says it failed
             print(f"nifo run: loop failed: {err}", file=sys.stderr)
