@@ -81,6 +81,10 @@ def score(y: np.ndarray, yhat: np.ndarray, fs_hz: float) -> float:
     return band_nmse(y, yhat, fs_hz, band_hz=ANALYSIS, period_samples=PERIOD, skip_samples=PERIOD)
 
 
+def _levels(row: dict) -> str:
+    return " ".join(f"L{lv} {row['nmse'].get(lv, float('nan')):7.3f}" for lv in LEVELS)
+
+
 def predict_levels(model, full: dict, row: dict) -> None:
     """Predict every level from rest; its score into ``row['nmse']``, or why not into ``row['errors']``."""
     for lv in LEVELS:
@@ -144,9 +148,8 @@ def study(data: Path, out: Path | None, *, sets: dict, forms: dict, linear_parts
                     predict_levels(model, full, row)
                     row["seconds"] = time.perf_counter() - t0
                     rows.append(row)
-                    log(f"{set_name:14} {lp_name:11} {form_name:28} {source:6} " + " ".join(
-                        f"L{lv} {row['nmse'].get(lv, float('nan')):7.3f}" for lv in LEVELS)
-                        + f"   [{model.linear.kind} {model.linear.order}] {row['seconds']:.0f}s")
+                    log(f"{set_name:14} {lp_name:11} {form_name:28} {source:6} {_levels(row)}"
+                        f"   [{model.linear.kind} {model.linear.order}] {row['seconds']:.0f}s")
                     if partial is not None:
                         partial.write_text(json.dumps({"rows": rows}, indent=1, default=str))
                     if refine_periods and spec:
@@ -159,9 +162,8 @@ def study(data: Path, out: Path | None, *, sets: dict, forms: dict, linear_parts
                         predict_levels(ref.model, full, rrow)
                         rrow["seconds"] = time.perf_counter() - t0
                         rows.append(rrow)
-                        log(f"{set_name:14} {lp_name:11} {form_name:28} {'refined':6} " + " ".join(
-                            f"L{lv} {rrow['nmse'].get(lv, float('nan')):7.3f}" for lv in LEVELS)
-                            + f"   [from the {ref.start} start] {rrow['seconds']:.0f}s")
+                        log(f"{set_name:14} {lp_name:11} {form_name:28} {'refined':6} {_levels(rrow)}"
+                            f"   [from the {ref.start} start] {rrow['seconds']:.0f}s")
                         if out is not None:
                             write_model(Path(row["model_json"]).with_name("model_refined.json"), ref.model)
     return rows
