@@ -310,7 +310,7 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
         unavailable = f"no predictive model: {err}"
     if model is not None and terms and s.refine and s.prediction != "none":  # it simulates: not with prediction off
         say(0.98, "output-error refinement")
-        refinement, model = _refine_final(ev, model, linear, m2_kg, say)
+        refinement, model = _refine_final(ev, model, linear, m2_kg, say, current)
     say(1.0, "done")
     return LoopResult(declared=tuple(make_term(t) for t in declared), terms=tuple(terms), rounds=tuple(rounds),
                       initial=initial, final=current, verdict=verdict, band=band, m2_kg=m2_kg, settings=s,
@@ -322,12 +322,13 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
 
 
 def _refine_final(ev: _Evaluator, model: IdentifiedModel, linear: IdentifiedModel | None, m2_kg: float | None,
-                  say: Callable[[float, str], None]) -> tuple[LoopRefinement, IdentifiedModel]:
+                  say: Callable[[float, str], None], final: Errors) -> tuple[LoopRefinement, IdentifiedModel]:
     """Output-error refinement of the loop's final model on the fit parts, scored on the held-out parts.
 
     :func:`~nifo_core.refine.refine_model` on the first ``refine_seconds`` of every fit part (the
     equation-error fit and, where it does not already beat it, the linear model as starts); both
-    models' held-out prediction NMSE on the loop's one metric. Returns the record of it and the model
+    models' held-out prediction NMSE on the loop's one metric (the equation-error model's from ``final``,
+    the last round's errors of the same terms). Returns the record of it and the model
     the loop keeps: the refined one unless its held-out prediction is worse (or cannot be made).
     """
     s = ev.settings
@@ -339,7 +340,9 @@ def _refine_final(ev: _Evaluator, model: IdentifiedModel, linear: IdentifiedMode
                                                                      f"start ({n} simulations)"))
     except NifoError as err:
         return LoopRefinement(False, None, None, seconds=secs, unavailable=str(err)), model
-    (b, bper), (a, aper) = _heldout(ev, model), _heldout(ev, ref.model)
+    # the equation-error model's held-out prediction is the final round's (``final``, same model): not re-run
+    b, bper = final.prediction_nmse_pct, tuple(final.prediction_nmse_per_record_pct)
+    a, aper = _heldout(ev, ref.model)
     kept = a is not None and (b is None or a <= b)
     out = LoopRefinement(kept, b, a, bper, aper, tuple(_compare(model, ref.model, m2_kg, ref.parameters)), secs,
                          ref.to_dict())

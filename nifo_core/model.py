@@ -53,7 +53,7 @@ from .spectral import SpectralSettings, coherence, cross_spectra, h1
 from .timesim import simulate_response
 
 __all__ = ["BodyModel", "LinearPart", "IdentifiedModel", "Prediction", "PredictedTransmissibility",
-           "PredictionDivergedError", "fit_body_model", "predict_body", "predict_transmissibility"]
+           "PredictionDivergedError", "fit_body_model", "predict_body", "predict_transmissibility", "record_inputs"]
 
 Method = Literal["parametric", "nonparametric"]
 Engine = Literal["time", "frequency"]
@@ -337,6 +337,15 @@ def _external(model: IdentifiedModel, linear: LinearPart, a1, force, fs_hz: floa
                               channel="force", hint="identify the model with the measured force")
         v -= model.force_gain * force
     return v
+
+
+def record_inputs(record, model: IdentifiedModel) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """What drives ``model`` in ``record``: (spindle acceleration, or None for a fixed spindle;
+    the measured force, or None when the record has none or the model no force input)."""
+    a1 = None if getattr(record, "spindle_fixed", False) else np.asarray(record.spindle_accel, float)
+    f = getattr(record, "force", None)
+    force = np.asarray(f, float) if f is not None and model.force_gain > 0 else None
+    return a1, force
 
 
 def _check_input(x, name: str, n: int | None) -> np.ndarray | None:

@@ -48,6 +48,7 @@ given; whether it predicts *other* levels better is measured, not assumed
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, replace
 from typing import Callable, Mapping, Sequence
 
@@ -57,7 +58,7 @@ import scipy.optimize
 from .describing import KINDS, Term
 from .errors import ConfigError, IllConditionedError, InputError
 from .linear_part import BodyModel, absorbed_rates
-from .model import IdentifiedModel, PredictionDivergedError, predict_body
+from .model import IdentifiedModel, PredictionDivergedError, predict_body, record_inputs
 from .prediction_error import band_spectra
 from .record import Record
 
@@ -115,6 +116,13 @@ class _Space:
     body: bool                        # refine k, c of a one-mass body
     track_absorbed: bool = False      # absorbed = absorbed_rates(terms, γ) as γ moves (bounded feedback)
 
+    @functools.cached_property
+    def hz(self) -> np.ndarray:
+        """(1 - T21)/ω² on the model's lines: B_i = γ_i·hz (paper Eq. 8 with constant coefficients)."""
+        w = 2 * np.pi * self.base.freq_hz
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return (1 - self.base.t21) / np.where(w > 0, w, np.nan) ** 2
+
     @property
     def size(self) -> int:
         return self.gamma_scale.size + len(self.shape_idx) + (2 if self.body else 0)
@@ -128,16 +136,15 @@ class _Space:
         hi = np.concatenate([np.full(nt, np.inf), np.full(ns, np.log(_SHAPE_RANGE)), np.full(2 if self.body else 0, 2.0)])
         return lo, hi
 
-    def names(self) -> list[tuple[str, str, float]]:
-        """(name, unit, value at θ = x0-independent start) for every entry of θ (values from ``base``)."""
-        out = [(f"c/M2 of {t.kind}", f"{KINDS[t.kind].coef_unit}/kg", 0.0) for t in self.base.terms]
+    def names(self) -> list[tuple[str, str]]:
+        """(name, unit) of every reported value (:func:`_values`)."""
+        out = [(f"c/M2 of {t.kind}", f"{KINDS[t.kind].coef_unit}/kg") for t in self.base.terms]
         for i in self.shape_idx:
             t = self.base.terms[i]
             key = KINDS[t.kind].key_param
-            out.append((f"{t.kind}.{key}", KINDS[t.kind].params[key][1], float(t.params[key])))
+            out.append((f"{t.kind}.{key}", KINDS[t.kind].params[key][1]))
         if self.body:
-            b = self.base.body
-            out += [("k = K2/M2 (nominal body)", "1/s²", b.k), ("c = C2/M2 (nominal body)", "1/s", b.c)]
+            out += [("k = K2/M2 (nominal body)", "1/s²"), ("c = C2/M2 (nominal body)", "1/s")]
         return out
 
     def model(self, x: np.ndarray) -> IdentifiedModel:
@@ -159,18 +166,8 @@ class _Space:
         if lin.kind == "body":        # the nominal body: the realised one without the absorbed strut part
             bm, (ka, ca) = lin.body, lin.absorbed
             body = BodyModel(bm.k - ka, bm.c - ca, bm.k3, bm.fit_rms)
-        w = 2 * np.pi * m.freq_hz
-        with np.errstate(divide="ignore", invalid="ignore"):
-            hz = (1 - m.t21) / np.where(w > 0, w, np.nan) ** 2
-        b = gam[:, None] * hz[None, :]
+        b = gam[:, None] * self.hz[None, :]
         return replace(m, terms=tuple(terms), c_over_m2=gam, b=b, linear=lin, body=body)
-
-
-def _inputs(rec: Record, model: IdentifiedModel):
-    a1 = None if getattr(rec, "spindle_fixed", False) else np.asarray(rec.spindle_accel, float)
-    f = getattr(rec, "force", None)
-    force = np.asarray(f, float) if f is not None and model.force_gain > 0 else None
-    return a1, force
 
 
 def model_nmse(model: IdentifiedModel, records: Sequence[Record], *, band_hz: tuple[float, float],
@@ -202,7 +199,7 @@ def _skips(skip_samples, n: int) -> list[int]:
 
 def _residual(model, rec, band_hz, period_samples, skip, oversample) -> np.ndarray:
     """(Ŷ - Y)/‖Y‖ on the band's lines (complex)."""
-    a1, force = _inputs(rec, model)
+    a1, force = record_inputs(rec, model)
     p = predict_body(model, a1, rec.fs_hz, force=force, oversample=oversample, label=rec.source)
     y, yh = band_spectra(rec.body_accel, p.body_accel, rec.fs_hz, band_hz=band_hz, period_samples=period_samples,
                          skip_samples=skip)
@@ -296,63 +293,62 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
                                     skip_samples=s)[0].size, 1.0) for r, s in zip(records, skips)]
     penalty = [np.sqrt(_DIVERGED / p.size) * p for p in penalty]
     sizes = np.cumsum([p.size for p in penalty])[:-1]
-    diverged: set = set()
+    diverged: dict[bytes, set] = {}     # per evaluated θ: the records whose simulation diverged
 
-    def per_record(out: np.ndarray) -> list[float]:
-        """Band NMSE [%] per record from a residual vector (inf where the simulation diverged)."""
+    def evaluate(name: str, sp: _Space, x: np.ndarray) -> np.ndarray:
+        """Residual vector (real, imaginary) of every record at θ = x; a diverged record gets its penalty."""
+        nonlocal n_eval
+        n_eval += 1
+        m = sp.model(x)
+        parts, bad = [], set()
+        for k, (rec, skip, pen) in enumerate(zip(records, skips, penalty)):
+            try:
+                parts.append(_residual(m, rec, band, period_samples, skip, oversample))
+            except PredictionDivergedError:
+                bad.add(k)
+                parts.append(pen.astype(complex))
+        diverged[np.asarray(x, float).tobytes()] = bad
+        r = np.concatenate(parts)
+        out = np.concatenate([r.real, r.imag])
+        if progress is not None:
+            progress(name, n_eval, float(np.sum(out ** 2)))
+        return out
+
+    def per_record(x: np.ndarray, out: np.ndarray) -> list[float]:
+        """Band NMSE [%] per record from the residual vector at θ = x (inf where the simulation diverged)."""
+        bad = diverged.get(np.asarray(x, float).tobytes(), set())
         r = out[:out.size // 2] + 1j * out[out.size // 2:]
-        return [float("inf") if k in diverged else float(100 * np.sum(np.abs(part) ** 2))
+        return [float("inf") if k in bad else float(100 * np.sum(np.abs(part) ** 2))
                 for k, part in enumerate(np.split(r, sizes))]
 
-    def run(name: str, sp: _Space):
-        nonlocal n_eval
-
-        def fun(x):
-            nonlocal n_eval
-            n_eval += 1
-            m = sp.model(x)
-            parts = []
-            diverged.clear()
-            for k, (rec, skip, pen) in enumerate(zip(records, skips, penalty)):
-                try:
-                    parts.append(_residual(m, rec, band, period_samples, skip, oversample))
-                except PredictionDivergedError:
-                    diverged.add(k)
-                    parts.append(pen.astype(complex))
-            r = np.concatenate(parts)
-            out = np.concatenate([r.real, r.imag])
-            if progress is not None:
-                progress(name, n_eval, float(np.sum(out ** 2)))
-            return out
-
-        x0 = sp.x0(np.asarray(sp.base.c_over_m2, float))
-        r0 = fun(x0)
-        before[name] = per_record(r0)
+    def run(name: str, sp: _Space, x0: np.ndarray, r0: np.ndarray):
+        """Refine from θ = x0 (residual r0 there): (θ, space, solution, NMSE per record), None if x0 diverges."""
+        before[name] = per_record(x0, r0)
         if not np.all(np.isfinite(before[name])):
             return None
         lo, hi = sp.bounds()
-        sol = scipy.optimize.least_squares(fun, x0, bounds=(lo, hi), method="trf", diff_step=1e-3,
-                                           x_scale=1.0, max_nfev=max_iterations * (sp.size + 1), f_scale=1.0)
+        sol = scipy.optimize.least_squares(lambda x: evaluate(name, sp, x), x0, bounds=(lo, hi), method="trf",
+                                           diff_step=1e-3, x_scale=1.0, max_nfev=max_iterations * (sp.size + 1),
+                                           f_scale=1.0)
         if sol.cost <= 0.5 * float(np.sum(r0 ** 2)):
-            fun(sol.x)                      # sets the divergence flags of the solution
-            return sol.x, sp, sol, per_record(sol.fun)
+            return sol.x, sp, sol, per_record(sol.x, sol.fun)
         return x0, sp, sol, before[name]
 
     results, before = {}, {}
-    results["nifo"] = run("nifo", starts["nifo"])
+    nifo = starts["nifo"]
+    x_nifo = nifo.x0(np.asarray(model.c_over_m2, float))
+    results["nifo"] = run("nifo", nifo, x_nifo, evaluate("nifo", nifo, x_nifo))
     if "linear" in starts:
         # the linear start (terms at zero) guarantees "no worse than the linear model on these records";
         # it is only needed when the refined NIFO model is not already better than the linear one
         lin0 = starts["linear"]
-        x0 = lin0.x0(np.zeros(len(model.terms)))
+        x_lin = lin0.x0(np.zeros(len(model.terms)))
+        r_lin = evaluate("linear", lin0, x_lin)
         nifo_sum = float(np.sum(results["nifo"][3])) if results["nifo"] is not None else np.inf
-        r_lin = model_nmse(lin0.model(x0), records, band_hz=band, period_samples=period_samples,
-                           skip_samples=skips, oversample=oversample)
-        n_eval += 1
-        if both_starts or nifo_sum > float(np.sum(r_lin)):
-            results["linear"] = run("linear", lin0)
+        if both_starts or nifo_sum > float(np.sum(per_record(x_lin, r_lin))):
+            results["linear"] = run("linear", lin0, x_lin, r_lin)
         else:
-            before["linear"] = r_lin
+            before["linear"] = per_record(x_lin, r_lin)
     ok = {k: v for k, v in results.items() if v is not None}
     if not ok:
         raise IllConditionedError("the model cannot be simulated on these records from any start "
@@ -364,7 +360,7 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
     refined = sp.model(x)
     hw = _half_widths(sp, x, sol) if x is sol.x else [None] * len(sp.names())
     params = [{"name": n, "unit": u, "before": float(v0), "after": float(v1), "half_width_95": h}
-              for (n, u, _), v0, v1, h in zip(sp.names(), _values(sp, sp.x0(np.asarray(sp.base.c_over_m2, float))),
+              for (n, u), v0, v1, h in zip(sp.names(), _values(sp, sp.x0(np.asarray(sp.base.c_over_m2, float))),
                                               _values(sp, x), hw)]
     msg = (f"output-error refinement from the {best} start: mean band NMSE "
            f"{np.mean(before[best]):.4g} % → {np.mean(finals[best]):.4g} % on {len(records)} record(s) "

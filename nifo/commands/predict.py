@@ -98,9 +98,9 @@ def _interp(f_new: np.ndarray, f: np.ndarray, h: np.ndarray) -> np.ndarray:
 
 def _drive(record, model) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray, str]:
     """(spindle acceleration or None, force or None, the signal the transmissibility is taken from, its name)."""
-    a1 = None if getattr(record, "spindle_fixed", False) else np.asarray(record.spindle_accel)
-    f = getattr(record, "force", None)
-    force = np.asarray(f) if f is not None and model.force_gain > 0 else None
+    from nifo_core.model import record_inputs
+
+    a1, force = record_inputs(record, model)
     if a1 is None:
         return a1, force, force, "force"
     return a1, force, a1, "spindle"
