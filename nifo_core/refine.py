@@ -62,7 +62,7 @@ from .model import IdentifiedModel, PredictionDivergedError, predict_body, recor
 from .prediction_error import band_spectra
 from .record import Record
 
-__all__ = ["Refinement", "refine_model", "model_nmse"]
+__all__ = ["Refinement", "refine_model", "model_nmse", "parameter_space"]
 
 #: relative error a diverged simulation counts as (per record; 1 = predicting zero)
 _DIVERGED = 10.0
@@ -358,7 +358,8 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
     best = min(finals, key=lambda k: float(np.sum(finals[k])))
     x, sp, sol, _ = ok[best]
     refined = sp.model(x)
-    hw = _half_widths(sp, x, sol) if x is sol.x else [None] * len(sp.names())
+    cov = _covariance(sol) if x is sol.x else None
+    hw = _half_widths(sp, x, cov)
     params = [{"name": n, "unit": u, "before": float(v0), "after": float(v1), "half_width_95": h}
               for (n, u), v0, v1, h in zip(sp.names(), _values(sp, sp.x0(np.asarray(sp.base.c_over_m2, float))),
                                               _values(sp, x), hw)]
@@ -369,24 +370,29 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
         "method": "output-error (simulation-error) least squares, nifo_core.refine", "start": best,
         "band_hz": list(band), "period_samples": period_samples, "skip_samples": skips,
         "nmse_before_pct": {k: v for k, v in before.items()}, "nmse_pct": finals[best],
-        "records": [r.source for r in records], "parameters": params}}
+        "records": [r.source for r in records], "parameters": params,
+        "covariance": _stored_covariance(sp, x, cov)}}
     refined = replace(refined, provenance=prov)
     return Refinement(model=refined, start=best, nmse_before=before, nmse=finals[best], parameters=params,
                       evaluations=n_eval, message=msg, labels=[r.source for r in records])
 
 
-def _half_widths(sp: _Space, x: np.ndarray, sol) -> list[float | None]:
-    """95 % half-widths of the reported values from the Gauss-Newton covariance at the solution.
-
-    cov(θ) = s²·(JᵀJ)⁻¹, s² = Σr²/(m - p) (asymptotic output-error covariance, Ljung 1999 §9.3),
-    carried to the reported values by their derivatives in θ. Random error only, under the
-    assumption that the residual lines are independent: model error is not in it.
-    """
+def _covariance(sol) -> np.ndarray | None:
+    """cov(θ) = s²·(JᵀJ)⁻¹, s² = Σr²/(m - p) at the solution (asymptotic output-error covariance,
+    Ljung 1999 §9.3). Random error only, under the assumption that the residual lines are independent:
+    model error is not in it. None when there are no more residual lines than parameters."""
     jac, r = np.asarray(sol.jac, float), np.asarray(sol.fun, float)
     m, p = jac.shape
     if m <= p:
+        return None
+    return float(r @ r) / (m - p) * np.linalg.pinv(jac.T @ jac)
+
+
+def _half_widths(sp: _Space, x: np.ndarray, cov: np.ndarray | None) -> list[float | None]:
+    """95 % half-widths of the reported values (:func:`_values`), cov(θ) carried by their derivatives in θ."""
+    if cov is None:
         return [None] * len(sp.names())
-    cov = float(r @ r) / (m - p) * np.linalg.pinv(jac.T @ jac)
+    p = x.size
     v0 = np.asarray(_values(sp, x))
     d = np.zeros((v0.size, p))
     for j in range(p):
@@ -396,6 +402,44 @@ def _half_widths(sp: _Space, x: np.ndarray, sol) -> list[float | None]:
         d[:, j] = (np.asarray(_values(sp, xx)) - v0) / step
     var = np.einsum("ij,jk,ik->i", d, cov, d)
     return [float(1.96 * np.sqrt(v)) if np.isfinite(v) and v >= 0 else None for v in var]
+
+
+def _stored_covariance(sp: _Space, x: np.ndarray, cov: np.ndarray | None) -> dict | None:
+    """cov(θ) in coordinates of the refined model itself (what :func:`parameter_space` rebuilds).
+
+    θ' = (γ_i/γ_i*, log of each refined key parameter's factor, log k, log c of a one-mass body): the
+    coefficients relative to their refined values (1 where a value is 0), the rest log offsets, which
+    carry over unchanged.
+    """
+    if cov is None:
+        return None
+    nt = sp.gamma_scale.size
+    gam = x[:nt] * sp.gamma_scale
+    scale = np.where(gam != 0, gam, 1.0)
+    d = np.concatenate([sp.gamma_scale / scale, np.ones(x.size - nt)])
+    return {"coordinates": "coefficients relative to the refined ones, then log factors of the key parameters "
+                           "and of a one-mass body's k and c",
+            "shape_terms": list(sp.shape_idx), "body": bool(sp.body), "track_absorbed": bool(sp.track_absorbed),
+            "matrix": (d[:, None] * cov * d[None, :]).tolist()}
+
+
+def parameter_space(model: IdentifiedModel) -> tuple[Callable[[np.ndarray], IdentifiedModel], np.ndarray,
+                                                        np.ndarray] | None:
+    """(θ' → model, θ'* of ``model`` itself, cov(θ')) from a refined model's stored covariance, or None.
+
+    For propagating the refinement's parameter uncertainty to predictions
+    (:mod:`nifo_core.prediction_bounds`): ``to_model(theta_star)`` is ``model``.
+    """
+    c = (model.provenance.get("refined") or {}).get("covariance")
+    if not c:
+        return None
+    gam = np.asarray(model.c_over_m2, float)
+    scale = np.where(gam != 0, gam, 1.0)
+    sp = _Space(model, scale, tuple(int(i) for i in c["shape_terms"]), bool(c["body"]), bool(c["track_absorbed"]))
+    cov = np.asarray(c["matrix"], float)
+    if cov.shape != (sp.size, sp.size) or not np.all(np.isfinite(cov)):
+        return None
+    return sp.model, sp.x0(gam), cov
 
 
 def _values(sp: _Space, x: np.ndarray) -> list[float]:

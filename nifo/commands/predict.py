@@ -159,12 +159,49 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
     }
     arrays = {"f": f, "t_meas": t_meas, "t_model": t_model, "t_linear": t_lin, "mask": mask,
               "a2": a2, "a2_model": pm.body_accel, "a2_linear": pl.body_accel, "valid": valid, "fs": fs}
+    out["model"]["parameter_bounds"], eps = _parameter_bounds(
+        model, lambda m: predict_body(m, a1, fs, force=force, method=method, label=str(path)).body_accel,
+        a2=a2, drive=drive, valid=valid, t_model=t_model, fs=fs, band_hz=band_hz, period_samples=period_samples,
+        skip=int(period_samples) if period_samples else valid.start, settings=model.settings)
+    if eps is not None:
+        arrays["t_model_eps"] = eps
     tp = truth_for(path)
     if tp is not None and drive_name == "spindle":
         out["truth"] = _truth_comparison(tp, model, f, t_meas, mask)
         if out["truth"].get("t21") is not None:
             arrays["t_true"] = _from_cplx(out["truth"].pop("t21"))
     return out, arrays
+
+
+def _parameter_bounds(model, simulate, *, a2, drive, valid, t_model, fs, band_hz, period_samples, skip,
+                      settings) -> tuple[dict, np.ndarray | None]:
+    """The prediction's 95 % bounds from the model's parameter covariance (:mod:`nifo_core.prediction_bounds`):
+    (JSON-able numbers or why there are none, the transmissibility's ε per line for the plot's band)."""
+    from nifo_core.prediction_bounds import Z95, half_width, line_spread, prediction_spread
+    from nifo_core.prediction_error import band_nmse, band_spectra
+    from nifo_core.spectral import cross_spectra, h1
+
+    spread = prediction_spread(model, simulate)
+    if not spread.available:
+        return {"available": False, "reason": spread.unavailable}, None
+    kw = {"band_hz": tuple(band_hz), "period_samples": period_samples, "skip_samples": skip}
+    try:
+        nm = [[band_nmse(a2, y, fs, **kw) for y in ys] for ys in (spread.plus, spread.minus)]
+        y_meas = band_spectra(a2, a2, fs, **kw)[0]
+        yl = [[band_spectra(a2, y, fs, **kw)[1] for y in ys] for ys in (spread.plus, spread.minus)]
+    except (InputError, ConfigError) as err:
+        return {"available": False, "reason": err.message}, None
+    sig_y = line_spread(*yl)
+    tk = [[h1(cross_spectra(np.stack([drive[valid], y[valid]]), fs, settings), 0, 1) for y in ys]
+          for ys in (spread.plus, spread.minus)]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        eps = Z95 * line_spread(*tk) / (2 * np.abs(t_model))   # the plot's band is |T|(1 ∓ 2ε)
+    return {"available": True, "level": 0.95, "n_parameters": spread.n_parameters,
+            "simulations": 2 * len(spread.plus),
+            "band_nmse_half_width_pct": half_width(nm[0], nm[1]),
+            "parameter_share_of_band_nmse_pct": float(100 * np.sum(sig_y ** 2) / np.sum(np.abs(y_meas) ** 2)),
+            "how": "refinement's parameter covariance carried by symmetric sigma points (random error of the "
+                   "parameters only, not model-class error)"}, eps
 
 
 def _from_cplx(d) -> np.ndarray:
@@ -196,8 +233,11 @@ def _figures(out: Path, name: str, arr: dict, band_hz, model, *, system: dict | 
     from nifo.plots.nifo import plot_time_excerpt, plot_transmissibility
 
     f = arr["f"]
+    model_style = {"color": "C3", "lw": 1.3, "ls": "--"}
+    if "t_model_eps" in arr:
+        model_style.update(random_error=arr["t_model_eps"], band_label="95 % bound (model parameters)")
     curves = [("measured H1", f, arr["t_meas"], {"color": "k", "lw": 1.2}),
-              ("predicted, identified model", f, arr["t_model"], {"color": "C3", "lw": 1.3, "ls": "--"}),
+              ("predicted, identified model", f, arr["t_model"], model_style),
               ("predicted, linear model (plain H1 at id. level)", f, arr["t_linear"], {"color": "C0", "lw": 1.0,
                                                                                        "ls": ":"})]
     if "t_true" in arr:
@@ -294,8 +334,10 @@ def _summary(results: list[dict], band, out: Path) -> str:
     for r in results:
         m, li = r["model"], r["linear"]
         bm, bl = (x["band_nmse"]["percent"] for x in (m, li))
+        pb = m.get("parameter_bounds") or {}
+        pm_txt = f" ± {pb['band_nmse_half_width_pct']:.2g}" if pb.get("available") else ""
         band_txt = ("not computed: " + m["band_nmse"].get("not_computed", "") if bm is None
-                    else f"{bm:.3f}% | {bl:.3f}%")
+                    else f"{bm:.3f}%{pm_txt} | {bl:.3f}%")
         lines.append(f"{r['name'][:24]:<24} {m['nmse_percent']:10.2f}% {li['nmse_percent']:11.2f}%   {band_txt}   "
                      f"{_pct(m['transmissibility_error']['median'])} / {_pct(m['transmissibility_error']['max'])}"
                      f" | {_pct(li['transmissibility_error']['median'])} / {_pct(li['transmissibility_error']['max'])}")

@@ -66,13 +66,14 @@ def plot_transmissibility(path: str | Path, curves: Sequence[Curve], *, band_hz:
     for label, f, h, style in curves:
         style = dict(style)
         eps = style.pop("random_error", None)
+        band_label = style.pop("band_label", "95 % bound (random error)")
         m = _view(f, band_hz)
         line, = ax.loglog(f[m], np.abs(h[m]), label=label, **style)
         if eps is not None:   # about 95 %: |H|(1 ∓ 2ε), phase ± 2ε rad (Bendat & Piersol)
             e = 2 * np.asarray(eps, float)[m]
             mag = np.abs(h[m])
             ax.fill_between(f[m], mag * np.where(e < 1, 1 - e, np.nan), mag * (1 + e), color=line.get_color(), alpha=0.22,
-                            lw=0, label="95 % bound (random error)")
+                            lw=0, label=band_label)
         if phase:
             ph = np.degrees(np.angle(h[m]))
             axes[1, 0].semilogx(f[m], ph, **style)

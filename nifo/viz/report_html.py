@@ -272,8 +272,14 @@ def _predict(r: ResultDir) -> tuple[dict, list]:
         nm = _num(m.get("nmse_percent"), ".2f") + " %"
         better = (m.get("nmse_percent") is not None and li.get("nmse_percent") is not None
                   and m["nmse_percent"] < li["nmse_percent"])
+        bm, bl = (x.get("band_nmse") or {} for x in (m, li))
+        pb = m.get("parameter_bounds") or {}
+        band = _num(bm.get("percent"), ".3g") + " %" if bm.get("percent") is not None else "not computed"
+        if pb.get("available") and bm.get("percent") is not None:
+            band += f" ± {_num(pb.get('band_nmse_half_width_pct'), '.2g')}"
         rows.append([rec.get("name"), Markup('<span class="good">{}</span>').format(nm) if better else nm,
-                     _num(li.get("nmse_percent"), ".2f") + " %",
+                     _num(li.get("nmse_percent"), ".2f") + " %", band,
+                     _num(bl.get("percent"), ".3g") + " %" if bl.get("percent") is not None else "not computed",
                      _pct((m.get("transmissibility_error") or {}).get("median")),
                      _pct((li.get("transmissibility_error") or {}).get("median")),
                      _pct(((rec.get("truth") or {}).get("model_nominal_t21_vs_true") or {}).get("median"))])
