@@ -47,7 +47,7 @@ def test_t21_bounds_hold_the_truth_in_90_to_98_percent_of_lines_on_a_linear_stru
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason="measured 89.5 % of lines (half-width 13 %): the per-line bounds hold the "
+@pytest.mark.xfail(strict=True, reason="measured 89.5 % of lines (half-width 13 %): the per-line bounds hold the "
                    "random error only; the knee's describing function sees noise through z (bias, paper §2.2)")
 def test_t21_bounds_coverage_with_a_damper_knee_is_measured():
     cov, half = _coverage((StrutForce(Term("velocity_deadzone", {"knee": 0.03}), -700.0),),
