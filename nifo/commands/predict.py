@@ -42,6 +42,7 @@ import numpy as np
 from nifo.io.atomic import check_output, staged_dir
 from nifo.io.loader import add_input_arguments, input_options
 from nifo.io.provenance import add_system_argument, input_provenance, system_of
+from nifo.io.truth import truth_for
 from nifo_core.errors import ConfigError, InputError
 
 HELP = "predict the body response of other data with an identified model and compare with the measurement"
@@ -64,19 +65,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-plots", action="store_true", help="write predict.json only")
     add_input_arguments(p)
     add_system_argument(p)
-
-
-def truth_for(path: Path) -> Path | None:
-    """The simulator's truth file beside ``path`` (``<name>.truth.json``), if any."""
-    p = Path(path)
-    cand = p.with_name(p.name + ".truth.json")
-    if cand.is_file():
-        return cand
-    if p.suffix:  # also road.truth.json beside road.mcap
-        cand = p.with_name(p.stem + ".truth.json")
-        if cand.is_file():
-            return cand
-    return None
 
 
 def _nmse(y: np.ndarray, yhat: np.ndarray) -> float:

@@ -86,7 +86,7 @@ def true_t21(path, freq_hz):
     import json
     from pathlib import Path
 
-    from nifo.commands.predict import truth_for
+    from .truth import truth_for
     from nifo_core.vehicle import QuarterCar
 
     tp = truth_for(Path(path))
@@ -104,7 +104,7 @@ def true_strut_model(path):
     import json
     from pathlib import Path
 
-    from nifo.commands.predict import truth_for
+    from .truth import truth_for
     from nifo_core.characterize import FittedModel
     from nifo_core.describing import make_term
 
