@@ -18,7 +18,8 @@ from .errors import ConfigError, IllConditionedError
 from .integrate import IntegrationBand
 from .nifo_result import (A1, A2, DEFAULT_ANALYSIS_BAND_HZ, DEFAULT_COND_LIMIT, FORCE, ILL_FRACTION, XB, FixedTerms,
                           IllConditionedWarning, InputMeasured, NifoResult, OnIll, StaticFit)
-from .spectral import CrossSpectra, MimoFit, coherence, h1, mimo_fit
+from .spectral import CrossSpectra
+from .frf import MimoFit, coherence, h1, mimo_fit
 
 __all__ = ["nifo_from_spectra"]
 
@@ -167,7 +168,7 @@ def nifo_from_spectra(spec: CrossSpectra, terms: Sequence[Term], *, band: Integr
         Also solve paper Eq. 10's first row (the last channel is xb).
     spindle_noise_psd : float, optional
         White noise floor of the spindle accelerometer [(m/s²)²/Hz] (a
-        datasheet, a record at rest, or :func:`spectral.white_noise_floor` in a
+        datasheet, a record at rest, or :func:`frf.white_noise_floor` in a
         band without signal). Subtracted from the input auto-spectrum of the
         constant-coefficient (``static``) T21, a single-input H1, to remove the
         bias 1/(1 + N/S) that input noise causes where the spindle signal is

@@ -79,7 +79,7 @@ class InputMeasured:
         Plain H1 of xb→x1 at the test level (the equivalent linearisation).
     coherence_h1, multiple_coherence, cond : ndarray, shape (nf,)
     random_error : ndarray, shape (1 + n_terms, nf)
-        Normalized random error of |T1b|, |E_i| (see :class:`nifo_core.spectral.MimoFit`).
+        Normalized random error of |T1b|, |E_i| (see :class:`nifo_core.frf.MimoFit`).
     t1b_nominal : ndarray, complex, shape (nf,)
         Nominal T1b from the mass-sum equation and the output-only nominal T21
         (see ``_input_measured``): the strut nonlinearity cancels there, so

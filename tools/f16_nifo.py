@@ -52,7 +52,8 @@ from nifo_core.describing import make_term  # noqa: E402
 from nifo_core.integrate import IntegrationBand, integrator_taps  # noqa: E402
 from nifo_core.nifo import identify_nifo  # noqa: E402
 from nifo_core.record import Record  # noqa: E402
-from nifo_core.spectral import SpectralSettings, cross_spectra, h1  # noqa: E402
+from nifo_core.frf import h1  # noqa: E402
+from nifo_core.spectral import SpectralSettings, cross_spectra  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "f16"
 PERIOD = 8192

@@ -159,7 +159,7 @@ def accumulate(paths: list[Path], terms, cfg: dict, *, opts: dict, chunk_samples
     from nifo.io.results import data_entry
     from nifo_core.integrate import default_band
     from nifo_core.nifo import StreamingNifo
-    from nifo_core.spectral import h1
+    from nifo_core.frf import h1
 
     iters, firsts = [], []
     for p in paths:
@@ -391,7 +391,7 @@ def _two_step(args, spec, cfg, opts):
     from nifo.io.loader import load_records
     from nifo.io.results import data_entry
     from nifo_core.nifo import identify_two_step
-    from nifo_core.spectral import h1
+    from nifo_core.frf import h1
 
     if len(spec.steps) != 2:
         raise ConfigError(f"the model file has {len(spec.steps)} steps; two-step identification takes exactly 2",
