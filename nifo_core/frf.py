@@ -165,6 +165,10 @@ def mimo_fit(spec: CrossSpectra, inputs: Sequence[Channel], output: Channel, *,
     gnn = np.maximum(gyy - explained, 0.0)
     diag_inv = np.einsum("fii->fi", ainv).real * s**2                              # [G_UU⁻¹]_ii
     dof = max(spec.n_avg - q, 1)
+    # partial coherence from the same solve: G_ii·rest = 1/[G_UU⁻¹]_ii and G_yy·rest = G_nn + |H_i|²·G_ii·rest
+    # (Bendat & Piersol, conditioned spectra), so γ²_iy·rest = |H_i|²/(|H_i|² + G_nn·[G_UU⁻¹]_ii)
+    h2 = np.abs(h) ** 2
+    pc = _safe_div(h2, h2 + gnn[:, None] * diag_inv)
     if input_noise_psd is not None:       # corrected solution; diagnostics stay those of the measured spectra
         if len(input_noise_psd) != q:
             raise InputError(f"{len(input_noise_psd)} input noise PSDs for {q} inputs")
@@ -176,7 +180,7 @@ def mimo_fit(spec: CrossSpectra, inputs: Sequence[Channel], output: Channel, *,
         h = _solve(guu, guy)[0]
     with np.errstate(divide="ignore", invalid="ignore"):
         err = np.sqrt(gnn[:, None] * diag_inv / (2 * dof)) / np.abs(h)
-    return MimoFit(h=h.T.copy(), multiple_coherence=gamma, partial_coherence=partial_coherence(spec, iy, iu),
+    return MimoFit(h=h.T.copy(), multiple_coherence=gamma, partial_coherence=pc.T.copy(),
                    cond=cond, random_error=err.T.copy(), residual_psd=gnn, n_avg=spec.n_avg)
 
 

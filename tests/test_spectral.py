@@ -65,6 +65,21 @@ def test_two_input_system_is_recovered_with_unit_multiple_coherence():
     assert np.median(condition_number(spec, [0, 1])) < 1.2   # independent inputs
 
 
+def test_mimo_fit_partial_coherence_equals_the_inverse_matrix_formula():
+    # mimo_fit takes it from its own solve (conditioned spectra); partial_coherence from the inverse of the
+    # full [inputs, output] matrix: two routes, one answer, on correlated inputs and a noisy output
+    rng = np.random.default_rng(7)
+    u = _noise(3, 40000, 5)
+    u[1] += 0.8 * u[0]
+    u[2] += 0.5 * signal.lfilter(*signal.butter(2, 0.1), u[1])
+    y = u[0] - 0.7 * u[1] + signal.lfilter(*signal.butter(2, 0.3), u[2]) + 0.6 * rng.standard_normal(40000)
+    spec = cross_spectra(np.stack([*u, y]), FS, SpectralSettings(block=512, window="hann"))
+    fit = mimo_fit(spec, [0, 1, 2], 3)
+    ref = partial_coherence(spec, 3, [0, 1, 2])
+    assert 0.05 < np.median(ref) < 0.95
+    np.testing.assert_allclose(fit.partial_coherence, ref, rtol=1e-8, atol=1e-12)
+
+
 def test_noise_on_the_output_lowers_coherence_and_random_error_tracks_it():
     rng = np.random.default_rng(4)
     x = rng.standard_normal(60000)
