@@ -191,8 +191,8 @@ def _solve(guu: np.ndarray, guy: np.ndarray):
     u, sv, vh = np.linalg.svd(a)
     keep = sv > 1e-13 * sv[:, :1]
     inv = np.where(keep, 1.0 / np.where(keep, sv, 1), 0.0)
-    ainv = np.einsum("fji,fj,fkj->fik", vh.conj(), inv, u.conj(), optimize=True)   # A⁺ (Hermitian)
-    h = np.einsum("fik,fk->fi", ainv, guy * s) * s                                # G_UU⁻¹·G_Uy
+    ainv = (np.swapaxes(vh, 1, 2).conj() * inv[:, None, :]) @ np.swapaxes(u, 1, 2).conj()   # A⁺ = V·Σ⁺·Uᴴ
+    h = (ainv @ (guy * s)[:, :, None])[:, :, 0] * s                                     # G_UU⁻¹·G_Uy
     with np.errstate(divide="ignore", invalid="ignore"):
         cond = np.where(sv[:, -1] > 0, sv[:, 0] / sv[:, -1], np.inf)
     return h, ainv, s, cond
