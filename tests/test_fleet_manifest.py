@@ -98,7 +98,7 @@ def test_cache_round_trip_is_atomic_and_a_torn_entry_reads_as_absent(tmp_path):
     assert load_partial(tmp_path, key) is None
 
 
-def test_a_hermitian_stack_is_stored_as_its_upper_triangles_and_read_back_bit_for_bit(tmp_path):
+def test_a_hermitian_stack_is_stored_as_its_upper_triangles_small_arrays_as_json_all_read_back_bit_for_bit(tmp_path):
     import numpy as np
 
     rng = np.random.default_rng(1)
@@ -107,9 +107,13 @@ def test_a_hermitian_stack_is_stored_as_its_upper_triangles_and_read_back_bit_fo
     g = (g + np.conj(np.swapaxes(g, 1, 2))) / 2
     skew = g.copy()
     skew[0, 0, 1] += 1e-3                               # not Hermitian: stored whole
-    store_partial(tmp_path, "cd" + "1" * 38, {"acc.sum": g, "other": skew, "n": np.array(3)}, {})
+    small = {"n": np.array(3), "fs": np.array(600.0 / 7), "names": np.array(["spindle", "body"]),
+             "tail": np.zeros((4, 0)), "play": np.array([1e-300, -0.1])}
+    store_partial(tmp_path, "cd" + "1" * 38, {"acc.sum": g, "other": skew, **small}, {})
     with np.load(tmp_path / "cd" / ("cd" + "1" * 38 + ".npz")) as z:
-        assert sorted(z.files) == ["__info__", "state.n", "state.other", "triu.4.acc.sum"]
+        assert sorted(z.files) == ["__info__", "__small__", "state.other", "triu.4.acc.sum"]
         assert z["triu.4.acc.sum"].shape == (7, 10)
     got = load_partial(tmp_path, "cd" + "1" * 38)["state"]
-    assert np.array_equal(got["acc.sum"], g) and np.array_equal(got["other"], skew) and got["n"] == 3
+    assert np.array_equal(got["acc.sum"], g) and np.array_equal(got["other"], skew)
+    for k, v in small.items():      # small arrays: value, dtype and shape exactly
+        assert got[k].dtype == v.dtype and got[k].shape == v.shape and np.array_equal(got[k], v), k
