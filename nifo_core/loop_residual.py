@@ -28,8 +28,8 @@ from .model import BodyModel, IdentifiedModel, predict_transmissibility
 from .nifo import identify_nifo
 from .record import Record
 from .restoring import RestoringForce, bandpass, bandpass_settle_samples, restoring_force
-from .spectral import auto_spectrum, cross_spectra
 from .frf import h1, partial_coherence
+from .spectral import auto_spectrum, cross_spectra
 
 @dataclass(frozen=True)
 class _Part:

@@ -49,8 +49,8 @@ from .integrate import IntegrationBand, integrate
 from .linear_part import BodyModel, LinearPart, absorbed_rates, fit_body_model, select_linear_part
 from .nifo import NifoResult
 from .nifo_result import _cplx, _ro, _uncplx  # one home for the JSON forms of complex arrays
-from .spectral import SpectralSettings, cross_spectra
 from .frf import coherence, h1
+from .spectral import SpectralSettings, cross_spectra
 from .timesim import simulate_response
 
 __all__ = ["BodyModel", "LinearPart", "IdentifiedModel", "Prediction", "PredictedTransmissibility",

@@ -18,8 +18,8 @@ from .errors import ConfigError, IllConditionedError
 from .integrate import IntegrationBand
 from .nifo_result import (A1, A2, DEFAULT_ANALYSIS_BAND_HZ, DEFAULT_COND_LIMIT, FORCE, ILL_FRACTION, XB, FixedTerms,
                           IllConditionedWarning, InputMeasured, NifoResult, OnIll, StaticFit)
-from .spectral import CrossSpectra
 from .frf import MimoFit, coherence, h1, mimo_fit
+from .spectral import CrossSpectra
 
 __all__ = ["nifo_from_spectra"]
 

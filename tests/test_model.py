@@ -13,8 +13,8 @@ from nifo_core.model import (BodyModel, IdentifiedModel, PredictionDivergedError
                              predict_transmissibility)
 from nifo_core.nifo import identify_nifo
 from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, preset, simulate
-from nifo_core.spectral import SpectralSettings, cross_spectra
 from nifo_core.frf import white_noise_floor
+from nifo_core.spectral import SpectralSettings, cross_spectra
 from nifo_core.vehicle import QuarterCar
 
 FS = 600.0

@@ -23,8 +23,8 @@ from nifo_core.integrate import IntegrationBand
 from nifo_core.nifo import (IllConditionedWarning, NifoResult, StreamingNifo, identify_nifo, identify_two_step)
 from nifo_core.record import Record
 from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, preset, simulate
-from nifo_core.spectral import SpectralSettings, cross_spectra
 from nifo_core.frf import white_noise_floor
+from nifo_core.spectral import SpectralSettings, cross_spectra
 
 FS = 600.0
 DZ = Term("velocity_deadzone", {"knee": 0.03})

@@ -6,9 +6,9 @@ from hypothesis import given, settings, strategies as st
 from scipy import signal
 
 from nifo_core.errors import ConfigError, InputError, RecordTooShortError
-from nifo_core.spectral import CrossSpectralAccumulator, SpectralSettings, auto_spectrum, cross_spectra
 from nifo_core.frf import (coherence, condition_number, h1, h2, mimo_fit, mimo_h1, multiple_coherence,
                             partial_coherence, white_noise_floor)
+from nifo_core.spectral import CrossSpectralAccumulator, SpectralSettings, auto_spectrum, cross_spectra
 
 FS = 600.0
 SMALL = SpectralSettings(block=256, overlap=0.5, window="hann")

@@ -112,8 +112,8 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
                 period_samples: int | None = None) -> tuple[dict, dict]:
     """Numbers (JSON-able) and arrays (for the figures) for one record."""
     from nifo_core.model import predict_body
-    from nifo_core.spectral import cross_spectra
     from nifo_core.frf import coherence, h1
+    from nifo_core.spectral import cross_spectra
 
     fs = record.fs_hz
     if abs(fs - model.fs_hz) > 1e-3 * model.fs_hz:
@@ -168,8 +168,8 @@ def _parameter_bounds(model, simulate, *, a2, drive, valid, t_model, fs, band_hz
     (JSON-able numbers or why there are none, the transmissibility's ε per line for the plot's band)."""
     from nifo_core.prediction_bounds import Z95, half_width, line_spread, prediction_spread
     from nifo_core.prediction_error import band_nmse, band_spectra
-    from nifo_core.spectral import cross_spectra
     from nifo_core.frf import h1
+    from nifo_core.spectral import cross_spectra
 
     spread = prediction_spread(model, simulate)
     if not spread.available:
