@@ -18,7 +18,7 @@ from .spectral import CrossSpectra, Channel
 
 __all__ = [
     "h1", "h2", "coherence", "mimo_h1", "multiple_coherence", "partial_coherence", "condition_number",
-    "MimoFit", "mimo_fit", "white_noise_floor",
+    "MimoFit", "mimo_fit", "white_noise_floor", "bound_factor",
 ]
 
 
@@ -196,6 +196,27 @@ def _solve(guu: np.ndarray, guy: np.ndarray):
     with np.errstate(divide="ignore", invalid="ignore"):
         cond = np.where(sv[:, -1] > 0, sv[:, 0] / sv[:, -1], np.inf)
     return h, ainv, s, cond
+
+
+def bound_factor(n_avg: int, n_inputs: int, *, level: float = 0.95) -> float:
+    """Coverage factor k of the random-error bounds |H|·(1 ∓ k·ε), phase ± k·ε rad, at ``level`` (two-sided).
+
+    ε (:func:`mimo_fit`, Bendat & Piersol) is the standard deviation of |Ĥ|/|H|
+    estimated from the residual of ``n_avg`` blocks with ``n_inputs`` fitted
+    inputs: 2·(n_avg - n_inputs) real degrees of freedom. With few blocks the
+    normal quantile (1.96) under-covers, so k is Student's t quantile with
+    those degrees of freedom (2.31 at 5 blocks and one input, 2.03 at 20, →
+    1.96). Measured over 20 seeds of 60-s records (5 blocks;
+    ``tests/test_bounds_coverage.py``): k = 2 held the true |T21| in 91.2 % of
+    lines (linear strut) and 89.5 % (with a damper knee, two inputs); this k
+    in 94.4 % and 94.2 %.
+    """
+    from scipy.stats import t as student_t
+
+    if not 0 < level < 1:
+        raise ConfigError(f"bound level={level!r} must lie between 0 and 1", hint="e.g. 0.95")
+    dof = 2 * max(int(n_avg) - int(n_inputs), 1)
+    return float(student_t.ppf(0.5 + level / 2, dof))
 
 
 def white_noise_floor(spec: CrossSpectra, channel: Channel, band_hz: tuple[float, float]) -> float:

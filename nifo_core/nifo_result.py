@@ -16,6 +16,7 @@ import numpy as np
 
 from .describing import Term, make_term
 from .errors import ConfigError, InputError
+from .frf import bound_factor
 from .integrate import IntegrationBand
 from .spectral import SpectralSettings
 
@@ -239,7 +240,8 @@ class NifoResult:
         Condition number of the unit-diagonal-scaled G_UU per line.
     random_error : ndarray, shape (1 + n_terms, nf)
         Normalized random error ε of |T21|, |B_i| of the free fit (Bendat &
-        Piersol; ~95 % bounds |H|·(1 ± 2ε), phase ± 2ε rad). Random error only:
+        Piersol; 95 % bounds |H|·(1 ± k·ε), phase ± k·ε rad, k =
+        :meth:`bound_factor`: Student t, ≈ 2 for 20 blocks). Random error only:
         the bias from noise entering the describing functions through z (paper
         §2.2) and from window leakage is not in it. NaN for fixed terms. See
         :meth:`bounds`.
@@ -334,9 +336,21 @@ class NifoResult:
                 return i
         raise InputError(f"no term {term!r} in this result", hint=f"terms are {[t.label for t in self.terms]}")
 
-    def bounds(self, which: Literal["t21"] | Term | str | int = "t21", *, k: float = 2.0
+    def inputs_fitted(self, *, static: bool = False) -> int:
+        """Inputs of the per-line fit that gave ``random_error`` (``static``: of the static fit's)."""
+        n = int(not self.spindle_fixed) + int(self.t2f is not None)
+        return n if static else n + sum(not f for f in self.fixed)
+
+    def bound_factor(self, *, static: bool = False, level: float = 0.95) -> float:
+        """k of the ``level`` bounds |H|·(1 ∓ k·ε) (:func:`nifo_core.frf.bound_factor`: Student t, this fit's
+        degrees of freedom)."""
+        return bound_factor(self.n_avg, self.inputs_fitted(static=static), level=level)
+
+    def bounds(self, which: Literal["t21"] | Term | str | int = "t21", *, k: float | None = None
                ) -> tuple[np.ndarray, np.ndarray]:
-        """Magnitude bounds |H|·(1 ∓ k·ε) of T21 or of B_i (k = 2: about 95 %)."""
+        """Magnitude bounds |H|·(1 ∓ k·ε) of T21 or of B_i of the free fit (k: :meth:`bound_factor`, 95 %)."""
+        if k is None:
+            k = self.bound_factor()
         if isinstance(which, str) and which == "t21":
             h, e = self.t21, self.random_error[0]
         else:

@@ -2,10 +2,12 @@
 
 20 seeds of a quarter car (60 s at 600 Hz, 2 % sensor noise, paper Table 2
 spectra), identified by output-only NIFO; over the lines of 2-30 Hz of all
-seeds, the band |T21|·(1 ± 2ε) must hold the true linear |T21| in 90-98 % of
-lines (issue 13). The bounds carry the random error only; a strut whose
-describing function sees noise through z (paper §2.2) may add bias: that case
-is measured and printed beside the linear one.
+seeds, the band |T21|·(1 ± k·ε) must hold the true linear |T21| in 90-98 % of
+lines (issue 13), k the Student-t factor of the fit's degrees of freedom
+(:func:`nifo_core.frf.bound_factor`; 60 s give 5 blocks, where k = 2 held only
+91.2 % and 89.5 %). The bounds carry the random error only; a strut whose
+describing function sees noise through z (paper §2.2) may add bias: the knee
+case measures it.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ def _coverage(strut, terms) -> tuple[float, float]:
         lo, hi = res.bounds("t21")
         truth = np.abs(sim.truth.t21(res.freq_hz))
         ok = (truth >= lo) & (truth <= hi)
+        assert res.bound_factor() > 2.0      # 60 s: few blocks, a wider factor than the normal quantile
         inside += int(ok[m].sum())
         total += int(m.sum())
         widths.append(float(np.median((hi - lo)[m] / (2 * np.abs(res.t21[m])))))
@@ -47,9 +50,7 @@ def test_t21_bounds_hold_the_truth_in_90_to_98_percent_of_lines_on_a_linear_stru
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="measured 89.5 % of lines (half-width 13 %): the per-line bounds hold the "
-                   "random error only; the knee's describing function sees noise through z (bias, paper §2.2)")
-def test_t21_bounds_coverage_with_a_damper_knee_is_measured():
+def test_t21_bounds_hold_the_truth_in_90_to_98_percent_of_lines_with_a_damper_knee():
     cov, half = _coverage((StrutForce(Term("velocity_deadzone", {"knee": 0.03}), -700.0),),
                           [Term("velocity_deadzone", {"knee": 0.03})])
     print(f"damper knee: 95 % bounds hold the true nominal |T21| in {100 * cov:.1f} % of lines "

@@ -6,7 +6,7 @@ from hypothesis import given, settings, strategies as st
 from scipy import signal
 
 from nifo_core.errors import ConfigError, InputError, RecordTooShortError
-from nifo_core.frf import (coherence, condition_number, h1, h2, mimo_fit, mimo_h1, multiple_coherence,
+from nifo_core.frf import (bound_factor, coherence, condition_number, h1, h2, mimo_fit, mimo_h1, multiple_coherence,
                             partial_coherence, white_noise_floor)
 from nifo_core.spectral import CrossSpectralAccumulator, SpectralSettings, auto_spectrum, cross_spectra
 
@@ -236,3 +236,14 @@ def test_wrong_channel_count_and_non_finite_samples_are_input_errors():
     bad[0, 3] = np.nan
     with pytest.raises(InputError, match="NaN"):
         acc.push(bad)
+
+
+def test_bound_factor_is_students_t_of_the_fits_degrees_of_freedom():
+    """k of the 95 % random-error bounds: t quantile of 2(n_avg - inputs) real dof, never below the normal one."""
+    assert bound_factor(5, 1) == pytest.approx(2.306, abs=1e-3)      # t(0.975, 8)
+    assert bound_factor(5, 2) == pytest.approx(2.447, abs=1e-3)      # t(0.975, 6)
+    assert bound_factor(20, 1) > bound_factor(40, 1) > bound_factor(4000, 1) > 1.959
+    assert bound_factor(4000, 1) == pytest.approx(1.960, abs=1e-3)
+    assert bound_factor(1, 3) > 4      # fewer blocks than inputs: one dof, very wide, never undefined
+    with pytest.raises(ConfigError, match="level"):
+        bound_factor(5, 1, level=1.0)

@@ -366,9 +366,11 @@ def write_figures(out: Path, res, per_file, cond_limit: float, *, paths=(), syst
     sides = ("spindle → body" if (system or {}).get("vehicle", True) else "input → output")
     if res.terms:
         curves.append(("NIFO nominal T21, per line (Eq. 9)", f, res.t21, {"color": "C0", "lw": 0.8, "ls": ":",
-                                                                          "random_error": res.random_error[0]}))
+                                                                          "random_error": res.random_error[0],
+                                                                          "bound_k": res.bound_factor()}))
         curves.append(("NIFO nominal T21, pooled (recommended), 95 % band", f, res.static.t21,
-                       {"color": "C3", "lw": 1.6, "ls": "--", "random_error": res.static.random_error}))
+                       {"color": "C3", "lw": 1.6, "ls": "--", "random_error": res.static.random_error,
+                        "bound_k": res.bound_factor(static=True)}))
     plot_transmissibility(out / "transmissibility.png", curves, band_hz=res.analysis_band_hz,
                           title=f"{sides} transmissibility: measured and NIFO nominal linear (cf. Fig. 9b/12b)")
     names = ["transmissibility.png"]

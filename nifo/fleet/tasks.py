@@ -394,6 +394,7 @@ def merge_outcomes(*inputs: dict, part: tuple | None = None) -> dict:
 def _t21_at(res, freqs_hz) -> dict:
     st = res.static
     f = res.freq_hz
+    k = res.bound_factor(static=True)
     out = {}
     for fq in freqs_hz:
         i = int(np.argmin(np.abs(f - fq)))
@@ -401,8 +402,8 @@ def _t21_at(res, freqs_hz) -> dict:
         eps = float(st.random_error[i])
         key = f"t21_{fq:g}hz"
         out[f"{key}_mag"] = mag
-        out[f"{key}_mag_lo"] = mag * max(1 - 2 * eps, 0.0)
-        out[f"{key}_mag_hi"] = mag * (1 + 2 * eps)
+        out[f"{key}_mag_lo"] = mag * max(1 - k * eps, 0.0)
+        out[f"{key}_mag_hi"] = mag * (1 + k * eps)
         out[f"{key}_phase_deg"] = float(np.degrees(np.angle(st.t21[i])))
         out[f"{key}_line_hz"] = float(f[i])
     return out

@@ -131,7 +131,8 @@ def data_entry(path: str | os.PathLike, record: Record | None = None, *, fs_hz: 
 def identify_document(result: NifoResult, *, data: Any, summary: Mapping, warnings: list[str],
                       settings: Mapping, model_file: Mapping, figures: list[str]) -> dict:
     """The ``identify.json`` document (see the module docstring)."""
-    lo, hi = result.bounds("t21")
+    k_free, k_static = result.bound_factor(), result.bound_factor(static=True)
+    lo, hi = result.bounds("t21", k=k_free)
     st = result.static
     eps = np.asarray(st.random_error)
     mag = np.abs(st.t21)
@@ -139,9 +140,11 @@ def identify_document(result: NifoResult, *, data: Any, summary: Mapping, warnin
         "nifo_identify": 1, "nifo_version": __version__,
         "model_file": dict(model_file), "data": data, "settings": dict(settings),
         "summary": dict(summary), "warnings": list(warnings), "figures": list(figures),
-        "bounds": {"note": "about 95 % random-error bounds |T|(1 -/+ 2 eps); random error only",
-                   "t21_free": {"lower": lo, "upper": hi},
-                   "t21_static": {"lower": mag * np.maximum(1 - 2 * eps, 0), "upper": mag * (1 + 2 * eps)}},
+        "bounds": {"note": "95 % random-error bounds |T|(1 -/+ k eps), k the Student-t quantile of the fit's "
+                           "2(n_avg - inputs) degrees of freedom; random error only",
+                   "t21_free": {"lower": lo, "upper": hi, "k": k_free},
+                   "t21_static": {"lower": mag * np.maximum(1 - k_static * eps, 0), "upper": mag * (1 + k_static * eps),
+                                  "k": k_static}},
         "result": result.to_dict(),
     }
 

@@ -57,7 +57,9 @@ def plot_transmissibility(path: str | Path, curves: Sequence[Curve], *, band_hz:
     """Magnitude (log-log) and optionally phase of complex transmissibilities.
 
     A curve whose style holds ``random_error`` (the normalized random error ε per line, same shape
-    as its values) is drawn with its about-95 % band shaded: |H|·(1 ∓ 2ε) and phase ± 2ε rad.
+    as its values) is drawn with its 95 % band shaded: |H|·(1 ∓ k·ε) and phase ± k·ε rad, k the
+    style's ``bound_k`` (the fit's Student-t factor, :meth:`~nifo_core.nifo.NifoResult.bound_factor`;
+    1.96 when not given: ε of many degrees of freedom).
     """
     plt = pyplot()
     fig, axes = plt.subplots(2 if phase else 1, 1, figsize=(7.5, 6.2 if phase else 4.2), sharex=True,
@@ -67,10 +69,11 @@ def plot_transmissibility(path: str | Path, curves: Sequence[Curve], *, band_hz:
         style = dict(style)
         eps = style.pop("random_error", None)
         band_label = style.pop("band_label", "95 % bound (random error)")
+        k = float(style.pop("bound_k", 1.96))
         m = _view(f, band_hz)
         line, = ax.loglog(f[m], np.abs(h[m]), label=label, **style)
-        if eps is not None:   # about 95 %: |H|(1 ∓ 2ε), phase ± 2ε rad (Bendat & Piersol)
-            e = 2 * np.asarray(eps, float)[m]
+        if eps is not None:   # 95 %: |H|(1 ∓ kε), phase ± kε rad (Bendat & Piersol)
+            e = k * np.asarray(eps, float)[m]
             mag = np.abs(h[m])
             ax.fill_between(f[m], mag * np.where(e < 1, 1 - e, np.nan), mag * (1 + e), color=line.get_color(), alpha=0.22,
                             lw=0, label=band_label)
@@ -122,7 +125,7 @@ def plot_coefficients(path: str | Path, result: NifoResult, *, title: str = "") 
             if not result.fixed[i]:
                 mu = result.mu_over_k2[i][m]
                 ax.semilogx(f[m], part(mu), color="C0", lw=1.0, label="per line (Eq. 9)")
-                hw = 2 * np.abs(mu) * _mu_error(result, i)[m]
+                hw = result.bound_factor() * np.abs(mu) * _mu_error(result, i)[m]
                 ax.fill_between(f[m], part(mu) - hw, part(mu) + hw, color="C0", alpha=0.2, lw=0,
                                 label="95 % bound per line (random error)")
             ax.semilogx(f[m], part(result.static.mu_over_k2[i][m]), color="C3", lw=1.4, ls="--",

@@ -471,7 +471,8 @@ def levels_figure(results: Sequence[ResultDir], out_png: Path) -> Path | None:
     curves.sort(key=lambda c: c[0])
     st = res.static if res.static is not None else res
     curves.append(("NIFO nominal linear T21 (pooled)", res.freq_hz, st.t21,
-                   {"color": "C3", "lw": 1.8, "ls": "--", "random_error": st.random_error}))
+                   {"color": "C3", "lw": 1.8, "ls": "--", "random_error": st.random_error,
+                    "bound_k": res.bound_factor(static=res.static is not None)}))
     if truth is not None:
         curves.append(("true nominal linear T21 (simulator)", truth[0], truth[1],
                        {"color": "k", "lw": 0.9, "ls": ":"}))
