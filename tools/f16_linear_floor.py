@@ -15,7 +15,11 @@ periods 2-… (first period dropped).
    rational part of 3/5/7 fitted to the relative T21 error (the library's default) or
    to the prediction error (weights Σ_r |A1_r|²/‖A2_r‖², Hz from the same weighted
    per-line least squares), both of order 30, scored line by line.
-4. **No term lowers level 7's error** (``--grid``): the linear model of 3/5/7 plus one
+4. **The line-to-line structure is the nonlinear distortion, not a linear feature**: each
+   level's own per-line H applied to every level, and a rational model of order 30 fitted
+   to each level alone (scored on that level): smooth and mutually predictive at levels 1
+   and 3, rough from level 5.
+5. **No term lowers level 7's error** (``--grid``): the linear model of 3/5/7 plus one
    term at a grid of coefficients, its linear part kept as the realised one (the term adds
    only its bounded remainder, as ``nifo_core.refine``'s linear start does); the ratio of
    each level's NMSE to the linear model's. Four periods per level (one transient).
@@ -111,6 +115,29 @@ def weighting(data: Path) -> dict:
     return out
 
 
+def distortion(data: Path) -> dict:
+    """Per level: NMSE of every level predicted with this level's per-line H, and of an order-30 rational fit to
+    this level's H alone (on this level), and the share of the 7-8 Hz lines in its error at the other levels."""
+    full = {lv: F.load(lv, data, skip=0) for lv in F.LEVELS}
+    f = np.fft.rfftfreq(F.PERIOD, 1 / 400.0)
+    band = (f >= F.ANALYSIS[0]) & (f <= F.ANALYSIS[1])
+    spec = {lv: (_spectrum(r.spindle_accel), _spectrum(r.body_accel)) for lv, r in full.items()}
+
+    def nmse(t, lv, m=band):
+        a1, a2 = spec[lv]
+        return float(100 * np.sum(np.abs(a2[m] - t[m] * a1[m]) ** 2) / np.sum(np.abs(a2[band]) ** 2))
+    out = {}
+    for ref in F.LEVELS:
+        h = spec[ref][1] / np.where(spec[ref][0] != 0, spec[ref][0], 1)
+        t = np.zeros(f.size, complex)
+        t[band] = fit_rational(f[band], h[band], band_hz=F.ANALYSIS, order=30).t21(f[band])
+        torsion = band & (f >= 7.0) & (f < 8.0)
+        out[ref] = {"per_line": {lv: nmse(h, lv) for lv in F.LEVELS}, "rational_30_own": nmse(t, ref),
+                    "share_7_8_hz": {lv: nmse(h, lv, torsion) / max(nmse(h, lv), 1e-300) for lv in F.LEVELS
+                                     if lv != ref}}
+    return out
+
+
 def grid(data: Path, log=print) -> list[dict]:
     """Level ratios (term / linear) for the linear model of 3/5/7 plus one term (module docstring, 3)."""
     ident = {lv: F.load(lv, data, skip=1) for lv in (3, 5, 7)}
@@ -153,6 +180,11 @@ def main(argv: list[str] | None = None) -> int:
     print("linear part of 3/5/7 (order 30) fitted to:")
     for name, v in weighting(args.data).items():
         print(f"  {name:30} " + " ".join(f"L{lv} {x:.3f}" for lv, x in v.items()))
+    print("each level's own per-line H applied to every level | an order-30 rational fit to it, on its level:")
+    for ref, r in distortion(args.data).items():
+        print(f"  H of L{ref}: " + " ".join(f"L{lv} {v:.3f}" for lv, v in r["per_line"].items())
+              + f" | {r['rational_30_own']:.3f}   (7-8 Hz share of the error elsewhere: "
+              + ", ".join(f"L{lv} {100 * v:.0f} %" for lv, v in r["share_7_8_hz"].items()) + ")")
     if args.grid:
         print("one term added to the linear model of 3/5/7 (ratio of NMSE to the linear model's; < 1 is better):")
         grid(args.data)
