@@ -69,6 +69,14 @@ FORMS = {
     "backlash 0.14 mm + friction": [{"kind": "backlash", "params": {"deadband": 1.4e-4}},
                                     {"kind": "coulomb", "params": {"eps": 1e-3}}],
 }
+#: softening forms (``--extra``): the modes soften with level (docs/f16.md)
+EXTRA = {
+    "saturation 0.05 mm": [{"kind": "saturation", "params": {"limit": 5e-5}}],
+    "saturation 0.14 mm": [{"kind": "saturation", "params": {"limit": 1.4e-4}}],
+    "velocity saturation 1 mm/s": [{"kind": "velocity_saturation", "params": {"limit": 1e-3}}],
+    "backlash 0.14 mm + vel. saturation": [{"kind": "backlash", "params": {"deadband": 1.4e-4}},
+                                           {"kind": "velocity_saturation", "params": {"limit": 1e-3}}],
+}
 
 
 def load(level: int, data: Path, *, skip: int) -> "object":
@@ -196,6 +204,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="3/5/7 only, backlash and clearance 0.02 mm, auto linear part")
     ap.add_argument("--free", action="store_true", help="also per-line (free) coefficients")
     ap.add_argument("--all", action="store_true", help="also backlash + friction")
+    ap.add_argument("--extra", action="store_true", help="the softening forms instead (saturation, velocity "
+                    "saturation, backlash + velocity saturation)")
     ap.add_argument("--order", type=int, default=None, help="a rational linear part of this order for every model")
     ap.add_argument("--refine", type=int, default=0, metavar="PERIODS",
                     help="also refine every nonlinear model (output error) on this many periods of its levels")
@@ -211,6 +221,8 @@ def main(argv: list[str] | None = None) -> int:
         lps = {f"rational {args.order}": args.order}
     if not args.all:
         forms = {k: v for k, v in forms.items() if k != "backlash 0.14 mm + friction"}
+    if args.extra:
+        forms = EXTRA
     rows = study(args.data, args.out, sets=sets, forms=forms, linear_parts=lps, sources=sources,
                  partial=args.json, refine_periods=args.refine)
     ver = verdicts(rows)
