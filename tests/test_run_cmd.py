@@ -184,3 +184,28 @@ def test_the_main_job_model_gets_the_play_the_knee_and_the_body_within_10_percen
     assert params["backlash"]["deadband"] == pytest.approx(strut["backlash"]["params"]["deadband"], rel=0.1)
     assert model.body.k * v["m2"] == pytest.approx(v["k2"], rel=0.05)
     assert model.body.c * v["m2"] == pytest.approx(v["c2"], rel=0.05)
+
+
+@pytest.mark.slow
+def test_on_the_sample_1_and_2p5_mm_records_alone_the_loop_finds_the_play_or_names_what_would_separate_it(tmp_path):
+    """Issue 13: where nearly all motion is beyond the knee the play and the knee share a sign(ż) part; on the 1 +
+    2.5 mm records alone (knee declared) the loop must never say plainly that nothing is missing: it adds the play
+    and says how well these levels determine it and which record would pin it down."""
+    from nifo.commands.run import SAMPLE_DIR
+
+    model = tmp_path / "knee.yaml"
+    model.write_text("nifo_model: 1\nnonlinearities:\n  - kind: velocity_deadzone\n    params: {knee: 0.03}\n")
+    out = tmp_path / "loop"
+    code = main(["loop", str(SAMPLE_DIR / "road_1mm"), str(SAMPLE_DIR / "road_2p5mm"), "--model", str(model),
+                 "--out", str(out), "--m2", "300", "-q"])
+    assert code == 0
+    doc = json.loads((out / "loop.json").read_text())
+    _, strut = _sample_truth()
+    added = {e["kind"]: e for e in doc["effects_added"]}
+    print(f"\nsample 1 + 2.5 mm, knee declared: added {[e['label'] for e in doc['effects_added']]}; "
+          f"{doc['verdict']}")
+    assert set(added) == {"backlash"} and not doc["nothing_missing"]
+    assert added["backlash"]["params"]["deadband"] == pytest.approx(strut["backlash"]["params"]["deadband"], rel=0.1)
+    assert added["backlash"]["coefficient"] == pytest.approx(strut["backlash"]["coefficient"], rel=0.1)
+    told = [u for u in doc["undetermined"] if u["term"]["kind"] == "backlash"]
+    assert told and "add a record at" in told[0]["text"] and "add a record at" in doc["verdict"]
