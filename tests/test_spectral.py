@@ -247,3 +247,27 @@ def test_bound_factor_is_students_t_of_the_fits_degrees_of_freedom():
     assert bound_factor(1, 3) > 4      # fewer blocks than inputs: one dof, very wide, never undefined
     with pytest.raises(ConfigError, match="level"):
         bound_factor(5, 1, level=1.0)
+
+
+def test_two_input_solve_in_closed_form_equals_the_eigendecomposition_on_full_singular_and_zero_lines():
+    from nifo_core import frf
+
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(300, 2, 8)) + 1j * rng.normal(size=(300, 2, 8))
+    x[100:200, 1] = x[100:200, 0] * (0.3 - 0.2j)                  # rank one: the minimum-norm answer
+    g = x @ np.swapaxes(x, 1, 2).conj()
+    g[200:210] = 0.0
+    g[210:220] = np.diag([2.0, 2.0])                               # equal eigenvalues
+    y = rng.normal(size=(300, 2)) + 1j * rng.normal(size=(300, 2))
+    s = frf._diag_scale(g)
+    a = g * s[:, :, None] * s[:, None, :]
+    lam, proj = frf._eig2(a)
+    lam_ref, v = np.linalg.eigh(a)
+    np.testing.assert_allclose(lam, lam_ref, atol=1e-12)
+    np.testing.assert_allclose(np.einsum("fk,fkij->fij", lam, proj), a, atol=1e-12)
+    h, ainv, _, cond = frf._solve(g, y)
+    keep = np.abs(lam_ref) > 1e-13 * np.abs(lam_ref).max(axis=1, keepdims=True)
+    inv = np.where(keep, 1 / np.where(keep, lam_ref, 1), 0)
+    ref = (v * inv[:, None, :]) @ np.swapaxes(v, 1, 2).conj()
+    np.testing.assert_allclose(ainv, ref, atol=1e-10)
+    assert np.all(np.isinf(cond[100:210]) | (cond[100:210] > 1e13)) and np.all(cond[210:220] == 1.0)
