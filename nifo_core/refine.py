@@ -24,7 +24,9 @@ as much as a high one. θ holds
   scale, within ¼-4× of its start) unless ``shape=False``,
 - for a one-mass body, its realised stiffness and damping per unit mass (log
   scale; reported as the nominal body's, the terms' absorbed linear part taken
-  out); a rational linear part is kept as fitted.
+  out); a rational linear part is kept as fitted, or (``linear_residues``)
+  its residues are refined too, its poles kept: the linear part identified
+  jointly with the terms.
 
 Two starting points: the NIFO model itself, and — when a linear model
 identified on the same data is given — that linear model with the terms added
@@ -115,6 +117,23 @@ class _Space:
     shape_idx: tuple[int, ...]        # terms whose key parameter is refined
     body: bool                        # refine k, c of a one-mass body
     track_absorbed: bool = False      # absorbed = absorbed_rates(terms, γ) as γ moves (bounded feedback)
+    residues: bool = False            # refine a rational linear part's residues (poles kept)
+
+    @functools.cached_property
+    def _pairs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(upper members of the conjugate pairs, their partners, real poles, |r| of the upper ones: the scale)."""
+        if not self.residues:
+            return (np.zeros(0, int),) * 3 + (np.zeros(0),)
+        p, r = self.base.linear.poles, self.base.linear.residues
+        up = np.flatnonzero(p.imag > 0)
+        lo = np.array([int(np.argmin(np.abs(p - np.conj(p[k])))) for k in up], int)
+        real = np.flatnonzero(p.imag == 0)
+        scale = np.abs(r[up])
+        return up, lo, real, np.where(scale > 0, scale, max(float(scale.max(initial=0.0)), 1e-12))
+
+    @property
+    def n_residues(self) -> int:
+        return 2 * self._pairs[0].size
 
     @functools.cached_property
     def hz(self) -> np.ndarray:
@@ -125,16 +144,31 @@ class _Space:
 
     @property
     def size(self) -> int:
-        return self.gamma_scale.size + len(self.shape_idx) + (2 if self.body else 0)
+        return self.gamma_scale.size + len(self.shape_idx) + (2 if self.body else 0) + self.n_residues
 
     def x0(self, gammas: np.ndarray) -> np.ndarray:
-        return np.concatenate([gammas / self.gamma_scale, np.zeros(len(self.shape_idx) + (2 if self.body else 0))])
+        return np.concatenate([gammas / self.gamma_scale,
+                               np.zeros(len(self.shape_idx) + (2 if self.body else 0) + self.n_residues)])
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        nt, ns = self.gamma_scale.size, len(self.shape_idx)
-        lo = np.concatenate([np.full(nt, -np.inf), np.full(ns, -np.log(_SHAPE_RANGE)), np.full(2 if self.body else 0, -2.0)])
-        hi = np.concatenate([np.full(nt, np.inf), np.full(ns, np.log(_SHAPE_RANGE)), np.full(2 if self.body else 0, 2.0)])
+        nt, ns, nr = self.gamma_scale.size, len(self.shape_idx), self.n_residues
+        lo = np.concatenate([np.full(nt, -np.inf), np.full(ns, -np.log(_SHAPE_RANGE)),
+                             np.full(2 if self.body else 0, -2.0), np.full(nr, -np.inf)])
+        hi = np.concatenate([np.full(nt, np.inf), np.full(ns, np.log(_SHAPE_RANGE)),
+                             np.full(2 if self.body else 0, 2.0), np.full(nr, np.inf)])
         return lo, hi
+
+    def _linear(self, lin, dx: np.ndarray):
+        """The rational linear part with residues r + Δr (Δr = dx·|r| per pair, re then im), Σ r kept at 0
+        (relative degree 2: z and ż stay states) by one shift of the pairs' real parts; the poles kept."""
+        up, lo, real, scale = self._pairs
+        k = up.size
+        r = np.array(self.base.linear.residues, complex)
+        r[up] = r[up] + (dx[:k] + 1j * dx[k:]) * scale
+        total = 2 * float(np.sum(r[up]).real) + float(np.sum(r[real]).real)
+        r[up] -= total / (2 * k)
+        r[lo] = np.conj(r[up])
+        return replace(lin, residues=r)
 
     def names(self) -> list[tuple[str, str]]:
         """(name, unit) of every reported value (:func:`_values`)."""
@@ -157,8 +191,10 @@ class _Space:
             key = KINDS[t.kind].key_param
             terms[i] = Term(t.kind, {**dict(t.params), key: float(t.params[key]) * float(np.exp(x[nt + j]))})
         lin, body = m.linear, m.body
+        if self.residues:
+            lin = self._linear(lin, x[self.size - self.n_residues:])
         if self.body:
-            kb, cb = x[nt + len(self.shape_idx):]
+            kb, cb = x[nt + len(self.shape_idx):nt + len(self.shape_idx) + 2]
             bm = lin.body
             lin = replace(lin, body=BodyModel(bm.k * float(np.exp(kb)), bm.c * float(np.exp(cb)), bm.k3, bm.fit_rms))
         if self.track_absorbed:       # the realised linear part stays; the terms' linear part moves with γ
@@ -207,20 +243,22 @@ def _residual(model, rec, band_hz, period_samples, skip, oversample) -> np.ndarr
 
 
 def _space(start: IdentifiedModel, scale_from: IdentifiedModel, *, shape: bool, linear_params: bool,
-           track_absorbed: bool) -> _Space:
+           track_absorbed: bool, residues: bool = False) -> _Space:
     g = np.abs(np.asarray(scale_from.c_over_m2, float))
     scale = np.where((g > 0) & np.isfinite(g), g, 1.0)
     idx = tuple(i for i, t in enumerate(start.terms)
                 if shape and KINDS[t.kind].key_param is not None
                 and isinstance(t.params.get(KINDS[t.kind].key_param), float) and t.params[KINDS[t.kind].key_param] > 0)
     body = bool(linear_params and start.linear.kind == "body" and start.linear.body.k > 0 and start.linear.body.c > 0)
-    return _Space(start, scale, idx, body, track_absorbed)
+    res = bool(residues and start.linear.kind == "rational" and np.any(start.linear.poles.imag > 0))
+    return _Space(start, scale, idx, body, track_absorbed, res)
 
 
 def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: tuple[float, float] | None = None,
                  period_samples: int | None = None, skip_samples: int | Sequence[int] | None = None,
                  linear: IdentifiedModel | None = None, shape: bool = True, linear_params: bool = True,
                  max_iterations: int = 30, oversample: int | None = None, both_starts: bool = False,
+                 linear_residues: bool = False,
                  progress: Callable[[str, int, float], None] | None = None) -> Refinement:
     """Refine ``model`` on ``records`` by minimising the band-limited prediction error (module docstring).
 
@@ -246,6 +284,13 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
         Also refine the terms' key parameters / a one-mass body's k and c.
     both_starts : bool
         Refine the linear start even when the refined NIFO model already beats the linear model.
+    linear_residues : bool
+        Also refine a rational linear part's residues (its poles kept, so a
+        realised linear part stays stable; Σ r = 0 kept): the linear part is
+        then identified jointly with the terms by output error instead of fixed
+        before them (2 parameters per pole pair: one simulation each per
+        iteration). A model without terms may then be refined too (its
+        residues alone: the linear baseline of the same procedure).
     max_iterations : int
         Trust-region iterations per start (each costs 1 + len(θ) simulations of every record).
     oversample : int, optional
@@ -263,8 +308,9 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
     IllConditionedError
         When no start can be simulated on these records.
     """
-    if not model.terms:
-        raise ConfigError("the model has no nonlinear term to refine")
+    if not model.terms and not (linear_residues and model.linear.kind == "rational"):
+        raise ConfigError("the model has no nonlinear term to refine",
+                          hint="a linear model's rational linear part can be refined with linear_residues=True")
     if not records:
         raise InputError("refinement needs at least one record")
     band = tuple(band_hz) if band_hz is not None else model.analysis_band_hz
@@ -277,8 +323,9 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
     # feedback) when from_nifo chose so, else not
     tracked = any(model.linear.absorbed) and np.allclose(model.linear.absorbed,
                                                          absorbed_rates(model.terms, model.c_over_m2))
-    starts = {"nifo": _space(model, model, shape=shape, linear_params=linear_params, track_absorbed=tracked)}
-    if linear is not None:
+    starts = {"nifo": _space(model, model, shape=shape, linear_params=linear_params, track_absorbed=tracked,
+                             residues=linear_residues)}
+    if linear is not None and model.terms:
         if linear.terms:
             raise ConfigError("linear= must be a model without terms (source 'h1')")
         base = replace(linear, terms=model.terms, c_over_m2=np.zeros(len(model.terms)),
@@ -286,7 +333,8 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
                        provenance=dict(model.provenance))
         # the linear model's linear part is the realised one: the terms add only their bounded remainder
         # (a play's or a clearance's force minus its slope), so no γ can destabilise it
-        starts["linear"] = _space(base, model, shape=shape, linear_params=linear_params, track_absorbed=True)
+        starts["linear"] = _space(base, model, shape=shape, linear_params=linear_params, track_absorbed=True,
+                                  residues=linear_residues)
     n_eval = 0
     # a record whose simulation diverges counts as relative error _DIVERGED, spread over its lines
     penalty = [np.full(band_spectra(r.body_accel, r.body_accel, r.fs_hz, band_hz=band, period_samples=period_samples,
@@ -328,7 +376,7 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
             return None
         lo, hi = sp.bounds()
         sol = scipy.optimize.least_squares(lambda x: evaluate(name, sp, x), x0, bounds=(lo, hi), method="trf",
-                                           diff_step=1e-3, x_scale=1.0, max_nfev=max_iterations * (sp.size + 1),
+                                           diff_step=1e-3, x_scale=1.0, max_nfev=max_iterations,
                                            f_scale=1.0)
         if sol.cost <= 0.5 * float(np.sum(r0 ** 2)):
             return sol.x, sp, sol, per_record(sol.x, sol.fun)
@@ -363,7 +411,8 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
     params = [{"name": n, "unit": u, "before": float(v0), "after": float(v1), "half_width_95": h}
               for (n, u), v0, v1, h in zip(sp.names(), _values(sp, sp.x0(np.asarray(sp.base.c_over_m2, float))),
                                               _values(sp, x), hw)]
-    msg = (f"output-error refinement from the {best} start: mean band NMSE "
+    jointly = f" with the linear part's {sp.n_residues // 2} residue pairs" if sp.residues else ""
+    msg = (f"output-error refinement{jointly} from the {best} start: mean band NMSE "
            f"{np.mean(before[best]):.4g} % → {np.mean(finals[best]):.4g} % on {len(records)} record(s) "
            f"({band[0]:g}-{band[1]:g} Hz{', period-averaged' if period_samples else ''}); {sol.message}")
     prov = {**dict(refined.provenance), "refined": {
@@ -416,11 +465,16 @@ def _stored_covariance(sp: _Space, x: np.ndarray, cov: np.ndarray | None) -> dic
     nt = sp.gamma_scale.size
     gam = x[:nt] * sp.gamma_scale
     scale = np.where(gam != 0, gam, 1.0)
-    d = np.concatenate([sp.gamma_scale / scale, np.ones(x.size - nt)])
+    d = np.concatenate([sp.gamma_scale / scale, np.ones(x.size - nt - sp.n_residues)])
+    if sp.residues:              # residue changes in units of the refined |r| (what parameter_space rebuilds)
+        up, _, _, start_scale = sp._pairs
+        ref = _Space(sp.model(x), np.ones(nt), (), False, residues=True)._pairs[3]
+        d = np.concatenate([d, np.tile(start_scale / ref, 2)])
     return {"coordinates": "coefficients relative to the refined ones, then log factors of the key parameters "
-                           "and of a one-mass body's k and c",
+                           "and of a one-mass body's k and c, then the rational linear part's residue changes "
+                           "(re, im per pole pair, in units of |r|)",
             "shape_terms": list(sp.shape_idx), "body": bool(sp.body), "track_absorbed": bool(sp.track_absorbed),
-            "matrix": (d[:, None] * cov * d[None, :]).tolist()}
+            "residues": bool(sp.residues), "matrix": (d[:, None] * cov * d[None, :]).tolist()}
 
 
 def parameter_space(model: IdentifiedModel) -> tuple[Callable[[np.ndarray], IdentifiedModel], np.ndarray,
@@ -435,7 +489,8 @@ def parameter_space(model: IdentifiedModel) -> tuple[Callable[[np.ndarray], Iden
         return None
     gam = np.asarray(model.c_over_m2, float)
     scale = np.where(gam != 0, gam, 1.0)
-    sp = _Space(model, scale, tuple(int(i) for i in c["shape_terms"]), bool(c["body"]), bool(c["track_absorbed"]))
+    sp = _Space(model, scale, tuple(int(i) for i in c["shape_terms"]), bool(c["body"]), bool(c["track_absorbed"]),
+                bool(c.get("residues", False)))
     cov = np.asarray(c["matrix"], float)
     if cov.shape != (sp.size, sp.size) or not np.all(np.isfinite(cov)):
         return None

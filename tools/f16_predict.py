@@ -113,12 +113,43 @@ def refine(model, linear, full: dict, ids, periods: int, log=print):
     return refine_model(model, recs, linear=linear, band_hz=ANALYSIS, period_samples=PERIOD, skip_samples=PERIOD)
 
 
+def joint(model, linear, full: dict, ids, periods: int, *, max_iterations: int = 40, log=print) -> tuple:
+    """The linear part identified jointly with the terms by output error (``--joint``).
+
+    1. the linear model's rational residues refined alone (its poles kept): the linear baseline of the
+       same procedure; 2. on that linear part, the terms at NIFO's coefficients adding only their bounded
+       remainder (a play's force minus its slope: stable whatever θ), refined with the residues. Both on the
+       first ``periods`` periods of the identification levels, scored as the study scores.
+    Returns (refined linear model, refined nonlinear model).
+    """
+    from dataclasses import replace
+
+    from nifo_core.linear_part import absorbed_rates
+    from nifo_core.refine import refine_model
+
+    recs = [full[lv].slice(0, periods * PERIOD) for lv in ids]
+    kw = dict(band_hz=ANALYSIS, period_samples=PERIOD, skip_samples=PERIOD, linear_residues=True,
+              max_iterations=max_iterations)
+    t0 = time.perf_counter()
+    lin = refine_model(linear, recs, **kw).model
+    gam = np.asarray(model.c_over_m2, float)
+    start = replace(lin, terms=model.terms, c_over_m2=gam, source=model.source,
+                    b=np.zeros((len(model.terms), lin.freq_hz.size), complex),
+                    linear=replace(lin.linear, absorbed=absorbed_rates(model.terms, gam)))
+    nl = refine_model(start, recs, **kw)
+    log(f"  joint output error on {periods} periods of {'/'.join(map(str, ids))}: {nl.message} "
+        f"[{time.perf_counter() - t0:.0f}s]")
+    return lin, nl.model
+
+
 def study(data: Path, out: Path | None, *, sets: dict, forms: dict, linear_parts: dict, sources=("static",),
-          log=print, partial: Path | None = None, refine_periods: int = 0) -> list[dict]:
+          log=print, partial: Path | None = None, refine_periods: int = 0, joint_periods: int = 0) -> list[dict]:
     """Identify and predict every (set, linear part, form, source); rows of results (``partial``: JSON after each).
 
     ``refine_periods`` > 0: every nonlinear model is also refined (output error) on that many periods of its
-    identification levels and predicted again (row ``source`` + " refined").
+    identification levels and predicted again (row ``source`` + " refined"). ``joint_periods`` > 0: also the
+    linear part identified jointly with the terms (:func:`joint`; rows with source "joint": the linear model
+    of that procedure and the nonlinear one).
     """
     steady = {lv: load(lv, data, skip=1) for lv in LEVELS}      # identification: periods 2-9
     full = {lv: load(lv, data, skip=0) for lv in LEVELS}        # prediction: the whole record, from rest
@@ -160,6 +191,16 @@ def study(data: Path, out: Path | None, *, sets: dict, forms: dict, linear_parts
                         f"   [{model.linear.kind} {model.linear.order}] {row['seconds']:.0f}s")
                     if partial is not None:
                         partial.write_text(json.dumps({"rows": rows}, indent=1, default=str))
+                    if joint_periods and spec:
+                        with warnings.catch_warnings():
+                            warnings.simplefilter("ignore")
+                            lj, nj = joint(model, linear_models[(set_name, lp_name)], full, ids, joint_periods,
+                                           log=log)
+                        for name, m in (("linear", lj), (form_name, nj)):
+                            jrow = {**row, "form": name, "source": "joint", "nmse": {}, "errors": {}}
+                            predict_levels(m, full, jrow)
+                            rows.append(jrow)
+                            log(f"{set_name:14} {lp_name:11} {name:28} {'joint':6} {_levels(jrow)}")
                     if refine_periods and spec:
                         t0 = time.perf_counter()
                         with warnings.catch_warnings():
@@ -179,12 +220,12 @@ def study(data: Path, out: Path | None, *, sets: dict, forms: dict, linear_parts
 
 def verdicts(rows: list[dict]) -> list[dict]:
     """Per (set, linear part, form, source): is the nonlinear NMSE below the linear one at every predicted level?"""
-    base = {(r["set"], r["linear_part"]): r for r in rows if r["form"] == "linear"}
+    base = {(r["set"], r["linear_part"], r["source"] == "joint"): r for r in rows if r["form"] == "linear"}
     out = []
     for r in rows:
         if r["form"] == "linear" or not r["nmse"]:
             continue
-        lin = base.get((r["set"], r["linear_part"]))
+        lin = base.get((r["set"], r["linear_part"], r["source"] == "joint"))
         held = [lv for lv in LEVELS if lv not in r["identified_on"]]
         pred = [lv for lv in LEVELS]
         better = {lv: (lv in r["nmse"] and lv in lin["nmse"] and r["nmse"][lv] < lin["nmse"][lv]) for lv in pred}
@@ -206,6 +247,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--all", action="store_true", help="also backlash + friction")
     ap.add_argument("--extra", action="store_true", help="the softening forms instead (saturation, velocity "
                     "saturation, backlash + velocity saturation)")
+    ap.add_argument("--joint", type=int, default=0, metavar="PERIODS",
+                    help="also identify the linear part jointly with the terms by output error on this many periods "
+                         "(its residues; compared with the linear model refined the same way)")
     ap.add_argument("--order", type=int, default=None, help="a rational linear part of this order for every model")
     ap.add_argument("--refine", type=int, default=0, metavar="PERIODS",
                     help="also refine every nonlinear model (output error) on this many periods of its levels")
@@ -224,7 +268,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.extra:
         forms = EXTRA
     rows = study(args.data, args.out, sets=sets, forms=forms, linear_parts=lps, sources=sources,
-                 partial=args.json, refine_periods=args.refine)
+                 partial=args.json, refine_periods=args.refine, joint_periods=args.joint)
     ver = verdicts(rows)
     print("\nnonlinear below linear (same set, same linear part) at every level / at the held-out levels:")
     for v in ver:

@@ -97,6 +97,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="refine the coefficients (and gaps/knees, a one-mass body's k and c) by simulating every "
                         "record and minimising the band-limited prediction NMSE; starts from the NIFO model and "
                         "from the linear model, keeps the better")
+    r.add_argument("--refine-linear", action="store_true",
+                   help="--refine, and also refine a rational linear part's residues (poles kept), the linear part "
+                        "identified jointly with the terms; 2 parameters per mode, so slower, and it can fit the "
+                        "identification levels at the cost of others (docs/f16_predict.md)")
     r.add_argument("--refine-seconds", type=float, default=120.0, metavar="S",
                    help="simulate at most this much of each record per evaluation (default 120 s; whole periods "
                         "with --period-samples)")
@@ -468,7 +472,7 @@ def run(args: argparse.Namespace) -> int:
                     "identify.json holds the non-parametric result")
         model = None
     refinement = None
-    if getattr(args, "refine", False) and model is not None:
+    if (getattr(args, "refine", False) or getattr(args, "refine_linear", False)) and model is not None:
         if not model.terms:
             warn.append("--refine: the model has no nonlinear term, nothing to refine")
         else:
@@ -520,6 +524,7 @@ def _refine(args, model, linear, opts: dict, paths: list):
         records.append(rec)
     with Progress(None, "refine (simulations)", enabled=True) as bar:
         return refine_model(model, records, linear=linear, period_samples=period,
+                            linear_residues=bool(getattr(args, "refine_linear", False)),
                             progress=lambda start, k, cost: setattr(bar, "desc", f"refine from the {start} start: "
                                                                    f"cost {cost:.4g}") or bar.advance(1))
 
