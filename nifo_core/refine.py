@@ -70,6 +70,8 @@ __all__ = ["Refinement", "refine_model", "model_nmse", "parameter_space"]
 _DIVERGED = 10.0
 #: range of a key parameter around its start (factor)
 _SHAPE_RANGE = 4.0
+#: kinds whose force is bounded whatever the motion (no absorbed slope needed for a bounded feedback)
+_BOUNDED = frozenset({"coulomb", "saturation", "velocity_saturation"})
 
 
 @dataclass(frozen=True)
@@ -285,12 +287,16 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
     both_starts : bool
         Refine the linear start even when the refined NIFO model already beats the linear model.
     linear_residues : bool
-        Also refine a rational linear part's residues (its poles kept, so a
-        realised linear part stays stable; Σ r = 0 kept): the linear part is
-        then identified jointly with the terms by output error instead of fixed
-        before them (2 parameters per pole pair: one simulation each per
-        iteration). A model without terms may then be refined too (its
-        residues alone: the linear baseline of the same procedure).
+        Also refine a rational linear part's residues (its poles kept, Σ r = 0
+        kept): the linear part is then identified jointly with the terms by
+        output error instead of fixed before them (2 parameters per pole pair:
+        one simulation each per iteration). Only on a start whose feedback is
+        bounded — the linear start (the terms adding their bounded remainder),
+        or a model whose linear part absorbed the terms' slopes or whose terms
+        are bounded forces — so that no θ can destabilise it at another level;
+        the linear start is then always refined. A model without terms may be
+        refined too (its residues alone: the linear baseline of the same
+        procedure).
     max_iterations : int
         Trust-region iterations per start (each costs 1 + len(θ) simulations of every record).
     oversample : int, optional
@@ -323,8 +329,11 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
     # feedback) when from_nifo chose so, else not
     tracked = any(model.linear.absorbed) and np.allclose(model.linear.absorbed,
                                                          absorbed_rates(model.terms, model.c_over_m2))
+    # residues move only where the terms' feedback is bounded (their slope absorbed into the realised linear part,
+    # or a bounded force): the realised part keeps its poles, so no θ can destabilise the model at any level
+    bounded = tracked or all(t.kind in _BOUNDED for t in model.terms)
     starts = {"nifo": _space(model, model, shape=shape, linear_params=linear_params, track_absorbed=tracked,
-                             residues=linear_residues)}
+                             residues=linear_residues and bounded)}
     if linear is not None and model.terms:
         if linear.terms:
             raise ConfigError("linear= must be a model without terms (source 'h1')")
@@ -393,7 +402,8 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
         x_lin = lin0.x0(np.zeros(len(model.terms)))
         r_lin = evaluate("linear", lin0, x_lin)
         nifo_sum = float(np.sum(results["nifo"][3])) if results["nifo"] is not None else np.inf
-        if both_starts or nifo_sum > float(np.sum(per_record(x_lin, r_lin))):
+        if both_starts or (linear_residues and not nifo.residues) or \
+                nifo_sum > float(np.sum(per_record(x_lin, r_lin))):
             results["linear"] = run("linear", lin0, x_lin, r_lin)
         else:
             before["linear"] = per_record(x_lin, r_lin)

@@ -110,3 +110,28 @@ def test_a_directory_without_model_json_is_named(tmp_path):
     with pytest.raises(DataFileError, match=r"model\.json does not exist"):
         read_model(tmp_path / "model.json")
 
+
+
+@pytest.mark.slow
+def test_identify_refine_linear_on_f16_level_5_refines_the_residues_and_the_model_stays_stable_at_level_7(
+        shared_data, tmp_path, capsys):
+    """--refine-linear: a rational linear part's residues refined with the play, from the linear start (bounded
+    feedback, poles kept), so the model cannot run away at a level it was not fitted on (from the NIFO start it
+    did: |z| grew without bound at level 7)."""
+    f16 = ["--columns", "spindle_accel=Acceleration[1],body_accel=Acceleration[2],fs=Fs"]
+    opts = ["--no-plots", "--freq-range", "2", "15", "--period-samples", "8192"]
+    model = tmp_path / "m.yaml"
+    model.write_text("nifo_model: 1\nnonlinearities: [{kind: backlash, params: {deadband: 1.4e-4}}]\n")
+    ident = tmp_path / "id"
+    assert _quietly(["identify", shared_data / "f16" / "F16Data_FullMSine_Level5.mat", *f16, "--model", model,
+                     "--out", ident, *opts, "--block", "8192", "--overlap", "0", "--window", "boxcar", "--band",
+                     "1.5", "40", "--skip-periods", "1", "--refine-linear", "--refine-seconds", "41"]) == 0
+    ref = json.loads((ident / "identify.json").read_text())["summary"]["refinement"]
+    assert "residue pairs" in ref["message"] and ref["start"] == "linear", ref["message"]
+    m, _ = read_model(ident)
+    assert m.linear.kind == "rational" and m.linear.stable and m.provenance["refined"]["covariance"]["residues"]
+    assert _quietly(["predict", shared_data / "f16" / "F16Data_FullMSine_Level7.mat", *f16, "--model", ident,
+                     "--out", tmp_path / "p", *opts]) == 0
+    rec = json.loads((tmp_path / "p" / "predict.json").read_text())["records"][0]
+    print(capsys.readouterr().out[-400:], rec["model"]["band_nmse"]["percent"])
+    assert rec["model"]["band_nmse"]["percent"] < rec["linear"]["band_nmse"]["percent"]
