@@ -195,13 +195,12 @@ def _solve(guu: np.ndarray, guy: np.ndarray):
     """
     s = _diag_scale(guu)
     a = guu * s[:, :, None] * s[:, None, :]
-    lam, proj = _eig2(a) if a.shape[1] == 2 else _eig(a)
+    lam, proj = _eig2(a) if a.shape[1] == 2 else _eig(a)                              # A = Σ_k λ_k·P_k
     mag = np.abs(lam)
     top = mag.max(axis=1)
     keep = mag > 1e-13 * top[:, None]
     inv = np.where(keep, 1.0 / np.where(keep, lam, 1), 0.0)
-    ainv = np.einsum("fk,fkij->fij", inv, proj) if proj.ndim == 4 else \
-        (proj * inv[:, None, :]) @ np.swapaxes(proj, 1, 2).conj()                     # A⁺ = Σ P_k/λ_k = V·Λ⁺·Vᴴ
+    ainv = np.einsum("fk,fkij->fij", inv, proj)                                         # A⁺ = Σ_k P_k/λ_k
     h = (ainv @ (guy * s)[:, :, None])[:, :, 0] * s                                     # G_UU⁻¹·G_Uy
     low = mag.min(axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -210,8 +209,9 @@ def _solve(guu: np.ndarray, guy: np.ndarray):
 
 
 def _eig(a: np.ndarray):
-    """Eigenvalues (ascending) and eigenvectors of a stack of Hermitian matrices."""
-    return np.linalg.eigh(a)
+    """Eigenvalues (ascending) and spectral projectors P_k = v_k·v_kᴴ of a stack of Hermitian matrices."""
+    lam, v = np.linalg.eigh(a)
+    return lam, np.einsum("fik,fjk->fkij", v, v.conj())
 
 
 def _eig2(a: np.ndarray):

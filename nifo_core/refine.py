@@ -477,7 +477,7 @@ def _stored_covariance(sp: _Space, x: np.ndarray, cov: np.ndarray | None) -> dic
     scale = np.where(gam != 0, gam, 1.0)
     d = np.concatenate([sp.gamma_scale / scale, np.ones(x.size - nt - sp.n_residues)])
     if sp.residues:              # residue changes in units of the refined |r| (what parameter_space rebuilds)
-        up, _, _, start_scale = sp._pairs
+        start_scale = sp._pairs[3]
         ref = _Space(sp.model(x), np.ones(nt), (), False, residues=True)._pairs[3]
         d = np.concatenate([d, np.tile(start_scale / ref, 2)])
     return {"coordinates": "coefficients relative to the refined ones, then log factors of the key parameters "
