@@ -41,7 +41,8 @@ import scipy.linalg
 
 from .errors import ConfigError
 
-__all__ = ["BodyModel", "LinearPart", "absorbed_rates", "fit_body_model", "fit_rational", "select_linear_part"]
+__all__ = ["BodyModel", "LinearPart", "absorbed_rates", "fit_body_model", "fit_rational", "nominal_linear_part",
+           "select_linear_part"]
 
 #: a physical one-mass body is kept unless its T21 misfit exceeds this (relative RMS over the band)
 BODY_FIT_LIMIT = 0.10
@@ -523,6 +524,28 @@ def select_linear_part(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[f
         out = replace(out, absorbed=(a, b), reason=out.reason + f" (fitted with the linear part of the strut terms, "
                                                                f"{a:.4g} 1/s² and {b:.4g} 1/s, absorbed)")
     return out
+
+
+def nominal_linear_part(freq_hz: np.ndarray, t21: np.ndarray, terms, gammas, *, band_hz: tuple[float, float],
+                        form: Literal["auto", "body", "rational"] = "auto", order: int | None = None,
+                        fit_k3: bool = False, body: BodyModel | None = None) -> tuple[LinearPart, BodyModel | None]:
+    """The linear part of a model whose strut terms ``terms`` have c/M2 ``gammas``, and its nominal body.
+
+    :func:`select_linear_part` with the terms' linear part absorbed (:func:`absorbed_rates`),
+    unless that makes it non-physical (e.g. a softening clearance) and the plain fit is
+    physical or fits better. The body (None for a rational part) is the nominal one-mass
+    body: the absorbed strut part taken out again.
+    """
+    fit = dict(band_hz=band_hz, form=form, order=order, fit_k3=fit_k3, body=body)
+    lin = select_linear_part(freq_hz, t21, absorbed=absorbed_rates(terms, gammas), **fit)
+    if any(lin.absorbed) and not lin.physical:
+        plain = select_linear_part(freq_hz, t21, **fit)
+        if plain.physical or plain.fit_rms < lin.fit_rms:
+            lin = plain
+    if lin.kind != "body":
+        return lin, None
+    bm, (ka, ca) = lin.body, lin.absorbed
+    return lin, BodyModel(bm.k - ka, bm.c - ca, bm.k3, bm.fit_rms)
 
 
 def _select(freq_hz, t21, *, band_hz, form, order, fit_k3, weights, given) -> LinearPart:

@@ -46,7 +46,7 @@ from .describing import Term, make_term
 from .errors import ConfigError, IllConditionedError, InputError
 from .fixed_point import contraction_bound, fixed_point_solve
 from .integrate import IntegrationBand, integrate
-from .linear_part import BodyModel, LinearPart, absorbed_rates, fit_body_model, select_linear_part
+from .linear_part import BodyModel, LinearPart, absorbed_rates, fit_body_model, nominal_linear_part, select_linear_part
 from .nifo import NifoResult
 from .nifo_result import _cplx, _ro, _uncplx  # one home for the JSON forms of complex arrays
 from .frf import coherence, h1
@@ -195,16 +195,8 @@ class IdentifiedModel:
             force_gain = 1.0 / m2
             _, k2, c2, misfit = (float(v) for v in st.one_mass)
             given = BodyModel(k2 / m2, c2 / m2, 0.0, misfit)
-        fit = dict(band_hz=result.analysis_band_hz, form=linear_form, order=order, fit_k3=fit_k3, body=given)
-        lin = select_linear_part(result.freq_hz, t21, absorbed=absorbed_rates(terms, gam), **fit)
-        if any(lin.absorbed) and not lin.physical:     # e.g. a softening clearance: absorbing its slope hurts
-            plain = select_linear_part(result.freq_hz, t21, **fit)
-            if plain.physical or plain.fit_rms < lin.fit_rms:
-                lin = plain
-        body = None
-        if lin.kind == "body":     # the nominal one-mass body (the absorbed strut part taken out again)
-            bm, (ka, ca) = lin.body, lin.absorbed
-            body = BodyModel(bm.k - ka, bm.c - ca, bm.k3, bm.fit_rms)
+        lin, body = nominal_linear_part(result.freq_hz, t21, terms, gam, band_hz=result.analysis_band_hz,
+                                        form=linear_form, order=order, fit_k3=fit_k3, body=given)
         return cls(freq_hz=result.freq_hz, t21=t21, b=b, terms=terms, c_over_m2=gam, body=body,
                    analysis_band_hz=result.analysis_band_hz, fs_hz=result.fs_hz, settings=result.settings,
                    band=result.band, source=source if terms else "h1", provenance=prov, linear=lin,

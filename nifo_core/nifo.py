@@ -75,7 +75,7 @@ import numpy as np
 from .describing import Term
 from .errors import ConfigError, InputError, NifoError, SampleRateError
 from .integrate import IntegrationBand, default_band
-from .nifo_estimate import nifo_from_spectra
+from .nifo_estimate import nifo_from_spectra, static_fits
 from .nifo_result import (A1, DEFAULT_ANALYSIS_BAND_HZ, DEFAULT_COND_LIMIT, FORCE, XB, FixedTerms,
                           IllConditionedWarning, InputMeasured, NifoResult, OnIll, StaticFit)
 from .nifo_stream import StreamingNifo, _as_terms
@@ -84,7 +84,7 @@ from .spectral import SpectralSettings
 
 __all__ = ["IllConditionedWarning", "InputMeasured", "StaticFit", "NifoResult", "FixedTerms", "StreamingNifo",
            "identify_nifo",
-           "identify_two_step", "nifo_from_spectra", "DEFAULT_ANALYSIS_BAND_HZ", "DEFAULT_COND_LIMIT"]
+           "identify_two_step", "nifo_from_spectra", "static_fits", "DEFAULT_ANALYSIS_BAND_HZ", "DEFAULT_COND_LIMIT"]
 
 # ---------------------------------------------------------------------------------------------
 # batch

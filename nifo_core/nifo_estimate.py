@@ -21,7 +21,7 @@ from .nifo_result import (A1, A2, DEFAULT_ANALYSIS_BAND_HZ, DEFAULT_COND_LIMIT, 
 from .frf import MimoFit, coherence, h1, mimo_fit
 from .spectral import CrossSpectra
 
-__all__ = ["nifo_from_spectra"]
+__all__ = ["nifo_from_spectra", "static_fits"]
 
 # ---------------------------------------------------------------------------------------------
 # the estimator, from spectra
@@ -49,6 +49,28 @@ def _check_conditioning(cond: np.ndarray, mask: np.ndarray, *, what: str, cond_l
 
 
 
+def _static_weights(t21: np.ndarray, n_free: int, n_channels: int) -> np.ndarray:
+    """Per-line weights of the static fit's equation error ``y - T21·u - Σ γ_i·(T21 - 1)·Gn_i`` and regressors."""
+    t = np.where(np.isfinite(t21), t21, 0)
+    wts = np.zeros((t21.size, 1 + n_free, n_channels), complex)
+    wts[:, 0, 0] = -t
+    wts[:, 0, 1] = 1.0
+    for i in range(n_free):
+        wts[:, 1 + i, 2 + i] = t - 1
+    return wts
+
+
+def _pooled_gamma(g: np.ndarray, ok: np.ndarray, gnn: np.ndarray) -> np.ndarray:
+    """γ by the 1/G_nn-weighted real least squares over the lines ``ok`` of the combined spectra ``g``."""
+    if not ok.any():
+        raise IllConditionedError("no usable line in the analysis band for the constant-coefficient fit",
+                                  hint="widen the analysis band or record more data")
+    wt = 1.0 / gnn[ok]
+    lhs = np.einsum("f,fij->ij", wt, g[ok][:, 1:, 1:].real)
+    rhs = np.einsum("f,fi->i", wt, g[ok][:, 1:, 0].real)
+    return np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+
+
 def _static_fit(spec: CrossSpectra, t21: np.ndarray, gnn: np.ndarray, n_free: int, mask: np.ndarray,
                 w: np.ndarray, noise: float | None) -> StaticFit:
     """Constant-coefficient NIFO (see :class:`StaticFit`) of spectra [u, y, g_1..] from the free T21.
@@ -57,24 +79,11 @@ def _static_fit(spec: CrossSpectra, t21: np.ndarray, gnn: np.ndarray, n_free: in
     ``y - T21·u = Σ γ_i·(T21 - 1)·Gn_i`` pooled over the analysis band's lines.
     Step 2: T21 = H1 of u + Σγ·Gn → y + Σγ·Gn (spindle noise floor removed when given).
     """
-    nf, nch = spec.freq_hz.size, spec.n_channels
-    t = np.where(np.isfinite(t21), t21, 0)
-    wts = np.zeros((nf, 1 + n_free, nch), complex)
-    wts[:, 0, 0] = -t
-    wts[:, 0, 1] = 1.0
-    for i in range(n_free):
-        wts[:, 1 + i, 2 + i] = t - 1
+    nch = spec.n_channels
     gamma = np.zeros(0)
     if n_free:
-        g = spec.combine(wts).G
-        ok = mask & np.isfinite(t21) & (gnn > 0)
-        if not ok.any():
-            raise IllConditionedError("no usable line in the analysis band for the constant-coefficient fit",
-                                      hint="widen the analysis band or record more data")
-        wt = 1.0 / gnn[ok]
-        lhs = np.einsum("f,fij->ij", wt, g[ok][:, 1:, 1:].real)
-        rhs = np.einsum("f,fi->i", wt, g[ok][:, 1:, 0].real)
-        gamma = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+        g = spec.combine(_static_weights(t21, n_free, nch)).G
+        gamma = _pooled_gamma(g, mask & np.isfinite(t21) & (gnn > 0), gnn)
     comb = np.zeros((2, nch))
     comb[0, 0] = comb[1, 1] = 1.0
     comb[:, 2:2 + n_free] = gamma
@@ -86,6 +95,62 @@ def _static_fit(spec: CrossSpectra, t21: np.ndarray, gnn: np.ndarray, n_free: in
         mu = b / t21s
     return StaticFit(c_over_m2=gamma, t21=t21s, b=b, mu_over_k2=mu, coherence=coherence(cs, 0, 1),
                      random_error=fit.random_error[0])
+
+
+def static_fits(specs: Sequence[CrossSpectra], n_terms: int, *,
+                analysis_band_hz: tuple[float, float] = DEFAULT_ANALYSIS_BAND_HZ) -> tuple[np.ndarray, np.ndarray]:
+    """The constant-coefficient fit of several records, each on its own, solved as one batch: (γ, T21).
+
+    Per record, the same arithmetic as ``nifo_from_spectra(spec, terms).static``
+    (``c_over_m2`` and ``t21``; no fixed terms, tire patch or spindle noise): the
+    per-line solves of all records run together on their stacked lines, only the
+    pooled least squares is taken record by record. Used for the spread of the
+    coefficients over a vehicle's bags, where one call per bag cost ~1 ms, most
+    of it the overhead of some forty small array operations.
+
+    Parameters
+    ----------
+    specs : sequence of CrossSpectra
+        Spectra of [a1, a2, g_1..g_n_terms] of each record, on the same lines.
+    n_terms : int
+
+    Returns
+    -------
+    gamma : ndarray, shape (n_records, n_terms)
+        c_i/M2 per record (NaN where a record has no usable line).
+    t21 : ndarray, complex, shape (n_records, nf)
+        The static T21 per record (NaN where γ is).
+    """
+    n = len(specs)
+    if n == 0:
+        return np.zeros((0, n_terms)), np.zeros((0, 0), complex)
+    f, nch = specs[0].freq_hz, specs[0].n_channels
+    if nch != 2 + n_terms or any(s.n_channels != nch or not np.array_equal(s.freq_hz, f) for s in specs):
+        raise ConfigError(f"static_fits takes spectra of [a1, a2, g_1..g_{n_terms}] on the same lines",
+                          hint="accumulate every record with the same StreamingNifo set-up")
+    nf = f.size
+    stack = CrossSpectra(np.tile(f, n), np.concatenate([s.G for s in specs]), min(s.n_avg for s in specs),
+                         specs[0].fs_hz, specs[0].settings, specs[0].names)
+    lo, hi = analysis_band_hz
+    mask = (f >= lo) & (f <= hi)
+    fit = mimo_fit(stack, [0, *range(2, 2 + n_terms)], 1)                                # Eq. 9, H1
+    t21 = fit.h[0]
+    gamma = np.zeros((n, n_terms))
+    if n_terms:
+        g = stack.combine(_static_weights(t21, n_terms, nch)).G
+        ok = np.isfinite(t21) & (fit.residual_psd > 0)
+        for r in range(n):
+            seg = slice(r * nf, (r + 1) * nf)
+            try:
+                gamma[r] = _pooled_gamma(g[seg], mask & ok[seg], fit.residual_psd[seg])
+            except IllConditionedError:
+                gamma[r] = np.nan
+    comb = np.zeros((n * nf, 2, nch))
+    comb[:, 0, 0] = comb[:, 1, 1] = 1.0
+    comb[:, :, 2:] = np.repeat(gamma, nf, axis=0)[:, None, :]
+    t21s = mimo_fit(stack.combine(np.nan_to_num(comb)), [0], 1).h[0].reshape(n, nf)
+    t21s[~np.isfinite(gamma).all(axis=1)] = np.nan
+    return gamma, t21s
 
 
 def _input_measured(spec: CrossSpectra, nt: int, t21_nominal: np.ndarray, mask: np.ndarray, w: np.ndarray,

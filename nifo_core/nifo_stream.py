@@ -202,15 +202,15 @@ class StreamingNifo:
         self._reset_stream()
 
     # -- results ------------------------------------------------------------------------------
-    def spectra(self) -> CrossSpectra:
-        """Cross spectra of [a1, a2, g.., (xb)] so far."""
+    def spectra(self, band_hz: tuple[float, float] | None = None) -> CrossSpectra:
+        """Cross spectra of [a1, a2, g.., (xb)] so far (only the lines in ``band_hz`` [Hz] when given)."""
         if self._acc.n_blocks == 0:
             raise RecordTooShortError(
                 f"no complete spectral block yet: NIFO needs {self.min_samples} samples in one record "
                 f"(block={self.settings.block} plus {self.delay_samples} integrator edge samples at each end "
                 f"for f_lo={self.band.f_lo_hz:g} Hz)",
                 hint="record longer, choose a smaller block, or raise the integration band's lower edge")
-        return self._acc.spectra()
+        return self._acc.spectra(band_hz)
 
     def result(self) -> NifoResult:
         """The NIFO estimate from all blocks so far (paper Eq. 8-10)."""

@@ -341,8 +341,8 @@ class CrossSpectralAccumulator:
         """Samples held back waiting for the next block to complete."""
         return int(self._tail.shape[1])
 
-    def spectra(self) -> CrossSpectra:
-        """The averaged cross-spectral matrix of all blocks so far.
+    def spectra(self, band_hz: tuple[float, float] | None = None) -> CrossSpectra:
+        """The averaged cross-spectral matrix of all blocks so far (only the lines in ``band_hz`` [Hz] when given).
 
         Raises
         ------
@@ -354,8 +354,13 @@ class CrossSpectralAccumulator:
                 f"no complete spectral block yet ({self.pending_samples} samples pushed, "
                 f"block={self.settings.block} needs {self.settings.block})",
                 hint="record longer or choose a smaller block")
-        g = self._sum * (_density_scale(self.settings, self.fs_hz) / self._n_blocks)[:, None, None]
-        return CrossSpectra(self.settings.freq_hz(self.fs_hz), g, self._n_blocks, self.fs_hz,
+        f = self.settings.freq_hz(self.fs_hz)
+        scale = _density_scale(self.settings, self.fs_hz) / self._n_blocks
+        if band_hz is None:
+            return CrossSpectra(f, self._sum * scale[:, None, None], self._n_blocks, self.fs_hz, self.settings,
+                                self.names)
+        keep = (f >= band_hz[0]) & (f <= band_hz[1])
+        return CrossSpectra(f[keep], self._sum[keep] * scale[keep, None, None], self._n_blocks, self.fs_hz,
                             self.settings, self.names)
 
     def merge(self, other: "CrossSpectralAccumulator") -> "CrossSpectralAccumulator":

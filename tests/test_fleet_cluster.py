@@ -184,9 +184,23 @@ def test_a_batch_of_several_bags_gives_the_partials_of_one_bag_per_task(fleet, t
     entries_b = sorted(p.stem for p in (tmp_path / "batched").rglob("*.npz"))
     entries_a = sorted(p.stem for p in (tmp_path / "alone").rglob("*.npz"))
     assert entries_b == entries_a == sorted(st["key"] for _, st in batch["status"]) and len(entries_b) == 2
-    again = compute_batch([(g, base, bags, True)], str(tmp_path / "batched"))   # a rerun: every bag from the cache
+    # the whole group's rates, lengths and channels in one note; bags cut over tasks in one note each
+    assert len(list((tmp_path / "batched" / "notes").glob("*.json"))) == 1
+    assert len(list((tmp_path / "alone" / "notes").glob("*.json"))) == 2
+    import nifo.fleet.tasks as tasks
+
+    def no_open(*a, **k):
+        raise AssertionError("a finished bag was opened again")
+
+    opener, tasks._open = tasks._open, no_open
+    try:                                   # a rerun: every bag from the cache, none opened
+        again = compute_batch([(g, base, bags, True)], str(tmp_path / "batched"))
+    finally:
+        tasks._open = opener
     assert all(st["cached"] for _, st in again["status"])
     np.testing.assert_array_equal(again["parts"][part]["state"]["acc.sum"], a["acc.sum"])
+    for x, y in zip(again["parts"][part]["bags"], batch["parts"][part]["bags"]):
+        assert x["coefs"] == y["coefs"]           # a bag's own coefficients: the same from its cached partial
 
 
 def test_one_bag_per_task_accumulates_again_the_bags_whose_set_up_differs(fleet, cluster):

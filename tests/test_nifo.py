@@ -230,3 +230,22 @@ def test_records_at_different_rates_are_refused():
 def test_merging_estimators_of_different_terms_is_refused():
     with pytest.raises(ConfigError, match="cannot merge"):
         StreamingNifo(FS, [DZ]).merge(StreamingNifo(FS, [BL]))
+
+
+def test_static_fits_of_several_records_equal_each_records_own_static_fit_bit_for_bit(deadzone, backlash):
+    from nifo_core.nifo import nifo_from_spectra, static_fits
+
+    band, lines = IntegrationBand(0.5, 200.0), (2.0, 30.0)
+    specs = []
+    for rec in (deadzone.record.slice(0, 60_000), deadzone.record.slice(60_000, 150_000), backlash.record):
+        sn = StreamingNifo(FS, [DZ], band=band)
+        sn.push(rec.spindle_accel, rec.body_accel)
+        specs.append(sn.spectra(lines))
+    gam, t21 = static_fits(specs, 1, analysis_band_hz=lines)
+    assert gam.shape == (3, 1) and t21.shape == (3, specs[0].freq_hz.size)
+    for spec, g, t in zip(specs, gam, t21):
+        alone = nifo_from_spectra(spec, [DZ], band=band, analysis_band_hz=lines, on_ill_conditioned="ignore").static
+        assert np.array_equal(g, alone.c_over_m2) and np.array_equal(t, alone.t21)
+    assert not np.allclose(gam[0], gam[2])           # the records are not confused with one another
+    with pytest.raises(ConfigError, match="same lines"):          # two terms declared, one accumulated
+        static_fits(specs, 2)
