@@ -197,8 +197,7 @@ class StreamingNifo:
         """Close the current stream: later pushes start a new, separate record (fresh integrator)."""
         if self._n_in:
             self._records += 1
-        empty = CrossSpectralAccumulator(len(self._names), self.fs_hz, self.settings, names=self._names)
-        self._acc = self._acc.merge(empty)                   # drops the partial block, keeps the sums
+        self._acc.drop_pending()                             # drops the partial block, keeps the sums
         self._reset_stream()
 
     # -- results ------------------------------------------------------------------------------

@@ -331,6 +331,13 @@ class CrossSpectralAccumulator:
         self._tail = buf.copy()
         return nb
 
+    def drop_pending(self) -> None:
+        """End the stream: drop the samples waiting for the next block (later pushes start a new record).
+
+        The same as merging with an empty accumulator, without copying the sums.
+        """
+        self._tail = np.zeros((self.n_channels, 0))
+
     @property
     def n_blocks(self) -> int:
         """Blocks accumulated so far."""
