@@ -5,8 +5,8 @@ docs/f16_predict.md): identified on levels 3/5/7, the model — linear or with
 a clearance term — is written as model.json, read back, and predicts every
 level (1, 3, 5, 7) from rest without diverging (the NMSE of the
 period-averaged 2-15 Hz steady state stays bounded), the linear model within
-2 %. That the nonlinear model beats the linear one at every level does NOT
-hold on these data yet (see the doc); it is measured, not asserted.
+2 %. That the nonlinear model beats the linear one at every level is asserted where it holds
+(identified on levels spanning 1-7: backlash on 1/5/7, two plays on 1/5/7 and 1/3/7), not on 3/5/7 (see the doc).
 """
 
 from __future__ import annotations
@@ -59,3 +59,23 @@ def test_backlash_identified_on_1_5_7_beats_linear_at_every_level(shared_data):
                              linear_parts={"auto": None}, log=print)
     linear, play = rows[0]["nmse"], rows[1]["nmse"]
     assert all(play[lv] < linear[lv] for lv in (1, 3, 5, 7)), (play, linear)
+
+
+@pytest.mark.slow
+def test_two_plays_beat_linear_at_every_level_identified_on_a_set_spanning_the_levels(shared_data):
+    """Two plays (0.07 and 0.28 mm, half and twice the characterized play: a discrete Iwan model).
+
+    Identified on 1/5/7 (NIFO) and on 1/3/7 (refined), below the linear model of the same
+    set at every level, the held-out one included (docs/f16_predict.md, "Several plays":
+    1.03-2.16× and 1.35-1.50×). Not on 3/5/7 or 1/3/5 (measured there, not asserted).
+    """
+    plays = {"plays 0.07/0.28 mm": f16_predict.PLAYS["plays 0.07/0.28 mm"]}
+    rows = f16_predict.study(shared_data / "f16", None, sets={"1/5/7": (1, 5, 7)}, forms=plays,
+                             linear_parts={"auto": None}, log=print)
+    linear, nl = rows[0]["nmse"], rows[1]["nmse"]
+    assert all(nl[lv] < linear[lv] for lv in (1, 3, 5, 7)), (nl, linear)
+    rows = f16_predict.study(shared_data / "f16", None, sets={"1/3/7": (1, 3, 7)}, forms=plays,
+                             linear_parts={"auto": None}, refine_periods=4, log=print)
+    linear, refined = rows[0]["nmse"], rows[2]["nmse"]
+    assert rows[2]["source"] == "static refined"
+    assert all(refined[lv] < 0.9 * linear[lv] for lv in (1, 3, 5, 7)), (refined, linear)

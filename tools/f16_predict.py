@@ -78,6 +78,16 @@ EXTRA = {
                                            {"kind": "velocity_saturation", "params": {"limit": 1e-3}}],
 }
 
+#: several plays of different widths (``--plays``): a discrete Iwan model, a spring through a distribution of
+#: frictional slips (two: half and twice the play nifo characterize suggests, 0.14 mm)
+PLAYS = {
+    "plays 0.07/0.28 mm": [{"kind": "backlash", "params": {"deadband": 7e-5}},
+                           {"kind": "backlash", "params": {"deadband": 2.8e-4}}],
+    "plays 0.05/0.14/0.4 mm": [{"kind": "backlash", "params": {"deadband": 5e-5}},
+                               {"kind": "backlash", "params": {"deadband": 1.4e-4}},
+                               {"kind": "backlash", "params": {"deadband": 4e-4}}],
+}
+
 
 def load(level: int, data: Path, *, skip: int) -> "object":
     return load_record(data / f"F16Data_FullMSine_Level{level}.mat", columns=COLUMNS, skip_periods=skip or None,
@@ -247,6 +257,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--all", action="store_true", help="also backlash + friction")
     ap.add_argument("--extra", action="store_true", help="the softening forms instead (saturation, velocity "
                     "saturation, backlash + velocity saturation)")
+    ap.add_argument("--plays", action="store_true", help="the multi-play forms instead (two or three plays of "
+                    "different widths: a discrete Iwan model)")
     ap.add_argument("--joint", type=int, default=0, metavar="PERIODS",
                     help="also identify the linear part jointly with the terms by output error on this many periods "
                          "(its residues; compared with the linear model refined the same way)")
@@ -267,6 +279,8 @@ def main(argv: list[str] | None = None) -> int:
         forms = {k: v for k, v in forms.items() if k != "backlash 0.14 mm + friction"}
     if args.extra:
         forms = EXTRA
+    if args.plays:
+        forms = PLAYS
     rows = study(args.data, args.out, sets=sets, forms=forms, linear_parts=lps, sources=sources,
                  partial=args.json, refine_periods=args.refine, joint_periods=args.joint)
     ver = verdicts(rows)
