@@ -363,10 +363,7 @@ class CrossSpectralAccumulator:
                 hint="record longer or choose a smaller block")
         f = self.settings.freq_hz(self.fs_hz)
         scale = _density_scale(self.settings, self.fs_hz) / self._n_blocks
-        if band_hz is None:
-            return CrossSpectra(f, self._sum * scale[:, None, None], self._n_blocks, self.fs_hz, self.settings,
-                                self.names)
-        keep = (f >= band_hz[0]) & (f <= band_hz[1])
+        keep = slice(None) if band_hz is None else (f >= band_hz[0]) & (f <= band_hz[1])
         return CrossSpectra(f[keep], self._sum[keep] * scale[keep, None, None], self._n_blocks, self.fs_hz,
                             self.settings, self.names)
 

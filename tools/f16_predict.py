@@ -123,14 +123,27 @@ def refine(model, linear, full: dict, ids, periods: int, log=print):
     return refine_model(model, recs, linear=linear, band_hz=ANALYSIS, period_samples=PERIOD, skip_samples=PERIOD)
 
 
-def joint(model, linear, full: dict, ids, periods: int, *, max_iterations: int = 40, log=print) -> tuple:
+def _joint_kw(max_iterations: int) -> dict:
+    return dict(band_hz=ANALYSIS, period_samples=PERIOD, skip_samples=PERIOD, linear_residues=True,
+                max_iterations=max_iterations)
+
+
+def joint_linear(linear, full: dict, ids, periods: int, *, max_iterations: int = 40):
+    """The linear model's rational residues refined alone by output error (its poles kept): the linear
+    baseline of :func:`joint`, on the first ``periods`` periods of the identification levels."""
+    from nifo_core.refine import refine_model
+
+    recs = [full[lv].slice(0, periods * PERIOD) for lv in ids]
+    return refine_model(linear, recs, **_joint_kw(max_iterations)).model
+
+
+def joint(model, lin, full: dict, ids, periods: int, *, max_iterations: int = 40, log=print):
     """The linear part identified jointly with the terms by output error (``--joint``).
 
-    1. the linear model's rational residues refined alone (its poles kept): the linear baseline of the
-       same procedure; 2. on that linear part, the terms at NIFO's coefficients adding only their bounded
-       remainder (a play's force minus its slope: stable whatever θ), refined with the residues. Both on the
-       first ``periods`` periods of the identification levels, scored as the study scores.
-    Returns (refined linear model, refined nonlinear model).
+    On ``lin`` (:func:`joint_linear`), the terms at NIFO's coefficients adding only their bounded
+    remainder (a play's force minus its slope: stable whatever θ), refined with the residues on the
+    first ``periods`` periods of the identification levels, scored as the study scores.
+    Returns the refined nonlinear model.
     """
     from dataclasses import replace
 
@@ -138,18 +151,15 @@ def joint(model, linear, full: dict, ids, periods: int, *, max_iterations: int =
     from nifo_core.refine import refine_model
 
     recs = [full[lv].slice(0, periods * PERIOD) for lv in ids]
-    kw = dict(band_hz=ANALYSIS, period_samples=PERIOD, skip_samples=PERIOD, linear_residues=True,
-              max_iterations=max_iterations)
     t0 = time.perf_counter()
-    lin = refine_model(linear, recs, **kw).model
     gam = np.asarray(model.c_over_m2, float)
     start = replace(lin, terms=model.terms, c_over_m2=gam, source=model.source,
                     b=np.zeros((len(model.terms), lin.freq_hz.size), complex),
                     linear=replace(lin.linear, absorbed=absorbed_rates(model.terms, gam)))
-    nl = refine_model(start, recs, **kw)
+    nl = refine_model(start, recs, **_joint_kw(max_iterations))
     log(f"  joint output error on {periods} periods of {'/'.join(map(str, ids))}: {nl.message} "
         f"[{time.perf_counter() - t0:.0f}s]")
-    return lin, nl.model
+    return nl.model
 
 
 def study(data: Path, out: Path | None, *, sets: dict, forms: dict, linear_parts: dict, sources=("static",),
@@ -163,7 +173,7 @@ def study(data: Path, out: Path | None, *, sets: dict, forms: dict, linear_parts
     """
     steady = {lv: load(lv, data, skip=1) for lv in LEVELS}      # identification: periods 2-9
     full = {lv: load(lv, data, skip=0) for lv in LEVELS}        # prediction: the whole record, from rest
-    linear_models = {}
+    linear_models, joint_linears = {}, {}
     rows = []
     for set_name, ids in sets.items():
         for lp_name, order in linear_parts.items():
@@ -202,11 +212,16 @@ def study(data: Path, out: Path | None, *, sets: dict, forms: dict, linear_parts
                     if partial is not None:
                         partial.write_text(json.dumps({"rows": rows}, indent=1, default=str))
                     if joint_periods and spec:
+                        todo = []
                         with warnings.catch_warnings():
                             warnings.simplefilter("ignore")
-                            lj, nj = joint(model, linear_models[(set_name, lp_name)], full, ids, joint_periods,
-                                           log=log)
-                        for name, m in (("linear", lj), (form_name, nj)):
+                            if (set_name, lp_name) not in joint_linears:     # once per set and linear part
+                                joint_linears[(set_name, lp_name)] = joint_linear(
+                                    linear_models[(set_name, lp_name)], full, ids, joint_periods)
+                                todo.append(("linear", joint_linears[(set_name, lp_name)]))
+                            todo.append((form_name, joint(model, joint_linears[(set_name, lp_name)], full, ids,
+                                                          joint_periods, log=log)))
+                        for name, m in todo:
                             jrow = {**row, "form": name, "source": "joint", "nmse": {}, "errors": {}}
                             predict_levels(m, full, jrow)
                             rows.append(jrow)
