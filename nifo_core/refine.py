@@ -41,6 +41,14 @@ already beat the linear model (``both_starts=True``: always); the better
 result is kept. A step whose simulation diverges counts as a very poor fit
 and is refused.
 
+The linear part identified jointly with the terms (:func:`refine_jointly`,
+``nifo identify --refine-linear``): the linear model's residues are refined
+alone first — the linear baseline of the procedure — and the terms are then
+added to *that* linear part as their bounded remainder, refined with its
+residues from two starts, NIFO's coefficients and zero (the refined linear
+model itself), the better on the identification records kept: the result
+never predicts them worse than the equally refined linear model.
+
 Minimised by :func:`scipy.optimize.least_squares` (trust-region reflective,
 finite-difference Jacobian: one simulation per parameter and record per
 iteration). The refinement never makes the model worse on the records it is
@@ -64,7 +72,7 @@ from .model import IdentifiedModel, PredictionDivergedError, predict_body, recor
 from .prediction_error import band_spectra
 from .record import Record
 
-__all__ = ["Refinement", "refine_model", "model_nmse", "parameter_space"]
+__all__ = ["Refinement", "refine_model", "refine_jointly", "model_nmse", "parameter_space", "start_up_samples"]
 
 #: relative error a diverged simulation counts as (per record; 1 = predicting zero)
 _DIVERGED = 10.0
@@ -226,6 +234,15 @@ def model_nmse(model: IdentifiedModel, records: Sequence[Record], *, band_hz: tu
     return out
 
 
+def start_up_samples(model: IdentifiedModel, record: Record, period_samples: int | None = None) -> int:
+    """Samples left out of the score after a simulation from rest (the default ``skip_samples``): one period
+    of periodic data, else five time constants of the linear part's slowest pole (at most a quarter of the
+    record)."""
+    if period_samples:
+        return int(period_samples)
+    return int(min(len(record.body_accel) // 4, np.ceil(5 * model.linear.slowest_decay_s() * record.fs_hz)))
+
+
 def _skips(skip_samples, n: int) -> list[int]:
     if np.ndim(skip_samples) == 0:
         return [int(skip_samples)] * n
@@ -321,9 +338,7 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
         raise InputError("refinement needs at least one record")
     band = tuple(band_hz) if band_hz is not None else model.analysis_band_hz
     if skip_samples is None:
-        skip_samples = [int(period_samples) if period_samples else
-                        int(min(len(r.body_accel) // 4, np.ceil(5 * model.linear.slowest_decay_s() * r.fs_hz)))
-                        for r in records]
+        skip_samples = [start_up_samples(model, r, period_samples) for r in records]
     skips = _skips(skip_samples, len(records))
     # the NIFO model keeps its convention: the terms' linear part absorbed into the linear part (bounded
     # feedback) when from_nifo chose so, else not
@@ -434,6 +449,47 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
     refined = replace(refined, provenance=prov)
     return Refinement(model=refined, start=best, nmse_before=before, nmse=finals[best], parameters=params,
                       evaluations=n_eval, message=msg, labels=[r.source for r in records])
+
+
+def refine_jointly(model: IdentifiedModel, linear: Refinement, records: Sequence[Record], *,
+                   max_iterations: int = 40, **kw) -> Refinement:
+    """The terms of ``model`` refined jointly with the residues of ``linear``'s linear part (module docstring).
+
+    Parameters
+    ----------
+    model : IdentifiedModel
+        The NIFO model: its terms and their coefficients (its own linear part is not used).
+    linear : Refinement
+        The linear model of the same data with its residues refined alone on the same ``records``
+        (``refine_model(linear_model, records, linear_residues=True)``): the linear baseline of the
+        procedure, refined once and shared by every model form compared on it.
+    records, max_iterations, **kw
+        As :func:`refine_model` (``linear_residues`` is implied).
+
+    Returns
+    -------
+    Refinement
+        From the better of two starts on ``linear``'s linear part: NIFO's coefficients (start
+        ``'nifo'``) and zero coefficients (start ``'linear'``), both adding only the terms' bounded
+        remainder (their slope absorbed), so that no θ moves a pole.
+
+    Raises
+    ------
+    ConfigError
+        When ``linear`` is not a refined linear model with a rational linear part, or ``model`` has no term.
+    """
+    lin = linear.model
+    if lin.terms or lin.linear.kind != "rational":
+        raise ConfigError("the joint refinement needs a linear model with a rational linear part",
+                          hint="use --refine (the coefficients alone) for a one-mass body")
+    if not model.terms:
+        raise ConfigError("the model has no nonlinear term to refine")
+    gam = np.asarray(model.c_over_m2, float)
+    start = replace(lin, terms=model.terms, c_over_m2=gam, source=model.source, provenance=dict(model.provenance),
+                    b=np.zeros((len(model.terms), lin.freq_hz.size), complex),
+                    linear=replace(lin.linear, absorbed=absorbed_rates(model.terms, gam)))
+    return refine_model(start, records, linear=lin, both_starts=True, linear_residues=True,
+                        max_iterations=max_iterations, **kw)
 
 
 def _covariance(sol) -> np.ndarray | None:

@@ -31,6 +31,27 @@ def test_score_is_zero_for_a_perfect_prediction_and_one_hundred_for_none():
     assert f16_predict.score(y, np.zeros_like(y), 400.0) == pytest.approx(100.0)
 
 
+def test_the_choice_uses_the_identification_levels_alone_and_keeps_linear_when_nothing_beats_it_there():
+    def row(form, source, nmse, ids=(3, 5, 7)):
+        return {"set": "s", "identified_on": list(ids), "linear_part": "auto", "form": form, "source": source,
+                "nmse": dict(zip(f16_predict.LEVELS, nmse))}
+    lib, joint_lin = row("linear", "static", [1, 1, 1, 1]), row("linear", "joint", [0.5, 0.5, 0.5, 0.5])
+    rows = [lib, joint_lin,
+            row("a", "static", [0.1, 0.9, 0.9, 0.9]),          # margin 1.11 against the library's linear
+            row("b", "static", [5.0, 0.6, 0.7, 0.8]),          # margin 1.25; loses the held-out level 1
+            row("c", "joint", [0.3, 0.45, 0.45, 0.45]),        # margin 1.11 against the linear model of its procedure
+            row("d", "static", [0.1, 0.1, 0.1, 1.2])]          # loses level 7: does not qualify
+    (sel,) = f16_predict.select(rows)
+    assert (sel["form"], sel["margin"]) == ("b", pytest.approx(1.25))
+    assert sel["held_out_better"] == {1: False} and not sel["every_level_better"]
+    (sel,) = f16_predict.select(rows, strict=True)     # against the better linear model at each level: c alone
+    assert sel["form"] == "c" and sel["baseline"] == {lv: 0.5 for lv in f16_predict.LEVELS}
+    (sel,) = f16_predict.select([lib, joint_lin, rows[4], rows[5]])
+    assert sel["form"] == "c" and sel["baseline"] == joint_lin["nmse"] and sel["every_level_better"]
+    (sel,) = f16_predict.select([lib, joint_lin, rows[5]])
+    assert (sel["form"], sel["source"]) == ("linear", "joint") and sel["held_out_better"] == {1: False}
+
+
 @pytest.mark.slow
 def test_identified_on_3_5_7_predicts_every_level_without_divergence(shared_data, tmp_path):
     rows = f16_predict.study(shared_data / "f16", tmp_path, sets={"3/5/7": (3, 5, 7)},

@@ -115,9 +115,10 @@ def test_a_directory_without_model_json_is_named(tmp_path):
 @pytest.mark.slow
 def test_identify_refine_linear_on_f16_level_5_refines_the_residues_and_the_model_stays_stable_at_level_7(
         shared_data, tmp_path, capsys):
-    """--refine-linear: a rational linear part's residues refined with the play, from the linear start (bounded
-    feedback, poles kept), so the model cannot run away at a level it was not fitted on (from the NIFO start it
-    did: |z| grew without bound at level 7)."""
+    """--refine-linear: the linear model's residues refined alone (the baseline written beside the model), then a
+    rational linear part's residues refined with the play on that linear part (bounded feedback, poles kept) from
+    NIFO's coefficient and from zero, so the model cannot run away at a level it was not fitted on (on its own
+    linear part from the NIFO start it did: |z| grew without bound at level 7)."""
     f16 = ["--columns", "spindle_accel=Acceleration[1],body_accel=Acceleration[2],fs=Fs"]
     opts = ["--no-plots", "--freq-range", "2", "15", "--period-samples", "8192"]
     model = tmp_path / "m.yaml"
@@ -127,7 +128,8 @@ def test_identify_refine_linear_on_f16_level_5_refines_the_residues_and_the_mode
                      "--out", ident, *opts, "--block", "8192", "--overlap", "0", "--window", "boxcar", "--band",
                      "1.5", "40", "--skip-periods", "1", "--refine-linear", "--refine-seconds", "41"]) == 0
     ref = json.loads((ident / "identify.json").read_text())["summary"]["refinement"]
-    assert "residue pairs" in ref["message"] and ref["start"] == "linear", ref["message"]
+    assert "residue pairs" in ref["message"] and set(ref["nmse_before_pct"]) == {"nifo", "linear"}, ref["message"]
+    assert "residue pairs" in ref["linear"]["message"] and sum(ref["nmse_pct"]) <= sum(ref["linear"]["nmse_pct"])
     m, _ = read_model(ident)
     assert m.linear.kind == "rational" and m.linear.stable and m.provenance["refined"]["covariance"]["residues"]
     assert _quietly(["predict", shared_data / "f16" / "F16Data_FullMSine_Level7.mat", *f16, "--model", ident,

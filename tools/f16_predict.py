@@ -25,7 +25,8 @@ started from rest), and scored on
 (Y: DFT of the measured payload acceleration's period average). A model.json
 is written for every identification (``--out``), as ``nifo identify`` does.
 
-Run: ``python tools/f16_predict.py [--data DIR] [--out DIR] [--json FILE] [--img DIR] [--quick]``
+Run: ``python tools/f16_predict.py [--data DIR] [--out DIR] [--json FILE] [--quick] [--plays] [--refine P] [--joint P]``;
+the choice on the identification levels alone from earlier runs: ``python tools/f16_predict.py --select FILE...``
 """
 
 from __future__ import annotations
@@ -123,40 +124,28 @@ def refine(model, linear, full: dict, ids, periods: int, log=print):
     return refine_model(model, recs, linear=linear, band_hz=ANALYSIS, period_samples=PERIOD, skip_samples=PERIOD)
 
 
-def _joint_kw(max_iterations: int) -> dict:
-    return dict(band_hz=ANALYSIS, period_samples=PERIOD, skip_samples=PERIOD, linear_residues=True,
-                max_iterations=max_iterations)
+def _joint_kw() -> dict:
+    return dict(band_hz=ANALYSIS, period_samples=PERIOD, skip_samples=PERIOD)
 
 
-def joint_linear(linear, full: dict, ids, periods: int, *, max_iterations: int = 40):
+def joint_linear(linear, full: dict, ids, periods: int):
     """The linear model's rational residues refined alone by output error (its poles kept): the linear
-    baseline of :func:`joint`, on the first ``periods`` periods of the identification levels."""
+    baseline of :func:`joint`, on the first ``periods`` periods of the identification levels (a Refinement)."""
     from nifo_core.refine import refine_model
 
     recs = [full[lv].slice(0, periods * PERIOD) for lv in ids]
-    return refine_model(linear, recs, **_joint_kw(max_iterations)).model
+    return refine_model(linear, recs, linear_residues=True, max_iterations=40, **_joint_kw())
 
 
-def joint(model, lin, full: dict, ids, periods: int, *, max_iterations: int = 40, log=print):
-    """The linear part identified jointly with the terms by output error (``--joint``).
-
-    On ``lin`` (:func:`joint_linear`), the terms at NIFO's coefficients adding only their bounded
-    remainder (a play's force minus its slope: stable whatever θ), refined with the residues on the
-    first ``periods`` periods of the identification levels, scored as the study scores.
-    Returns the refined nonlinear model.
-    """
-    from dataclasses import replace
-
-    from nifo_core.linear_part import absorbed_rates
-    from nifo_core.refine import refine_model
+def joint(model, lin, full: dict, ids, periods: int, log=print):
+    """The linear part identified jointly with the terms by output error (``--joint``):
+    :func:`nifo_core.refine.refine_jointly` on ``lin`` (:func:`joint_linear`) and the first ``periods``
+    periods of the identification levels, scored as the study scores. Returns the refined nonlinear model."""
+    from nifo_core.refine import refine_jointly
 
     recs = [full[lv].slice(0, periods * PERIOD) for lv in ids]
     t0 = time.perf_counter()
-    gam = np.asarray(model.c_over_m2, float)
-    start = replace(lin, terms=model.terms, c_over_m2=gam, source=model.source,
-                    b=np.zeros((len(model.terms), lin.freq_hz.size), complex),
-                    linear=replace(lin.linear, absorbed=absorbed_rates(model.terms, gam)))
-    nl = refine_model(start, recs, **_joint_kw(max_iterations))
+    nl = refine_jointly(model, lin, recs, **_joint_kw())
     log(f"  joint output error on {periods} periods of {'/'.join(map(str, ids))}: {nl.message} "
         f"[{time.perf_counter() - t0:.0f}s]")
     return nl.model
@@ -218,7 +207,7 @@ def study(data: Path, out: Path | None, *, sets: dict, forms: dict, linear_parts
                             if (set_name, lp_name) not in joint_linears:     # once per set and linear part
                                 joint_linears[(set_name, lp_name)] = joint_linear(
                                     linear_models[(set_name, lp_name)], full, ids, joint_periods)
-                                todo.append(("linear", joint_linears[(set_name, lp_name)]))
+                                todo.append(("linear", joint_linears[(set_name, lp_name)].model))
                             todo.append((form_name, joint(model, joint_linears[(set_name, lp_name)], full, ids,
                                                           joint_periods, log=log)))
                         for name, m in todo:
@@ -262,6 +251,70 @@ def verdicts(rows: list[dict]) -> list[dict]:
     return out
 
 
+def select(rows: list[dict], *, strict: bool = False) -> list[dict]:
+    """Per set, the model chosen on the identification levels alone, and how it predicts the held-out ones.
+
+    A candidate (any nonlinear row) qualifies when it predicts every identification level better than its
+    linear baseline: the linear model of its own procedure (the library's for NIFO and refined rows, the
+    linear model refined the same way for joint rows), or with ``strict`` at each level the better of all
+    the set's linear models. Of those the one with the widest margin (largest smallest ratio) is kept; none
+    qualifying keeps the linear model (the better one on the identification levels). The held-out levels
+    play no part in the choice: they score it.
+    """
+    out = []
+    for set_name in dict.fromkeys(r["set"] for r in rows):
+        mine = [r for r in rows if r["set"] == set_name]
+        ids = mine[0]["identified_on"]
+        held = [lv for lv in LEVELS if lv not in ids]
+        linears = {r["source"] == "joint": r for r in mine if r["form"] == "linear"}
+        floor = {lv: min(r["nmse"].get(lv, np.inf) for r in linears.values()) for lv in LEVELS}
+
+        def baseline(r):
+            own = linears.get(r["source"] == "joint")
+            return floor if strict else (own["nmse"] if own is not None else None)
+
+        best, margin = None, 1.0
+        for r in mine:
+            b = baseline(r)
+            if r["form"] == "linear" or b is None or any(lv not in r["nmse"] or lv not in b for lv in LEVELS):
+                continue
+            m = min(b[lv] / r["nmse"][lv] for lv in ids)
+            if m > margin:
+                best, margin = r, m
+        chosen = best or min(linears.values(), key=lambda r: sum(r["nmse"][lv] for lv in ids))
+        b = baseline(chosen)
+        out.append({"set": set_name, "form": chosen["form"], "source": chosen["source"], "strict": strict,
+                    "margin": margin, "nmse": chosen["nmse"], "baseline": b,
+                    "held_out_better": {lv: best is not None and chosen["nmse"][lv] < b[lv] for lv in held},
+                    "every_level_better": best is not None and all(chosen["nmse"][lv] < b[lv] for lv in LEVELS)})
+    return out
+
+
+def _print_selection(rows: list[dict]) -> list[dict]:
+    sel = []
+    for strict, what in ((False, "the linear model of its own procedure"),
+                         (True, "at each level the better of the set's linear models")):
+        print(f"\nchosen on the identification levels alone: beats {what} at each by the widest margin (none: "
+              "the linear model); NMSE [%] chosen | baseline:")
+        for s in select(rows, strict=strict):
+            held = ", ".join(f"L{lv} {'yes' if ok else 'no'}" for lv, ok in s["held_out_better"].items())
+            print(f"  {s['set']:14} {s['form']:24} {s['source']:15} "
+                  + " ".join(f"L{lv} {s['nmse'][lv]:.3f}|{s['baseline'][lv]:.3f}" for lv in LEVELS)
+                  + f"   held out better: {held}; every level: {'yes' if s['every_level_better'] else 'no'}")
+            sel.append(s)
+    return sel
+
+
+def _rows_from(paths: list[Path]) -> list[dict]:
+    """Rows of earlier ``--json`` files (levels back to int), the later file's row winning on a repeat."""
+    rows = {}
+    for p in paths:
+        for r in json.loads(p.read_text())["rows"]:
+            r = {**r, "nmse": {int(k): v for k, v in r["nmse"].items()}}
+            rows[(r["set"], r["linear_part"], r["form"], r["source"])] = r
+    return list(rows.values())
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DATA)
@@ -280,7 +333,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--order", type=int, default=None, help="a rational linear part of this order for every model")
     ap.add_argument("--refine", type=int, default=0, metavar="PERIODS",
                     help="also refine every nonlinear model (output error) on this many periods of its levels")
+    ap.add_argument("--select", type=Path, nargs="+", default=None, metavar="JSON",
+                    help="no new run: the choice on the identification levels (and its held-out score) from the "
+                         "rows of earlier --json files")
     args = ap.parse_args(argv)
+    if args.select:
+        _print_selection(_rows_from(args.select))
+        return 0
     sets, forms, lps = SETS, FORMS, {"auto": None}
     if args.quick:
         sets = {"3/5/7": SETS["3/5/7"]}
@@ -304,8 +363,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {v['set']:14} {v['linear_part']:11} {v['form']:28} {v['source']:6} "
               f"{'yes' if v['better_at_every_level'] else 'no ':>4} / {'yes' if v['better_at_held_out'] else 'no'}   "
               + " ".join(f"L{lv} {r:5.2f}x" if r else f"L{lv}   n/a" for lv, r in v["ratio"].items()))
+    sel = _print_selection(rows)
     if args.json:
-        args.json.write_text(json.dumps({"rows": rows, "verdicts": ver}, indent=1, default=str))
+        args.json.write_text(json.dumps({"rows": rows, "verdicts": ver, "selection": sel}, indent=1, default=str))
     return 0
 
 

@@ -99,11 +99,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "from the linear model, keeps the better")
     r.add_argument("--refine-linear", action="store_true",
                    help="--refine, and also refine a rational linear part's residues (poles kept), the linear part "
-                        "identified jointly with the terms; 2 parameters per mode, so slower, and it can fit the "
-                        "identification levels at the cost of others (docs/f16_predict.md)")
+                        "identified jointly with the terms: the linear model's residues first (written as the "
+                        "linear baseline), then the terms with them from NIFO's coefficients and from zero, the "
+                        "better kept; 2 parameters per mode, so minutes, and it can fit the identification levels "
+                        "at the cost of others (docs/f16_predict.md)")
     r.add_argument("--refine-seconds", type=float, default=120.0, metavar="S",
                    help="simulate at most this much of each record per evaluation (default 120 s; whole periods "
-                        "with --period-samples)")
+                        "with --period-samples), from the record's start: the part --skip-periods/--skip-seconds "
+                        "leave out is simulated too but not scored, and not counted here")
     add_input_arguments(p)
     add_system_argument(p)
 
@@ -476,9 +479,12 @@ def run(args: argparse.Namespace) -> int:
         if not model.terms:
             warn.append("--refine: the model has no nonlinear term, nothing to refine")
         else:
-            refinement = _refine(args, model, linear, opts, [d["path"] for d in _entries(data)])
+            refinement, linear_refinement = _refine(args, model, linear, opts, [d["path"] for d in _entries(data)])
             model = refinement.model
             summary["refinement"] = refinement.to_dict()
+            if linear_refinement is not None:     # the linear baseline of the joint procedure, refined the same way
+                linear = linear_refinement.model
+                summary["refinement"]["linear"] = linear_refinement.to_dict()
     prov = {"data": data, "model_file": str(args.model), "settings": _settings_doc(cfg, res)}
     settings_doc = _settings_doc(cfg, res)
     model_file = {"path": str(args.model), "steps": [{"name": s.name, "terms": [t.to_dict() for t in s.terms]}
@@ -497,6 +503,8 @@ def run(args: argparse.Namespace) -> int:
             write_model(tmp / MODEL_JSON, model, linear=linear, atomic=False)
     print(format_summary(summary, warn, out=args.out, files=files, model_written=model is not None))
     if refinement is not None:
+        if "linear" in summary["refinement"]:
+            print("linear baseline: " + summary["refinement"]["linear"]["message"])
         print(refinement.message)
         for prm in refinement.parameters:
             hw = prm.get("half_width_95")
@@ -507,26 +515,46 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _refine(args, model, linear, opts: dict, paths: list):
-    """Output-error refinement of ``model`` on the identification records (``--refine``)."""
+    """Output-error refinement of ``model`` on the identification records (``--refine``): (refinement, None).
+
+    ``--refine-linear`` with a rational linear part: the joint procedure
+    (:func:`nifo_core.refine.refine_jointly`): the linear model's residues refined alone, then the terms with
+    them from two starts; (refinement, the linear model's refinement).
+    """
     from nifo.io.loader import load_record
     from nifo.progress import Progress
-    from nifo_core.refine import refine_model
+    from nifo_core.refine import refine_jointly, refine_model, start_up_samples
 
     period = opts.get("period_samples")
-    records = []
+    # every record simulated from its start, where the measurement began (a test rig starts from rest); the
+    # part the identification skipped (--skip-periods/--skip-seconds) is left out of the score, and
+    # --refine-seconds counts after it
+    load_opts = {k: v for k, v in opts.items() if k not in ("skip_periods", "skip_seconds")}
+    records, skips = [], []
     for path in paths:
-        rec = load_record(path, **opts)
+        rec = load_record(path, **load_opts)
+        skip = int(opts.get("skip_periods") or 0) * int(period or 0) or \
+            int(round(float(opts.get("skip_seconds") or 0.0) * rec.fs_hz))
         n = int(round(args.refine_seconds * rec.fs_hz))
         if period:
             n = max(int(period) * 2, n // int(period) * int(period))
-        if n < rec.n:
-            rec = rec.slice(0, n)
+        if skip + n < rec.n:
+            rec = rec.slice(0, skip + n)
         records.append(rec)
+        skips.append(max(skip, start_up_samples(model, rec, period)))
+    jointly = bool(getattr(args, "refine_linear", False)) and linear.linear.kind == "rational"
     with Progress(None, "refine (simulations)", enabled=True) as bar:
-        return refine_model(model, records, linear=linear, period_samples=period,
+        def progress(what: str):
+            return lambda start, k, cost: setattr(bar, "desc", f"refine {what} from the {start} start: "
+                                                               f"cost {cost:.4g}") or bar.advance(1)
+        if jointly:
+            lin = refine_model(linear, records, period_samples=period, skip_samples=skips, linear_residues=True,
+                               max_iterations=40, progress=progress("the linear model"))
+            return refine_jointly(model, lin, records, period_samples=period, skip_samples=skips,
+                                  progress=progress("jointly")), lin
+        return refine_model(model, records, linear=linear, period_samples=period, skip_samples=skips,
                             linear_residues=bool(getattr(args, "refine_linear", False)),
-                            progress=lambda start, k, cost: setattr(bar, "desc", f"refine from the {start} start: "
-                                                                   f"cost {cost:.4g}") or bar.advance(1))
+                            progress=progress("the model")), None
 
 
 def _entries(data) -> list[dict]:
