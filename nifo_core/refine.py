@@ -234,6 +234,14 @@ def model_nmse(model: IdentifiedModel, records: Sequence[Record], *, band_hz: tu
     return out
 
 
+def _terms_on(linear: IdentifiedModel, model: IdentifiedModel, gammas: np.ndarray) -> IdentifiedModel:
+    """``model``'s terms at coefficients ``gammas`` on ``linear``'s linear part, taken as the realised one: the
+    terms' slope absorbed into it, so that each adds only its bounded remainder."""
+    return replace(linear, terms=model.terms, c_over_m2=gammas, source=model.source,
+                   provenance=dict(model.provenance), b=np.zeros((len(model.terms), linear.freq_hz.size), complex),
+                   linear=replace(linear.linear, absorbed=absorbed_rates(model.terms, gammas)))
+
+
 def start_up_samples(model: IdentifiedModel, record: Record, period_samples: int | None = None) -> int:
     """Samples left out of the score after a simulation from rest (the default ``skip_samples``): one period
     of periodic data, else five time constants of the linear part's slowest pole (at most a quarter of the
@@ -352,11 +360,9 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
     if linear is not None and model.terms:
         if linear.terms:
             raise ConfigError("linear= must be a model without terms (source 'h1')")
-        base = replace(linear, terms=model.terms, c_over_m2=np.zeros(len(model.terms)),
-                       b=np.zeros((len(model.terms), linear.freq_hz.size), complex), source=model.source,
-                       provenance=dict(model.provenance))
         # the linear model's linear part is the realised one: the terms add only their bounded remainder
         # (a play's or a clearance's force minus its slope), so no γ can destabilise it
+        base = _terms_on(linear, model, np.zeros(len(model.terms)))
         starts["linear"] = _space(base, model, shape=shape, linear_params=linear_params, track_absorbed=True,
                                   residues=linear_residues)
     n_eval = 0
@@ -484,10 +490,7 @@ def refine_jointly(model: IdentifiedModel, linear: Refinement, records: Sequence
                           hint="use --refine (the coefficients alone) for a one-mass body")
     if not model.terms:
         raise ConfigError("the model has no nonlinear term to refine")
-    gam = np.asarray(model.c_over_m2, float)
-    start = replace(lin, terms=model.terms, c_over_m2=gam, source=model.source, provenance=dict(model.provenance),
-                    b=np.zeros((len(model.terms), lin.freq_hz.size), complex),
-                    linear=replace(lin.linear, absorbed=absorbed_rates(model.terms, gam)))
+    start = _terms_on(lin, model, np.asarray(model.c_over_m2, float))
     return refine_model(start, records, linear=lin, both_starts=True, linear_residues=True,
                         max_iterations=max_iterations, **kw)
 

@@ -120,12 +120,16 @@ def refine(model, linear, full: dict, ids, periods: int, log=print):
     identification levels, from rest, scored as the study scores (2-15 Hz, period average, first period dropped)."""
     from nifo_core.refine import refine_model
 
-    recs = [full[lv].slice(0, periods * PERIOD) for lv in ids]
-    return refine_model(model, recs, linear=linear, band_hz=ANALYSIS, period_samples=PERIOD, skip_samples=PERIOD)
+    return refine_model(model, _first(full, ids, periods), linear=linear, **_SCORED)
 
 
-def _joint_kw() -> dict:
-    return dict(band_hz=ANALYSIS, period_samples=PERIOD, skip_samples=PERIOD)
+#: the refinement scored as the study scores: 2-15 Hz, period average, the first period dropped
+_SCORED = dict(band_hz=ANALYSIS, period_samples=PERIOD, skip_samples=PERIOD)
+
+
+def _first(full: dict, ids, periods: int) -> list:
+    """The first ``periods`` periods of the identification levels (simulated from rest, as the test began)."""
+    return [full[lv].slice(0, periods * PERIOD) for lv in ids]
 
 
 def joint_linear(linear, full: dict, ids, periods: int):
@@ -133,8 +137,7 @@ def joint_linear(linear, full: dict, ids, periods: int):
     baseline of :func:`joint`, on the first ``periods`` periods of the identification levels (a Refinement)."""
     from nifo_core.refine import refine_model
 
-    recs = [full[lv].slice(0, periods * PERIOD) for lv in ids]
-    return refine_model(linear, recs, linear_residues=True, max_iterations=40, **_joint_kw())
+    return refine_model(linear, _first(full, ids, periods), linear_residues=True, max_iterations=40, **_SCORED)
 
 
 def joint(model, lin, full: dict, ids, periods: int, log=print):
@@ -143,9 +146,8 @@ def joint(model, lin, full: dict, ids, periods: int, log=print):
     periods of the identification levels, scored as the study scores. Returns the refined nonlinear model."""
     from nifo_core.refine import refine_jointly
 
-    recs = [full[lv].slice(0, periods * PERIOD) for lv in ids]
     t0 = time.perf_counter()
-    nl = refine_jointly(model, lin, recs, **_joint_kw())
+    nl = refine_jointly(model, lin, _first(full, ids, periods), **_SCORED)
     log(f"  joint output error on {periods} periods of {'/'.join(map(str, ids))}: {nl.message} "
         f"[{time.perf_counter() - t0:.0f}s]")
     return nl.model
@@ -262,8 +264,8 @@ def select(rows: list[dict], *, strict: bool = False) -> list[dict]:
     play no part in the choice: they score it.
     """
     out = []
-    for set_name in dict.fromkeys(r["set"] for r in rows):
-        mine = [r for r in rows if r["set"] == set_name]
+    for set_name, lp in dict.fromkeys((r["set"], r["linear_part"]) for r in rows):
+        mine = [r for r in rows if (r["set"], r["linear_part"]) == (set_name, lp)]
         ids = mine[0]["identified_on"]
         held = [lv for lv in LEVELS if lv not in ids]
         linears = {r["source"] == "joint": r for r in mine if r["form"] == "linear"}
@@ -283,7 +285,8 @@ def select(rows: list[dict], *, strict: bool = False) -> list[dict]:
                 best, margin = r, m
         chosen = best or min(linears.values(), key=lambda r: sum(r["nmse"][lv] for lv in ids))
         b = baseline(chosen)
-        out.append({"set": set_name, "form": chosen["form"], "source": chosen["source"], "strict": strict,
+        out.append({"set": set_name, "linear_part": lp, "form": chosen["form"], "source": chosen["source"],
+                    "strict": strict,
                     "margin": margin, "nmse": chosen["nmse"], "baseline": b,
                     "held_out_better": {lv: best is not None and chosen["nmse"][lv] < b[lv] for lv in held},
                     "every_level_better": best is not None and all(chosen["nmse"][lv] < b[lv] for lv in LEVELS)})
