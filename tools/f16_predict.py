@@ -25,6 +25,12 @@ started from rest), and scored on
 (Y: DFT of the measured payload acceleration's period average). A model.json
 is written for every identification (``--out``), as ``nifo identify`` does.
 
+Every model also predicts the benchmark's **sine sweeps** (``SineSw``, 15 → 2 Hz
+at -0.05 Hz/s, levels 1/3/5/7, force amplitude 4.8-95.6 N), from rest, scored
+as the band-passed (2-15 Hz) time-domain NMSE over the whole record: a second
+excitation, never used to identify or to choose anything — the check that a
+model did not just learn the one multisine realisation it was fitted on.
+
 Run: ``python tools/f16_predict.py [--data DIR] [--out DIR] [--json FILE] [--quick] [--plays] [--refine P] [--joint P]``;
 the choice on the identification levels alone from earlier runs: ``python tools/f16_predict.py --select FILE...``
 """
@@ -95,17 +101,32 @@ def load(level: int, data: Path, *, skip: int) -> "object":
                        period_samples=PERIOD)
 
 
+def load_sweep(level: int, data: Path):
+    """The sine sweep at ``level`` (None when the file is not there)."""
+    path = data / f"F16Data_SineSw_Level{level}.mat"
+    return load_record(path, columns=COLUMNS) if path.exists() else None
+
+
+def sweep_score(y: np.ndarray, yhat: np.ndarray, fs_hz: float) -> float:
+    """NMSE [%] of the 2-15 Hz band-passed sweep response over the whole record (both start from rest)."""
+    return band_nmse(y, yhat, fs_hz, band_hz=ANALYSIS)
+
+
 def score(y: np.ndarray, yhat: np.ndarray, fs_hz: float) -> float:
     """NMSE [%] over the 2-15 Hz lines of the period average of periods 2.. (the first dropped)."""
     return band_nmse(y, yhat, fs_hz, band_hz=ANALYSIS, period_samples=PERIOD, skip_samples=PERIOD)
 
 
 def _levels(row: dict) -> str:
-    return " ".join(f"L{lv} {row['nmse'].get(lv, float('nan')):7.3f}" for lv in LEVELS)
+    out = " ".join(f"L{lv} {row['nmse'].get(lv, float('nan')):7.3f}" for lv in LEVELS)
+    if row.get("sweep"):
+        out += "  | sweep " + " ".join(f"L{lv} {row['sweep'].get(lv, float('nan')):7.3f}" for lv in LEVELS)
+    return out
 
 
-def predict_levels(model, full: dict, row: dict) -> None:
-    """Predict every level from rest; its score into ``row['nmse']``, or why not into ``row['errors']``."""
+def predict_levels(model, full: dict, row: dict, sweeps: dict | None = None) -> None:
+    """Predict every level from rest; its score into ``row['nmse']``, or why not into ``row['errors']``; the
+    sine sweeps (``sweeps``) likewise into ``row['sweep']`` (errors under ``'sweep L<level>'``)."""
     for lv in LEVELS:
         rec = full[lv]
         try:
@@ -113,6 +134,14 @@ def predict_levels(model, full: dict, row: dict) -> None:
             row["nmse"][lv] = score(rec.body_accel, p.body_accel, rec.fs_hz)
         except NifoError as err:
             row["errors"][lv] = str(err)
+    for lv, rec in (sweeps or {}).items():
+        if rec is None:
+            continue
+        try:
+            p = predict_body(model, rec.spindle_accel, rec.fs_hz, label=rec.source)
+            row.setdefault("sweep", {})[lv] = sweep_score(rec.body_accel, p.body_accel, rec.fs_hz)
+        except NifoError as err:
+            row["errors"][f"sweep L{lv}"] = str(err)
 
 
 def refine(model, linear, full: dict, ids, periods: int, log=print):
@@ -164,6 +193,7 @@ def study(data: Path, out: Path | None, *, sets: dict, forms: dict, linear_parts
     """
     steady = {lv: load(lv, data, skip=1) for lv in LEVELS}      # identification: periods 2-9
     full = {lv: load(lv, data, skip=0) for lv in LEVELS}        # prediction: the whole record, from rest
+    sweeps = {lv: load_sweep(lv, data) for lv in LEVELS}        # the second excitation: validation only
     linear_models, joint_linears = {}, {}
     rows = []
     for set_name, ids in sets.items():
@@ -195,7 +225,7 @@ def study(data: Path, out: Path | None, *, sets: dict, forms: dict, linear_parts
                         d.mkdir(parents=True, exist_ok=True)
                         write_model(d / "model.json", model)
                         row["model_json"] = str(d / "model.json")
-                    predict_levels(model, full, row)
+                    predict_levels(model, full, row, sweeps)
                     row["seconds"] = time.perf_counter() - t0
                     rows.append(row)
                     log(f"{set_name:14} {lp_name:11} {form_name:28} {source:6} {_levels(row)}"
@@ -213,8 +243,8 @@ def study(data: Path, out: Path | None, *, sets: dict, forms: dict, linear_parts
                             todo.append((form_name, joint(model, joint_linears[(set_name, lp_name)], full, ids,
                                                           joint_periods, log=log)))
                         for name, m in todo:
-                            jrow = {**row, "form": name, "source": "joint", "nmse": {}, "errors": {}}
-                            predict_levels(m, full, jrow)
+                            jrow = {**row, "form": name, "source": "joint", "nmse": {}, "errors": {}, "sweep": {}}
+                            predict_levels(m, full, jrow, sweeps)
                             rows.append(jrow)
                             log(f"{set_name:14} {lp_name:11} {name:28} {'joint':6} {_levels(jrow)}")
                     if refine_periods and spec:
@@ -222,9 +252,9 @@ def study(data: Path, out: Path | None, *, sets: dict, forms: dict, linear_parts
                         with warnings.catch_warnings():
                             warnings.simplefilter("ignore")
                             ref = refine(model, linear_models.get((set_name, lp_name)), full, ids, refine_periods)
-                        rrow = {**row, "source": source + " refined", "nmse": {}, "errors": {},
+                        rrow = {**row, "source": source + " refined", "nmse": {}, "errors": {}, "sweep": {},
                                 "refinement": ref.to_dict()}
-                        predict_levels(ref.model, full, rrow)
+                        predict_levels(ref.model, full, rrow, sweeps)
                         rrow["seconds"] = time.perf_counter() - t0
                         rows.append(rrow)
                         log(f"{set_name:14} {lp_name:11} {form_name:28} {'refined':6} {_levels(rrow)}"
@@ -249,8 +279,18 @@ def verdicts(rows: list[dict]) -> list[dict]:
                     "better_at_every_level": all(better.values()),
                     "better_at_held_out": all(better[lv] for lv in held),
                     "ratio": {lv: (lin["nmse"][lv] / r["nmse"][lv]) if lv in r["nmse"] and lv in lin["nmse"]
-                              else None for lv in pred}})
+                              else None for lv in pred},
+                    **_sweep_verdict(r, lin)})
     return out
+
+
+def _sweep_verdict(row: dict, lin: dict | None) -> dict:
+    """Better than ``lin`` on the sine sweep at every level (None: no sweep scored), and the ratios."""
+    a, b = row.get("sweep") or {}, (lin or {}).get("sweep") or {}
+    if not a or not b:
+        return {"sweep_better_at_every_level": None, "sweep_ratio": {}}
+    return {"sweep_better_at_every_level": all(lv in a and lv in b and a[lv] < b[lv] for lv in LEVELS),
+            "sweep_ratio": {lv: b[lv] / a[lv] if lv in a and lv in b else None for lv in LEVELS}}
 
 
 def select(rows: list[dict], *, strict: bool = False) -> list[dict]:
@@ -285,8 +325,11 @@ def select(rows: list[dict], *, strict: bool = False) -> list[dict]:
                 best, margin = r, m
         chosen = best or min(linears.values(), key=lambda r: sum(r["nmse"][lv] for lv in ids))
         b = baseline(chosen)
+        own = linears.get(chosen["source"] == "joint")
+        sweep_floor = {lv: min(r.get("sweep", {}).get(lv, np.inf) for r in linears.values()) for lv in LEVELS}
         out.append({"set": set_name, "linear_part": lp, "form": chosen["form"], "source": chosen["source"],
-                    "strict": strict,
+                    "strict": strict, "sweep": chosen.get("sweep") or {},
+                    **_sweep_verdict(chosen, {"sweep": sweep_floor} if strict else own),
                     "margin": margin, "nmse": chosen["nmse"], "baseline": b,
                     "held_out_better": {lv: best is not None and chosen["nmse"][lv] < b[lv] for lv in held},
                     "every_level_better": best is not None and all(chosen["nmse"][lv] < b[lv] for lv in LEVELS)})
@@ -303,7 +346,10 @@ def _print_selection(rows: list[dict]) -> list[dict]:
             held = ", ".join(f"L{lv} {'yes' if ok else 'no'}" for lv, ok in s["held_out_better"].items())
             print(f"  {s['set']:14} {s['form']:24} {s['source']:15} "
                   + " ".join(f"L{lv} {s['nmse'][lv]:.3f}|{s['baseline'][lv]:.3f}" for lv in LEVELS)
-                  + f"   held out better: {held}; every level: {'yes' if s['every_level_better'] else 'no'}")
+                  + f"   held out better: {held}; every level: {'yes' if s['every_level_better'] else 'no'}"
+                  + ("" if s["sweep_better_at_every_level"] is None else
+                     "; sweep " + " ".join(f"L{lv} {v:.3f}" for lv, v in s["sweep"].items())
+                     + f", better at every sweep level: {'yes' if s['sweep_better_at_every_level'] else 'no'}"))
             sel.append(s)
     return sel
 
@@ -313,7 +359,8 @@ def _rows_from(paths: list[Path]) -> list[dict]:
     rows = {}
     for p in paths:
         for r in json.loads(p.read_text())["rows"]:
-            r = {**r, "nmse": {int(k): v for k, v in r["nmse"].items()}}
+            r = {**r, "nmse": {int(k): v for k, v in r["nmse"].items()},
+                 "sweep": {int(k): v for k, v in (r.get("sweep") or {}).items()}}
             rows[(r["set"], r["linear_part"], r["form"], r["source"])] = r
     return list(rows.values())
 
@@ -323,6 +370,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--out", type=Path, default=None, help="write every model.json under this directory")
     ap.add_argument("--json", type=Path, default=None, help="write all rows and verdicts here")
+    ap.add_argument("--sets", nargs="+", default=None, choices=[k.split()[0] for k in SETS], metavar="SET",
+                    help=f"only these identification sets ({', '.join(k.split()[0] for k in SETS)})")
     ap.add_argument("--quick", action="store_true", help="3/5/7 only, backlash and clearance 0.02 mm, auto linear part")
     ap.add_argument("--free", action="store_true", help="also per-line (free) coefficients")
     ap.add_argument("--all", action="store_true", help="also backlash + friction")
@@ -348,7 +397,10 @@ def main(argv: list[str] | None = None) -> int:
         sets = {"3/5/7": SETS["3/5/7"]}
         forms = {k: FORMS[k] for k in ("clearance 0.02 mm", "backlash 0.14 mm")}
         lps = {"auto": None}
-    print(f"NMSE [%] of the period-averaged steady state, 2-15 Hz lines; levels {LEVELS}")
+    if args.sets:
+        sets = {k: v for k, v in sets.items() if k.split()[0] in args.sets}
+    print(f"NMSE [%] of the period-averaged steady state, 2-15 Hz lines; levels {LEVELS}; | sweep: the sine sweeps' "
+          "2-15 Hz band-passed NMSE [%] (validation only)")
     sources = ("static", "free") if args.free else ("static",)
     if args.order:   # a fixed rational order instead of the library's selection
         lps = {f"rational {args.order}": args.order}
@@ -365,7 +417,10 @@ def main(argv: list[str] | None = None) -> int:
     for v in ver:
         print(f"  {v['set']:14} {v['linear_part']:11} {v['form']:28} {v['source']:6} "
               f"{'yes' if v['better_at_every_level'] else 'no ':>4} / {'yes' if v['better_at_held_out'] else 'no'}   "
-              + " ".join(f"L{lv} {r:5.2f}x" if r else f"L{lv}   n/a" for lv, r in v["ratio"].items()))
+              + " ".join(f"L{lv} {r:5.2f}x" if r else f"L{lv}   n/a" for lv, r in v["ratio"].items())
+              + ("" if v["sweep_better_at_every_level"] is None else
+                 f"   sweep: {'yes' if v['sweep_better_at_every_level'] else 'no'} "
+                 + " ".join(f"L{lv} {r:5.2f}x" if r else f"L{lv}   n/a" for lv, r in v["sweep_ratio"].items())))
     sel = _print_selection(rows)
     if args.json:
         args.json.write_text(json.dumps({"rows": rows, "verdicts": ver, "selection": sel}, indent=1, default=str))

@@ -101,8 +101,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="--refine, and also refine a rational linear part's residues (poles kept), the linear part "
                         "identified jointly with the terms: the linear model's residues first (written as the "
                         "linear baseline), then the terms with them from NIFO's coefficients and from zero, the "
-                        "better kept; 2 parameters per mode, so minutes, and it can fit the identification levels "
-                        "at the cost of others (docs/f16_predict.md)")
+                        "better kept; 2 parameters per mode, so minutes. It can fit the one excitation it is given "
+                        "at the cost of others: on the F-16 it beats the linear model on the multisine and loses "
+                        "to it on the sine sweeps; validate on another excitation (docs/f16_predict.md)")
     r.add_argument("--refine-seconds", type=float, default=120.0, metavar="S",
                    help="simulate at most this much of each record per evaluation (default 120 s; whole periods "
                         "with --period-samples), from the record's start: the part --skip-periods/--skip-seconds "
@@ -544,12 +545,13 @@ def _refine(args, model, linear, opts: dict, paths: list):
         skips.append(max(skip, start_up_samples(model, rec, period)))
     jointly = bool(getattr(args, "refine_linear", False)) and linear.linear.kind == "rational"
     with Progress(None, "refine (simulations)", enabled=True) as bar:
-        def progress(what: str):
-            return lambda start, k, cost: setattr(bar, "desc", f"refine {what} from the {start} start: "
-                                                               f"cost {cost:.4g}") or bar.advance(1)
+        def progress(what: str, starts: bool = True):
+            return lambda start, k, cost: setattr(bar, "desc", f"refine {what}"
+                                                  + (f" from the {start} start" if starts else "")
+                                                  + f": cost {cost:.4g}") or bar.advance(1)
         if jointly:
             lin = refine_model(linear, records, period_samples=period, skip_samples=skips, linear_residues=True,
-                               max_iterations=40, progress=progress("the linear model"))
+                               max_iterations=40, progress=progress("the linear model's residues", starts=False))
             return refine_jointly(model, lin, records, period_samples=period, skip_samples=skips,
                                   progress=progress("jointly")), lin
         return refine_model(model, records, linear=linear, period_samples=period, skip_samples=skips,
