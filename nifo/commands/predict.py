@@ -320,7 +320,9 @@ def _pct(x) -> str:
 
 def _summary(results: list[dict], band, out: Path) -> str:
     w = max([24] + [len(r["name"]) for r in results])     # the whole name: records often differ at its end
-    lines = [f"{'record':<{w}} {'NMSE model':>11} {'NMSE linear':>12}   band NMSE {band[0]:g}-{band[1]:g} Hz "
+    # the band NMSE first: the metric of --freq-range; the whole-signal NMSE also counts energy outside the band,
+    # where the model was not identified (on the F-16 at levels 5-7 it is 30-60 % where the band NMSE is 0.3 %)
+    lines = [f"{'record':<{w}} band NMSE {band[0]:g}-{band[1]:g} Hz model | linear   NMSE all frequencies "
              f"model | linear   |T| error model (median/max) | linear (median/max)"]
     for r in results:
         m, li = r["model"], r["linear"]
@@ -329,7 +331,7 @@ def _summary(results: list[dict], band, out: Path) -> str:
         pm_txt = f" ± {pb['band_nmse_half_width_pct']:.2g}" if pb.get("available") else ""
         band_txt = ("not computed: " + m["band_nmse"].get("not_computed", "") if bm is None
                     else f"{bm:.3f}%{pm_txt} | {bl:.3f}%")
-        lines.append(f"{r['name']:<{w}} {m['nmse_percent']:10.2f}% {li['nmse_percent']:11.2f}%   {band_txt}   "
+        lines.append(f"{r['name']:<{w}} {band_txt}   {m['nmse_percent']:.2f}% | {li['nmse_percent']:.2f}%   "
                      f"{_pct(m['transmissibility_error']['median'])} / {_pct(m['transmissibility_error']['max'])}"
                      f" | {_pct(li['transmissibility_error']['median'])} / {_pct(li['transmissibility_error']['max'])}")
         if "truth" in r and "model_nominal_t21_vs_true" in r["truth"]:
