@@ -66,6 +66,9 @@ def test_the_sine_sweep_verdict_compares_each_level_with_the_baseline_and_plays_
     v = {r["form"]: r for r in f16_predict.verdicts([lin, wide, narrow])}
     assert v["narrow"]["sweep_better_at_every_level"] and not v["wide"]["sweep_better_at_every_level"]
     assert v["wide"]["sweep_ratio"][1] == pytest.approx(0.5)
+    lin_old = {**lin, "sweep": {}}                                  # a linear row from a run without sweeps
+    (sel,) = f16_predict.select([lin_old, wide, narrow], strict=True)
+    assert sel["sweep_better_at_every_level"] is None                 # no floor: no verdict, not "yes"
 
 
 @pytest.mark.slow

@@ -31,7 +31,8 @@ as the band-passed (2-15 Hz) time-domain NMSE over the whole record: a second
 excitation, never used to identify or to choose anything — the check that a
 model did not just learn the one multisine realisation it was fitted on.
 
-Run: ``python tools/f16_predict.py [--data DIR] [--out DIR] [--json FILE] [--quick] [--plays] [--refine P] [--joint P]``;
+Run: ``python tools/f16_predict.py [--data DIR] [--out DIR] [--json FILE] [--quick] [--plays] [--refine P] [--joint P]
+[--sets SET...]``;
 the choice on the identification levels alone from earlier runs: ``python tools/f16_predict.py --select FILE...``
 """
 
@@ -285,9 +286,10 @@ def verdicts(rows: list[dict]) -> list[dict]:
 
 
 def _sweep_verdict(row: dict, lin: dict | None) -> dict:
-    """Better than ``lin`` on the sine sweep at every level (None: no sweep scored), and the ratios."""
+    """Better than ``lin`` on the sine sweep at every level (None: ``row`` or ``lin`` has no sweep score, or
+    ``lin`` lacks a level), and the ratios; a level the row could not predict counts as not better."""
     a, b = row.get("sweep") or {}, (lin or {}).get("sweep") or {}
-    if not a or not b:
+    if not a or any(lv not in b for lv in LEVELS):
         return {"sweep_better_at_every_level": None, "sweep_ratio": {}}
     return {"sweep_better_at_every_level": all(lv in a and lv in b and a[lv] < b[lv] for lv in LEVELS),
             "sweep_ratio": {lv: b[lv] / a[lv] if lv in a and lv in b else None for lv in LEVELS}}
@@ -327,6 +329,7 @@ def select(rows: list[dict], *, strict: bool = False) -> list[dict]:
         b = baseline(chosen)
         own = linears.get(chosen["source"] == "joint")
         sweep_floor = {lv: min(r.get("sweep", {}).get(lv, np.inf) for r in linears.values()) for lv in LEVELS}
+        sweep_floor = {lv: v for lv, v in sweep_floor.items() if np.isfinite(v)}
         out.append({"set": set_name, "linear_part": lp, "form": chosen["form"], "source": chosen["source"],
                     "strict": strict, "sweep": chosen.get("sweep") or {},
                     **_sweep_verdict(chosen, {"sweep": sweep_floor} if strict else own),
