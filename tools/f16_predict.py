@@ -128,21 +128,15 @@ def _levels(row: dict) -> str:
 def predict_levels(model, full: dict, row: dict, sweeps: dict | None = None) -> None:
     """Predict every level from rest; its score into ``row['nmse']``, or why not into ``row['errors']``; the
     sine sweeps (``sweeps``) likewise into ``row['sweep']`` (errors under ``'sweep L<level>'``)."""
-    for lv in LEVELS:
-        rec = full[lv]
+    runs = [(lv, full[lv], score, row["nmse"], lv) for lv in LEVELS]
+    runs += [(lv, rec, sweep_score, row.setdefault("sweep", {}), f"sweep L{lv}")
+             for lv, rec in (sweeps or {}).items() if rec is not None]
+    for lv, rec, scorer, into, err_key in runs:
         try:
             p = predict_body(model, rec.spindle_accel, rec.fs_hz, label=rec.source)
-            row["nmse"][lv] = score(rec.body_accel, p.body_accel, rec.fs_hz)
+            into[lv] = scorer(rec.body_accel, p.body_accel, rec.fs_hz)
         except NifoError as err:
-            row["errors"][lv] = str(err)
-    for lv, rec in (sweeps or {}).items():
-        if rec is None:
-            continue
-        try:
-            p = predict_body(model, rec.spindle_accel, rec.fs_hz, label=rec.source)
-            row.setdefault("sweep", {})[lv] = sweep_score(rec.body_accel, p.body_accel, rec.fs_hz)
-        except NifoError as err:
-            row["errors"][f"sweep L{lv}"] = str(err)
+            row["errors"][err_key] = str(err)
 
 
 def refine(model, linear, full: dict, ids, periods: int, log=print):
