@@ -181,6 +181,10 @@ class LinearPart:
         linear part (:func:`absorbed_rates`); it realises Hz' = Hz/(1 - Hz·(a + s·b))
         and the feedback subtracts a·z + b·ż again. ``hz``/``t21`` give the
         nominal Hz, T21 (without it).
+    paths : ndarray, complex, shape (n_terms, n), optional
+        Feedback paths (kind 'rational'; :mod:`nifo_core.feedback_paths`): term i's
+        bounded remainder enters through Hq_i = Σ q_in/(s - p_n) on these poles
+        instead of through Hz with a constant coefficient.
     """
 
     kind: Literal["body", "rational"]
@@ -192,9 +196,17 @@ class LinearPart:
     reason: str = ""
     candidates: Mapping = field(default_factory=dict)
     absorbed: tuple[float, float] = (0.0, 0.0)
+    paths: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "absorbed", (float(self.absorbed[0]), float(self.absorbed[1])))
+        if self.paths is not None:
+            q = np.atleast_2d(np.asarray(self.paths, complex))
+            if self.kind != "rational" or q.shape[1] != np.asarray(self.poles).size or not np.all(np.isfinite(q)):
+                raise ConfigError(f"feedback paths need a rational linear part and finite residues on its "
+                                  f"{np.asarray(self.poles).size} poles (got shape {q.shape})")
+            q.flags.writeable = False
+            object.__setattr__(self, "paths", q)
         if self.kind == "body":
             if not isinstance(self.body, BodyModel):
                 raise ConfigError("a linear part of kind 'body' needs a BodyModel")
@@ -301,6 +313,8 @@ class LinearPart:
             d["poles"] = {"re": self.poles.real.tolist(), "im": self.poles.imag.tolist()}
             d["residues"] = {"re": self.residues.real.tolist(), "im": self.residues.imag.tolist()}
             d["natural_frequencies_hz"] = sorted({round(float(abs(p) / (2 * np.pi)), 6) for p in self.poles})
+            if self.paths is not None:
+                d["paths"] = [{"re": q.real.tolist(), "im": q.imag.tolist()} for q in self.paths]
         return d
 
     @classmethod
@@ -313,7 +327,8 @@ class LinearPart:
             if d["kind"] == "body":
                 return cls("body", body=BodyModel.from_dict(d["body"]), **kw)
             cx = lambda v: np.asarray(v["re"], float) + 1j * np.asarray(v["im"], float)  # noqa: E731
-            return cls(str(d["kind"]), poles=cx(d["poles"]), residues=cx(d["residues"]), **kw)
+            paths = np.array([cx(q) for q in d["paths"]]) if d.get("paths") else None
+            return cls(str(d["kind"]), poles=cx(d["poles"]), residues=cx(d["residues"]), paths=paths, **kw)
         except KeyError as err:
             raise ConfigError(f"linear part lacks {err.args[0]!r}", hint="pass what LinearPart.to_dict() wrote") from None
         except (TypeError, ValueError) as err:

@@ -411,6 +411,9 @@ def predict_body(model: IdentifiedModel, spindle_accel: np.ndarray | None, fs_hz
         raise ConfigError(f"engine={engine!r} must be 'time' or 'frequency'")
     linear = model.linear
     note = ""
+    if linear.paths is not None and (method != "parametric" or engine == "frequency"):
+        raise ConfigError("a model with feedback paths predicts in the time domain from its linear part only",
+                          hint="use method='parametric' and the time-domain engine (the defaults)")
     if method == "nonparametric" and engine != "time":
         nfft = scipy.fft.next_fast_len(n + 2 * int(round(pad_s * fs_hz)), real=True)
         f = np.fft.rfftfreq(nfft, 1.0 / fs_hz)

@@ -335,13 +335,16 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
     Raises
     ------
     ConfigError
-        For a model without terms (nothing to refine) or bad options.
+        For a model without terms (nothing to refine), a model with feedback paths, or bad options.
     IllConditionedError
         When no start can be simulated on these records.
     """
     if not model.terms and not (linear_residues and model.linear.kind == "rational"):
         raise ConfigError("the model has no nonlinear term to refine",
                           hint="a linear model's rational linear part can be refined with linear_residues=True")
+    if model.linear.paths is not None:
+        raise ConfigError("the model's terms act through feedback paths (nifo_core.feedback_paths): their residues "
+                          "are fitted there, not by this refinement", hint="refine the constant-coefficient model")
     if not records:
         raise InputError("refinement needs at least one record")
     band = tuple(band_hz) if band_hz is not None else model.analysis_band_hz

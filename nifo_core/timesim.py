@@ -24,6 +24,11 @@ How it runs, and why it cannot diverge numerically for a stable linear part:
    decimated back to ``fs`` (as the simulator records); z, ż are the exact
    states at the record's instants.
 
+With feedback paths (``LinearPart.paths``, :mod:`nifo_core.feedback_paths`) the
+linear part has two inputs sharing its poles, ``ẋ = A·x + b·v + Σ e_i·n_i``,
+n_i = g_i(z) - α_i·z each term's bounded remainder through its own path; the
+step is the same (exact FOH for both inputs, the n_i implicit by fixed point).
+
 A state that leaves every bound (|z| above ``z_limit``, or not finite) means
 the identified model itself is unstable at this level: reported, never hidden.
 """
@@ -43,7 +48,7 @@ from .describing import Term
 from .errors import ConfigError
 from .linear_part import LinearPart
 from .simulate import _antialias_taps
-from .strut_forces import strut_arrays, strut_force
+from .strut_forces import g_one, strut_arrays, strut_force
 
 __all__ = ["TimeResponse", "discretise", "simulate_response"]
 
@@ -193,6 +198,122 @@ def _run(phi, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, la, lb, z_limit, a
     return -1
 
 
+@numba.njit(cache=True)
+def _run_paths(phi, g0b, g1b, g0e, g1e, cz, cd, ca, ddb, dde, v, codes, p0, p1, alpha, z_limit,
+               out_z, out_zd, out_zdd, out_n):  # pragma: no cover - compiled
+    """March the two-input linear part (measured input v, each term's remainder through its path)."""
+    ns, m = phi.shape[0], codes.size
+    x = np.zeros(ns)
+    xs = np.zeros(ns)
+    play = np.zeros(m)
+    n = np.zeros(m)
+    nn = np.zeros(m)
+    az = np.zeros(m)      # z_{k+1} = z0 + Σ az_i·n_i
+    ad = np.zeros(m)
+    zmax = 0.0
+    for i in range(m):
+        for l in range(ns):
+            az[i] += cz[l] * g1e[l, i]
+            ad[i] += cd[l] * g1e[l, i]
+    for j in range(v.size - 1):
+        z0 = 0.0
+        zd0 = 0.0
+        for l in range(ns):
+            acc = g0b[l] * v[j] + g1b[l] * v[j + 1]
+            for i in range(m):
+                acc += g0e[l, i] * n[i]
+            for k in range(ns):
+                acc += phi[l, k] * x[k]
+            xs[l] = acc
+            z0 += cz[l] * acc
+            zd0 += cd[l] * acc
+        for i in range(m):
+            nn[i] = n[i]
+        ok = False
+        for _ in range(100):        # contraction: |az_i| ~ h², the remainders 1-Lipschitz in z
+            z = z0
+            for i in range(m):
+                z += az[i] * nn[i]
+            change = 0.0
+            for i in range(m):
+                new = g_one(codes[i], p0[i], p1[i], z, 0.0, play[i]) - alpha[i] * z
+                change = max(change, abs(new - nn[i]))
+                nn[i] = new
+            if change <= 1e-13 * (abs(z) + zmax) or change == 0.0:
+                ok = True
+                break
+        if not ok:
+            return j + 1
+        z = z0
+        zd = zd0
+        zdd = ddb * v[j + 1]
+        for i in range(m):
+            z += az[i] * nn[i]
+            zd += ad[i] * nn[i]
+            zdd += dde[i] * nn[i]
+        for i in range(m):
+            play[i] = g_one(codes[i], p0[i], p1[i], z, 0.0, play[i])
+            n[i] = play[i] - alpha[i] * z
+        for l in range(ns):
+            val = xs[l]
+            for i in range(m):
+                val += g1e[l, i] * n[i]
+            x[l] = val
+            zdd += ca[l] * val
+        tot = 0.0
+        for i in range(m):
+            tot += n[i]
+        out_z[j + 1], out_zd[j + 1], out_zdd[j + 1], out_n[j + 1] = z, zd, zdd, tot
+        zmax = max(zmax, abs(z))
+        if not (abs(z) <= z_limit):
+            return j + 1
+    return -1
+
+
+def path_state_space(linear: LinearPart) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Real (A, b, E, c): Hz = c·(sI - A)⁻¹·b and Hq_i = c·(sI - A)⁻¹·E[:, i] (c·b = c·E = 0 by Σ r = Σ q = 0)."""
+    poles, r, q = linear.poles, linear.residues, linear.paths
+    idx = np.flatnonzero(poles.imag >= 0)
+    n = int(sum(1 if poles[k].imag == 0 else 2 for k in idx))
+    a, b, c = np.zeros((n, n)), np.zeros(n), np.zeros(n)
+    e = np.zeros((n, q.shape[0]))
+    i = 0
+    for k in idx:
+        p = poles[k]
+        if p.imag == 0:
+            a[i, i], b[i], e[i], c[i] = p.real, r[k].real, q[:, k].real, 1.0
+            i += 1
+        else:   # (2·Re r·(s-σ) - 2·Im r·ω)/((s-σ)² + ω²) = [1, 0]·(sI - [[σ, ω], [-ω, σ]])⁻¹·[2·Re r, -2·Im r]ᵀ
+            a[i:i + 2, i:i + 2] = [[p.real, p.imag], [-p.imag, p.real]]
+            b[i], b[i + 1] = 2 * r[k].real, -2 * r[k].imag
+            e[i], e[i + 1] = 2 * q[:, k].real, -2 * q[:, k].imag
+            c[i] = 1.0
+            i += 2
+    return a, b, e, c
+
+
+def _simulate_paths(linear: LinearPart, terms, v: np.ndarray, h: float, z_limit: float):
+    from .feedback_paths import check_terms
+
+    alpha = check_terms(terms)
+    if len(terms) != linear.paths.shape[0]:
+        raise ConfigError(f"{len(terms)} terms but {linear.paths.shape[0]} feedback paths")
+    a, b, e, c = path_state_space(linear)
+    phi, g0b, g1b = discretise(a, b, h)
+    g0e, g1e = np.zeros_like(e), np.zeros_like(e)
+    for i in range(e.shape[1]):
+        _, g0e[:, i], g1e[:, i] = discretise(a, e[:, i], h)
+    cd = c @ a
+    ca = cd @ a
+    codes, _, p0, p1 = strut_arrays(list(terms), [1.0] * len(terms))
+    nf = v.size
+    z, zd, zdd, nn = (np.zeros(nf) for _ in range(4))
+    zdd[0] = float(cd @ b) * v[0]
+    fail = _run_paths(np.ascontiguousarray(phi), g0b, g1b, g0e, g1e, c, cd, ca, float(cd @ b), e.T @ cd, v,
+                      codes, p0, p1, alpha, float(z_limit), z, zd, zdd, nn)
+    return z, zd, zdd, nn, fail
+
+
 def _up(x: np.ndarray, q: int) -> np.ndarray:
     return x.copy() if q == 1 else signal.resample_poly(x, q, 1, window=_antialias_taps(q))
 
@@ -211,7 +332,8 @@ def simulate_response(linear: LinearPart, terms: Sequence[Term], gammas: Sequenc
     linear : LinearPart
         Stable linear part Hz = Z/U.
     terms, gammas : sequences
-        Describing functions and their coefficients per unit body mass γ_i = c_i/M2.
+        Describing functions and their coefficients per unit body mass γ_i = c_i/M2
+        (not used with feedback paths: the paths carry them).
     external : ndarray, shape (n,)
         v = ẍ1 [+ k3·x1] [- F/M2] [m/s²] at ``fs_hz``.
     fs_hz : float
@@ -233,20 +355,23 @@ def simulate_response(linear: LinearPart, terms: Sequence[Term], gammas: Sequenc
     if not linear.stable:
         raise ConfigError(f"the linear part is not stable (poles {np.round(linear.all_poles(), 4).tolist()} 1/s)",
                           hint="refit it (select_linear_part flips unstable poles)")
-    a, b, c = linear.state_space()
     h = 1.0 / (fs_hz * q)
-    phi, g0, g1 = discretise(a, b, h)
-    cd = c @ a
-    ca = cd @ a
-    dd = float(cd @ b)
     v = _up(np.asarray(external, float), q)
-    codes, coef, p0, p1 = strut_arrays(list(terms), list(gammas))
-    nf = v.size
-    z, zd, zdd, nn = (np.zeros(nf) for _ in range(4))
-    la, lb = linear.absorbed
-    atol = 1e-13 * float(np.max(np.abs(v))) if v.size else 0.0
-    fail = _run(np.ascontiguousarray(phi), g0, g1, c, cd, ca, dd, v, codes, coef, p0, p1, la, lb, float(z_limit),
-                atol, z, zd, zdd, nn)
+    if linear.paths is not None:     # each term through its own path; ``gammas`` are in the paths
+        z, zd, zdd, nn, fail = _simulate_paths(linear, terms, v, h, z_limit)
+    else:
+        a, b, c = linear.state_space()
+        phi, g0, g1 = discretise(a, b, h)
+        cd = c @ a
+        ca = cd @ a
+        dd = float(cd @ b)
+        codes, coef, p0, p1 = strut_arrays(list(terms), list(gammas))
+        nf = v.size
+        z, zd, zdd, nn = (np.zeros(nf) for _ in range(4))
+        la, lb = linear.absorbed
+        atol = 1e-13 * float(np.max(np.abs(v))) if v.size else 0.0
+        fail = _run(np.ascontiguousarray(phi), g0, g1, c, cd, ca, dd, v, codes, coef, p0, p1, la, lb,
+                    float(z_limit), atol, z, zd, zdd, nn)
     ext = np.asarray(external, float)
     n = ext.size
     if spindle_accel is None:

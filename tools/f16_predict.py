@@ -31,8 +31,12 @@ as the band-passed (2-15 Hz) time-domain NMSE over the whole record: a second
 excitation, never used to identify or to choose anything — the check that a
 model did not just learn the one multisine realisation it was fitted on.
 
-Run: ``python tools/f16_predict.py [--data DIR] [--out DIR] [--json FILE] [--quick] [--plays] [--refine P] [--joint P]
-[--sets SET...]``;
+``--paths`` adds every form with backlash, clearance or saturation terms through its own **feedback paths** on
+the linear model's poles (:mod:`nifo_core.feedback_paths`, ``nifo identify --feedback-paths``): the interface
+force reaching the payload through the payload's modes instead of through one constant coefficient.
+
+Run: ``python tools/f16_predict.py [--data DIR] [--out DIR] [--json FILE] [--quick] [--plays] [--paths] [--refine P]
+[--joint P] [--sets SET...]``;
 the choice on the identification levels alone from earlier runs: ``python tools/f16_predict.py --select FILE...``
 """
 
@@ -55,6 +59,7 @@ from nifo.io.loader import load_record  # noqa: E402
 from nifo.io.results import write_model  # noqa: E402
 from nifo_core.describing import make_term  # noqa: E402
 from nifo_core.errors import NifoError  # noqa: E402
+from nifo_core.feedback_paths import PATH_KINDS  # noqa: E402
 from nifo_core.integrate import IntegrationBand  # noqa: E402
 from nifo_core.model import IdentifiedModel, predict_body  # noqa: E402
 from nifo_core.nifo import identify_nifo  # noqa: E402
@@ -177,12 +182,38 @@ def joint(model, lin, full: dict, ids, periods: int, log=print):
     return nl.model
 
 
+def path_row(linear, spec, steady: dict, full: dict, ids, row: dict, sweeps: dict | None) -> dict:
+    """The terms of ``spec`` through their own feedback paths on ``linear``'s poles (``--paths``,
+    :func:`nifo_core.feedback_paths.path_model`): fitted on the steady periods of the identification levels, the
+    ridge chosen on their prediction from rest (scored as the study scores); a row (source "paths")."""
+    from nifo_core.feedback_paths import path_model
+
+    t0 = time.perf_counter()
+    prow = {**row, "source": "paths", "nmse": {}, "errors": {}, "sweep": {}}
+    try:
+        res = path_model(linear, [make_term(t) for t in spec], [steady[lv] for lv in ids], [full[lv] for lv in ids],
+                         period_samples=PERIOD, skip_samples=PERIOD)
+    except NifoError as err:
+        prow["errors"]["identify"] = str(err)
+        prow["seconds"] = time.perf_counter() - t0
+        return prow
+    prow["paths"] = res.to_dict()
+    prow["linear_order"] = int(res.model.linear.order)
+    predict_levels(res.model, full, prow, sweeps)
+    prow["seconds"] = time.perf_counter() - t0
+    prow["model"] = res.model
+    return prow
+
+
 def study(data: Path, out: Path | None, *, sets: dict, forms: dict, linear_parts: dict, sources=("static",),
-          log=print, partial: Path | None = None, refine_periods: int = 0, joint_periods: int = 0) -> list[dict]:
+          log=print, partial: Path | None = None, refine_periods: int = 0, joint_periods: int = 0,
+          paths: bool = False) -> list[dict]:
     """Identify and predict every (set, linear part, form, source); rows of results (``partial``: JSON after each).
 
     ``refine_periods`` > 0: every nonlinear model is also refined (output error) on that many periods of its
-    identification levels and predicted again (row ``source`` + " refined"). ``joint_periods`` > 0: also the
+    identification levels and predicted again (row ``source`` + " refined"). ``paths``: every nonlinear form also
+    through its own feedback paths on the linear model's poles (:func:`path_row`, source "paths").
+    ``joint_periods`` > 0: also the
     linear part identified jointly with the terms (:func:`joint`; rows with source "joint": the linear model
     of that procedure and the nonlinear one).
     """
@@ -227,6 +258,15 @@ def study(data: Path, out: Path | None, *, sets: dict, forms: dict, linear_parts
                         f"   [{model.linear.kind} {model.linear.order}] {row['seconds']:.0f}s")
                     if partial is not None:
                         partial.write_text(json.dumps({"rows": rows}, indent=1, default=str))
+                    if paths and spec and (set_name, lp_name) in linear_models \
+                            and all(t["kind"] in PATH_KINDS for t in spec):
+                        prow = path_row(linear_models[(set_name, lp_name)], spec, steady, full, ids, row, sweeps)
+                        rows.append(prow)
+                        log(f"{set_name:14} {lp_name:11} {form_name:28} {'paths':6} {_levels(prow)}"
+                            f"   [ridge {prow.get('paths', {}).get('ridge', float('nan')):g}] {prow['seconds']:.0f}s")
+                        if out is not None and "model" in prow:
+                            write_model(Path(row["model_json"]).with_name("model_paths.json"), prow.pop("model"))
+                        prow.pop("model", None)
                     if joint_periods and spec:
                         todo = []
                         with warnings.catch_warnings():
@@ -379,6 +419,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--joint", type=int, default=0, metavar="PERIODS",
                     help="also identify the linear part jointly with the terms by output error on this many periods "
                          "(its residues; compared with the linear model refined the same way)")
+    ap.add_argument("--paths", action="store_true",
+                    help="also every form with backlash/clearance/saturation terms through its own feedback paths on "
+                         "the linear model's poles (nifo identify --feedback-paths)")
     ap.add_argument("--order", type=int, default=None, help="a rational linear part of this order for every model")
     ap.add_argument("--refine", type=int, default=0, metavar="PERIODS",
                     help="also refine every nonlinear model (output error) on this many periods of its levels")
@@ -408,7 +451,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.plays:
         forms = PLAYS
     rows = study(args.data, args.out, sets=sets, forms=forms, linear_parts=lps, sources=sources,
-                 partial=args.json, refine_periods=args.refine, joint_periods=args.joint)
+                 partial=args.json, refine_periods=args.refine, joint_periods=args.joint, paths=args.paths)
     ver = verdicts(rows)
     print("\nnonlinear below linear (same set, same linear part) at every level / at the held-out levels:")
     for v in ver:

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nifo.commands.identify_refine import fit_feedback_paths, refine
 from nifo.io.atomic import check_output, staged_dir
 from nifo.io.loader import add_input_arguments, input_options
 from nifo.io.provenance import add_system_argument, input_provenance, system_of
@@ -104,8 +105,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "better kept; 2 parameters per mode, so minutes. It can fit the one excitation it is given "
                         "at the cost of others: on the F-16 it beats the linear model on the multisine and loses "
                         "to it on the sine sweeps; validate on another excitation (docs/f16_predict.md)")
+    r.add_argument("--feedback-paths", action="store_true",
+                   help="instead of constant coefficients, every term's force through its own linear path on the "
+                        "linear model's poles (a flexible body: the interface force reaches the measured point "
+                        "through the body's modes); the paths' residues by least squares with a ridge, the ridge "
+                        "chosen by how well the model predicts the identification records; needs a rational "
+                        "linear part and backlash, clearance or saturation terms; seconds "
+                        "(nifo_core.feedback_paths, docs/f16_predict.md)")
     r.add_argument("--refine-seconds", type=float, default=120.0, metavar="S",
-                   help="simulate at most this much of each record per evaluation (default 120 s; whole periods "
+                   help="simulate at most this much of each record per evaluation (--refine, --feedback-paths; "
+                        "default 120 s; whole periods "
                         "with --period-samples), from the record's start: the part --skip-periods/--skip-seconds "
                         "leave out is simulated too but not scored, and not counted here")
     add_input_arguments(p)
@@ -317,7 +326,9 @@ def summarize(res, cond_limit: float) -> tuple[dict, list[str]]:
         pooled, re_m, im_m = tm["c_over_m2"], tm["per_line_mean_re"], tm["per_line_mean_im"]
         if abs(im_m) > 0.5 * max(abs(re_m), 1e-300):
             warn.append(f"{tm['label']}: the per-line c/M2 has a large imaginary part (band mean {re_m:.3g} "
-                        f"{im_m:+.3g}j): the term may not act as declared (static) or a missing effect is absorbed.")
+                        f"{im_m:+.3g}j): the term may not act as declared (static), a missing effect is absorbed, or "
+                        "(a flexible body) its force reaches the body through a path of its own: try "
+                        "--feedback-paths.")
         if np.sign(re_m) != np.sign(pooled) and pooled != 0:
             warn.append(f"{tm['label']}: pooled c/M2 {pooled:.3g} and per-line band mean {re_m:.3g} disagree in sign; "
                         "treat this coefficient as not identified.")
@@ -475,12 +486,23 @@ def run(args: argparse.Namespace) -> int:
         warn.append(f"no model.json: no linear part could be fitted to T21 ({err.message}); "
                     "identify.json holds the non-parametric result")
         model = None
-    refinement = None
-    if (getattr(args, "refine", False) or getattr(args, "refine_linear", False)) and model is not None:
+    refinement = paths = None
+    refining = getattr(args, "refine", False) or getattr(args, "refine_linear", False)
+    if getattr(args, "feedback_paths", False) and refining:
+        raise ConfigError("--feedback-paths and --refine/--refine-linear are two different fits of the terms",
+                          hint="give one of them")
+    if (refining or getattr(args, "feedback_paths", False)) and model is not None:
+        flag = "--feedback-paths" if getattr(args, "feedback_paths", False) else "--refine"
         if not model.terms:
-            warn.append("--refine: the model has no nonlinear term, nothing to refine")
+            warn.append(f"{flag}: the model has no nonlinear term, nothing to fit")
+        elif flag == "--feedback-paths":
+            paths = fit_feedback_paths(args, linear, model.terms, opts, [d["path"] for d in _entries(data)])
+            model = paths.model
+            summary["feedback_paths"] = paths.to_dict()
+            summary["linear_part"] = {"kind": model.linear.kind, "order": model.linear.order,
+                                      "fit_rms": model.linear.fit_rms, "reason": model.linear.reason}
         else:
-            refinement, linear_refinement = _refine(args, model, linear, opts, [d["path"] for d in _entries(data)])
+            refinement, linear_refinement = refine(args, model, linear, opts, [d["path"] for d in _entries(data)])
             model = refinement.model
             summary["refinement"] = refinement.to_dict()
             if linear_refinement is not None:     # the linear baseline of the joint procedure, refined the same way
@@ -503,6 +525,12 @@ def run(args: argparse.Namespace) -> int:
             linear = replace(linear, provenance={**dict(linear.provenance), **prov})
             write_model(tmp / MODEL_JSON, model, linear=linear, atomic=False)
     print(format_summary(summary, warn, out=args.out, files=files, model_written=model is not None))
+    if paths is not None:
+        print(paths.message)
+        for g in paths.grid:
+            print(f"  ridge {g.ridge:g}: " + (f"prediction NMSE {' '.join(f'{v:.4g}' for v in g.scores)} % "
+                                              f"(sum {g.score:.4g} %)" if g.stable else
+                                              "not eligible: a regime of the terms (stuck/active) is unstable"))
     if refinement is not None:
         if "linear" in summary["refinement"]:
             print("linear baseline: " + summary["refinement"]["linear"]["message"])
@@ -513,50 +541,6 @@ def run(args: argparse.Namespace) -> int:
                   + ("" if hw is None else f" ± {hw:.2g}") + f" {prm['unit']}")
     return {"out": str(args.out), "model_written": model is not None, "figures": figures, "warnings": warn,
             "summary": summary}
-
-
-def _refine(args, model, linear, opts: dict, paths: list):
-    """Output-error refinement of ``model`` on the identification records (``--refine``): (refinement, None).
-
-    ``--refine-linear`` with a rational linear part: the joint procedure
-    (:func:`nifo_core.refine.refine_jointly`): the linear model's residues refined alone, then the terms with
-    them from two starts; (refinement, the linear model's refinement).
-    """
-    from nifo.io.loader import load_record
-    from nifo.progress import Progress
-    from nifo_core.refine import refine_jointly, refine_model, start_up_samples
-
-    period = opts.get("period_samples")
-    # every record simulated from its start, where the measurement began (a test rig starts from rest); the
-    # part the identification skipped (--skip-periods/--skip-seconds) is left out of the score, and
-    # --refine-seconds counts after it
-    load_opts = {k: v for k, v in opts.items() if k not in ("skip_periods", "skip_seconds")}
-    records, skips = [], []
-    for path in paths:
-        rec = load_record(path, **load_opts)
-        skip = int(opts.get("skip_periods") or 0) * int(period or 0) or \
-            int(round(float(opts.get("skip_seconds") or 0.0) * rec.fs_hz))
-        n = int(round(args.refine_seconds * rec.fs_hz))
-        if period:
-            n = max(int(period) * 2, n // int(period) * int(period))
-        if skip + n < rec.n:
-            rec = rec.slice(0, skip + n)
-        records.append(rec)
-        skips.append(max(skip, start_up_samples(model, rec, period)))
-    jointly = bool(getattr(args, "refine_linear", False)) and linear.linear.kind == "rational"
-    with Progress(None, "refine (simulations)", enabled=True) as bar:
-        def progress(what: str, starts: bool = True):
-            return lambda start, k, cost: setattr(bar, "desc", f"refine {what}"
-                                                  + (f" from the {start} start" if starts else "")
-                                                  + f": cost {cost:.4g}") or bar.advance(1)
-        if jointly:
-            lin = refine_model(linear, records, period_samples=period, skip_samples=skips, linear_residues=True,
-                               max_iterations=40, progress=progress("the linear model's residues", starts=False))
-            return refine_jointly(model, lin, records, period_samples=period, skip_samples=skips,
-                                  progress=progress("jointly")), lin
-        return refine_model(model, records, linear=linear, period_samples=period, skip_samples=skips,
-                            linear_residues=bool(getattr(args, "refine_linear", False)),
-                            progress=progress("the model")), None
 
 
 def _entries(data) -> list[dict]:
