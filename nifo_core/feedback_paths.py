@@ -163,9 +163,7 @@ def _record_rows(rec, terms, settings: SpectralSettings, band: IntegrationBand, 
         d[keep] = np.fft.rfft(a2 - a1)[keep] / s[keep] ** 2
         z, zd = np.fft.irfft(d, p), np.fft.irfft(d * s, p)
         n = path_remainders(terms, np.tile(z, 3), np.tile(zd, 3))[:, 2 * p:]     # the plays settled
-        spec = np.fft.rfft(np.vstack([a1, a2, n]), axis=1)[:, None, :]
-        flines = np.flatnonzero(np.isin(np.round(f, 9), np.round(settings.freq_hz(rec.fs_hz)[lines], 9)))
-        spec = spec[:, :, flines]
+        spec = np.fft.rfft(np.vstack([a1, a2, n]), axis=1)[:, None, lines]        # block = period: same lines
     else:
         integ = integrate(a2 - a1, rec.fs_hz, band=band)
         n = path_remainders(terms, integ.displacement, integ.velocity)

@@ -110,6 +110,32 @@ def test_paths_fitted_on_simulated_levels_recover_the_truth_and_predict_another_
     assert err(p.body_accel) < 1e-3 and err(pl.body_accel) > 0.1, (err(p.body_accel), err(pl.body_accel))
 
 
+def test_paths_fitted_on_random_non_periodic_excitation_from_windowed_blocks_predict_a_held_out_level():
+    """Road-like data: band-limited noise, no period; the fit runs on Hann blocks of z integrated as NIFO does."""
+    from scipy import signal
+
+    from nifo_core.prediction_error import band_nmse
+
+    def rec(level, seed):
+        rng = np.random.default_rng(seed)
+        b, a = signal.butter(4, [2 / (FS / 2), 20 / (FS / 2)], "band")
+        a1 = signal.lfilter(b, a, rng.standard_normal(int(90 * FS)))
+        a1 *= level / a1.std()
+        r = simulate_response(_linear(paths=_paths_true()), [PLAY], [1.0], a1, FS, spindle_accel=a1)
+        return Record(fs_hz=FS, spindle_accel=a1, body_accel=r.body_accel, source=f"level {level}")
+
+    lin = replace(_model(_linear()), settings=SpectralSettings(block=2048, overlap=0.5, window="hann"))
+    fit, = fit_paths([rec(1.0, 0).slice(400, int(90 * FS)), rec(6.0, 1).slice(400, int(90 * FS))], [PLAY],
+                     lin.linear, settings=lin.settings, band=lin.band, analysis_band_hz=(2.0, 20.0), ridges=(1e-3,))
+    assert np.max(np.abs(fit.paths[0] - _paths_true()[0])) < 0.03 * np.max(np.abs(_paths_true()))
+    model = replace(lin, terms=(PLAY,), c_over_m2=np.ones(1), b=np.zeros((1, lin.freq_hz.size), complex),
+                    linear=_linear(paths=fit.paths))
+    held = rec(3.0, 2)
+    err = [band_nmse(held.body_accel, predict_body(m, held.spindle_accel, FS).body_accel, FS, band_hz=(2, 20),
+                     skip_samples=400) for m in (model, lin)]
+    assert err[0] < 0.01 and err[1] > 0.1, err
+
+
 def test_the_ridge_is_chosen_by_the_score_and_a_model_with_paths_survives_model_json(tmp_path):
     fits = [replace(f, paths=f.paths) for f in fit_paths(
         [_record(6.0, _linear(paths=_paths_true())).slice(PERIOD, 6 * PERIOD)], [PLAY], _linear(),
@@ -163,6 +189,9 @@ def test_f16_three_plays_through_feedback_paths_on_3_5_7_beat_linear_on_both_exc
     assert sum(summary["feedback_paths"]["nmse_percent"]) < sum(summary["feedback_paths"]["linear_nmse_percent"])
     m, lin = read_model(tmp_path / "id")
     assert m.linear.paths is not None and m.linear.paths.shape == (3, m.linear.poles.size) and lin.linear.stable
+    assert _quietly(["report", tmp_path / "id", "--out", tmp_path / "r.html", "--no-levels"]) == 0
+    html = (tmp_path / "r.html").read_text()
+    assert "Feedback paths (the model in model.json)" in html and "not eligible" in html
     for name, extra in (("FullMSine", ["--period-samples", "8192"]), ("SineSw", [])):
         out = tmp_path / name
         assert _quietly(["predict", *[d / f"F16Data_{name}_Level{k}.mat" for k in (1, 3, 5, 7)], *f16, "--model",

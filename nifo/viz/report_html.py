@@ -230,7 +230,16 @@ def _identify(r: ResultDir, system: Mapping) -> tuple[dict, list]:
     if refinement:
         lines = lines + [{"text": "refined (model.json): " + ", ".join(f"{p[0]} {p[2]} {p[3]}" for p in
                                                                        refinement["rows"][:len(terms)])}]
-    return {"terms": rows, "t21_bounds": _t21_bounds(r.doc), "refinement": refinement}, [{"key": "pooled coefficients", "lines": lines or [{"text": "none (linear)"}]},
+    fp = s.get("feedback_paths")
+    paths = None if not fp else {
+        "message": fp.get("message", ""),
+        "rows": [[_num(g.get("ridge")), " / ".join(_num(v, ".3g") for v in g.get("nmse_percent") or [])
+                  if g.get("regimes_stable", True) else "not eligible: a stuck/active regime is unstable",
+                  _num(g.get("nmse_sum_percent"), ".4g") if g.get("regimes_stable", True) else "",
+                  "chosen" if g.get("ridge") == fp.get("ridge") else ""] for g in fp.get("grid") or []]}
+    if paths:
+        lines = lines + [{"text": f"feedback paths (model.json): ridge {_num(fp.get('ridge'))}"}]
+    return {"terms": rows, "t21_bounds": _t21_bounds(r.doc), "refinement": refinement, "paths": paths}, [{"key": "pooled coefficients", "lines": lines or [{"text": "none (linear)"}]},
                              {"key": "coherence, median",
                               "lines": [{"text": _num(s.get("coherence_h1_median"), ".3f")}]}]
 
