@@ -6,7 +6,8 @@ a clearance term — is written as model.json, read back, and predicts every
 level (1, 3, 5, 7) from rest without diverging (the NMSE of the
 period-averaged 2-15 Hz steady state stays bounded), the linear model within
 2 %. That the nonlinear model beats the linear one at every level is asserted where it holds
-(identified on levels spanning 1-7: backlash on 1/5/7, two plays on 1/5/7 and 1/3/7), not on 3/5/7 (see the doc).
+(identified on levels spanning 1-7: backlash on 1/5/7, two plays on 1/5/7 and 1/3/7), not on 3/5/7 (see the doc);
+on 3/5/7 the plays through feedback paths do, asserted in test_feedback_paths.py.
 """
 
 from __future__ import annotations
