@@ -192,3 +192,22 @@ def test_predict_missing_model_exits_with_data_file_error_and_writes_nothing(tmp
     assert _quietly(["predict", LOW, "--model", tmp_path / "bad.json", "--out", tmp_path / "p"]) \
         == ConfigError.exit_code
     assert not (tmp_path / "p").exists()
+
+
+def test_feedback_paths_on_a_one_mass_body_say_why_and_keep_the_constant_coefficients(tmp_path, capsys):
+    """--feedback-paths needs a rational linear part; on the quarter-car sample (a physical one-mass body, where a
+    constant coefficient is exact) it warns, writes the constant-coefficient model, and says so in identify.json;
+    with --refine it is refused before any work."""
+    model = _model_file(tmp_path / "m.yaml", {"kind": "backlash", "params": {"deadband": 4.3e-4}})
+    out = tmp_path / "o"
+    assert _quietly(["identify", HIGH, "--model", model, "--out", out, "--feedback-paths", "--no-plots"]) == 0
+    printed = capsys.readouterr().out
+    assert "--feedback-paths: feedback paths need a rational linear part" in printed
+    assert "model.json holds the constant-coefficient model" in printed
+    doc = json.loads((out / "identify.json").read_text())
+    assert "rational" in doc["summary"]["feedback_paths"]["error"]
+    m, _ = read_model(out)
+    assert m.linear.kind == "body" and m.linear.paths is None and m.source == "static"
+    assert _quietly(["identify", HIGH, "--model", model, "--out", tmp_path / "o2", "--feedback-paths",
+                     "--refine"]) == ConfigError.exit_code
+    assert not (tmp_path / "o2").exists()

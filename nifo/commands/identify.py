@@ -327,8 +327,8 @@ def summarize(res, cond_limit: float) -> tuple[dict, list[str]]:
         if abs(im_m) > 0.5 * max(abs(re_m), 1e-300):
             warn.append(f"{tm['label']}: the per-line c/M2 has a large imaginary part (band mean {re_m:.3g} "
                         f"{im_m:+.3g}j): the term may not act as declared (static), a missing effect is absorbed, or "
-                        "(a flexible body) its force reaches the body through a path of its own: try "
-                        "--feedback-paths.")
+                        "(a flexible body with a rational linear part) its force reaches the body through a path of its "
+                        "own: --feedback-paths.")
         if np.sign(re_m) != np.sign(pooled) and pooled != 0:
             warn.append(f"{tm['label']}: pooled c/M2 {pooled:.3g} and per-line band mean {re_m:.3g} disagree in sign; "
                         "treat this coefficient as not identified.")
@@ -453,6 +453,10 @@ def run(args: argparse.Namespace) -> int:
     from nifo_core.nifo import IllConditionedWarning
 
     check_output(args.out)   # refuse a file or a foreign directory before any work
+    if getattr(args, "feedback_paths", False) and (getattr(args, "refine", False)
+                                                   or getattr(args, "refine_linear", False)):
+        raise ConfigError("--feedback-paths and --refine/--refine-linear are two different fits of the terms",
+                          hint="give one of them")
 
     spec = load_model_spec(args.model)
     cfg = resolve_settings(args, spec.settings)
@@ -488,19 +492,22 @@ def run(args: argparse.Namespace) -> int:
         model = None
     refinement = paths = None
     refining = getattr(args, "refine", False) or getattr(args, "refine_linear", False)
-    if getattr(args, "feedback_paths", False) and refining:
-        raise ConfigError("--feedback-paths and --refine/--refine-linear are two different fits of the terms",
-                          hint="give one of them")
     if (refining or getattr(args, "feedback_paths", False)) and model is not None:
         flag = "--feedback-paths" if getattr(args, "feedback_paths", False) else "--refine"
         if not model.terms:
             warn.append(f"{flag}: the model has no nonlinear term, nothing to fit")
         elif flag == "--feedback-paths":
-            paths = fit_feedback_paths(args, linear, model.terms, opts, [d["path"] for d in _entries(data)])
-            model = paths.model
-            summary["feedback_paths"] = paths.to_dict()
-            summary["linear_part"] = {"kind": model.linear.kind, "order": model.linear.order,
-                                      "fit_rms": model.linear.fit_rms, "reason": model.linear.reason}
+            try:
+                paths = fit_feedback_paths(args, linear, model.terms, opts, [d["path"] for d in _entries(data)])
+            except ConfigError as err:     # not determined by these data: say so, keep the constant coefficients
+                warn.append(f"--feedback-paths: {err.message}" + (f" ({err.hint})" if err.hint else "")
+                            + "; model.json holds the constant-coefficient model")
+                summary["feedback_paths"] = {"error": err.message}
+            else:
+                model = paths.model
+                summary["feedback_paths"] = paths.to_dict()
+                summary["linear_part"] = {"kind": model.linear.kind, "order": model.linear.order,
+                                          "fit_rms": model.linear.fit_rms, "reason": model.linear.reason}
         else:
             refinement, linear_refinement = refine(args, model, linear, opts, [d["path"] for d in _entries(data)])
             model = refinement.model

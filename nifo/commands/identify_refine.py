@@ -69,7 +69,7 @@ def fit_feedback_paths(args, linear, terms, opts: dict, paths: list):
     from nifo_core.feedback_paths import path_model
 
     if linear.linear.kind != "rational":
-        raise ConfigError(f"--feedback-paths needs a rational linear part; this one is a {linear.linear.kind} "
+        raise ConfigError(f"feedback paths need a rational linear part; this one is a {linear.linear.kind} "
                           f"({linear.linear.reason})",
                           hint="a physical one-mass body already feeds the strut force back through its mass: use "
                                "--refine")
