@@ -49,7 +49,8 @@ Measured on the F-16 ground-vibration test in ``docs/f16_predict.md``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from itertools import combinations
 from typing import Callable, Sequence
 
 import numba
@@ -58,12 +59,12 @@ import numpy as np
 from .describing import Term
 from .errors import ConfigError
 from .integrate import IntegrationBand, integrate
-from .linear_part import LinearPart
+from .linear_part import LinearPart, pole_residue_response
 from .spectral import SpectralSettings, _block_ffts
 from .strut_forces import g_one, strut_arrays
 
-__all__ = ["PATH_KINDS", "SMALL_SLOPE", "PathFit", "PathResult", "choose_paths", "regimes_stable", "equivalent_gammas", "fit_paths", "path_model",
-           "path_remainders"]
+__all__ = ["PATH_KINDS", "SMALL_SLOPE", "PathFit", "PathResult", "check_terms", "choose_paths", "equivalent_gammas",
+           "fit_paths", "path_model", "path_remainders", "regimes_stable"]
 
 #: kinds a feedback path may carry, with the slope α of z their remainder g - α·z leaves in Hz (their slope at
 #: large amplitude: the fully active regime feeds nothing back linearly)
@@ -253,20 +254,14 @@ def fit_paths(records: Sequence, terms: Sequence[Term], linear: LinearPart, *, s
 def equivalent_gammas(linear: LinearPart, paths: np.ndarray, analysis_band_hz: tuple[float, float]) -> np.ndarray:
     """γ_i that a constant-coefficient model would have: the band median of Re(Hq_i/Hz) (for reports)."""
     f = np.linspace(analysis_band_hz[0], analysis_band_hz[1], 200)
-    s = 2j * np.pi * f
-    hz = linear.hz_realised(f)
-    hq = np.array([np.sum(q[:, None] / (s[None, :] - linear.poles[:, None]), axis=0) for q in paths])
-    return np.median((hq / hz[None, :]).real, axis=1)
+    hq = pole_residue_response(linear.poles, paths, f)
+    return np.median((hq / linear.hz_realised(f)[None, :]).real, axis=1)
 
 
 def regimes_stable(linear: LinearPart, terms: Sequence[Term]) -> bool:
     """Every combination of the terms' regimes — each in its small-amplitude state (slope s_i) or its large one
     (slope α_i, nothing fed back) — is a stable linear system: A + Σ_{i small} (s_i - α_i)·e_i·c."""
-    from itertools import combinations
-
-    from .timesim import path_state_space
-
-    a, _, e, c = path_state_space(linear)
+    a, _, e, c = linear.path_state_space()
     gain = np.array([SMALL_SLOPE[t.kind] - PATH_KINDS[t.kind] for t in terms])
     for k in range(1, len(terms) + 1):
         for sub in combinations(range(len(terms)), k):
@@ -348,9 +343,7 @@ def path_model(linear_model, terms: Sequence[Term], fit_records: Sequence, score
     -------
     PathResult
     """
-    from dataclasses import replace
-
-    from .refine import model_nmse
+    from .refine import model_nmse     # refine → model → timesim → this module
 
     lin = linear_model.linear
     band_hz = linear_model.analysis_band_hz
@@ -359,9 +352,7 @@ def path_model(linear_model, terms: Sequence[Term], fit_records: Sequence, score
     f = linear_model.freq_hz
 
     def make(paths: np.ndarray):
-        s = 2j * np.pi * f
-        with np.errstate(divide="ignore", invalid="ignore"):
-            b = np.array([np.sum(q[:, None] / (s[None, :] - lin.poles[:, None]), axis=0) for q in paths])
+        b = pole_residue_response(lin.poles, paths, f)
         return replace(linear_model, terms=tuple(terms), c_over_m2=equivalent_gammas(lin, paths, band_hz), b=b,
                        linear=replace(lin, paths=paths, reason=lin.reason + "; the terms through their own "
                                       "feedback paths on its poles"),

@@ -42,7 +42,7 @@ import scipy.linalg
 from .errors import ConfigError
 
 __all__ = ["BodyModel", "LinearPart", "absorbed_rates", "fit_body_model", "fit_rational", "nominal_linear_part",
-           "select_linear_part"]
+           "pole_residue_response", "select_linear_part"]
 
 #: a physical one-mass body is kept unless its T21 misfit exceeds this (relative RMS over the band)
 BODY_FIT_LIMIT = 0.10
@@ -269,7 +269,7 @@ class LinearPart:
             with np.errstate(divide="ignore", invalid="ignore"):
                 k3term = np.where(s != 0, b.k3 / np.where(s != 0, s, 1) ** 2, 0)
             return -(1 + k3term) / (s**2 + b.c * s + b.k + b.k3)
-        return np.sum(self.residues[:, None] / (s[None, :] - self.poles[:, None]), axis=0)
+        return pole_residue_response(self.poles, self.residues, freq_hz)
 
     def t21(self, freq_hz) -> np.ndarray:
         """Nominal T21 = 1 + s²·Hz of this linear part."""
@@ -303,6 +303,28 @@ class LinearPart:
                 i += 2
         return a, b, c
 
+    def path_state_space(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Real (A, b, E, c) of a linear part with feedback paths: Hz = c·(sI - A)⁻¹·b and
+        Hq_i = c·(sI - A)⁻¹·E[:, i] (c·b = c·E = 0 by Σ r = Σ q = 0); one block per real pole or conjugate pair."""
+        poles, r, q = self.poles, self.residues, self.paths
+        idx = np.flatnonzero(poles.imag >= 0)
+        n = int(sum(1 if poles[k].imag == 0 else 2 for k in idx))
+        a, b, c = np.zeros((n, n)), np.zeros(n), np.zeros(n)
+        e = np.zeros((n, q.shape[0]))
+        i = 0
+        for k in idx:
+            p = poles[k]
+            if p.imag == 0:
+                a[i, i], b[i], e[i], c[i] = p.real, r[k].real, q[:, k].real, 1.0
+                i += 1
+            else:   # (2·Re r·(s-σ) - 2·Im r·ω)/((s-σ)² + ω²) = [1, 0]·(sI - [[σ, ω], [-ω, σ]])⁻¹·[2·Re r, -2·Im r]ᵀ
+                a[i:i + 2, i:i + 2] = [[p.real, p.imag], [-p.imag, p.real]]
+                b[i], b[i + 1] = 2 * r[k].real, -2 * r[k].imag
+                e[i], e[i + 1] = 2 * q[:, k].real, -2 * q[:, k].imag
+                c[i] = 1.0
+                i += 2
+        return a, b, e, c
+
     def to_dict(self) -> dict:
         d = {"kind": self.kind, "fit_rms": self.fit_rms, "band_hz": list(self.band_hz), "reason": self.reason,
              "stable": self.stable, "physical": self.physical, "order": self.order,
@@ -333,6 +355,12 @@ class LinearPart:
             raise ConfigError(f"linear part lacks {err.args[0]!r}", hint="pass what LinearPart.to_dict() wrote") from None
         except (TypeError, ValueError) as err:
             raise ConfigError(f"cannot read the linear part: {err}") from None
+
+
+def pole_residue_response(poles: np.ndarray, residues: np.ndarray, freq_hz) -> np.ndarray:
+    """Σ_n r_n/(jω - p_n) at ``freq_hz`` [Hz] (residues of shape (n,) or (m, n): one response per row)."""
+    s = 2j * np.pi * np.asarray(freq_hz, float)
+    return np.sum(np.asarray(residues)[..., :, None] / (s[None, :] - np.asarray(poles)[:, None]), axis=-2)
 
 
 def _pairs(poles: np.ndarray, residues: np.ndarray):

@@ -46,6 +46,7 @@ from scipy import signal
 
 from .describing import Term
 from .errors import ConfigError
+from .feedback_paths import check_terms
 from .linear_part import LinearPart
 from .simulate import _antialias_taps
 from .strut_forces import g_one, strut_arrays, strut_force
@@ -270,35 +271,11 @@ def _run_paths(phi, g0b, g1b, g0e, g1e, cz, cd, ca, ddb, dde, v, codes, p0, p1, 
     return -1
 
 
-def path_state_space(linear: LinearPart) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Real (A, b, E, c): Hz = c·(sI - A)⁻¹·b and Hq_i = c·(sI - A)⁻¹·E[:, i] (c·b = c·E = 0 by Σ r = Σ q = 0)."""
-    poles, r, q = linear.poles, linear.residues, linear.paths
-    idx = np.flatnonzero(poles.imag >= 0)
-    n = int(sum(1 if poles[k].imag == 0 else 2 for k in idx))
-    a, b, c = np.zeros((n, n)), np.zeros(n), np.zeros(n)
-    e = np.zeros((n, q.shape[0]))
-    i = 0
-    for k in idx:
-        p = poles[k]
-        if p.imag == 0:
-            a[i, i], b[i], e[i], c[i] = p.real, r[k].real, q[:, k].real, 1.0
-            i += 1
-        else:   # (2·Re r·(s-σ) - 2·Im r·ω)/((s-σ)² + ω²) = [1, 0]·(sI - [[σ, ω], [-ω, σ]])⁻¹·[2·Re r, -2·Im r]ᵀ
-            a[i:i + 2, i:i + 2] = [[p.real, p.imag], [-p.imag, p.real]]
-            b[i], b[i + 1] = 2 * r[k].real, -2 * r[k].imag
-            e[i], e[i + 1] = 2 * q[:, k].real, -2 * q[:, k].imag
-            c[i] = 1.0
-            i += 2
-    return a, b, e, c
-
-
 def _simulate_paths(linear: LinearPart, terms, v: np.ndarray, h: float, z_limit: float):
-    from .feedback_paths import check_terms
-
     alpha = check_terms(terms)
     if len(terms) != linear.paths.shape[0]:
         raise ConfigError(f"{len(terms)} terms but {linear.paths.shape[0]} feedback paths")
-    a, b, e, c = path_state_space(linear)
+    a, b, e, c = linear.path_state_space()
     phi, g0b, g1b = discretise(a, b, h)
     g0e, g1e = np.zeros_like(e), np.zeros_like(e)
     for i in range(e.shape[1]):

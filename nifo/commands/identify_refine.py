@@ -7,24 +7,34 @@ from nifo.progress import Progress
 from nifo_core.errors import ConfigError
 
 
-def score_records(args, model, opts: dict, paths: list) -> tuple[list, list[int]]:
-    """The identification records from their start, at most ``--refine-seconds`` after the skipped part, and the
+def from_start(opts: dict, paths: list) -> list[tuple]:
+    """Every identification record read once, whole from its start, with the samples the identification skipped
+    (--skip-periods/--skip-seconds)."""
+    from nifo.io.loader import load_record
+
+    period = opts.get("period_samples")
+    load_opts = {k: v for k, v in opts.items() if k not in ("skip_periods", "skip_seconds")}
+    out = []
+    for path in paths:
+        rec = load_record(path, **load_opts)
+        out.append((rec, int(opts.get("skip_periods") or 0) * int(period or 0)
+                    or int(round(float(opts.get("skip_seconds") or 0.0) * rec.fs_hz))))
+    return out
+
+
+def score_records(args, model, opts: dict, loaded: list[tuple]) -> tuple[list, list[int]]:
+    """The records of :func:`from_start` cut to at most ``--refine-seconds`` after the skipped part, and the
     samples each leaves out of the score.
 
     Every record is simulated from its start, where the measurement began (a test rig starts from rest); the part
     the identification skipped (--skip-periods/--skip-seconds) is left out of the score, and --refine-seconds
     counts after it.
     """
-    from nifo.io.loader import load_record
     from nifo_core.refine import start_up_samples
 
     period = opts.get("period_samples")
-    load_opts = {k: v for k, v in opts.items() if k not in ("skip_periods", "skip_seconds")}
     records, skips = [], []
-    for path in paths:
-        rec = load_record(path, **load_opts)
-        skip = int(opts.get("skip_periods") or 0) * int(period or 0) or \
-            int(round(float(opts.get("skip_seconds") or 0.0) * rec.fs_hz))
+    for rec, skip in loaded:
         n = int(round(args.refine_seconds * rec.fs_hz))
         if period:
             n = max(int(period) * 2, n // int(period) * int(period))
@@ -45,7 +55,7 @@ def refine(args, model, linear, opts: dict, paths: list):
     from nifo_core.refine import refine_jointly, refine_model
 
     period = opts.get("period_samples")
-    records, skips = score_records(args, model, opts, paths)
+    records, skips = score_records(args, model, opts, from_start(opts, paths))
     jointly = bool(getattr(args, "refine_linear", False)) and linear.linear.kind == "rational"
     with Progress(None, "refine (simulations)", enabled=True) as bar:
         def progress(what: str, starts: bool = True):
@@ -65,7 +75,6 @@ def refine(args, model, linear, opts: dict, paths: list):
 def fit_feedback_paths(args, linear, terms, opts: dict, paths: list):
     """``--feedback-paths``: the terms through their own paths on the linear model's poles
     (:func:`nifo_core.feedback_paths.path_model`), the ridge chosen on the identification records."""
-    from nifo.io.loader import load_record
     from nifo_core.feedback_paths import path_model
 
     if linear.linear.kind != "rational":
@@ -74,8 +83,9 @@ def fit_feedback_paths(args, linear, terms, opts: dict, paths: list):
                           hint="a physical one-mass body already feeds the strut force back through its mass: use "
                                "--refine")
     period = opts.get("period_samples")
-    fit_records = [load_record(p, **opts) for p in paths]       # the identification's records (start-up skipped)
-    records, skips = score_records(args, linear, opts, paths)
+    loaded = from_start(opts, paths)
+    fit_records = [rec.slice(skip, rec.n) for rec, skip in loaded]      # what the identification used
+    records, skips = score_records(args, linear, opts, loaded)
     with Progress(None, "feedback paths (ridge grid)", enabled=True) as bar:
         def progress(ridge: float, total: float):
             bar.desc = f"feedback paths: ridge {ridge:g} predicts the records at {total:.4g} %"
