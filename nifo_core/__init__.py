@@ -16,4 +16,14 @@ or logging set-up in here (a test enforces it). Modules, one concern each:
 - ``restoring``   restoring-force data, slicing and automatic characterization
 """
 
+import os as _os
+
+import scipy.linalg as _scipy_linalg  # noqa: F401  (loads scipy's BLAS so that the limit below reaches it too)
+from threadpoolctl import threadpool_limits as _threadpool_limits
+
 __version__ = "0.1.0"
+
+# One BLAS thread per process: nifo's linear algebra is small (a few hundred rows), where OpenBLAS's threads only
+# add overhead — 14× slower rational fits on a busy two-core machine (benchmarks/bench_blas_threads.py prints the
+# ratio). NIFO_BLAS_THREADS overrides; the fleet scales over processes instead.
+_threadpool_limits(int(_os.environ.get("NIFO_BLAS_THREADS", "1")), user_api="blas")

@@ -60,11 +60,11 @@ from .describing import Term
 from .errors import ConfigError
 from .integrate import IntegrationBand, integrate
 from .linear_part import LinearPart, pole_residue_response
-from .spectral import SpectralSettings, _block_ffts
+from .spectral import SpectralSettings, block_ffts
 from .strut_forces import g_one, strut_arrays
 
-__all__ = ["PATH_KINDS", "SMALL_SLOPE", "PathFit", "PathResult", "check_terms", "choose_paths", "equivalent_gammas",
-           "fit_paths", "path_model", "path_remainders", "regimes_stable"]
+__all__ = ["PATH_KINDS", "SMALL_SLOPE", "JointFit", "PathFit", "PathResult", "check_terms", "choose_paths",
+           "equivalent_gammas", "fit_joint", "fit_paths", "path_model", "path_remainders", "regimes_stable"]
 
 #: kinds a feedback path may carry, with the slope α of z their remainder g - α·z leaves in Hz (their slope at
 #: large amplitude: the fully active regime feeds nothing back linearly)
@@ -168,7 +168,7 @@ def _record_rows(rec, terms, settings: SpectralSettings, band: IntegrationBand, 
     else:
         integ = integrate(a2 - a1, rec.fs_hz, band=band)
         n = path_remainders(terms, integ.displacement, integ.velocity)
-        spec = _block_ffts(np.vstack([a1, a2, n]), settings)[:, :, lines]          # (2 + m, blocks, lines)
+        spec = block_ffts(np.vstack([a1, a2, n]), settings)[:, :, lines]          # (2 + m, blocks, lines)
     return spec[0], spec[1], spec[2:]
 
 
@@ -197,16 +197,9 @@ class PathFit:
     stable: bool = True
 
 
-def fit_paths(records: Sequence, terms: Sequence[Term], linear: LinearPart, *, settings: SpectralSettings,
-              band: IntegrationBand, analysis_band_hz: tuple[float, float], period_samples: int | None = None,
-              ridges: Sequence[float] = RIDGE_GRID) -> list[PathFit]:
-    """The path residues of ``terms`` on the poles of the rational ``linear`` part, one fit per ridge weight.
-
-    ``records`` are the identification records without their start-up: their
-    blocks (``settings``), z integrated in ``band`` as NIFO does; with
-    ``period_samples`` (a periodic excitation whose period is the block) the
-    period average, z integrated exactly on its lines.
-    """
+def _design(records: Sequence, terms: Sequence[Term], linear: LinearPart, *, settings: SpectralSettings,
+            band: IntegrationBand, analysis_band_hz: tuple[float, float], period_samples: int | None):
+    """The least-squares problem of the path residues: (matrix, right-hand side, constraint rows, basis size)."""
     if period_samples and int(period_samples) != settings.block:
         raise ConfigError(f"periodic data: the block ({settings.block}) must be the period ({period_samples})",
                           hint="--block equal to --period-samples")
@@ -242,12 +235,113 @@ def fit_paths(records: Sequence, terms: Sequence[Term], linear: LinearPart, *, s
     cons = np.zeros((m, m * nb))
     for i in range(m):
         cons[i, i * nb:(i + 1) * nb] = wsum
+    return mat, y, cons, nb, big
+
+
+def _solve(mat, y, cons, big, lam, m, nb):
+    a = np.vstack([mat, 1e3 * big * cons, lam * big * np.eye(m * nb)])
+    b = np.concatenate([y, np.zeros(m + m * nb)])
+    return np.linalg.lstsq(a, b, rcond=None)[0]
+
+
+def fit_paths(records: Sequence, terms: Sequence[Term], linear: LinearPart, *, settings: SpectralSettings,
+              band: IntegrationBand, analysis_band_hz: tuple[float, float], period_samples: int | None = None,
+              ridges: Sequence[float] = RIDGE_GRID) -> list[PathFit]:
+    """The path residues of ``terms`` on the poles of the rational ``linear`` part, one fit per ridge weight.
+
+    ``records`` are the identification records without their start-up: their
+    blocks (``settings``), z integrated in ``band`` as NIFO does; with
+    ``period_samples`` (a periodic excitation whose period is the block) the
+    period average, z integrated exactly on its lines.
+    """
+    mat, y, cons, nb, big = _design(records, terms, linear, settings=settings, band=band,
+                                    analysis_band_hz=analysis_band_hz, period_samples=period_samples)
+    m = len(terms)
     out = []
     for lam in ridges:
-        a = np.vstack([mat, 1e3 * big * cons, lam * big * np.eye(m * nb)])
-        b = np.concatenate([y, np.zeros(m + m * nb)])
-        x, *_ = np.linalg.lstsq(a, b, rcond=None)
+        x = _solve(mat, y, cons, big, lam, m, nb)
         out.append(PathFit(float(lam), np.array([_unpack(linear.poles, x[i * nb:(i + 1) * nb]) for i in range(m)])))
+    return out
+
+
+def _joint_design(records: Sequence, terms: Sequence[Term], linear: LinearPart, *, settings: SpectralSettings,
+                  band: IntegrationBand, analysis_band_hz: tuple[float, float], period_samples: int | None):
+    """The joint least squares of the linear part's residues and the terms' path residues on ``linear``'s poles:
+    A2 - A1 = s²·Hz·A1 + Σ_i s²·Hq_i·N_i, every record weighted by 1/‖A2‖ (its relative error)."""
+    if period_samples and int(period_samples) != settings.block:
+        raise ConfigError(f"periodic data: the block ({settings.block}) must be the period ({period_samples})",
+                          hint="--block equal to --period-samples")
+    if linear.kind != "rational" or any(linear.absorbed):
+        raise ConfigError("feedback paths need a linear model's own rational linear part",
+                          hint="pass the linear model identified on the same data")
+    check_terms(terms)
+    fs = float(records[0].fs_hz)
+    f = settings.freq_hz(fs)
+    lines = np.flatnonzero((f >= analysis_band_hz[0]) & (f <= analysis_band_hz[1]))
+    s = 2j * np.pi * f[lines]
+    basis, wsum = _basis(linear.poles, s)
+    m, nb = len(terms), basis.shape[1]
+    rows, rhs = [], []
+    for rec in records:
+        A1, A2, N = _record_rows(rec, terms, settings, band, lines, period_samples)
+        y = A2 - A1
+        cols = [(s**2)[None, :, None] * basis[None, :, :] * A1[:, :, None]]
+        cols += [(s**2)[None, :, None] * basis[None, :, :] * N[i][:, :, None] for i in range(m)]
+        mat = np.concatenate(cols, axis=2).reshape(-1, (m + 1) * nb)
+        scale = 1.0 / max(np.linalg.norm(A2), 1e-300)
+        rows.append(np.vstack([mat.real, mat.imag]) * scale)
+        rhs.append(np.concatenate([y.ravel().real, y.ravel().imag]) * scale)
+    mat, y = np.vstack(rows), np.concatenate(rhs)
+    big_lin = float(np.abs(mat[:, :nb]).max())
+    big = float(np.abs(mat[:, nb:]).max())
+    if not np.isfinite(big) or big == 0:
+        raise ConfigError("the terms' remainders are zero on these records: nothing to fit a path to",
+                          hint="check the terms' widths against the motion z")
+    cons = np.zeros((m + 1, (m + 1) * nb))
+    for i in range(m + 1):
+        cons[i, i * nb:(i + 1) * nb] = wsum
+    return mat, y, cons, nb, big_lin, big
+
+
+def _joint_solve(design, lam: float, m: int) -> np.ndarray:
+    mat, y, cons, nb, big_lin, big = design
+    reg = np.zeros((m * nb, (m + 1) * nb))
+    reg[:, nb:] = np.eye(m * nb)
+    a = np.vstack([mat, 1e3 * max(big_lin, big) * cons, lam * big * reg])
+    b = np.concatenate([y, np.zeros(m + 1 + m * nb)])
+    return np.linalg.lstsq(a, b, rcond=None)[0]
+
+
+@dataclass(frozen=True)
+class JointFit:
+    """The linear part's residues and the terms' path residues of one ridge weight (:func:`fit_joint`)."""
+
+    ridge: float
+    residues: np.ndarray        # of the linear part, on its poles
+    paths: np.ndarray           # (n_terms, n_poles)
+
+
+def fit_joint(records: Sequence, terms: Sequence[Term], linear: LinearPart, *, settings: SpectralSettings,
+              band: IntegrationBand, analysis_band_hz: tuple[float, float], period_samples: int | None = None,
+              ridges: Sequence[float] = RIDGE_GRID) -> list[JointFit]:
+    """The linear part identified *jointly* with the terms' feedback paths, its poles kept (one fit per ridge).
+
+    A2 - A1 = s²·Hz(s)·A1 + Σ_i s²·Hq_i(s)·N_i is linear in the residues of Hz and of every Hq_i once the poles
+    are fixed: one least-squares problem over the analysis-band lines of every record (periodic data: the period
+    average), each record by its relative error, Σ r = 0 and Σ q_i = 0 (relative degree 2), a ridge λ on the
+    path residues alone (relative to the largest path column). Without terms it is the linear model that predicts
+    the records best (:class:`~nifo_core.linear_part.RecordLines`); with them the linear part and the paths share
+    what they explain, so the model nests its linear model on this metric.
+    """
+    m = len(terms)
+    design = _joint_design(records, terms, linear, settings=settings, band=band, analysis_band_hz=analysis_band_hz,
+                           period_samples=period_samples)
+    nb = design[3]
+    out = []
+    for lam in ridges:
+        x = _joint_solve(design, float(lam), m)
+        out.append(JointFit(float(lam), _unpack(linear.poles, x[:nb]),
+                            np.array([_unpack(linear.poles, x[(i + 1) * nb:(i + 2) * nb]) for i in range(m)])))
     return out
 
 

@@ -22,7 +22,7 @@ from scipy import signal
 
 from .errors import ConfigError, RecordTooShortError
 
-__all__ = ["IntegrationBand", "Integrated", "default_band", "integrator_taps", "integrate",
+__all__ = ["IntegrationBand", "Integrated", "default_band", "lowest_edge_hz", "integrator_taps", "integrate",
            "StreamingIntegrator", "integrator_response"]
 
 
@@ -65,6 +65,11 @@ def default_band(fs_hz: float, duration_s: float | None = None) -> IntegrationBa
 
 
 _TAPS_PER_CYCLE = 16.0  # taps = 16 periods of f_lo: |H| within 0.2 % of ideal from 1.5·f_lo
+
+
+def lowest_edge_hz(duration_s: float) -> float:
+    """The lowest lower edge [Hz] a record of ``duration_s`` can integrate: its integrator spans at most half of it."""
+    return 2 * _TAPS_PER_CYCLE / float(duration_s)
 
 
 def _window_gain(f: np.ndarray, band: IntegrationBand, fs_hz: float) -> np.ndarray:

@@ -91,6 +91,7 @@ Haroon & Adams (paper Eq. 2, 7-9).
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
@@ -100,12 +101,18 @@ from .describing import Term, make_term
 from .detection import confounded_pairs, detection_limits, undetermined_terms
 from .errors import ConfigError, InputError, NifoError, RecordTooShortError
 from .integrate import IntegrationBand
-from .loop_residual import _design, _Evaluator, _evidence, _retune, _static_candidate, _tire_check
+from .characterize_data import RegressionData
+from .characterize_score import score_candidate
+from .feedback_paths import PATH_KINDS
+from .heldout import HeldOut, split_records
+from .loop_residual import _design, _Evaluator, _evidence, _g, _retune, _static_candidate, _tire_check
+from .model_fit import Fitted, choose_linear_form, fit_model
+from .settings import AnalysisSettings
 from .loop_results import (NOTHING_MISSING, RESIDUAL_BANDS_HZ, Errors, Evidence, LoopRefinement, LoopResult,
                            LoopSettings, Round, Trial, _nothing_text, _round_text, before_after_text,
                            unconfirmed_text)
 from .model import IdentifiedModel
-from .refine import refine_model
+from .refine import refine_model, start_up_samples
 from .record import Record
 from .restoring import suggest_band
 from .uncertainty import coefficient_bounds
@@ -176,23 +183,210 @@ def _worse_bands(what: str, b0, b1, s: LoopSettings) -> list[str]:
     return [f"the held-out {what} grows by more than {s.max_band_rise_db:g} dB in " + ", ".join(worse)] if worse else []
 
 
+class _Predictor:
+    """The model class ``nifo identify`` writes, fitted on the fit parts for any term set and scored held out.
+
+    The linear part's form (one-mass body or rational) is chosen once, by which linear model predicts the
+    held-out parts better (:func:`~nifo_core.model_fit.choose_linear_form`); every term set is then fitted
+    on it (:func:`~nifo_core.model_fit.fit_model`), each once.
+    """
+
+    def __init__(self, held: HeldOut, data: AnalysisSettings, settings: LoopSettings) -> None:
+        self.held, self.data, self.settings = held, data, settings
+        self.off = settings.prediction == "none"
+        self.choice = None if self.off else choose_linear_form(held, data)
+        self._cache: dict = {}
+
+    @property
+    def linear(self) -> Fitted | None:
+        return None if self.choice is None else self.choice.linear
+
+    @property
+    def flexible(self) -> bool:
+        """A rational linear part: a multi-mode structure, the terms' forces through their own paths."""
+        return self.choice is not None and self.choice.form == "rational"
+
+    def fit(self, terms: Sequence[Term]) -> Fitted:
+        key = tuple(t.label for t in terms)
+        if key not in self._cache:
+            self._cache[key] = fit_model(self.held, terms, self.data, linear=self.linear,
+                                         structure=self.settings.structure)
+        return self._cache[key]
+
+
+def _errors(ev: _Evaluator, pred: _Predictor, terms: Sequence[Term]) -> Errors:
+    """Both residuals of ``terms``: the equation error (:class:`_Evaluator`) and the held-out prediction of the
+    model class ``nifo identify`` writes (:class:`_Predictor`), each labelled."""
+    eq = ev.equation(terms)
+    notes: list[str] = []
+    pred_nmse, per, trans, bands, unavailable, fitted = None, (), (), None, None, None
+    if pred.off:
+        unavailable = "prediction switched off (prediction='none')"
+    else:
+        try:
+            fitted = pred.fit(terms)
+        except (NifoError, np.linalg.LinAlgError) as err:
+            unavailable = str(err)
+        else:
+            if fitted.scores.unavailable is not None:
+                unavailable = fitted.scores.unavailable
+            else:
+                pred_nmse, per = fitted.score, fitted.scores.per_record
+                bands, trans = ev.band_numbers(fitted.scores.predictions)
+        if unavailable is not None:
+            notes.append(f"no held-out prediction for this model ({unavailable}); equation error only")
+    return Errors(terms=tuple(terms), theta_per_kg=eq["theta_per_kg"], k_per_kg=eq["k_per_kg"],
+                  c_per_kg=eq["c_per_kg"], equation_nmse_pct=eq["equation_nmse_pct"],
+                  equation_nmse_fit_pct=eq["equation_nmse_fit_pct"], prediction_nmse_pct=pred_nmse,
+                  prediction_nmse_per_record_pct=tuple(per),
+                  band_residual_db=bands if bands else eq["equation_band_residual_db"],
+                  residual_of="prediction" if bands else "equation",
+                  equation_band_residual_db=eq["equation_band_residual_db"],
+                  transmissibility_error_pct=tuple(trans), prediction_unavailable=unavailable, notes=tuple(notes),
+                  structure="" if fitted is None else fitted.structure,
+                  model_note="" if fitted is None else fitted.note, fitted=fitted)
+
+
+def _prediction_failures(current: Errors, after: Errors, s: LoopSettings, twin: Errors | None = None,
+                         floor: Sequence[float] = ()) -> list[str]:
+    """Why a candidate does not improve the held-out prediction enough (a rational linear part: the only gate).
+
+    It must lower the held-out prediction NMSE by ``min_prediction_gain`` (relative) and by more than the noise
+    floor (``floor``: per record, what a perfect model would still show, :meth:`HeldOut.noise_floor`), beat its
+    linear twin (the same model with one more *linear* path: else what it adds is flexibility) by as much, and make
+    no record's held-out prediction worse by more than ``max_record_rise`` (relative), the record's noise floor or a
+    quarter of the mean gain (a term that trades one level for another is not an effect of the structure).
+    """
+    p0, p1 = current.prediction_nmse_pct, after.prediction_nmse_pct
+    if p1 is None:
+        return [f"the model with it cannot be predicted ({after.prediction_unavailable})"]
+    if p0 is None:
+        return []
+    nf = float(np.mean(floor)) if len(floor) else 0.0
+    out = []
+    need = max(s.min_prediction_gain * p0, nf)
+    if not p1 <= p0 - need:
+        why = (f"does not fall by {100 * s.min_prediction_gain:g} %" if need > nf else
+               f"does not fall by more than the noise floor of the held-out parts ({nf:.2g} %)")
+        out.append(f"held-out prediction NMSE {p0:.3g} % → {p1:.3g} % {why}")
+    elif twin is not None and twin.prediction_nmse_pct is not None and \
+            not p1 <= twin.prediction_nmse_pct - max(s.min_prediction_gain * twin.prediction_nmse_pct, nf):
+        out.append(f"it predicts the held-out parts no better than the same model with one more linear path "
+                   f"({p1:.3g} % against {twin.prediction_nmse_pct:.3g} %): what it adds is flexibility, not a "
+                   f"nonlinearity")
+    gain = max(p0 - p1, 0.0)
+    floors = list(floor) + [0.0] * (len(current.prediction_nmse_per_record_pct) - len(floor))
+    worse = [(src, a, b) for src, a, b, f in zip(_names(current), current.prediction_nmse_per_record_pct,
+                                                 after.prediction_nmse_per_record_pct, floors)
+             if b - a > max(s.max_record_rise * a, f, 0.25 * gain)]
+    if worse:
+        out.append("it makes the held-out prediction of " + ", ".join(f"{n} worse ({a:.3g} % → {b:.3g} %)"
+                                                                      for n, a, b in worse))
+    return out
+
+
+#: a term whose describing function the linear columns z, ż explain to this R² on the fit parts acts linearly there
+LINEAR_R2 = 0.995
+
+
+def acts_linearly(ev: _Evaluator, term: Term) -> float:
+    """R² of the term's band-passed describing function on the fit parts regressed on z and ż (1: it never leaves
+    one regime — a play wider than the motion, a clearance never reached — and only adds a linear term)."""
+    g = np.concatenate([_g(p, term, ev.static) for p in ev.fit_parts])
+    x = np.column_stack([np.concatenate([p.z for p in ev.fit_parts]), np.concatenate([p.zdot for p in ev.fit_parts])])
+    tss = float(g @ g)
+    if not tss > 0:
+        return 1.0
+    r = g - x @ np.linalg.lstsq(x, g, rcond=None)[0]
+    return float(1 - (r @ r) / tss)
+
+
+def _names(e: Errors) -> list[str]:
+    names = [n for n, _ in e.transmissibility_error_pct]
+    return names + [f"record {i + 1}" for i in range(len(names), len(e.prediction_nmse_per_record_pct))]
+
+
+def _path_grid(ev: _Evaluator, kinds: Sequence[str], points: int) -> list[Term]:
+    """Terms of the kinds that can act through feedback paths over widths spanning the relative motion.
+
+    Geometric from twice the smallest record's RMS of z (narrower: the term acts on noise) to twice the
+    largest record's 99th percentile of |z| (wider: it never leaves its small-amplitude regime); a play's
+    width is its total deadband, a clearance's and a saturation's their half-width.
+    """
+    rms = [float(np.std(p.z)) for p in ev.fit_parts]
+    peak = [float(np.quantile(np.abs(p.z), 0.99)) for p in ev.fit_parts]
+    lo, hi = min(rms), 2 * max(peak)
+    out = []
+    for kind in kinds:
+        if kind not in PATH_KINDS or not hi > lo > 0:
+            continue
+        key = {"backlash": "deadband", "clearance": "gap", "saturation": "limit"}[kind]
+        scale = 1.0 if kind == "backlash" else 0.5
+        out += [Term(kind, {key: float(w)}) for w in np.geomspace(scale * lo, scale * hi, points)]
+    return out
+
+
+def linear_twin(ev: _Evaluator) -> Term:
+    """A term whose remainder is z itself (a saturation far beyond the motion): through a feedback path it adds only
+    linear flexibility — what a candidate must beat to count as a nonlinearity."""
+    peak = max(float(np.max(np.abs(p.z))) for p in ev.fit_parts)
+    return Term("saturation", {"limit": 100.0 * peak})
+
+
+def _grid_candidates(ev: _Evaluator, pred: _Predictor, terms: Sequence[Term], s: LoopSettings,
+                     m2_kg: float | None) -> list:
+    """Plays over a grid of widths for a flexible body (a discrete Iwan model: patches of a joint that slip one
+    after another), with their equation-error statistics. Clearances and saturations come from the ranking."""
+    grid = _path_grid(ev, ["backlash"] if "backlash" in s.kinds else [], int(s.path_widths))
+    if not grid or pred.linear is None:
+        return []
+    chosen = [t for t in grid if all(t.label != u.label for u in terms)]
+    if ev.regression is None:
+        ev.regression = RegressionData(ev.fit_rfs, n_groups=4, body_stiffness=False)
+    data = ev.regression
+    base = [data.regressor(t, offsets=ev.static.get(t.label)) for t in terms]
+    return [score_candidate(data, base, t, thresholds=s.thresholds, n_grid=int(s.path_widths), m2=m2_kg,
+                            names=tuple(t.label for t in terms)) for t in chosen]
+
+
+def _round_candidates(ev, pred, terms, ranked, s, m2_kg) -> list:
+    """What a round tries: on a one-mass body the significant ranked candidates in rank order; on a flexible body
+    (rational linear part, where the one-mass equation error is mis-specified and only the held-out prediction
+    judges) plays over a grid of widths and the best ranked candidates of the other kinds."""
+    if not pred.flexible:
+        return [c for c in ranked if c.present][: s.top_tried]
+    others = [c for c in ranked if c.kind != "backlash"][: s.top_tried]
+    seen = {c.term.label for c in others}
+    return [c for c in _grid_candidates(ev, pred, terms, s, m2_kg) if c.term.label not in seen] + others
+
+
+def _data_settings(recs: Sequence[Record], band: IntegrationBand | None, s: LoopSettings) -> AnalysisSettings:
+    """Without explicit data settings: the loop's spectral settings and analysis band, its integration band."""
+    fs = float(recs[0].fs_hz)
+    return AnalysisSettings(spectral=s.spectral, band=band, analysis_band_hz=s.analysis_band_hz, cond_limit=1e4)
+
+
 def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Mapping | str] = (), *,
                m2_kg: float | None = None, band: IntegrationBand | None = None,
-               settings: LoopSettings = LoopSettings(),
+               settings: LoopSettings = LoopSettings(), data: AnalysisSettings | None = None,
                progress: Callable[[float, str], None] | None = None) -> LoopResult:
     """Find what the declared model lacks, add it, refit, repeat; report errors before and after.
 
     Parameters
     ----------
     records : Record or sequence of Record
-        One record, or several at different excitation levels (same vehicle, same rate).
+        One record, or several at different excitation levels (same vehicle, same rate), each whole from its
+        first sample (a transient start is left out by ``data``'s ``skip_periods``/``skip_seconds``).
     declared : sequence of Term (or model-file entries)
         The declared strut nonlinearities besides the linear strut (empty: linear).
     m2_kg : float, optional
         Sprung mass [kg]: coefficients also in N, N/m, N·s/m...
     band : IntegrationBand, optional
-        Integration band; default :func:`~nifo_core.restoring.suggest_band` of the first record.
+        Integration band; default ``data.band``, else :func:`~nifo_core.restoring.suggest_band` of the first record.
     settings : LoopSettings
+    data : AnalysisSettings, optional
+        The spectral settings, bands, period and transient (:mod:`nifo_core.settings`); default: the
+        loop settings' spectral settings and analysis band, no period, no transient.
     progress : callable, optional
         ``progress(fraction, what)`` as the work advances.
 
@@ -210,14 +404,25 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
         raise InputError(f"records have different sample rates {rates} Hz", hint="resample to one rate first")
     terms = [make_term(t) for t in declared]
     s = settings
-    band, band_note = loop_band(recs, band)
+    data = data or _data_settings(recs, band, s)
+    fs = float(recs[0].fs_hz)
+    skip = data.skip_samples(fs)
+    band, band_note = loop_band([r.slice(min(skip, r.n - 1), r.n) for r in recs], band or data.band)
+    data = replace(data, band=band)
+    if data.period_samples is None:
+        s = replace(s, spectral=data.spectral, analysis_band_hz=data.analysis_band_hz)
+    held = split_records(recs, skip_samples=skip, period_samples=data.period_samples, fit_fraction=s.fit_fraction,
+                         band_hz=data.analysis_band_hz)
     say = progress or (lambda f, w: None)
     say(0.0, "restoring force and the declared model")
-    ev = _Evaluator(recs, band, s)
+    ev = _Evaluator(held, band, s, spectral=data.spectral if data.period_samples is None else None)
+    say(0.02, "the linear part: one-mass body or rational, by held-out prediction")
+    pred = _Predictor(held, data, s)
+    floor = held.noise_floor()
     retuned: list[str] = []
-    if s.retune and terms:
+    if s.retune and terms and not pred.flexible:   # re-tuning by the one-mass equation error: a one-mass body only
         terms, retuned = _retune(ev, terms, s)
-    current = ev.errors(terms)
+    current = _errors(ev, pred, terms)
     initial = current
     rounds: list[Round] = []
     verdict = ""
@@ -225,36 +430,51 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
     for i in range(1, s.max_rounds + 1):
         base = (i - 1) / total
         tuned: list[str] = []
-        if s.retune and i > 1:
+        if s.retune and i > 1 and not pred.flexible:
             say(base, f"round {i}: re-tuning the model's parameters")
             terms, tuned = _retune(ev, terms, s)
-            current = ev.errors(terms)
+            current = _errors(ev, pred, terms)
         say(base, f"round {i}: tracing the residual")
         ranked = rank_beyond(ev.fit_rfs, terms, m2_kg=m2_kg, kinds=s.kinds, thresholds=s.thresholds,
                              grid_points=s.grid_points, offsets=[ev.static.get(t.label) for t in terms],
-                             progress=lambda f, b=base: say(b + 0.8 * f / total, f"round {i}: tracing"))
+                             progress=lambda f, b=base: say(b + 0.5 * f / total, f"round {i}: tracing"))
         trials: list[Trial] = []
         added = None
-        for c in [c for c in ranked if c.present][: s.top_tried]:
-            say(base + 0.85 / total, f"round {i}: checking {c.term.label}")
+        cands = _round_candidates(ev, pred, terms, ranked, s, m2_kg)
+        twin = None
+        if pred.flexible and cands and all(t.kind in PATH_KINDS for t in terms):
+            say(base + 0.5 / total, f"round {i}: the linear twin (one more linear path)")
+            twin = _errors(ev, pred, [*terms, linear_twin(ev)])
+        for j, c in enumerate(cands):
+            say(base + (0.5 + 0.45 * j / max(len(cands), 1)) / total, f"round {i}: checking {c.term.label}")
             c = _static_candidate(ev, terms, c, s, m2_kg)  # a bump stop: its gap from the static position
             failed = []
+            r2 = acts_linearly(ev, c.term)
+            if r2 >= LINEAR_R2:
+                failed.append(f"it acts linearly on these data (z and ż explain {100 * r2:.2f} % of it: it never "
+                              f"leaves one regime)")
             shift, frac = _tire_check(ev, terms, c.term, s)
-            if not shift <= s.max_tire_shift:
+            if not shift <= s.max_tire_shift and not pred.flexible:   # impacts: a vehicle's tire, a one-mass body
                 failed.append(f"impact check: the coefficient moves {100 * shift:.0f} % without the samples near "
                               f"the input side's impacts (> {100 * s.max_tire_shift:.0f} %): an artefact of impacts "
                               f"(tire events on a vehicle), not an effect of the nonlinear element")
-            after = ev.errors([*terms, c.term])
+            after = _errors(ev, pred, [*terms, c.term])
             gain = 1 - after.equation_nmse_pct / current.equation_nmse_pct if current.equation_nmse_pct > 0 else 0.0
-            eq_failed, pred_failed = _heldout_failures(current, after, s)
+            if pred.flexible:
+                eq_failed, pred_failed = [], _prediction_failures(current, after, s, twin, floor)
+            else:
+                eq_failed, pred_failed = _heldout_failures(current, after, s)
             failed += eq_failed + pred_failed
             t = Trial(candidate=c, tire_shift=shift, tire_excluded_fraction=frac, heldout_gain=gain, after=after,
                       accepted=not failed, failed=tuple(failed),
-                      unconfirmed=bool(pred_failed) and len(failed) == len(pred_failed))
+                      unconfirmed=bool(pred_failed) and len(failed) == len(pred_failed) and not pred.flexible)
             trials.append(t)
-            if t.accepted:
+            if t.accepted and not pred.flexible:
                 added = t
                 break
+        if pred.flexible:      # every candidate judged on the one metric: the best that passes
+            ok = [t for t in trials if t.accepted]
+            added = min(ok, key=lambda t: t.after.prediction_nmse_pct) if ok else None
         pre = "".join(f"(Re-tuned first: {n}.) " for n in tuned)
         if added is None:
             text = pre + _nothing_text(i, ranked, trials)
@@ -282,6 +502,8 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
                    + verdict)
     notes = [f"declared {n} (the declared form is kept; the data set its parameter)" for n in retuned]
     notes += ([band_note] if band_note else []) + ev.notes
+    if pred.choice is not None:
+        notes.append(pred.choice.reason)
     if band.f_lo_hz > 1.0:
         notes.append(f"the integration band starts at {band.f_lo_hz:g} Hz: motion below it is only partly in z, ż")
     limits, confounded = (), ()
@@ -298,19 +520,27 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
                        + "; ".join(c.text() for c in confounded) + ".")
     y_fit, x_fit = _design(ev.fit_parts, terms, ev.static)
     bounds = coefficient_bounds(x_fit, y_fit, recs[0].fs_hz, segments=[p.y.size for p in ev.fit_parts])
-    undetermined = undetermined_terms(ev.fit_rfs, terms, bounds.half_width[2:] /
-                                      np.maximum(np.abs(bounds.theta[2:]), 1e-300)) if terms else ()
+    n = ev.n_lin
+    undetermined = undetermined_terms(ev.fit_rfs, terms, bounds.half_width[n:n + len(terms)] /
+                                      np.maximum(np.abs(bounds.theta[n:n + len(terms)]), 1e-300)) if terms else ()
     if undetermined and verdict.endswith(NOTHING_MISSING):  # not the same as "nothing is missing": say so
         verdict = (verdict[: -len(NOTHING_MISSING)] + "Nothing these data can separate is missing, but "
                    + "; ".join(u.text() for u in undetermined) + ".")
     model = linear = unavailable = refinement = None
-    try:  # the model whose held-out prediction was scored, fitted on the fit parts: what `nifo predict` takes
-        model, linear = ev.model(terms), ev.model([])
-    except (NifoError, np.linalg.LinAlgError) as err:
-        unavailable = f"no predictive model: {err}"
-    if model is not None and terms and s.refine and s.prediction != "none":  # it simulates: not with prediction off
+    if current.fitted is not None and current.prediction_unavailable is None:
+        model, linear = current.fitted.model, pred.linear.model
+    else:
+        unavailable = f"no predictive model: {current.prediction_unavailable}"
+    if model is not None and terms and s.refine and current.structure == "constant":
         say(0.98, "output-error refinement")
-        refinement, model = _refine_final(ev, model, linear, m2_kg, say, current)
+        refinement, model = _refine_final(ev, pred, model, linear, m2_kg, say, current)
+    final_score = current.prediction_nmse_pct
+    if refinement is not None and refinement.kept and refinement.heldout_after_pct is not None:
+        final_score = refinement.heldout_after_pct
+    floor_note = _floors(final_score, pred, terms)
+    if floor_note:
+        verdict = floor_note + " " + verdict.replace(NOTHING_MISSING, "").replace(
+            "The declared model lacks nothing the library can name. ", "").strip()
     say(1.0, "done")
     return LoopResult(declared=tuple(make_term(t) for t in declared), terms=tuple(terms), rounds=tuple(rounds),
                       initial=initial, final=current, verdict=verdict, band=band, m2_kg=m2_kg, settings=s,
@@ -318,11 +548,32 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
                       fit_seconds=tuple(a.duration_s for a in ev.fit_recs),
                       test_seconds=tuple(b.duration_s for b in ev.test_recs), notes=tuple(notes), model=model,
                       linear_model=linear, model_unavailable=unavailable, detection_limits=limits,
-                      confounded=confounded, bounds=bounds, undetermined=undetermined, refinement=refinement)
+                      confounded=confounded, bounds=bounds, undetermined=undetermined, refinement=refinement,
+                      linear_heldout_pct=None if pred.linear is None else pred.linear.score,
+                      final_heldout_pct=final_score)
 
 
-def _refine_final(ev: _Evaluator, model: IdentifiedModel, linear: IdentifiedModel | None, m2_kg: float | None,
-                  say: Callable[[float, str], None], final: Errors) -> tuple[LoopRefinement, IdentifiedModel]:
+def _floors(final: float | None, pred: _Predictor, terms: Sequence[Term]) -> str:
+    """The verdict when the final model predicts no better than a floor: the linear model of the same data, or
+    predicting nothing (100 %). Empty when it beats both."""
+    if pred.off or pred.linear is None:
+        return ""
+    lin = pred.linear.score
+    what = ("the model with " + ", ".join(t.label for t in terms)) if terms else "the linear model"
+    if final is None or not np.isfinite(final) or final >= 100.0:
+        return (f"The model class cannot predict these data: {what} predicts the held-out parts at "
+                + ("no computable error" if final is None or not np.isfinite(final) else f"{final:.3g} %")
+                + " — no better than predicting nothing (100 %). Check the channels, the band and the linear "
+                  f"part ({pred.choice.reason}).")
+    if terms and final >= lin:
+        return (f"The model class does not predict these data better than a linear model: {what} predicts the "
+                f"held-out parts at {final:.3g} %, the linear model of the same data at {lin:.3g} %.")
+    return ""
+
+
+def _refine_final(ev: _Evaluator, pred: "_Predictor", model: IdentifiedModel, linear: IdentifiedModel | None,
+                  m2_kg: float | None, say: Callable[[float, str], None],
+                  final: Errors) -> tuple[LoopRefinement, IdentifiedModel]:
     """Output-error refinement of the loop's final model on the fit parts, scored on the held-out parts.
 
     :func:`~nifo_core.refine.refine_model` on the first ``refine_seconds`` of every fit part (the
@@ -332,29 +583,37 @@ def _refine_final(ev: _Evaluator, model: IdentifiedModel, linear: IdentifiedMode
     the loop keeps: the refined one unless its held-out prediction is worse (or cannot be made).
     """
     s = ev.settings
-    recs = [r.slice(0, min(r.n, int(round(s.refine_seconds * r.fs_hz)))) for r in ev.fit_recs]
+    held = pred.held
+    p = held.period_samples
+    recs, skips = [], []
+    for r, sk, k in zip(held.records, held.skip, held.split):     # from rest, the fit part, at most refine_seconds
+        n = min(k, sk + int(round(s.refine_seconds * r.fs_hz)))
+        if p:
+            n = sk + max(2 * p, (n - sk) // p * p) if k - sk >= 2 * p else k
+        recs.append(r.slice(0, min(n, k)))
+        skips.append(max(sk, p or 0))
     secs = tuple(float(r.duration_s) for r in recs)
     try:
-        ref = refine_model(model, recs, linear=linear, band_hz=s.analysis_band_hz,
+        ref = refine_model(model, recs, linear=linear, band_hz=held.band_hz, period_samples=p,
+                           skip_samples=[max(sk, start_up_samples(model, r, p)) for r, sk in zip(recs, skips)],
                            progress=lambda start, n, cost: say(0.98, f"output-error refinement from the {start} "
                                                                      f"start ({n} simulations)"))
     except NifoError as err:
         return LoopRefinement(False, None, None, seconds=secs, unavailable=str(err)), model
     # the equation-error model's held-out prediction is the final round's (``final``, same model): not re-run
     b, bper = final.prediction_nmse_pct, tuple(final.prediction_nmse_per_record_pct)
-    a, aper = _heldout(ev, ref.model)
+    a, aper = _heldout(pred, ref.model)
     kept = a is not None and (b is None or a <= b)
     out = LoopRefinement(kept, b, a, bper, aper, tuple(_compare(model, ref.model, m2_kg, ref.parameters)), secs,
                          ref.to_dict())
     return out, (ref.model if kept else model)
 
 
-def _heldout(ev: _Evaluator, model: IdentifiedModel) -> tuple[float | None, tuple[float, ...]]:
-    try:
-        nmse, per, _, _ = ev.predict_model(model)
-    except (NifoError, np.linalg.LinAlgError):
+def _heldout(pred: "_Predictor", model: IdentifiedModel) -> tuple[float | None, tuple[float, ...]]:
+    sc = pred.held.score(model)
+    if sc.unavailable is not None:
         return None, ()
-    return float(nmse), tuple(float(v) for v in per)
+    return sc.mean, tuple(float(v) for v in sc.per_record)
 
 
 def _compare(before: IdentifiedModel, after: IdentifiedModel, m2: float | None,

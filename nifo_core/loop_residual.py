@@ -1,15 +1,17 @@
-"""Residuals of the loop (:mod:`nifo_core.loop`): fit a term set on the fit parts, score it on the held-out parts.
+"""The loop's equation error (:mod:`nifo_core.loop`): fit a term set on the fit parts, score it on the held-out parts.
 
-Two residuals (METHOD.md §5 step 1): the force-balance equation error of the
-body (paper Eq. 2 per unit sprung mass, every column band-passed after the
-nonlinear map) and the prediction error of the body acceleration simulated
-from the measured spindle acceleration. Also the tire check, the evidence
-behind an added effect and the re-tuning of the terms' parameters.
+The force-balance equation error of the body (paper Eq. 2 per unit sprung
+mass, every column band-passed after the nonlinear map; a measured force on
+the body is one more linear column, coefficient -1/M2) traces what the model
+lacks (METHOD.md §5 step 1). The other residual, the held-out prediction
+error of the model class ``nifo identify`` writes, is :mod:`nifo_core.heldout`
+and :mod:`nifo_core.model_fit`. Also here: the tire check, the evidence behind
+an added effect, the re-tuning of the terms' parameters and the per-band
+numbers of a held-out prediction.
 """
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, replace
 from typing import Mapping, Sequence
 
@@ -21,15 +23,13 @@ from .characterize_result import Candidate
 from .characterize_score import score_candidate
 from .characterize_static import STATIC_KINDS, static_bump_stops
 from .describing import Term
-from .errors import ConfigError, InputError, NifoError
+from .errors import InputError
 from .integrate import IntegrationBand
-from .loop_results import RESIDUAL_BANDS_HZ, Errors, Evidence, LoopSettings
-from .model import BodyModel, IdentifiedModel, predict_transmissibility
-from .nifo import identify_nifo
-from .record import Record
+from .heldout import HeldOut
+from .loop_results import RESIDUAL_BANDS_HZ, Evidence, LoopSettings
 from .restoring import RestoringForce, bandpass, bandpass_settle_samples, restoring_force
 from .frf import h1, partial_coherence
-from .spectral import auto_spectrum, cross_spectra
+from .spectral import SpectralSettings, auto_spectrum, cross_spectra
 
 @dataclass(frozen=True)
 class _Part:
@@ -41,6 +41,12 @@ class _Part:
     rf: RestoringForce
     keep: np.ndarray        # indices into rf of the rows
     index: int = 0          # which record (per-record offsets of bump stops)
+    applied: np.ndarray | None = None   # band-passed measured force on the body [N] (coefficient -1/M2)
+
+    @property
+    def linear(self) -> list[np.ndarray]:
+        """The linear columns: z, ż and, when measured, the force on the body."""
+        return [self.z, self.zdot] + ([] if self.applied is None else [self.applied])
 
 
 def _part(rf: RestoringForce, index: int = 0) -> _Part:
@@ -50,8 +56,9 @@ def _part(rf: RestoringForce, index: int = 0) -> _Part:
                          f"{s / rf.fs_hz:.1f} s at each end)", source=rf.source or "record",
                          hint="record longer, or raise the band's lower edge")
     keep = np.arange(s, rf.n - s)
-    b = bandpass(np.vstack([rf.force, rf.z, rf.zdot]), rf.fs_hz, rf.band)[:, keep]
-    return _Part(b[0], b[1], b[2], rf, keep, index)
+    cols = [rf.force, rf.z, rf.zdot] + ([] if rf.applied is None else [rf.applied])
+    b = bandpass(np.vstack(cols), rf.fs_hz, rf.band)[:, keep]
+    return _Part(b[0], b[1], b[2], rf, keep, index, None if rf.applied is None else b[3])
 
 
 def _g(part: _Part, term: Term, offsets: Mapping[str, Sequence[float]] | None = None) -> np.ndarray:
@@ -71,7 +78,7 @@ def _design(parts: Sequence[_Part], terms: Sequence[Term],
     ys, xs = [], []
     for p in parts:
         ys.append(p.y)
-        xs.append(np.column_stack([p.z, p.zdot, *[_g(p, t, offsets) for t in terms]]))
+        xs.append(np.column_stack([*p.linear, *[_g(p, t, offsets) for t in terms]]))
     return np.concatenate(ys), np.vstack(xs)
 
 
@@ -95,36 +102,41 @@ def _band_db(spec_pairs: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) ->
 
 
 class _Evaluator:
-    """Fits a term set on the fit parts and scores it on the held-out parts (both residuals)."""
+    """The force-balance equation error of a term set: fitted on the fit parts, scored on the held-out parts.
 
-    def __init__(self, records: Sequence[Record], band: IntegrationBand, settings: LoopSettings) -> None:
-        # integrate each WHOLE record, then split its restoring force in time: the integrator's edges are
-        # lost once per record, not at the split too (a 60 s record keeps a held-out part)
+    The split is the one of the model's held-out prediction (:class:`~nifo_core.heldout.HeldOut`): each record
+    after its transient is integrated whole, then its restoring force is split where its held-out part begins
+    (the integrator's edges are lost once per record, not at the split too).
+    """
+
+    def __init__(self, held: HeldOut, band: IntegrationBand, settings: LoopSettings,
+                 spectral: SpectralSettings | None = None) -> None:
         self.band, self.settings = band, settings
+        self.held = held
         self.fit_recs, self.test_recs, self.fit_rfs, self.test_rfs = [], [], [], []
-        for rec in records:
+        for rec, skip, split in zip(held.records, held.skip, held.split):
+            rec = rec.slice(skip, rec.n)
             rf = restoring_force(rec, band=band)
-            k = int(round(settings.fit_fraction * rf.n))
+            k = min(max(split - skip - rf.start, 1), rf.n - 1)
             self.fit_rfs.append(rf.select(slice(0, k)))
             self.test_rfs.append(replace(rf.select(slice(k, rf.n)), start=rf.start + k))
             self.fit_recs.append(rec.slice(0, rf.start + k))
             self.test_recs.append(rec.slice(rf.start + k, rec.n))
         self.fit_parts = [_part(rf, i) for i, rf in enumerate(self.fit_rfs)]
         self.test_parts = [_part(rf, i) for i, rf in enumerate(self.test_rfs)]
+        #: linear columns of the equation error: z, ż and the measured force when there is one
+        self.n_lin = len(self.fit_parts[0].linear)
         #: bump stops measured from the static position: term label → offset -m_i per record [m]
         self.static: dict[str, tuple[float, ...]] = {}
         self.regression: RegressionData | None = None   # characterize's rows of the fit parts (made on demand)
-        spec = settings.spectral
+        spec = spectral or settings.spectral
         self.notes: list[str] = []
         shortest = min(r.n for r in self.test_recs)
         self.spec = spec if shortest >= 2 * spec.block else replace(
-            spec, block=int(2 ** np.floor(np.log2(max(shortest // 8, 256)))))
+            spec, block=int(2 ** np.floor(np.log2(max(shortest // 8, 256)))), overlap=0.5, window="hann")
         if self.spec.block != spec.block:
-            self.notes.append(f"spectral block {spec.block} → {self.spec.block} samples for the per-band residual and "
-                              f"the transmissibilities: the shortest held-out part is "
-                              f"{shortest / records[0].fs_hz:.1f} s")
-        self._measured = [cross_spectra(np.stack([r.spindle_accel, r.body_accel]), r.fs_hz, self.spec)
-                          for r in self.test_recs]
+            self.notes.append(f"spectral block {spec.block} → {self.spec.block} samples for the per-band residual: "
+                              f"the shortest held-out part is {shortest / held.records[0].fs_hz:.1f} s")
         self._cache: dict = {}
 
     def joint(self, terms: Sequence[Term]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -132,7 +144,8 @@ class _Evaluator:
         y, x = _design(self.fit_parts, terms, self.static)
         return np.linalg.lstsq(x, y, rcond=None)[0], y, x
 
-    def errors(self, terms: Sequence[Term]) -> Errors:
+    def equation(self, terms: Sequence[Term]) -> dict:
+        """The equation-error numbers of ``terms`` (fit on the fit parts, NMSE on the held-out parts)."""
         key = tuple(t.label for t in terms)
         if key in self._cache:
             return self._cache[key]
@@ -141,118 +154,39 @@ class _Evaluator:
         fit_nmse = _nmse_pct(y, y - x @ theta)
         yt, xt = _design(self.test_parts, terms, self.static)
         eq_nmse = _nmse_pct(yt, yt - xt @ theta)
-        notes: list[str] = []
-        pred_nmse, per_rec, trans, pairs = None, (), (), []
-        residual_of, unavailable = "equation", None
-        if self.settings.prediction == "none":
-            unavailable = "prediction switched off (prediction='none')"
-        else:
-            try:
-                pred_nmse, per_rec, trans, pairs = self._predict(terms)
-                residual_of = "prediction"
-            except (NifoError, np.linalg.LinAlgError) as err:
-                unavailable = str(err)
-                notes.append(f"no held-out prediction for this model ({err}); equation error only")
         eq_pairs = []  # per-band residual of the equation error (always: the gate compares like with like)
         for p in self.test_parts:
-            e = p.y - np.column_stack([p.z, p.zdot, *[_g(p, t, self.static) for t in terms]]) @ theta
+            e = p.y - np.column_stack([*p.linear, *[_g(p, t, self.static) for t in terms]]) @ theta
             if e.size >= self.spec.block:
-                s = cross_spectra(np.stack([p.y, e]), p.rf.fs_hz, self.spec)
-                eq_pairs.append((s.freq_hz, auto_spectrum(s, 0), auto_spectrum(s, 1)))
-        eq_bands = _band_db(eq_pairs)
-        out = Errors(terms=terms, theta_per_kg=tuple(float(v) for v in theta[2:]), k_per_kg=float(theta[0]),
-                     c_per_kg=float(theta[1]), equation_nmse_pct=eq_nmse, equation_nmse_fit_pct=fit_nmse,
-                     prediction_nmse_pct=pred_nmse, prediction_nmse_per_record_pct=tuple(per_rec),
-                     band_residual_db=_band_db(pairs) if pairs else eq_bands, residual_of=residual_of,
-                     equation_band_residual_db=eq_bands,
-                     transmissibility_error_pct=tuple(trans), prediction_unavailable=unavailable,
-                     notes=tuple(notes))
+                sp = cross_spectra(np.stack([p.y, e]), p.rf.fs_hz, self.spec)
+                eq_pairs.append((sp.freq_hz, auto_spectrum(sp, 0), auto_spectrum(sp, 1)))
+        n = self.n_lin
+        out = {"terms": terms, "theta_per_kg": tuple(float(v) for v in theta[n:n + len(terms)]),
+               "k_per_kg": float(theta[0]), "c_per_kg": float(theta[1]), "equation_nmse_pct": eq_nmse,
+               "equation_nmse_fit_pct": fit_nmse, "equation_band_residual_db": _band_db(eq_pairs)}
         self._cache[key] = out
         return out
 
-    def model(self, terms: Sequence[Term]) -> IdentifiedModel:
-        """The model that predicts, fitted on the fit parts (``settings.prediction``).
-
-        ``'equation'``: the equation-error fit (k, c, θ_i) as a one-mass body; where that body is not
-        physical (a multi-mode structure read as one mass, e.g. F-16) NIFO's static fit of the same terms
-        with the linear part :func:`~nifo_core.linear_part.select_linear_part` chooses (a stable
-        rational model), the reason in ``provenance``. ``'nifo'``: NIFO's static fit always.
-        """
-        s = self.settings
-        terms = tuple(terms)
-        theta = self.joint(terms)[0]
-        physical = theta[0] > 0 and theta[1] > 0
-        if s.prediction == "nifo" or not physical:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                res = identify_nifo(self.fit_recs, list(terms), settings=s.spectral, band=self.band,
-                                    analysis_band_hz=s.analysis_band_hz, input_measured=False)
-            model = IdentifiedModel.from_nifo(res, source="static")
-            if s.prediction == "nifo":
-                return model
-            why = (f"the one-mass equation-error fit is not physical (k={theta[0]:.4g} 1/s², c={theta[1]:.4g} 1/s): "
-                   f"NIFO's static fit of the same terms on the fit parts predicts instead, with a "
-                   f"{model.linear.kind} linear part ({model.linear.reason})")
-            return replace(model, provenance={**dict(model.provenance), "from": "nifo loop", "why": why})
-        f = s.spectral.freq_hz(self.fit_recs[0].fs_hz)
-        body = BodyModel(float(theta[0]), float(theta[1]))
-        body = replace(body, fit_rms=self._misfit(body))
-        t21 = body.t21(f)
-        w2 = (2 * np.pi * f) ** 2
-        with np.errstate(divide="ignore", invalid="ignore"):
-            b = np.zeros((len(terms), f.size), complex)
-            for i, th in enumerate(theta[2:]):
-                b[i] = th * (1 - t21) / np.where(w2 > 0, w2, np.inf)
-        return IdentifiedModel(freq_hz=f, t21=t21, b=b, terms=terms, c_over_m2=np.asarray(theta[2:], float),
-                               body=body, analysis_band_hz=s.analysis_band_hz, fs_hz=self.fit_recs[0].fs_hz,
-                               settings=s.spectral, band=self.band, source="static",
-                               provenance={"from": "nifo loop equation-error fit"})
-
-    def _misfit(self, body: BodyModel) -> float:
-        """Relative RMS of T21_body/H1 - 1 over the analysis band, H1 measured on the fit parts (levels pooled).
-
-        H1 at the test level holds the nonlinearity's equivalent linearisation: a strongly nonlinear
-        strut shows here as misfit even when the nominal body is right.
-        """
-        if "h1_fit" not in self._cache:
-            sp = [cross_spectra(np.stack([r.spindle_accel, r.body_accel]), r.fs_hz, self.spec) for r in self.fit_recs]
-            f = sp[0].freq_hz
-            self._cache["h1_fit"] = (f, np.mean([h1(x, 0, 1) for x in sp], axis=0))
-        f, t = self._cache["h1_fit"]
-        lo, hi = self.settings.analysis_band_hz
-        m = (f >= lo) & (f <= hi) & (np.abs(t) > 0)
-        return float(np.sqrt(np.mean(np.abs(body.t21(f[m]) / t[m] - 1) ** 2))) if m.any() else float("inf")
-
-    def _predict(self, terms: tuple[Term, ...]):
-        return self.predict_model(self.model(terms))
-
-    def predict_model(self, model: IdentifiedModel):
-        """Held-out prediction of ``model``: (pooled NMSE [%], per record [%], transmissibility errors, spectra).
-
-        The one metric every model of the loop is scored on (the refined one too).
-        """
-        s = self.settings
-        lo, hi = s.analysis_band_hz
-        num = den = 0.0
-        per, trans, pairs = [], [], []
-        for rec, meas in zip(self.test_recs, self._measured):
-            pt = predict_transmissibility(model, rec.spindle_accel, rec.fs_hz, settings=self.spec,
-                                          method="parametric")
-            v = pt.prediction.valid
-            y = np.asarray(rec.body_accel)[v]
-            e = y - pt.prediction.body_accel[v]
-            num += float(np.sum(e ** 2))
-            den += y.size * float(np.var(y))
-            per.append(_nmse_pct(y, e))
-            if y.size >= self.spec.block:
-                sp = cross_spectra(np.stack([y, e]), rec.fs_hz, self.spec)
-                pairs.append((sp.freq_hz, auto_spectrum(sp, 0), auto_spectrum(sp, 1)))
-            sv = cross_spectra(np.stack([np.asarray(rec.spindle_accel)[v], y]), rec.fs_hz, self.spec)
-            t_meas = h1(sv, 0, 1)
+    def band_numbers(self, preds: Sequence[np.ndarray]) -> tuple[dict, tuple]:
+        """Per-band residual of the held-out prediction error (records pooled) and the transmissibility error per
+        record, from whole-record predictions (:meth:`HeldOut.predictions`)."""
+        lo, hi = self.held.band_hz
+        pairs, trans = [], []
+        for rec, yhat, k in zip(self.held.records, preds, self.held.split):
+            y = np.asarray(rec.body_accel)[k:]
+            e = y - np.asarray(yhat)[k:]
+            if y.size < self.spec.block:
+                continue
+            sp = cross_spectra(np.stack([y, e]), rec.fs_hz, self.spec)
+            pairs.append((sp.freq_hz, auto_spectrum(sp, 0), auto_spectrum(sp, 1)))
+            drive = np.asarray(rec.force if rec.spindle_fixed else rec.spindle_accel)[k:]
+            sv = cross_spectra(np.stack([drive, y, np.asarray(yhat)[k:]]), rec.fs_hz, self.spec)
             m = (sv.freq_hz >= lo) & (sv.freq_hz <= hi)
-            rel = np.abs(pt.t21[m] - t_meas[m]) / np.abs(t_meas[m])
-            trans.append((rec.source, 100.0 * float(np.nanmedian(rel))))
-        return 100.0 * num / den, per, trans, pairs
+            t_meas, t_pred = h1(sv, 0, 1), h1(sv, 0, 2)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                rel = np.abs(t_pred[m] - t_meas[m]) / np.abs(t_meas[m])
+            trans.append((rec.source, 100.0 * float(np.nanmedian(rel)) if rel.size else float("nan")))
+        return _band_db(pairs), tuple(trans)
 
 
 # --------------------------------------------------------------------------------------------
@@ -324,13 +258,13 @@ def _evidence(ev: _Evaluator, terms: Sequence[Term], cand: Term, s: LoopSettings
     for p in ev.fit_parts:
         if p.y.size < ev.spec.block:
             continue
-        chans = np.vstack([p.y, p.z, p.zdot, *[_g(p, t, ev.static) for t in [*terms, cand]]])
+        chans = np.vstack([p.y, *p.linear, *[_g(p, t, ev.static) for t in [*terms, cand]]])
         sp = cross_spectra(chans, p.rf.fs_hz, ev.spec)
         m = (sp.freq_hz >= s.analysis_band_hz[0]) & (sp.freq_hz <= s.analysis_band_hz[1])
         pc = partial_coherence(sp, 0, list(range(1, chans.shape[0])))[-1][m]
         pcs.append(pc)
         n_avg = max(n_avg, sp.n_avg)
-    q = 2 + len(terms) + 1
+    q = ev.n_lin + len(terms) + 1
     level = 1 - 0.05 ** (1 / max(n_avg - q - 1, 1)) if n_avg else float("nan")
     pc_all = np.concatenate(pcs) if pcs else np.array([np.nan])
     centres = 0.5 * (edges[1:] + edges[:-1])

@@ -31,7 +31,8 @@ RESIDUAL_BANDS_HZ = ((2.0, 5.0), (5.0, 10.0), (10.0, 20.0), (20.0, 30.0))
 #: the verdict when the last round found nothing
 NOTHING_MISSING = "Nothing significant is missing."
 
-Prediction = Literal["equation", "nifo", "none"]
+Prediction = Literal["model", "none"]
+Structure = Literal["auto", "constant", "paths"]
 
 
 @dataclass(frozen=True)
@@ -64,12 +65,22 @@ class LoopSettings:
         For the per-band residual and the transmissibilities (paper Table 2 by default).
     analysis_band_hz : (float, float)
         Band of the transmissibility error and of NIFO.
-    prediction : {'equation', 'nifo', 'none'}
-        Which model predicts the held-out body acceleration from the measured spindle
-        acceleration (:func:`nifo_core.model.predict_body`, parametric): ``'equation'`` the
-        equation-error fit (k, c, θ_i: the model the loop traced and refitted, simulated in time,
-        METHOD.md §4), ``'nifo'`` output-only NIFO's static fit on the fit part, ``'none'``:
-        equation error only.
+    prediction : {'model', 'none'}
+        ``'model'``: every term set is fitted as ``nifo identify`` fits it (:mod:`nifo_core.model_fit`:
+        NIFO on the fit parts, the linear part's form chosen by held-out prediction, constant
+        coefficients or feedback paths) and its held-out body acceleration predicted from the
+        measured input (spindle acceleration and/or force), simulated from rest
+        (:mod:`nifo_core.heldout`): the one metric. ``'none'``: equation error only.
+    structure : {'auto', 'constant', 'paths'}
+        Feedback structure of the predicting model (:func:`nifo_core.model_fit.fit_model`).
+    min_prediction_gain : float
+        Relative fall of the held-out prediction NMSE a term must bring (on a rational linear part,
+        where it is the only gate).
+    max_record_rise : float
+        A term may not make any record's held-out prediction worse by more than this (relative).
+    path_widths : int
+        On a rational linear part (a flexible body): widths tried per kind that can act through a
+        feedback path (backlash, clearance, saturation), geometric over the relative motion.
     retune : bool
         Before each round, re-tune the parameter (gap, knee, eps...) of every term of the model
         over its grid (a key parameter within a factor 2 of its value) (declared terms state the form; the data set the parameter). Without it a
@@ -98,10 +109,14 @@ class LoopSettings:
     top_tried: int = 3
     spectral: SpectralSettings = field(default_factory=SpectralSettings)
     analysis_band_hz: tuple[float, float] = (2.0, 30.0)
-    prediction: Prediction = "equation"
+    prediction: Prediction = "model"
     retune: bool = True
     refine: bool = True
     refine_seconds: float = 60.0
+    structure: Structure = "auto"
+    min_prediction_gain: float = 0.02
+    max_record_rise: float = 0.05
+    path_widths: int = 8
 
     def __post_init__(self) -> None:
         if isinstance(self.max_rounds, bool) or not isinstance(self.max_rounds, (int, np.integer)) \
@@ -123,8 +138,16 @@ class LoopSettings:
             raise ConfigError(f"analysis_band_hz={self.analysis_band_hz!r} must satisfy 0 < lo < hi")
         if not (np.isfinite(float(self.refine_seconds)) and float(self.refine_seconds) >= 5):
             raise ConfigError(f"refine_seconds={self.refine_seconds!r} must be at least 5 s")
-        if self.prediction not in ("equation", "nifo", "none"):
-            raise ConfigError(f"prediction={self.prediction!r} must be 'equation', 'nifo' or 'none'")
+        if self.prediction not in ("model", "none"):
+            raise ConfigError(f"prediction={self.prediction!r} must be 'model' or 'none'")
+        if self.structure not in ("auto", "constant", "paths"):
+            raise ConfigError(f"structure={self.structure!r} must be 'auto', 'constant' or 'paths'")
+        for name in ("min_prediction_gain", "max_record_rise"):
+            v = float(getattr(self, name))
+            if not (np.isfinite(v) and 0 <= v < 1):
+                raise ConfigError(f"{name}={v!r} must be in [0, 1)")
+        if isinstance(self.path_widths, bool) or not 2 <= int(self.path_widths) <= 32:
+            raise ConfigError(f"path_widths={self.path_widths!r} must be a whole number in 2..32")
         object.__setattr__(self, "kinds", tuple(self.kinds))
         object.__setattr__(self, "analysis_band_hz", (lo, hi))
 
@@ -137,7 +160,9 @@ class LoopSettings:
                 "max_tire_shift": self.max_tire_shift, "top_tried": self.top_tried,
                 "spectral": self.spectral.to_dict(), "analysis_band_hz": list(self.analysis_band_hz),
                 "prediction": self.prediction, "retune": self.retune, "refine": self.refine,
-                "refine_seconds": self.refine_seconds}
+                "refine_seconds": self.refine_seconds, "structure": self.structure,
+                "min_prediction_gain": self.min_prediction_gain, "max_record_rise": self.max_record_rise,
+                "path_widths": int(self.path_widths)}
 
 
 # --------------------------------------------------------------------------------------------
@@ -194,9 +219,13 @@ class Errors:
     prediction_unavailable: str | None = None
     equation_band_residual_db: Mapping[str, float] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
+    structure: str = ""
+    model_note: str = ""
+    fitted: object = field(default=None, compare=False, repr=False)   # the Fitted model scored (model_fit)
 
     def to_dict(self) -> dict:
         return {"terms": [t.to_dict() for t in self.terms], "theta_per_kg": list(self.theta_per_kg),
+                "structure": self.structure, "model_note": self.model_note,
                 "k_per_kg": self.k_per_kg, "c_per_kg": self.c_per_kg,
                 "prediction_nmse_pct": self.prediction_nmse_pct,
                 "prediction_unavailable": self.prediction_unavailable,
@@ -384,6 +413,8 @@ class LoopResult:
     bounds: CoefficientBounds | None = None
     undetermined: tuple[Undetermined, ...] = ()
     refinement: LoopRefinement | None = None
+    linear_heldout_pct: float | None = None
+    final_heldout_pct: float | None = None
 
     def coefficients(self) -> list[dict]:
         """The final model's equation-error coefficients with 95 % random-error bounds (per kg, and × M2).
@@ -461,6 +492,8 @@ class LoopResult:
                 "coefficients": self.coefficients(),
                 "confounded": [c.to_dict() for c in self.confounded],
                 "undetermined": [u.to_dict() for u in self.undetermined],
+                "linear_heldout_prediction_nmse_pct": _fin(self.linear_heldout_pct),
+                "final_heldout_prediction_nmse_pct": _fin(self.final_heldout_pct),
                 "band": self.band.to_dict(), "m2_kg": self.m2_kg, "settings": self.settings.to_dict(),
                 "records": [{"source": s, "fit_s": a, "test_s": b}
                             for s, a, b in zip(self.sources, self.fit_seconds, self.test_seconds)],

@@ -165,7 +165,7 @@ class IdentifiedModel:
     @classmethod
     def from_nifo(cls, result: NifoResult, *, source: Literal["static", "free", "h1"] = "static",
                   fit_k3: bool = False, linear_form: Literal["auto", "body", "rational"] = "auto",
-                  order: int | None = None) -> "IdentifiedModel":
+                  order: int | None = None, records=None) -> "IdentifiedModel":
         """Make a model from a NIFO result.
 
         ``source='static'`` (default) uses the constant-coefficient fit,
@@ -174,7 +174,9 @@ class IdentifiedModel:
         the identification level, the linear model to compare against.
         The linear part is chosen by :func:`select_linear_part` (``linear_form``,
         ``order``): never fails for a non-physical body when a stable rational
-        fit exists.
+        fit exists. ``records`` (:class:`~nifo_core.linear_part.RecordLines` of each
+        identification record; used for the linear model, ``'h1'``): a rational
+        linear part's residues are those that predict every record best.
         """
         prov = {"from": "nifo", "source": source, "n_avg": result.n_avg, **dict(result.provenance)}
         st = result.static
@@ -196,7 +198,8 @@ class IdentifiedModel:
             _, k2, c2, misfit = (float(v) for v in st.one_mass)
             given = BodyModel(k2 / m2, c2 / m2, 0.0, misfit)
         lin, body = nominal_linear_part(result.freq_hz, t21, terms, gam, band_hz=result.analysis_band_hz,
-                                        form=linear_form, order=order, fit_k3=fit_k3, body=given)
+                                        form=linear_form, order=order, fit_k3=fit_k3, body=given,
+                                        records=records if not terms else None)
         return cls(freq_hz=result.freq_hz, t21=t21, b=b, terms=terms, c_over_m2=gam, body=body,
                    analysis_band_hz=result.analysis_band_hz, fs_hz=result.fs_hz, settings=result.settings,
                    band=result.band, source=source if terms else "h1", provenance=prov, linear=lin,

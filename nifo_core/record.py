@@ -20,7 +20,7 @@ import numpy as np
 
 from .errors import InputError, NonFiniteError, RecordTooShortError
 
-__all__ = ["Record", "CHANNELS", "acceleration_from_displacement"]
+__all__ = ["Record", "CHANNELS", "acceleration_from_displacement", "concatenate"]
 
 #: channel names, in the order used throughout (CSV columns, bag topics' roles)
 CHANNELS = ("spindle_accel", "body_accel", "tire_patch_disp", "force")
@@ -153,6 +153,21 @@ class Record:
                 f"{self.n} samples ({self.duration_s:.1f} s) is too short for {what}, which needs {n_min}",
                 source=self.source or "record",
                 hint="record longer, or choose a smaller --block")
+
+
+def concatenate(parts) -> Record:
+    """Consecutive chunks of one record (same rate and channels) joined into one; the first's stamp and meta."""
+    parts = list(parts)
+    if not parts:
+        raise InputError("nothing to join")
+    first = parts[0]
+
+    def cat(name: str):
+        vals = [getattr(p, name) for p in parts]
+        return None if any(v is None for v in vals) else np.concatenate(vals)
+
+    return replace(first, spindle_accel=None if first.spindle_fixed else cat("spindle_accel"),
+                   body_accel=cat("body_accel"), tire_patch_disp=cat("tire_patch_disp"), force=cat("force"))
 
 
 def acceleration_from_displacement(x: np.ndarray, fs_hz: float, *, period_samples: int | None = None

@@ -44,7 +44,7 @@ from .errors import ConfigError, InputError, RecordTooShortError
 
 __all__ = [
     "Window", "Detrend", "SpectralSettings", "CrossSpectra", "CrossSpectralAccumulator", "cross_spectra",
-    "auto_spectrum", "cross_spectrum",
+    "auto_spectrum", "cross_spectrum", "block_ffts",
 ]
 
 Window = Literal["flattop", "hann", "hamming", "boxcar", "blackman", "blackmanharris", "nuttall"]
@@ -164,7 +164,7 @@ def _density_scale(settings: SpectralSettings, fs_hz: float) -> np.ndarray:
     return scale
 
 
-def _block_ffts(x: np.ndarray, settings: SpectralSettings) -> np.ndarray:
+def block_ffts(x: np.ndarray, settings: SpectralSettings) -> np.ndarray:
     """rfft of every complete block of every channel: (n_ch, n) -> (n_ch, n_blocks, n_freq)."""
     nb = settings.n_blocks(x.shape[1])
     blocks = sliding_window_view(x, settings.block, axis=-1)[:, ::settings.step][:, :nb]
@@ -325,7 +325,7 @@ class CrossSpectralAccumulator:
         buf = np.concatenate([self._tail, arr], axis=1) if self._tail.shape[1] else arr
         nb = self.settings.n_blocks(buf.shape[1])
         if nb:
-            self._sum += _block_products(_block_ffts(buf, self.settings))
+            self._sum += _block_products(block_ffts(buf, self.settings))
             self._n_blocks += nb
             buf = buf[:, nb * self.settings.step:]
         self._tail = buf.copy()

@@ -26,8 +26,10 @@ from nifo.io.atomic import check_output, staged_dir
 from nifo.io.loader import add_input_arguments, input_options
 from nifo.io.provenance import add_system_argument, input_provenance, system_of
 from nifo.progress import Progress
+from nifo.settings import add_settings_arguments, loader_options, resolve
 from nifo_core.errors import (ConfigError, IllConditionedError, InputError, NifoError, RecordTooShortError,
                               SampleRateError)
+from nifo_core.settings import AnalysisSettings
 
 HELP = "identify the nominal linear transmissibility and the nonlinear coefficient functions (NIFO)"
 DESCRIPTION = f"""{HELP}.
@@ -78,16 +80,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="records (bag, .mcap, .csv, .mat); several are averaged")
     p.add_argument("--model", required=True, type=Path, metavar="MODEL.yaml", help="model file (nonlinearities)")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory (replaced atomically)")
-    g = p.add_argument_group("spectral settings (override the model file's settings; defaults: paper Table 2)")
-    g.add_argument("--block", type=int, metavar="N", help="samples per spectral block (default 6144)")
-    g.add_argument("--overlap", type=float, metavar="F", help="block overlap fraction (default 0.52)")
-    g.add_argument("--window", metavar="W", help="window: flattop (default), hann, boxcar, ...")
-    g.add_argument("--band", type=float, nargs=2, metavar=("LO", "HI"),
-                   help="integration band for z, ż [Hz] (default 0.5-200 Hz; must contain body bounce)")
-    g.add_argument("--freq-range", type=float, nargs=2, metavar=("LO", "HI"),
-                   help="analysis band [Hz]: conditioning, pooled fit, summary (default 2-30)")
-    g.add_argument("--cond-limit", type=float, default=1e4, metavar="C",
-                   help="scaled cond(G_UU) counted as ill-conditioned (default 1e4)")
+    add_settings_arguments(p)
     p.add_argument("--step-data", action="append", nargs="+", type=Path, metavar="PATH",
                    help="data of one step of a two-step model (repeat once per step, in order)")
     p.add_argument("--chunk-samples", type=int, default=CHUNK_SAMPLES, metavar="N",
@@ -122,55 +115,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 # ---------------------------------------------------------------------------------------------
-# settings
-# ---------------------------------------------------------------------------------------------
-def _pair(value, name: str) -> tuple[float, float] | None:
-    if value is None:
-        return None
-    try:
-        lo, hi = (float(v) for v in value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{name}={value!r} must be two numbers [Hz]", channel=name, hint="e.g. 2 30") from None
-    if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):
-        raise ConfigError(f"{name} {lo:g}-{hi:g} Hz must satisfy 0 <= LO < HI", channel=name, hint="e.g. 2 30")
-    return lo, hi
-
-
-def resolve_settings(args: argparse.Namespace, file_settings) -> dict:
-    """Spectral settings, integration band and analysis band: command line > model file > defaults."""
-    from nifo_core.integrate import IntegrationBand
-    from nifo_core.nifo import DEFAULT_ANALYSIS_BAND_HZ
-    from nifo_core.spectral import SpectralSettings
-
-    fs = dict(file_settings or {})
-    spec = {k: v for k, v in (("block", args.block if args.block is not None else fs.get("block")),
-                              ("overlap", args.overlap if args.overlap is not None else fs.get("overlap")),
-                              ("window", args.window if args.window is not None else fs.get("window")))
-            if v is not None}
-    settings = SpectralSettings(**spec)
-    band = _pair(args.band if args.band is not None else fs.get("band_hz"), "--band")
-    if band is not None and band[0] <= 0:
-        raise ConfigError(f"integration band {band[0]:g}-{band[1]:g} Hz needs LO > 0", channel="--band",
-                          hint="e.g. --band 0.5 200")
-    freq = _pair(args.freq_range if args.freq_range is not None else fs.get("freq_range_hz"), "--freq-range")
-    if not (np.isfinite(args.cond_limit) and args.cond_limit > 1):
-        raise ConfigError(f"--cond-limit {args.cond_limit!r} must be a number > 1", channel="--cond-limit")
-    if args.chunk_samples < 2:
-        raise ConfigError(f"--chunk-samples {args.chunk_samples!r} must be at least 2", channel="--chunk-samples")
-    return {"spectral": settings, "band": None if band is None else IntegrationBand(*band),
-            "analysis_band_hz": freq or DEFAULT_ANALYSIS_BAND_HZ, "cond_limit": float(args.cond_limit)}
-
-
-# ---------------------------------------------------------------------------------------------
 # single step: streamed and merged
 # ---------------------------------------------------------------------------------------------
-def accumulate(paths: list[Path], terms, cfg: dict, *, opts: dict, chunk_samples: int = CHUNK_SAMPLES,
+def accumulate(paths: list[Path], terms, cfg: AnalysisSettings, *, opts: dict, chunk_samples: int = CHUNK_SAMPLES,
                quiet: bool = False):
     """Stream every file into its own StreamingNifo and merge them.
 
     Returns (merged StreamingNifo, [data provenance entries], [(name, freq, plain H1) per file]).
-    The integration band, when not given, is ``default_band(fs, shortest duration)``
-    as in :func:`identify_nifo`, so the answer equals it on the same records.
+    ``opts``: the loaders' input options with the settings' period and transient
+    (:func:`nifo.settings.loader_options`). The integration band, when the settings have none, is
+    ``default_band(fs, shortest duration)`` as in :func:`identify_nifo`, so the answer equals it on the same records.
     """
     from nifo.io.loader import iter_record_chunks
     from nifo.io.results import data_entry
@@ -201,14 +155,14 @@ def accumulate(paths: list[Path], terms, cfg: dict, *, opts: dict, chunk_samples
     spindle_fixed = fixed_sp.pop()
     has_tp = all(c.has_tire_patch for c in firsts) and not has_force
     try:
-        band = cfg["band"] or default_band(fs, min(totals) / fs)
+        band = cfg.band or default_band(fs, min(totals) / fs)
     except NifoError as err:   # name the record that is too short
         raise err.with_context(source=str(paths[int(np.argmin(totals))])) from None
 
     def fresh() -> StreamingNifo:
-        return StreamingNifo(fs, terms, settings=cfg["spectral"], band=band, with_tire_patch=has_tp,
-                             analysis_band_hz=cfg["analysis_band_hz"], on_ill_conditioned="warn",
-                             cond_limit=cfg["cond_limit"], with_force=has_force, spindle_fixed=spindle_fixed)
+        return StreamingNifo(fs, terms, settings=cfg.spectral, band=band, with_tire_patch=has_tp,
+                             analysis_band_hz=cfg.analysis_band_hz, on_ill_conditioned="warn",
+                             cond_limit=cfg.cond_limit, with_force=has_force, spindle_fixed=spindle_fixed)
 
     total, data, per_file = None, [], []
     # progress only for long work (a minute of data streams in well under a second)
@@ -408,12 +362,8 @@ def write_figures(out: Path, res, per_file, cond_limit: float, *, paths=(), syst
 # ---------------------------------------------------------------------------------------------
 # run
 # ---------------------------------------------------------------------------------------------
-def _two_step(args, spec, cfg, opts):
-    from nifo.io.loader import load_records
-    from nifo.io.results import data_entry
-    from nifo_core.nifo import identify_two_step
-    from nifo_core.frf import h1
-
+def _step_paths(args, spec) -> list[list[Path]]:
+    """Each step's data files (command line --step-data or the model file's), checked."""
     if len(spec.steps) != 2:
         raise ConfigError(f"the model file has {len(spec.steps)} steps; two-step identification takes exactly 2",
                           source=str(args.model), hint="merge steps or split the model file")
@@ -429,16 +379,26 @@ def _two_step(args, spec, cfg, opts):
         if not ps:
             raise ConfigError(f"step {s.name!r} has no data", source=str(args.model),
                               hint="list data: under the step or pass --step-data")
+    return paths
+
+
+def _two_step(args, spec, cfg, opts):
+    from nifo.io.loader import load_records
+    from nifo.io.results import data_entry
+    from nifo_core.nifo import identify_two_step
+    from nifo_core.frf import h1
+
+    paths = _step_paths(args, spec)
     recs = [load_records(ps, **opts) for ps in paths]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         res = identify_two_step(recs[0], spec.steps[0].terms, recs[1], spec.steps[1].terms,
-                                settings=cfg["spectral"], band=cfg["band"], analysis_band_hz=cfg["analysis_band_hz"],
-                                cond_limit=cfg["cond_limit"], on_ill_conditioned="warn")
+                                settings=cfg.spectral, band=cfg.band, analysis_band_hz=cfg.analysis_band_hz,
+                                cond_limit=cfg.cond_limit, on_ill_conditioned="warn")
     from nifo_core.spectral import cross_spectra
     per_file = []
     for r in recs[1]:
-        sp = cross_spectra(np.stack([r.spindle_accel, r.body_accel]), r.fs_hz, cfg["spectral"])
+        sp = cross_spectra(np.stack([r.spindle_accel, r.body_accel]), r.fs_hz, cfg.spectral)
         per_file.append((r.source, sp.freq_hz, h1(sp, 0, 1)))
     data = {"steps": [{"name": s.name, "terms": [t.to_dict() for t in s.terms],
                        "data": [data_entry(p, r) for p, r in zip(ps, rs)]}
@@ -459,14 +419,19 @@ def run(args: argparse.Namespace) -> int:
                           hint="give one of them")
 
     spec = load_model_spec(args.model)
-    cfg = resolve_settings(args, spec.settings)
-    opts = input_options(args)
+    if args.chunk_samples < 2:
+        raise ConfigError(f"--chunk-samples {args.chunk_samples!r} must be at least 2", channel="--chunk-samples")
+    if not spec.two_step and not args.data:
+        raise InputError("no data files given", hint="nifo identify DATA... --model MODEL.yaml --out DIR")
+    all_paths = [p for ps in _step_paths(args, spec) for p in ps] if spec.two_step else list(args.data)
+    cfg = resolve(all_paths, args, file_settings=spec.settings, opts=input_options(args))
+    opts = loader_options(input_options(args), cfg)
+    if not getattr(args, "quiet", False):
+        print("settings:\n  " + "\n  ".join(cfg.describe()))
     if spec.two_step:
         res, data, per_file, caught = _two_step(args, spec, cfg, opts)
         files = sum(len(s["data"]) for s in data["steps"])
     else:
-        if not args.data:
-            raise InputError("no data files given", hint="nifo identify DATA... --model MODEL.yaml --out DIR")
         terms = spec.terms
         acc, data, per_file = accumulate(list(args.data), terms, cfg, opts=opts, chunk_samples=args.chunk_samples,
                                          quiet=getattr(args, "quiet", False))
@@ -475,8 +440,8 @@ def run(args: argparse.Namespace) -> int:
             res = acc.result()
         res = replace(res, provenance={**dict(res.provenance), "sources": [d["name"] for d in data]})
         files = len(data)
-    check_usable(res, cfg["cond_limit"])
-    summary, warn = summarize(res, cfg["cond_limit"])
+    check_usable(res, cfg.cond_limit)
+    summary, warn = summarize(res, cfg.cond_limit)
     # the core's own warnings are covered by the plain sentences above; keep any other ones verbatim
     warn += [str(w.message) for w in caught if not issubclass(w.category, IllConditionedWarning)
              and not issubclass(w.category, (DeprecationWarning, RuntimeWarning))]
@@ -520,7 +485,7 @@ def run(args: argparse.Namespace) -> int:
     model_file = {"path": str(args.model), "steps": [{"name": s.name, "terms": [t.to_dict() for t in s.terms]}
                                                     for s in spec.steps]}
     with staged_dir(args.out) as tmp:
-        figures = [] if args.no_plots else write_figures(tmp, res, per_file, cfg["cond_limit"],
+        figures = [] if args.no_plots else write_figures(tmp, res, per_file, cfg.cond_limit,
                                                          paths=[d["path"] for d in _entries(data)],
                                                          system=system_of(args))
         doc = identify_document(res, data=data, summary=summary, warnings=warn, settings=settings_doc,
@@ -555,7 +520,7 @@ def _entries(data) -> list[dict]:
     return data if isinstance(data, list) else [e for s in data["steps"] for e in s["data"]]
 
 
-def _settings_doc(cfg: dict, res) -> dict:
-    return {"spectral": res.settings.to_dict(), "integration_band_hz": [res.band.f_lo_hz, res.band.f_hi_hz],
-            "integration_band_source": "given" if cfg["band"] is not None else "default_band(fs, shortest duration)",
-            "analysis_band_hz": list(res.analysis_band_hz), "cond_limit": cfg["cond_limit"], "fs_hz": res.fs_hz}
+def _settings_doc(cfg: AnalysisSettings, res) -> dict:
+    return {**cfg.to_dict(), "spectral": res.settings.to_dict(),
+            "integration_band_hz": [res.band.f_lo_hz, res.band.f_hi_hz], "analysis_band_hz": list(res.analysis_band_hz),
+            "fs_hz": res.fs_hz}

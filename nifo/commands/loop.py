@@ -35,9 +35,8 @@ from nifo.io.results import MODEL_JSON, write_json, write_model
 from nifo.progress import Progress
 from nifo_core import __version__
 from nifo_core.characterize import DEFAULT_KINDS, Thresholds
-from nifo_core.integrate import IntegrationBand
+from nifo.settings import add_settings_arguments, loader_options, resolve
 from nifo_core.loop import LoopResult, LoopSettings, close_loop
-from nifo_core.spectral import SpectralSettings
 
 HELP = "find the effect the model lacks from the residual, add it, report the error before and after"
 DESCRIPTION = f"""{HELP}.
@@ -66,20 +65,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="declared model file (default: a linear strut)")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory (replaced atomically)")
     add_input_arguments(p)
+    add_settings_arguments(p)
     add_system_argument(p)
     g = p.add_argument_group("loop")
     g.add_argument("--max-rounds", type=int, default=4, metavar="N", help="most effects added (default 4)")
     g.add_argument("--m2", type=float, metavar="KG", help="sprung mass [kg]: coefficients in newtons")
-    g.add_argument("--band", nargs=2, type=float, metavar=("LO", "HI"),
-                   help="integration band [Hz] (default: the model file's band_hz, else from the data)")
     g.add_argument("--fit-fraction", type=float, default=2 / 3, metavar="F",
-                   help="leading fraction of each record used for fitting (default 2/3; the rest is held out)")
+                   help="leading fraction of each record used for fitting (default 2/3; the rest is held out; "
+                        "periodic data: whole periods)")
     g.add_argument("--kinds", metavar="KIND,...", help=f"kinds to try (default: {','.join(DEFAULT_KINDS)})")
     g.add_argument("--grid", type=int, default=24, metavar="N", help="grid points per parameter (default 24)")
-    g.add_argument("--block", type=int, metavar="N", help="spectral block for the per-band residual and "
-                   "transmissibilities (default: the model file's, else 6144)")
-    g.add_argument("--prediction", choices=("equation", "nifo", "none"), default="equation",
-                   help="model that predicts the held-out body acceleration (default: the equation-error fit)")
+    g.add_argument("--prediction", choices=("model", "none"), default="model",
+                   help="'model' (default): every model fitted as nifo identify fits it and its held-out output "
+                        "predicted; 'none': the equation error only")
+    g.add_argument("--structure", choices=("auto", "constant", "paths"), default="auto",
+                   help="feedback structure: constant coefficients, each term through its own path (a rational "
+                        "linear part), or auto (paths where possible)")
     g.add_argument("--no-retune", action="store_true",
                    help="keep the declared terms' parameters as given (default: re-tune them to the data)")
     g.add_argument("--no-refine", action="store_true",
@@ -89,23 +90,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="leading seconds of each fit part the refinement simulates (default 60)")
 
 
-def run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> dict:
     check_output(args.out)   # refuse a file or a foreign directory before any work
     spec = load_model_spec(args.model) if args.model else None
     declared = list(spec.terms) if spec else []
-    opts = input_options(args)
+    data = resolve([Path(p) for p in args.data], args, file_settings=spec.settings if spec else None,
+                   opts=input_options(args))
+    if not getattr(args, "quiet", False):
+        print("settings:\n  " + "\n  ".join(data.describe()))
+    opts = loader_options(input_options(args), data)
+    opts.update(skip_periods=None, skip_seconds=None)   # whole records: simulated from rest, the transient not scored
     records = [load_record(p, **opts) for p in args.data]
-    band = _band(args, spec, records)
     kinds = tuple(k.strip() for k in args.kinds.split(",")) if args.kinds else DEFAULT_KINDS
-    fileset = dict(spec.settings) if spec else {}   # validated once, in nifo.io.modelfile
-    block = args.block or fileset.get("block")
-    spectral = SpectralSettings(**{k: v for k, v in (("block", int(block) if block else None),
-                                                     ("overlap", fileset.get("overlap")),
-                                                     ("window", fileset.get("window"))) if v is not None})
     settings = LoopSettings(max_rounds=args.max_rounds, fit_fraction=args.fit_fraction, kinds=kinds,
-                            grid_points=args.grid, spectral=spectral, prediction=args.prediction,
-                            retune=not args.no_retune, refine=not args.no_refine,
-                            refine_seconds=args.refine_seconds, thresholds=Thresholds())
+                            grid_points=args.grid, spectral=data.spectral, analysis_band_hz=data.analysis_band_hz,
+                            prediction=args.prediction, structure=args.structure, retune=not args.no_retune,
+                            refine=not args.no_refine, refine_seconds=args.refine_seconds, thresholds=Thresholds())
     with Progress(1.0, "loop") as prog:
         last = [0.0]
 
@@ -114,18 +114,19 @@ def run(args: argparse.Namespace) -> int:
             prog.advance(max(frac - last[0], 0.0))
             last[0] = max(frac, last[0])
 
-        res = close_loop(records, declared, m2_kg=args.m2, band=band, settings=settings, progress=step)
+        res = close_loop(records, declared, m2_kg=args.m2, settings=settings, data=data, progress=step)
     doc = res.to_dict()
     doc["nifo_version"] = __version__
     doc["data"] = [str(p) for p in args.data]
     doc["model_file"] = None if args.model is None else str(args.model)
-    doc.update(input=input_provenance(args), system=system_of(args))
+    doc.update(input=input_provenance(args), system=system_of(args), settings_chosen=data.to_dict())
     with staged_dir(args.out) as tmp:
         figures = _figures(tmp, doc, args.m2, units=doc["system"]["units"])
         doc["figures"] = figures
         write_json(tmp / "loop.json", doc, atomic=False, indent=2)
-        model_settings = {k: v for k, v in (spec.settings.items() if spec else []) if k != "band_hz"}
-        model_settings["band_hz"] = [res.band.f_lo_hz, res.band.f_hi_hz]
+        model_settings = {"block": data.spectral.block, "overlap": data.spectral.overlap,
+                          "window": data.spectral.window, "band_hz": [res.band.f_lo_hz, res.band.f_hi_hz],
+                          "freq_range_hz": list(data.analysis_band_hz)}
         write_model_spec(tmp / "refined_model.yaml", res.terms, settings=model_settings,
                          note=_note(res), suggested_by=f"nifo loop {__version__}")
         written = ["loop.json", "refined_model.yaml", *figures]
@@ -139,16 +140,6 @@ def run(args: argparse.Namespace) -> int:
     return {"out": str(args.out), "added": [c.term.label for c in res.added], "files": written,
             "model_json": None if res.model is None else str(args.out / MODEL_JSON),
             **{k: doc[k] for k in ("errors_before", "errors_after") if k in doc}}
-
-
-def _band(args, spec, records) -> IntegrationBand | None:
-    fs = min(r.fs_hz for r in records)
-    if args.band:
-        return IntegrationBand(*args.band).validate(fs)
-    if spec and spec.settings.get("band_hz"):
-        lo, hi = spec.settings["band_hz"]
-        return IntegrationBand(float(lo), float(hi)).validate(fs)
-    return None
 
 
 def _note(res: LoopResult) -> str:

@@ -1,0 +1,339 @@
+"""One settings object for every step, with one merge: given > model file > chosen from the data > default.
+
+Every spectral and band setting an identification needs is here, once:
+
+- ``spectral``: block, window, overlap (:class:`~nifo_core.spectral.SpectralSettings`);
+- ``band``: the integration band of z, ż (:class:`~nifo_core.integrate.IntegrationBand`);
+- ``analysis_band_hz``: where NIFO pools, the linear part is fitted and predictions are scored;
+- ``period_samples`` / ``skip_periods`` / ``skip_seconds``: a periodic excitation and the transient to drop;
+- ``cond_limit``: the conditioning that counts as ill-conditioned.
+
+:func:`resolve_settings` merges what the user gave on the command line, what
+the model file's ``settings:`` say, what :mod:`nifo_core.excitation` read off
+the data, and the defaults, in that order, validates the result once, and
+records for each setting its value, where it came from and why
+(:attr:`AnalysisSettings.choices`), so a command prints each choice once and a
+result carries them.
+
+Chosen from the data (METHOD.md §8), where not given:
+
+- periodic excitation: one period per block, boxcar window, no overlap
+  (leakage-free), the transient periods dropped;
+- random excitation: the paper's blocks (Table 2: flattop, 52 % overlap,
+  6144 samples at 600 Hz: 10.24 s), shortened when the record would give
+  fewer than 8 averages, never below 4 cycles of the lowest analysed line;
+- the analysis band: the excited band;
+- the integration band: from 2/3 of the lowest analysed line (the integrator
+  is exact from 1.5× its lower edge) — for random data no lower than where z
+  rises out of the integrated noise, for any data no lower than the record's
+  length allows — to 3× the top of the excited band (the harmonics of a
+  clearance or play), at most fs/2.5.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, replace
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from .errors import ConfigError
+from .excitation import Excitation
+from .integrate import IntegrationBand, default_band, lowest_edge_hz
+from .spectral import SpectralSettings
+
+__all__ = ["Choice", "GivenSettings", "AnalysisSettings", "DEFAULT_ANALYSIS_BAND_HZ", "DEFAULT_COND_LIMIT",
+           "resolve_settings", "merge_given"]
+
+#: the analysis band when nothing else says (the paper's figures: 2-30 Hz)
+DEFAULT_ANALYSIS_BAND_HZ = (2.0, 30.0)
+#: scaled cond(G_UU) counted as ill-conditioned
+DEFAULT_COND_LIMIT = 1e4
+#: random data: at least this many spectral averages before the paper's block is shortened
+MIN_AVERAGES = 8
+#: the integrator is exact (within 0.2 %) from this multiple of its lower edge
+EXACT_FROM = 1.5
+#: the integration band reaches this multiple of the top of the excited band (a play's or clearance's harmonics)
+HARMONICS = 3.0
+
+
+@dataclass(frozen=True)
+class Choice:
+    """One setting's value, where it came from ('command line', 'model file', 'data', 'default') and why."""
+
+    value: object
+    source: str
+    reason: str = ""
+
+    def to_dict(self) -> dict:
+        v = self.value
+        if isinstance(v, IntegrationBand):
+            v = [v.f_lo_hz, v.f_hi_hz]
+        elif isinstance(v, tuple):
+            v = list(v)
+        return {"value": v, "source": self.source, "reason": self.reason}
+
+
+@dataclass(frozen=True)
+class GivenSettings:
+    """Settings given by the user (command line) or a model file: None where not given."""
+
+    block: int | None = None
+    overlap: float | None = None
+    window: str | None = None
+    band_hz: tuple[float, float] | None = None
+    analysis_band_hz: tuple[float, float] | None = None
+    period_samples: int | None = None
+    skip_periods: int | None = None
+    skip_seconds: float | None = None
+    cond_limit: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("band_hz", "analysis_band_hz"):
+            v = getattr(self, name)
+            if v is not None:
+                object.__setattr__(self, name, _pair(v, name))
+        if self.period_samples is not None and (isinstance(self.period_samples, bool)
+                                                or int(self.period_samples) != self.period_samples
+                                                or self.period_samples < 8):
+            raise ConfigError(f"period_samples={self.period_samples!r} must be a whole number of samples ≥ 8",
+                              channel="--period-samples", hint="e.g. --period-samples 8192")
+        if self.skip_periods is not None and (int(self.skip_periods) != self.skip_periods or self.skip_periods < 0):
+            raise ConfigError(f"skip_periods={self.skip_periods!r} must be a whole number ≥ 0",
+                              channel="--skip-periods")
+        if self.skip_seconds is not None and not (np.isfinite(self.skip_seconds) and self.skip_seconds >= 0):
+            raise ConfigError(f"skip_seconds={self.skip_seconds!r} must be a number of seconds ≥ 0",
+                              channel="--skip-seconds")
+        if self.cond_limit is not None and not (np.isfinite(self.cond_limit) and self.cond_limit > 1):
+            raise ConfigError(f"cond_limit={self.cond_limit!r} must be a number > 1", channel="--cond-limit")
+        if self.band_hz is not None and self.band_hz[0] <= 0:
+            raise ConfigError(f"integration band {self.band_hz[0]:g}-{self.band_hz[1]:g} Hz needs LO > 0",
+                              channel="--band", hint="e.g. --band 0.5 200")
+
+    def items(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None}
+
+
+def _pair(value, name: str) -> tuple[float, float]:
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{name}={value!r} must be two numbers [Hz]", channel=name, hint="e.g. 2 30") from None
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):
+        raise ConfigError(f"{name} {lo:g}-{hi:g} Hz must satisfy 0 <= LO < HI", channel=name, hint="e.g. 2 30")
+    return lo, hi
+
+
+def merge_given(*layers: GivenSettings) -> tuple[GivenSettings, dict[str, str]]:
+    """The first layer that gives a setting wins; (merged, setting → index of the layer that gave it)."""
+    out: dict = {}
+    origin: dict[str, str] = {}
+    for i, layer in enumerate(layers):
+        for k, v in layer.items().items():
+            if k not in out:
+                out[k] = v
+                origin[k] = i
+    return GivenSettings(**out), origin
+
+
+@dataclass(frozen=True)
+class AnalysisSettings:
+    """The settings every step uses (module docstring); ``choices`` says where each came from and why."""
+
+    spectral: SpectralSettings
+    band: IntegrationBand | None        # None: not resolvable without the data (the default for each record)
+    analysis_band_hz: tuple[float, float]
+    period_samples: int | None = None
+    skip_periods: int | None = None
+    skip_seconds: float | None = None
+    cond_limit: float = DEFAULT_COND_LIMIT
+    excitation: Excitation | None = None
+    choices: Mapping[str, Choice] = field(default_factory=dict)
+
+    def describe(self) -> list[str]:
+        """One line per setting: value, source and reason (what a command prints once)."""
+        out = []
+        for name, c in self.choices.items():
+            out.append(f"{_LABELS.get(name, name)}: {_fmt(c.value)} ({c.source}{': ' + c.reason if c.reason else ''})")
+        return out
+
+    def to_dict(self) -> dict:
+        band = None if self.band is None else [self.band.f_lo_hz, self.band.f_hi_hz]
+        return {"spectral": self.spectral.to_dict(), "integration_band_hz": band,
+                "analysis_band_hz": list(self.analysis_band_hz), "period_samples": self.period_samples,
+                "skip_periods": self.skip_periods, "skip_seconds": self.skip_seconds, "cond_limit": self.cond_limit,
+                "excitation": None if self.excitation is None else self.excitation.to_dict(),
+                "choices": {k: c.to_dict() for k, c in self.choices.items()}}
+
+    def skip_samples(self, fs_hz: float) -> int:
+        """Samples dropped from the start of a record (the transient)."""
+        if self.period_samples and self.skip_periods:
+            return int(self.period_samples) * int(self.skip_periods)
+        return int(round(float(self.skip_seconds or 0.0) * fs_hz))
+
+
+_LABELS = {"period_samples": "period", "skip_periods": "transient", "skip_seconds": "transient",
+           "spectral": "blocks", "analysis_band_hz": "analysis band", "band": "integration band",
+           "cond_limit": "ill-conditioned above"}
+
+
+def _fmt(v) -> str:
+    if isinstance(v, IntegrationBand):
+        return f"{v.f_lo_hz:.4g}-{v.f_hi_hz:.4g} Hz"
+    if isinstance(v, tuple) and len(v) == 2 and all(isinstance(x, float) for x in v):
+        return f"{v[0]:.4g}-{v[1]:.4g} Hz"
+    if isinstance(v, SpectralSettings):
+        return f"{v.block} samples, {v.window} window, {100 * v.overlap:g} % overlap"
+    return str(v)
+
+
+def _random_block(fs_hz: float, n_samples: int, lowest_hz: float, overlap: float) -> tuple[int, str]:
+    """The paper's 10.24 s block, shortened for ≥ MIN_AVERAGES averages, never below 4 cycles of ``lowest_hz``."""
+    block = int(round(6144 * fs_hz / 600.0))
+    need = int(np.ceil(4 * fs_hz / max(lowest_hz, 1e-9)))
+    step = 1.0 - overlap
+
+    def averages(b: int) -> int:
+        return int((n_samples - b) // max(int(round(b * step)), 1)) + 1 if n_samples >= b else 0
+
+    why = f"the paper's {block / fs_hz:.4g} s blocks"
+    while averages(block) < MIN_AVERAGES and block // 2 >= max(need, 64):
+        block //= 2
+        why = f"blocks shortened to {block / fs_hz:.4g} s for {MIN_AVERAGES} averages"
+    return block, f"{why}: {averages(block)} averages, {block / fs_hz * lowest_hz:.3g} cycles of the lowest line"
+
+
+def resolve_settings(given: GivenSettings, *, fs_hz: float | None, durations_s: Sequence[float] = (),
+                     excitation: Excitation | None = None, snr_lo_hz: float | None = None,
+                     origins: Mapping[str, str] | None = None) -> AnalysisSettings:
+    """Merge ``given`` (already command line > model file, :func:`merge_given`) with the choices from the data.
+
+    Parameters
+    ----------
+    given : GivenSettings
+        What the user and the model file gave.
+    fs_hz : float or None
+        The records' rate; None (no data yet, e.g. a node before its first sample): an integration band not
+        given stays None, the default of each record (:func:`~nifo_core.integrate.default_band`).
+    durations_s : sequence of float
+        The records' durations after the transient [s] (the shortest bounds the integration band).
+    excitation : Excitation, optional
+        :func:`~nifo_core.excitation.analyse_excitation` of the records (combined); None: the defaults.
+    snr_lo_hz : float, optional
+        Random data: where z rises out of the integrated accelerometer noise
+        (:func:`nifo_core.restoring.suggest_band`): the integration band starts no lower.
+    origins : mapping, optional
+        Setting name → 'command line' / 'model file' (for the record of choices).
+    """
+    origins = dict(origins or {})
+    choices: dict[str, Choice] = {}
+    g = given
+
+    def from_user(name: str) -> str:
+        return origins.get(name, "command line")
+
+    ex = excitation
+    period = g.period_samples
+    periodic = period is not None or (ex is not None and ex.periodic)
+    if period is not None:
+        choices["period_samples"] = Choice(int(period), from_user("period_samples"))
+    elif ex is not None and ex.periodic:
+        period = ex.period_samples
+        choices["period_samples"] = Choice(int(period), "data", ex.reasons.get("period", ""))
+    elif ex is not None:
+        choices["period_samples"] = Choice(None, "data", ex.reasons.get("period", ""))
+    # the transient
+    skip_periods, skip_seconds = g.skip_periods, g.skip_seconds
+    if skip_periods is not None:
+        choices["skip_periods"] = Choice(int(skip_periods), from_user("skip_periods"))
+    elif skip_seconds is not None:
+        choices["skip_seconds"] = Choice(float(skip_seconds), from_user("skip_seconds"))
+    elif ex is not None and ex.periodic and ex.period_samples == period:
+        skip_periods = int(ex.transient_periods)
+        choices["skip_periods"] = Choice(skip_periods, "data", ex.reasons.get("transient", ""))
+    if skip_periods and not period:
+        raise ConfigError("--skip-periods needs the period: give --period-samples too", channel="--skip-periods")
+    shortest = min(durations_s) if durations_s else None
+    if shortest is not None and period and skip_periods:
+        shortest = shortest - skip_periods * period / fs_hz
+    elif shortest is not None and skip_seconds:
+        shortest = shortest - skip_seconds
+    # blocks
+    if periodic and period:
+        auto = SpectralSettings(block=int(period), overlap=0.0, window="boxcar")
+        why = "periodic excitation: one period per block, boxcar, no overlap (leakage-free)"
+    else:
+        base = SpectralSettings()
+        lowest = ex.band_hz[0] if ex is not None else DEFAULT_ANALYSIS_BAND_HZ[0]
+        if ex is not None and fs_hz:
+            n = int(shortest * fs_hz) if shortest else 10 ** 9
+            block, why = _random_block(fs_hz, n, lowest, base.overlap)
+            auto = replace(base, block=block)
+            why = f"random excitation: flattop, {100 * base.overlap:g} % overlap (nearly independent blocks), {why}"
+        else:
+            auto, why = base, "paper Table 2"
+    spec = SpectralSettings(block=int(g.block) if g.block is not None else auto.block,
+                            overlap=float(g.overlap) if g.overlap is not None else auto.overlap,
+                            window=g.window if g.window is not None else auto.window)
+    given_spec = [k for k in ("block", "overlap", "window") if getattr(g, k) is not None]
+    if given_spec:
+        src = from_user(given_spec[0])
+        choices["spectral"] = Choice(spec, src if len(given_spec) == 3 else f"{src} ({', '.join(given_spec)}), "
+                                     f"data (the rest)", "" if len(given_spec) == 3 else why)
+    else:
+        choices["spectral"] = Choice(spec, "data" if ex is not None else "default", why if ex is not None else
+                                     "paper Table 2")
+    # bands
+    top = fs_hz / 2.5 if fs_hz else float("inf")
+    if g.analysis_band_hz is not None:
+        analysis = g.analysis_band_hz
+        choices["analysis_band_hz"] = Choice(analysis, from_user("analysis_band_hz"))
+    elif ex is not None:
+        analysis = (float(ex.band_hz[0]), float(min(ex.band_hz[1], top)))
+    else:
+        analysis = DEFAULT_ANALYSIS_BAND_HZ
+        choices["analysis_band_hz"] = Choice(analysis, "default", "paper Table 2's figures")
+    floor = lowest_edge_hz(shortest) if shortest else 0.0
+    if g.band_hz is not None:
+        band = IntegrationBand(*g.band_hz)
+        choices["band"] = Choice(band, from_user("band_hz"))
+    elif ex is not None:
+        lo = analysis[0] / EXACT_FROM
+        why = [f"from 1/{EXACT_FROM:g} of the lowest analysed line"]
+        if snr_lo_hz is not None and not periodic and snr_lo_hz > lo:
+            lo, why = snr_lo_hz, ["from where z rises 10 dB out of the integrated accelerometer noise"]
+        if floor > lo:
+            lo, why = floor, [f"from what the record's length allows ({shortest:.0f} s)"]
+        hi = min(HARMONICS * ex.band_hz[1], top)
+        why.append(f"to {'fs/2.5' if hi == top else f'{HARMONICS:g}× the top of the excited band'}")
+        band = IntegrationBand(round(lo, 4), round(hi, 4))
+        choices["band"] = Choice(band, "data", " ".join(why))
+    elif fs_hz:
+        band = default_band(fs_hz, shortest)
+        choices["band"] = Choice(band, "default", "0.5 Hz (body bounce inside), raised for short records; "
+                                 "min(200 Hz, fs/2.5)")
+    else:
+        band = None
+        choices["band"] = Choice(None, "default", "default_band(fs, duration) of each record")
+    if band is not None and fs_hz:
+        band = band.validate(fs_hz)
+    if g.analysis_band_hz is None and ex is not None and band is not None:
+        lo = max(analysis[0], band.f_lo_hz)
+        hi = min(analysis[1], band.f_hi_hz)
+        if not lo < hi:
+            raise ConfigError(f"the excited band {analysis[0]:.4g}-{analysis[1]:.4g} Hz lies outside what the "
+                              f"record can integrate ({band.f_lo_hz:.4g}-{band.f_hi_hz:.4g} Hz)",
+                              hint="record longer, or give --freq-range and --band")
+        note = ex.reasons.get("band", "the excited band")
+        if lo > analysis[0]:
+            note += f"; from {lo:.4g} Hz, the integration band's lower edge"
+        analysis = (float(lo), float(hi))
+        choices["analysis_band_hz"] = Choice(analysis, "data", note)
+    cond = float(g.cond_limit) if g.cond_limit is not None else DEFAULT_COND_LIMIT
+    if g.cond_limit is not None:
+        choices["cond_limit"] = Choice(cond, from_user("cond_limit"))
+    return AnalysisSettings(spectral=spec, band=band, analysis_band_hz=(float(analysis[0]), float(analysis[1])),
+                            period_samples=int(period) if period else None,
+                            skip_periods=int(skip_periods) if skip_periods is not None else None,
+                            skip_seconds=float(skip_seconds) if skip_seconds is not None else None,
+                            cond_limit=cond, excitation=ex, choices=choices)
