@@ -90,7 +90,8 @@ def identify_alone(entries) -> dict:
     """``nifo identify``'s work per vehicle (accumulate; solve, summarize, body model), in this process."""
     import warnings
 
-    from nifo.commands.identify import accumulate, check_usable, resolve_settings, summarize
+    from nifo.commands.identify import accumulate, check_usable, summarize
+    from nifo.settings import resolve
     from nifo.io.modelfile import load_model_spec
     from nifo_core.model import IdentifiedModel
 
@@ -98,19 +99,17 @@ def identify_alone(entries) -> dict:
     for e in entries:
         groups.setdefault(e.group, []).append(e)
     spec = load_model_spec(entries[0].model)
-    ns = argparse.Namespace(block=None, overlap=None, window=None, band=None, freq_range=None, cond_limit=1e4,
-                            chunk_samples=2 ** 18)
-    cfg = resolve_settings(ns, spec.settings)
+    cfg = resolve([], file_settings=spec.settings, from_data=False)
     out, t_acc, t_solve = {}, 0.0, 0.0
     for g, es in groups.items():
         t0 = time.perf_counter()
-        acc, _, _ = accumulate([e.path for e in es], spec.terms, cfg, opts=OPTS, quiet=True)
+        acc, _, _, _ = accumulate([e.path for e in es], spec.terms, cfg, opts=OPTS, quiet=True)
         t1 = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             res = acc.result()
-        check_usable(res, cfg["cond_limit"])
-        summarize(res, cfg["cond_limit"])
+        check_usable(res, cfg.cond_limit)
+        summarize(res, cfg.cond_limit)
         body = IdentifiedModel.from_nifo(res, source="static").body
         t_acc += t1 - t0
         t_solve += time.perf_counter() - t1

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import warnings
+from dataclasses import replace
 from pathlib import Path
 from typing import Sequence
 
@@ -36,8 +37,10 @@ PROBE_SAMPLES = 2 ** 21
 PROBE_CHUNK = 2 ** 18
 
 
-def add_settings_arguments(p: argparse.ArgumentParser, *, cond_limit: bool = True) -> None:
-    """The spectral and band settings every data command takes (each chosen from the data when not given)."""
+def add_settings_arguments(p: argparse.ArgumentParser, *, cond_limit: bool = True, band: bool = True,
+                           freq_range: bool = True) -> None:
+    """The spectral and band settings every data command takes (each chosen from the data when not given); a command
+    leaves out the ones it has no use for (``band``: the integration band; ``freq_range``; ``cond_limit``)."""
     g = p.add_argument_group("settings (each overrides the model file's; chosen from the data when neither gives it)")
     g.add_argument("--block", type=int, metavar="N",
                    help="samples per spectral block (periodic data: one period; random: the paper's 10.24 s)")
@@ -45,11 +48,13 @@ def add_settings_arguments(p: argparse.ArgumentParser, *, cond_limit: bool = Tru
                    help="block overlap fraction (periodic: 0; random: 0.52)")
     g.add_argument("--window", metavar="W", help="window: flattop, hann, boxcar, ... (periodic: boxcar; random: "
                                                  "flattop)")
-    g.add_argument("--band", type=float, nargs=2, metavar=("LO", "HI"),
-                   help="integration band for z, ż [Hz] (from below the excited band to 3× its top)")
-    g.add_argument("--freq-range", type=float, nargs=2, metavar=("LO", "HI"),
-                   help="analysis band [Hz]: NIFO's pooled fit, the linear part, the prediction error (the excited "
-                        "band)")
+    if band:
+        g.add_argument("--band", type=float, nargs=2, metavar=("LO", "HI"),
+                       help="integration band for z, ż [Hz] (from below the excited band to 3× its top)")
+    if freq_range:
+        g.add_argument("--freq-range", type=float, nargs=2, metavar=("LO", "HI"),
+                       help="analysis band [Hz]: NIFO's pooled fit, the linear part, the prediction error (the "
+                            "excited band)")
     if cond_limit:
         g.add_argument("--cond-limit", type=float, metavar="C",
                        help="scaled cond(G_UU) counted as ill-conditioned (default 1e4)")
@@ -94,8 +99,9 @@ def _probe(path: Path, opts: dict, given: GivenSettings) -> tuple[Excitation, fl
     try:
         ex = analyse_excitation(u, rec.body_accel, rec.fs_hz, period_samples=given.period_samples,
                                 input_name=name, source=str(path))
-    except NifoError as err:
-        raise err.with_context(source=str(path)) from None
+    except NifoError as err:      # nothing to read off these data: the defaults, and why (the steps say what fails)
+        ex = None
+        rec = replace(rec, meta={**dict(rec.meta), "settings_not_from_data": err.message})
     return ex, rec.fs_hz, total / rec.fs_hz, rec
 
 
@@ -120,16 +126,16 @@ def resolve(paths: Sequence[Path], args: argparse.Namespace | None = None, *, fi
             durations.append(dur)
             fs = fs_p if fs is None else fs
             first = first or rec
-        excitation = combine_excitations(parts)
-        if not excitation.periodic and not first.spindle_fixed:
+        excitation = combine_excitations(parts) if all(e is not None for e in parts) else None
+        if excitation is not None and not excitation.periodic and not first.spindle_fixed:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 try:
                     snr = suggest_band(first).band.f_lo_hz
                 except NifoError:
                     snr = None
-    if fs is None:
-        fs = 600.0 if not paths else _rate(paths[0], opts)
+    if fs is None and paths:
+        fs = _rate(paths[0], opts)
     return resolve_settings(merged, fs_hz=fs, durations_s=durations, excitation=excitation, snr_lo_hz=snr,
                             origins=origins)
 

@@ -187,15 +187,21 @@ class _Predictor:
     """The model class ``nifo identify`` writes, fitted on the fit parts for any term set and scored held out.
 
     The linear part's form (one-mass body or rational) is chosen once, by which linear model predicts the
-    held-out parts better (:func:`~nifo_core.model_fit.choose_linear_form`); every term set is then fitted
-    on it (:func:`~nifo_core.model_fit.fit_model`), each once.
+    held-out parts better (:func:`~nifo_core.model_fit.choose_linear_form`). On a one-mass body every term set
+    is the force-balance equation-error fit itself (k, c, the terms' coefficients and a measured force's 1/M2:
+    the loop's own estimator of that structure; NIFO's where that body is not physical); on a rational part
+    :func:`~nifo_core.model_fit.fit_model` (feedback paths). Each term set is fitted once.
     """
 
-    def __init__(self, held: HeldOut, data: AnalysisSettings, settings: LoopSettings) -> None:
-        self.held, self.data, self.settings = held, data, settings
+    def __init__(self, held: HeldOut, data: AnalysisSettings, settings: LoopSettings, ev: _Evaluator) -> None:
+        self.held, self.data, self.settings, self.ev = held, data, settings, ev
         self.off = settings.prediction == "none"
         self.choice = None if self.off else choose_linear_form(held, data)
         self._cache: dict = {}
+        if self.choice is not None and self.choice.form == "body":
+            lin = self._equation([])
+            if lin is not None:
+                self.choice = replace(self.choice, linear=lin)
 
     @property
     def linear(self) -> Fitted | None:
@@ -206,11 +212,19 @@ class _Predictor:
         """A rational linear part: a multi-mode structure, the terms' forces through their own paths."""
         return self.choice is not None and self.choice.form == "rational"
 
+    def _equation(self, terms: Sequence[Term]) -> Fitted | None:
+        model = self.ev.equation_model(terms, self.data.spectral, self.data.analysis_band_hz)
+        if model is None:
+            return None
+        return Fitted(model, "constant" if terms else "linear", self.held.score(model),
+                      "one-mass body and constant coefficients: the force-balance equation-error fit")
+
     def fit(self, terms: Sequence[Term]) -> Fitted:
         key = tuple(t.label for t in terms)
         if key not in self._cache:
-            self._cache[key] = fit_model(self.held, terms, self.data, linear=self.linear,
-                                         structure=self.settings.structure)
+            got = self._equation(terms) if self.choice.form == "body" else None
+            self._cache[key] = got or fit_model(self.held, terms, self.data, linear=self.linear,
+                                                structure=self.settings.structure)
         return self._cache[key]
 
 
@@ -286,7 +300,8 @@ def _prediction_failures(current: Errors, after: Errors, s: LoopSettings, twin: 
 
 
 #: a term whose describing function the linear columns z, ż explain to this R² on the fit parts acts linearly there
-LINEAR_R2 = 0.995
+#: (a play wider than the motion is stuck: its force a constant; a slipping play of 0.4 mm in 5 mm of motion: 0.998)
+LINEAR_R2 = 0.9999
 
 
 def acts_linearly(ev: _Evaluator, term: Term) -> float:
@@ -417,7 +432,7 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
     say(0.0, "restoring force and the declared model")
     ev = _Evaluator(held, band, s, spectral=data.spectral if data.period_samples is None else None)
     say(0.02, "the linear part: one-mass body or rational, by held-out prediction")
-    pred = _Predictor(held, data, s)
+    pred = _Predictor(held, data, s, ev)
     floor = held.noise_floor()
     retuned: list[str] = []
     if s.retune and terms and not pred.flexible:   # re-tuning by the one-mass equation error: a one-mass body only

@@ -26,7 +26,9 @@ from .describing import Term
 from .errors import InputError
 from .integrate import IntegrationBand
 from .heldout import HeldOut
+from .linear_part import BodyModel
 from .loop_results import RESIDUAL_BANDS_HZ, Evidence, LoopSettings
+from .model import IdentifiedModel
 from .restoring import RestoringForce, bandpass, bandpass_settle_samples, restoring_force
 from .frf import h1, partial_coherence
 from .spectral import SpectralSettings, auto_spectrum, cross_spectra
@@ -104,9 +106,9 @@ def _band_db(spec_pairs: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) ->
 class _Evaluator:
     """The force-balance equation error of a term set: fitted on the fit parts, scored on the held-out parts.
 
-    The split is the one of the model's held-out prediction (:class:`~nifo_core.heldout.HeldOut`): each record
-    after its transient is integrated whole, then its restoring force is split where its held-out part begins
-    (the integrator's edges are lost once per record, not at the split too).
+    Each record after its transient (:class:`~nifo_core.heldout.HeldOut`) is integrated whole, then its restoring
+    force is split at ``fit_fraction`` of what the integrator leaves (its edges are lost once per record, not at the
+    split too): the same fraction as the held-out prediction's split, give or take the edges.
     """
 
     def __init__(self, held: HeldOut, band: IntegrationBand, settings: LoopSettings,
@@ -114,10 +116,10 @@ class _Evaluator:
         self.band, self.settings = band, settings
         self.held = held
         self.fit_recs, self.test_recs, self.fit_rfs, self.test_rfs = [], [], [], []
-        for rec, skip, split in zip(held.records, held.skip, held.split):
+        for rec, skip in zip(held.records, held.skip):
             rec = rec.slice(skip, rec.n)
             rf = restoring_force(rec, band=band)
-            k = min(max(split - skip - rf.start, 1), rf.n - 1)
+            k = int(round(settings.fit_fraction * rf.n))      # of what the integrator leaves, as the prediction's
             self.fit_rfs.append(rf.select(slice(0, k)))
             self.test_rfs.append(replace(rf.select(slice(k, rf.n)), start=rf.start + k))
             self.fit_recs.append(rec.slice(0, rf.start + k))
@@ -166,6 +168,30 @@ class _Evaluator:
                "equation_nmse_fit_pct": fit_nmse, "equation_band_residual_db": _band_db(eq_pairs)}
         self._cache[key] = out
         return out
+
+    def equation_model(self, terms: Sequence[Term], spectral: SpectralSettings,
+                       analysis_band_hz: tuple[float, float]) -> IdentifiedModel | None:
+        """The equation-error fit of ``terms`` as a model: a one-mass body (k, c), constant coefficients θ_i and,
+        with a measured force, its gain 1/M2 (the force column's coefficient is -1/M2). None when the body is not
+        physical (a multi-mode structure read as one mass)."""
+        terms = tuple(terms)
+        theta = self.joint(terms)[0]
+        n = self.n_lin
+        gain = -float(theta[2]) if n == 3 else 0.0
+        if not (theta[0] > 0 and theta[1] > 0 and gain >= 0):
+            return None
+        fs = self.fit_recs[0].fs_hz
+        f = spectral.freq_hz(fs)
+        body = BodyModel(float(theta[0]), float(theta[1]))
+        t21 = body.t21(f)
+        gam = np.asarray(theta[n:n + len(terms)], float)
+        w2 = (2 * np.pi * f) ** 2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            b = gam[:, None] * ((1 - t21) / np.where(w2 > 0, w2, np.inf))[None, :]
+        return IdentifiedModel(freq_hz=f, t21=t21, b=b, terms=terms, c_over_m2=gam, body=body,
+                               analysis_band_hz=analysis_band_hz, fs_hz=fs, settings=spectral, band=self.band,
+                               source="static" if terms else "h1", force_gain=gain,
+                               provenance={"from": "nifo loop: the force-balance equation-error fit on the fit parts"})
 
     def band_numbers(self, preds: Sequence[np.ndarray]) -> tuple[dict, tuple]:
         """Per-band residual of the held-out prediction error (records pooled) and the transmissibility error per

@@ -32,7 +32,7 @@ from .describing import Term
 from .errors import ConfigError, NifoError
 from .feedback_paths import (PATH_KINDS, JointFit, PathResult, equivalent_gammas, fit_joint, path_model,
                              regimes_stable)
-from .heldout import HeldOut, Scores
+from .heldout import HeldOut, Scores, split_records
 from .linear_part import RecordLines, pole_residue_response
 from .model import IdentifiedModel
 from .record import Record
@@ -40,7 +40,8 @@ from .spectral import cross_spectra
 from .nifo import identify_nifo
 from .settings import AnalysisSettings
 
-__all__ = ["Fitted", "LinearChoice", "choose_linear_form", "fit_linear", "fit_model"]
+__all__ = ["Fitted", "JointPathResult", "LinearChoice", "choose_linear_form", "fit_linear", "fit_model",
+           "joint_paths", "path_eligible"]
 
 Structure = Literal["auto", "constant", "paths"]
 
@@ -115,10 +116,16 @@ def fit_linear(held: HeldOut, settings: AnalysisSettings, *, form: str = "auto",
     return Fitted(model, "linear", held.score(model), f"linear: {model.linear.reason}")
 
 
+#: a physical one-mass body is the structure of a quarter car: the rational (black-box) linear part replaces it only
+#: when its linear model predicts the held-out parts this much better (relative error ratio)
+RATIONAL_MARGIN = 0.5
+
+
 def choose_linear_form(held: HeldOut, settings: AnalysisSettings) -> LinearChoice:
     """The one-mass body or the rational linear part, whichever linear model predicts the held-out parts better.
 
-    A one-mass body that is not physical is not a candidate; when only one form can be fitted it is taken.
+    A one-mass body that is not physical is not a candidate; a physical one is kept unless the rational model
+    predicts clearly better (:data:`RATIONAL_MARGIN`); when only one form can be fitted it is taken.
     A single mass driven by a measured force (a fixed spindle) whose force path gives a physical one-mass body
     keeps it: that is its structure (M2·ÿ + C2·ẏ + K2·y = F), and a linear model of a strongly nonlinear
     record predicts too poorly for its held-out error to choose between forms.
@@ -147,6 +154,10 @@ def choose_linear_form(held: HeldOut, settings: AnalysisSettings) -> LinearChoic
                                                                                       why.items()),
                           hint="check the analysis band (--freq-range) and the channels")
     best = min(cands, key=lambda k: cands[k].score)
+    body = cands.get("body")
+    if best == "rational" and body is not None and body.model.linear.kind == "body" and body.model.linear.physical \
+            and not cands["rational"].score <= RATIONAL_MARGIN * body.score:
+        best = "body"       # the physical structure, unless the black box predicts clearly better
     table = {k: {"held_out_nmse_percent": v.scores.to_dict()["mean_percent"], "reason": v.model.linear.reason}
              for k, v in cands.items()}
     table.update({k: {"error": v} for k, v in why.items()})
@@ -156,8 +167,11 @@ def choose_linear_form(held: HeldOut, settings: AnalysisSettings) -> LinearChoic
                   + (f" ({other[0]}: {other[1]})" if other else ""))
     else:
         a, b = cands[best].score, cands["rational" if best == "body" else "body"].score
-        reason = (f"{best} linear part: its linear model predicts the held-out parts at {a:.4g} % against "
-                  f"{b:.4g} % for the {'rational model' if best == 'body' else 'one-mass body'}")
+        reason = (f"{'one-mass body' if best == 'body' else 'rational'} linear part: its linear model predicts the "
+                  f"held-out parts at {a:.4g} % against {b:.4g} % for the "
+                  f"{'rational model' if best == 'body' else 'one-mass body'}"
+                  + (f" (a physical one-mass body is kept unless the rational model predicts at least "
+                     f"{100 * (1 - RATIONAL_MARGIN):.0f} % better)" if best == "body" else ""))
     return LinearChoice(best, cands[best], table, reason)
 
 
@@ -197,6 +211,60 @@ def _fit_joint_paths(held: HeldOut, terms: Sequence[Term], linear: Fitted) -> Fi
             f"residues identified jointly (ridge {ridge:g} of {len(fits)}, chosen on the held-out parts): the body "
             f"is not one rigid mass")
     return Fitted(replace(model, provenance={**dict(model.provenance), "ridge_grid": grid}), "paths", sc, note)
+
+
+@dataclass(frozen=True)
+class JointPathResult:
+    """A model whose terms act through feedback paths identified jointly with its linear part (:func:`joint_paths`):
+    the ridge weight chosen on held-out parts, the model fitted with it on every record."""
+
+    model: IdentifiedModel
+    ridge: float
+    grid: tuple
+    held_out: Scores
+    linear_held_out: Scores
+
+    @property
+    def message(self) -> str:
+        return (f"feedback paths identified jointly with the linear part: ridge {self.ridge:g} chosen on the held-out "
+                f"parts (the last third of each record) — {self.held_out.mean:.4g} % against the linear model's "
+                f"{self.linear_held_out.mean:.4g} % — then fitted on every record")
+
+    def to_dict(self) -> dict:
+        return {"ridge": self.ridge, "nmse_percent": list(self.held_out.per_record),
+                "linear_nmse_percent": list(self.linear_held_out.per_record), "message": self.message,
+                "how": "ridge chosen on held-out parts; linear part's residues and the paths in one least squares",
+                "grid": [{"ridge": g["ridge"], "regimes_stable": g["regimes_stable"],
+                          "nmse_sum_percent": g.get("held_out_nmse_percent"), "nmse_percent": []} for g in self.grid]}
+
+
+def joint_paths(records: Sequence[Record], terms: Sequence[Term], linear: IdentifiedModel, settings: AnalysisSettings,
+                *, skip_samples: int = 0) -> JointPathResult:
+    """``terms`` through feedback paths on ``linear``'s rational part, identified jointly with its residues
+    (:func:`~nifo_core.feedback_paths.fit_joint`): the ridge weight chosen on held-out parts of ``records`` (whole,
+    from their start), then the model fitted with it on every record after ``skip_samples``.
+
+    ``linear`` is the linear model of all the records (its poles are kept).
+    """
+    if not path_eligible(terms, linear):
+        raise ConfigError("feedback paths need a rational linear part and backlash, clearance or saturation terms "
+                          f"(linear part: {linear.linear.kind}; terms: {', '.join(t.label for t in terms)})",
+                          hint="a one-mass body feeds the strut force back through its mass: use --refine")
+    held = split_records(records, skip_samples=skip_samples, period_samples=settings.period_samples,
+                         band_hz=linear.analysis_band_hz)
+    lin_fit = fit_linear(held, settings, form="rational")
+    chosen = _fit_joint_paths(held, terms, lin_fit)
+    ridge = float(next(g["ridge"] for g in chosen.model.provenance["ridge_grid"]
+                       if g.get("held_out_nmse_percent") == chosen.scores.to_dict()["mean_percent"]))
+    whole = held.whole
+    jf = fit_joint(whole, terms, linear.linear, settings=linear.settings, band=linear.band,
+                   analysis_band_hz=linear.analysis_band_hz, period_samples=settings.period_samples,
+                   ridges=(ridge,))[0]
+    model = _joint_model(linear, terms, jf)
+    if not regimes_stable(model.linear, terms):
+        raise ConfigError(f"the feedback paths fitted on every record with ridge {ridge:g} have an unstable regime",
+                          hint="identify on levels that include the small-amplitude regime, or use --refine")
+    return JointPathResult(model, ridge, tuple(chosen.model.provenance["ridge_grid"]), chosen.scores, lin_fit.scores)
 
 
 def path_eligible(terms: Sequence[Term], linear: IdentifiedModel) -> bool:

@@ -61,6 +61,10 @@ class Record:
         direction of x2, when measured.
     spindle_fixed : bool
         True when the spindle does not move (set by ``spindle_accel=None``).
+    body_disp : ndarray, shape (n,), optional
+        The body displacement as measured, when a displacement was recorded instead of the body
+        acceleration (``body_accel`` is then its second derivative): the output in the unit the
+        user measured, for predictions compared in that unit.
 
     Arrays are made read-only: a ``Record`` never changes once built.
     """
@@ -74,6 +78,7 @@ class Record:
     meta: Mapping = field(default_factory=dict)
     force: np.ndarray | None = None
     spindle_fixed: bool = False
+    body_disp: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         src = self.source or "record"
@@ -95,6 +100,8 @@ class Record:
             sigs["tire_patch_disp"] = _as_signal(self.tire_patch_disp, "tire_patch_disp", src)
         if self.force is not None:
             sigs["force"] = _as_signal(self.force, "force", src)
+        if self.body_disp is not None:
+            sigs["body_disp"] = _as_signal(self.body_disp, "body_disp", src)
         n = {k: v.size for k, v in sigs.items()}
         if len(set(n.values())) != 1:
             raise InputError(f"channels have different lengths {n}", source=src,
@@ -142,8 +149,9 @@ class Record:
         start, stop, _ = slice(start, stop).indices(self.n)
         tp = None if self.tire_patch_disp is None else self.tire_patch_disp[start:stop]
         fo = None if self.force is None else self.force[start:stop]
-        return replace(self, spindle_accel=self.spindle_accel[start:stop],
-                       body_accel=self.body_accel[start:stop], tire_patch_disp=tp, force=fo,
+        bd = None if self.body_disp is None else self.body_disp[start:stop]
+        return replace(self, spindle_accel=None if self.spindle_fixed else self.spindle_accel[start:stop],
+                       body_accel=self.body_accel[start:stop], tire_patch_disp=tp, force=fo, body_disp=bd,
                        t0_ns=self.t0_ns + int(round(start * 1e9 / self.fs_hz)))
 
     def require_samples(self, n_min: int, *, what: str) -> None:
@@ -167,7 +175,8 @@ def concatenate(parts) -> Record:
         return None if any(v is None for v in vals) else np.concatenate(vals)
 
     return replace(first, spindle_accel=None if first.spindle_fixed else cat("spindle_accel"),
-                   body_accel=cat("body_accel"), tire_patch_disp=cat("tire_patch_disp"), force=cat("force"))
+                   body_accel=cat("body_accel"), tire_patch_disp=cat("tire_patch_disp"), force=cat("force"),
+                   body_disp=cat("body_disp"))
 
 
 def acceleration_from_displacement(x: np.ndarray, fs_hz: float, *, period_samples: int | None = None

@@ -222,8 +222,12 @@ class IdentifierNode(Node):
         return "; ".join(bad)
 
     def _model(self, p: dict):
+        """The terms, and the settings merged once (node parameters > model file > defaults:
+        :func:`nifo_core.settings.merge_given`); integration-band edges left 0 take the default of the data's
+        rate once it is known (:meth:`_new_nifo`)."""
         from nifo.io.modelfile import load_model_spec
-        from nifo_core.spectral import SpectralSettings
+        from nifo.settings import given_from_file
+        from nifo_core.settings import GivenSettings, merge_given, resolve_settings
 
         terms, ms = (), {}
         if p["model_file"]:
@@ -234,23 +238,26 @@ class IdentifierNode(Node):
             terms, ms = spec.terms, dict(spec.settings)
         if not terms:
             self.get_logger().warning("no nonlinearities given (model_file): estimating the linear T21 only")
-        d = SpectralSettings()
-        settings = SpectralSettings(block=int(p["block"] or ms.get("block", d.block)),
-                                    overlap=float(p["overlap"] if p["overlap"] >= 0 else ms.get("overlap", d.overlap)),
-                                    window=str(p["window"] or ms.get("window", d.window)))
-        self._band_hz = (float(p["f_lo_hz"]), float(p["f_hi_hz"]))
-        if not any(self._band_hz) and "band_hz" in ms:
-            self._band_hz = tuple(float(x) for x in ms["band_hz"])
-        return tuple(terms), settings
+        lo, hi = float(p["f_lo_hz"]), float(p["f_hi_hz"])
+        node = GivenSettings(block=int(p["block"]) or None, overlap=float(p["overlap"]) if p["overlap"] >= 0 else None,
+                             window=str(p["window"]) or None, band_hz=(lo, hi) if lo > 0 and hi > 0 else None,
+                             analysis_band_hz=tuple(float(x) for x in p["analysis_band_hz"]),
+                             cond_limit=float(p["cond_limit"]))
+        self._given, _ = merge_given(node, given_from_file(ms))
+        self._band_edges = (lo, hi)
+        return tuple(terms), resolve_settings(self._given, fs_hz=None).spectral
 
     def _new_nifo(self, fs_hz: float):
-        from nifo_core.integrate import IntegrationBand, default_band
+        from nifo_core.integrate import IntegrationBand
         from nifo_core.nifo import StreamingNifo
+        from nifo_core.settings import resolve_settings
 
-        d = default_band(fs_hz)
-        band = IntegrationBand(self._band_hz[0] or d.f_lo_hz, self._band_hz[1] or d.f_hi_hz)
-        return StreamingNifo(fs_hz, self._terms, settings=self._settings, band=band,
-                             analysis_band_hz=self._analysis, on_ill_conditioned="ignore")
+        st = resolve_settings(self._given, fs_hz=fs_hz)
+        lo, hi = self._band_edges       # one edge given as a parameter, the other the default of this rate
+        band = IntegrationBand(lo or st.band.f_lo_hz, hi or st.band.f_hi_hz) if (lo or hi) and not (lo and hi) \
+            else st.band
+        return StreamingNifo(fs_hz, self._terms, settings=st.spectral, band=band,
+                             analysis_band_hz=st.analysis_band_hz, on_ill_conditioned="ignore")
 
     def _resume(self) -> None:
         nifo, next_ns, stream = load_checkpoint(self._ckpt)

@@ -9,6 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from nifo_core.integrate import IntegrationBand
+from nifo_core.spectral import SpectralSettings
+
 from nifo.cli import main
 from nifo.io.loader import load_record, save_record
 from nifo.io.results import read_identify, read_model
@@ -64,11 +67,18 @@ def test_identify_writes_parseable_results_model_and_figures(identified):
     assert model.provenance["data"][0]["name"] == "road_2p5mm"
 
 
+def _settings(doc) -> dict:
+    """identify_nifo's keyword arguments for the settings identify.json says were used (chosen from the data)."""
+    st = doc["settings"]
+    return {"settings": SpectralSettings(**{k: st["spectral"][k] for k in ("block", "overlap", "window")}),
+            "band": IntegrationBand(*st["integration_band_hz"]), "analysis_band_hz": tuple(st["analysis_band_hz"])}
+
+
 def test_identify_streamed_in_chunks_equals_identify_nifo_on_the_whole_record(identified):
-    res, _ = read_identify(identified)
+    res, doc = read_identify(identified)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        ref = identify_nifo(load_record(HIGH), [make_term(KNEE)])
+        ref = identify_nifo(load_record(HIGH), [make_term(KNEE)], **_settings(doc))
     assert res.n_avg == ref.n_avg and res.band == ref.band
     for a, b in ((res.static.t21, ref.static.t21), (res.t21, ref.t21), (res.t21_h1, ref.t21_h1),
                  (res.mu_over_k2, ref.mu_over_k2)):
@@ -84,7 +94,8 @@ def test_identify_averages_several_files_as_merged_accumulators(tmp_path):
     res, doc = read_identify(tmp_path / "o")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        ref = identify_nifo([load_record(LOW), load_record(HIGH)], [make_term(KNEE)], analysis_band_hz=(2, 25))
+        ref = identify_nifo([load_record(LOW), load_record(HIGH)], [make_term(KNEE)], **_settings(doc))
+    assert doc["settings"]["analysis_band_hz"] == [2, 25]
     assert [d["name"] for d in doc["data"]] == ["road_1mm", "road_2p5mm"] and res.n_avg == ref.n_avg
     np.testing.assert_allclose(res.static.t21[res.in_band], ref.static.t21[ref.in_band], rtol=1e-9)
     assert not (tmp_path / "o" / "transmissibility.png").exists()

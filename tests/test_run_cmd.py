@@ -56,12 +56,20 @@ def test_run_writes_each_step_in_its_own_directory_with_report_and_recording(ran
     assert (out / "recording" / "nifo.rrd").stat().st_size > 10_000
 
 
-def test_run_identifies_on_the_highest_level_and_predicts_the_other(ran):
+def test_run_identifies_on_every_level_and_predicts_each_with_the_final_model(ran):
     out, _, _ = ran
     ident = json.loads((out / "identify" / "identify.json").read_text())
-    assert [d["name"] for d in ident["data"]] == ["road_hi"]
+    names = [d["name"] for d in ident["data"]] if isinstance(ident["data"], list) else \
+        [e["name"] for st in ident["data"]["steps"] for e in st["data"]]
+    assert set(names) == {"road_lo", "road_hi"}
     pred = json.loads((out / "predict" / "predict.json").read_text())
-    assert [r["name"] for r in pred["records"]] == ["road_lo"]
+    assert [r["name"] for r in pred["records"]] == ["road_lo", "road_hi"]
+    doc = json.loads((out.parent / "run.json").read_text())
+    assert doc["final_model"] == str(out / "loop" / "model.json") and pred["model"] == str(out / "loop")
+    # the settings were chosen once from the data and say why
+    assert doc["settings"]["choices"]["analysis_band_hz"]["source"] == "data"
+    for r in pred["records"]:    # the predicted signals, in the output's unit, for any metric a user prefers
+        assert (out / "predict" / r["signals"][0]).is_file() and r["model"]["rms_error"]["value"] > 0
 
 
 def test_run_runs_the_loop_when_it_is_part_of_the_build(ran):

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from nifo.io.atomic import check_output, staged_dir
+from nifo.settings import add_settings_arguments, loader_options, resolve
 from nifo.io.loader import add_input_arguments, input_options, load_record
 from nifo.io.modelfile import write_model_spec
 from nifo.io.provenance import add_system_argument, input_provenance, system_of, true_strut_model
@@ -31,9 +32,8 @@ from nifo.progress import Progress
 from nifo_core import __version__
 from nifo_core.characterize import DEFAULT_KINDS, Characterization, Thresholds, characterize_restoring
 from nifo_core.errors import ConfigError
-from nifo_core.integrate import IntegrationBand
 from nifo_core.restoring import (FrequencyTrack, RestoringForce, amplitude_slices, frequency_slices, restoring_force,
-                                 suggest_band, track_frequency)
+                                 track_frequency)
 
 HELP = "restoring-force plots and automatic characterization of strut nonlinearities"
 DESCRIPTION = f"""{HELP}.
@@ -67,10 +67,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("data", nargs="+", metavar="DATA", help="data files (several: several excitation levels)")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory (replaced atomically)")
     add_input_arguments(p)
+    add_settings_arguments(p, cond_limit=False)
     add_system_argument(p)
     g = p.add_argument_group("analysis")
-    g.add_argument("--band", nargs=2, type=float, metavar=("LO", "HI"),
-                   help="integration band [Hz] (default: from the data, where z rises 10 dB out of the noise)")
     g.add_argument("--m2", type=float, metavar="KG", help="sprung mass [kg]: coefficients and plots in newtons")
     g.add_argument("--top", type=int, default=5, metavar="N", help="candidates shown in the table (default 5)")
     g.add_argument("--max-terms", type=int, default=3, metavar="N", help="most terms suggested (default 3)")
@@ -89,12 +88,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 # ---------------------------------------------------------------------------------------------
-def run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> dict:
     check_output(args.out)   # refuse a file or a foreign directory before any work
-    opts = input_options(args)
+    settings = resolve([Path(p) for p in args.data], args, opts=input_options(args))
+    opts = loader_options(input_options(args), settings)
     records = [load_record(p, **opts) for p in args.data]
     rates = {r.fs_hz for r in records}
-    band = _band(args, records)
+    band = settings.band.validate(min(rates))
     kinds = tuple(k.strip() for k in args.kinds.split(",")) if args.kinds else DEFAULT_KINDS
     thresholds = Thresholds(min_err=args.min_err, min_err_cv=min(Thresholds.min_err_cv, args.min_err / 2))
     if args.top < 1 or args.amplitude_bins < 1:
@@ -118,7 +118,8 @@ def run(args: argparse.Namespace) -> int:
                                       max_terms=args.max_terms, masks=masks, progress=step)
     with staged_dir(args.out) as tmp:
         figures = _figures(tmp, args, rfs, tracks, masks, char)
-        doc = _document(args, records, rfs, tracks, char, figures, band_source=_band_source(args, records))
+        doc = _document(args, records, rfs, tracks, char, figures, band_source=_band_source(settings))
+        doc["settings"] = settings.to_dict()
         write_json(tmp / "characterize.json", doc, atomic=False, indent=2)
         write_model_spec(tmp / "suggested_model.yaml", char.suggested_terms,
                          settings={"band_hz": [band.f_lo_hz, band.f_hi_hz]},
@@ -129,17 +130,9 @@ def run(args: argparse.Namespace) -> int:
             "suggested": [c.term.label for c in char.suggested], "figures": figures}
 
 
-def _band(args: argparse.Namespace, records) -> IntegrationBand:
-    if args.band:
-        return IntegrationBand(*args.band).validate(min(r.fs_hz for r in records))
-    return suggest_band(records[0]).band
-
-
-def _band_source(args: argparse.Namespace, records) -> dict:
-    if args.band:
-        return {"chosen_by": "--band"}
-    s = suggest_band(records[0])
-    return {"chosen_by": "suggest_band", **s.to_dict()}
+def _band_source(settings) -> dict:
+    c = settings.choices.get("band")
+    return {"chosen_by": c.source if c else "default", "reason": c.reason if c else ""}
 
 
 # ---------------------------------------------------------------------------------------------

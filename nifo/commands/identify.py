@@ -29,6 +29,7 @@ from nifo.progress import Progress
 from nifo.settings import add_settings_arguments, loader_options, resolve
 from nifo_core.errors import (ConfigError, IllConditionedError, InputError, NifoError, RecordTooShortError,
                               SampleRateError)
+from nifo_core.linear_part import RecordLines
 from nifo_core.settings import AnalysisSettings
 
 HELP = "identify the nominal linear transmissibility and the nonlinear coefficient functions (NIFO)"
@@ -101,10 +102,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--feedback-paths", action="store_true",
                    help="instead of constant coefficients, every term's force through its own linear path on the "
                         "linear model's poles (a flexible body: the interface force reaches the measured point "
-                        "through the body's modes); the paths' residues by least squares with a ridge, the ridge "
-                        "chosen by how well the model predicts the identification records; needs a rational "
-                        "linear part and backlash, clearance or saturation terms; seconds "
-                        "(nifo_core.feedback_paths, docs/f16_predict.md)")
+                        "through the body's modes); the paths' residues and the linear part's by one least squares "
+                        "with a ridge on the paths, the ridge chosen by how well the model predicts held-out parts "
+                        "of the records (their last third); needs a rational linear part and backlash, clearance or "
+                        "saturation terms; seconds (nifo_core.model_fit.joint_paths, docs/f16_predict.md)")
     r.add_argument("--refine-seconds", type=float, default=120.0, metavar="S",
                    help="simulate at most this much of each record per evaluation (--refine, --feedback-paths; "
                         "default 120 s; whole periods "
@@ -121,7 +122,8 @@ def accumulate(paths: list[Path], terms, cfg: AnalysisSettings, *, opts: dict, c
                quiet: bool = False):
     """Stream every file into its own StreamingNifo and merge them.
 
-    Returns (merged StreamingNifo, [data provenance entries], [(name, freq, plain H1) per file]).
+    Returns (merged StreamingNifo, [data provenance entries], [(name, freq, plain H1) per file], each file's
+    :class:`~nifo_core.linear_part.RecordLines` (None for records driven by a measured force)).
     ``opts``: the loaders' input options with the settings' period and transient
     (:func:`nifo.settings.loader_options`). The integration band, when the settings have none, is
     ``default_band(fs, shortest duration)`` as in :func:`identify_nifo`, so the answer equals it on the same records.
@@ -164,7 +166,7 @@ def accumulate(paths: list[Path], terms, cfg: AnalysisSettings, *, opts: dict, c
                              analysis_band_hz=cfg.analysis_band_hz, on_ill_conditioned="warn",
                              cond_limit=cfg.cond_limit, with_force=has_force, spindle_fixed=spindle_fixed)
 
-    total, data, per_file = None, [], []
+    total, data, per_file, lines = None, [], [], []
     # progress only for long work (a minute of data streams in well under a second)
     with Progress(float(sum(totals)), "identify", enabled=not quiet and sum(totals) / fs > 600) as bar:
         for p, first, gen in zip(paths, firsts, iters):
@@ -185,8 +187,10 @@ def accumulate(paths: list[Path], terms, cfg: AnalysisSettings, *, opts: dict, c
             data.append(data_entry(p, fs_hz=fs, n_samples=n, meta=meta))
             spec = one.spectra()
             per_file.append((p.name, spec.freq_hz, h1(spec, 0, 1)))
+            lines.append(None if (has_force or spindle_fixed) else RecordLines.from_spectra(
+                spec.freq_hz, spec.G[:, 0, 0], spec.G[:, 0, 1], spec.G[:, 1, 1], cfg.analysis_band_hz))
             total = one if total is None else total.merge(one)
-    return total, data, per_file
+    return total, data, per_file, (None if any(x is None for x in lines) else lines)
 
 
 def _chain(first, gen):
@@ -428,13 +432,15 @@ def run(args: argparse.Namespace) -> int:
     opts = loader_options(input_options(args), cfg)
     if not getattr(args, "quiet", False):
         print("settings:\n  " + "\n  ".join(cfg.describe()))
+    record_lines = None
     if spec.two_step:
         res, data, per_file, caught = _two_step(args, spec, cfg, opts)
         files = sum(len(s["data"]) for s in data["steps"])
     else:
         terms = spec.terms
-        acc, data, per_file = accumulate(list(args.data), terms, cfg, opts=opts, chunk_samples=args.chunk_samples,
-                                         quiet=getattr(args, "quiet", False))
+        acc, data, per_file, record_lines = accumulate(list(args.data), terms, cfg, opts=opts,
+                                                       chunk_samples=args.chunk_samples,
+                                                       quiet=getattr(args, "quiet", False))
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             res = acc.result()
@@ -448,7 +454,7 @@ def run(args: argparse.Namespace) -> int:
     model = linear = None
     try:   # the linear part: the one-mass body where it fits, a stable rational model otherwise (says why)
         model = IdentifiedModel.from_nifo(res, source="static")
-        linear = IdentifiedModel.from_nifo(res, source="h1")
+        linear = IdentifiedModel.from_nifo(res, source="h1", records=record_lines)
         summary["linear_part"] = {"kind": model.linear.kind, "order": model.linear.order,
                                   "fit_rms": model.linear.fit_rms, "reason": model.linear.reason}
     except ConfigError as err:
@@ -463,7 +469,7 @@ def run(args: argparse.Namespace) -> int:
             warn.append(f"{flag}: the model has no nonlinear term, nothing to fit")
         elif flag == "--feedback-paths":
             try:
-                paths = fit_feedback_paths(args, linear, model.terms, opts, [d["path"] for d in _entries(data)])
+                paths = fit_feedback_paths(args, linear, model.terms, opts, [d["path"] for d in _entries(data)], cfg)
             except ConfigError as err:     # not determined by these data: say so, keep the constant coefficients
                 warn.append(f"--feedback-paths: {err.message}" + (f" ({err.hint})" if err.hint else "")
                             + "; model.json holds the constant-coefficient model")
@@ -474,11 +480,14 @@ def run(args: argparse.Namespace) -> int:
                 summary["linear_part"] = {"kind": model.linear.kind, "order": model.linear.order,
                                           "fit_rms": model.linear.fit_rms, "reason": model.linear.reason}
         else:
-            refinement, linear_refinement = refine(args, model, linear, opts, [d["path"] for d in _entries(data)])
-            model = refinement.model
-            summary["refinement"] = refinement.to_dict()
-            if linear_refinement is not None:     # the linear baseline of the joint procedure, refined the same way
-                linear = linear_refinement.model
+            refinement, linear_refinement, check = refine(args, model, linear, opts,
+                                                          [d["path"] for d in _entries(data)])
+            summary["refinement"] = {**refinement.to_dict(), "held_out": check.to_dict()}
+            if check.kept:
+                model = refinement.model
+                if linear_refinement is not None:  # the linear baseline of the joint procedure, refined the same way
+                    linear = linear_refinement.model
+            if linear_refinement is not None:
                 summary["refinement"]["linear"] = linear_refinement.to_dict()
     prov = {"data": data, "model_file": str(args.model), "settings": _settings_doc(cfg, res)}
     settings_doc = _settings_doc(cfg, res)
@@ -500,9 +509,9 @@ def run(args: argparse.Namespace) -> int:
     if paths is not None:
         print(paths.message)
         for g in paths.grid:
-            print(f"  ridge {g.ridge:g}: " + (f"prediction NMSE {' '.join(f'{v:.4g}' for v in g.scores)} % "
-                                              f"(sum {g.score:.4g} %)" if g.stable else
-                                              "not eligible: a regime of the terms (stuck/active) is unstable"))
+            print(f"  ridge {g['ridge']:g}: " + (f"held-out prediction NMSE {g['held_out_nmse_percent']:.4g} %"
+                                                 if g["regimes_stable"] else
+                                                 "not eligible: a regime of the terms (stuck/active) is unstable"))
     if refinement is not None:
         if "linear" in summary["refinement"]:
             print("linear baseline: " + summary["refinement"]["linear"]["message"])
@@ -511,6 +520,7 @@ def run(args: argparse.Namespace) -> int:
             hw = prm.get("half_width_95")
             print(f"  {prm['name']}: {prm['before']:.5g} → {prm['after']:.5g}"
                   + ("" if hw is None else f" ± {hw:.2g}") + f" {prm['unit']}")
+        print(check.message)
     return {"out": str(args.out), "model_written": model is not None, "figures": figures, "warnings": warn,
             "summary": summary}
 

@@ -3,8 +3,11 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from nifo.progress import Progress
 from nifo_core.errors import ConfigError
+from nifo_core.heldout import Scores
 
 
 def from_start(opts: dict, paths: list) -> list[tuple]:
@@ -45,17 +48,53 @@ def score_records(args, model, opts: dict, loaded: list[tuple]) -> tuple[list, l
     return records, skips
 
 
+@dataclass(frozen=True)
+class HeldOutCheck:
+    """Whether the refined model is kept: both models scored on the held-out parts of the identification records."""
+
+    kept: bool
+    before: Scores
+    after: Scores
+    fit_seconds: tuple
+
+    def to_dict(self) -> dict:
+        return {"kept": self.kept, "held_out_nmse_before": self.before.to_dict(),
+                "held_out_nmse_after": self.after.to_dict(), "fit_seconds": list(self.fit_seconds),
+                "rule": "the refined model is kept only when it predicts the held-out parts (the last third of each "
+                        "record, whole periods for periodic data) no worse than NIFO's model"}
+
+    @property
+    def message(self) -> str:
+        b, a = self.before.mean, self.after.mean
+        which = "the refined model" if self.kept else "NIFO's model (the refined one predicts held-out data worse)"
+        return (f"held-out check (refined on the first two thirds of each record, scored on the last third): "
+                f"{b:.4g} % (NIFO) → {a:.4g} % (refined): model.json holds {which}")
+
+
 def refine(args, model, linear, opts: dict, paths: list):
-    """Output-error refinement of ``model`` on the identification records (``--refine``): (refinement, None).
+    """Output-error refinement of ``model`` (``--refine``), on the fit parts of the identification records, kept when
+    it predicts their held-out parts no worse: (refinement, None, check).
 
     ``--refine-linear`` with a rational linear part: the joint procedure
     (:func:`nifo_core.refine.refine_jointly`): the linear model's residues refined alone, then the terms with
-    them from two starts; (refinement, the linear model's refinement).
+    them from two starts; (refinement, the linear model's refinement, check).
     """
+    from nifo_core.heldout import split_records
     from nifo_core.refine import refine_jointly, refine_model
 
     period = opts.get("period_samples")
-    records, skips = score_records(args, model, opts, from_start(opts, paths))
+    loaded = from_start(opts, paths)
+    held = split_records([rec for rec, _ in loaded], skip_samples=max(skip for _, skip in loaded),
+                         period_samples=period, band_hz=model.analysis_band_hz)
+    fit_loaded = [(rec.slice(0, k), skip) for (rec, skip), k in zip(loaded, held.split)]
+    records, skips = score_records(args, model, opts, fit_loaded)
+    out = _refine(args, model, linear, records, skips, period, refine_jointly, refine_model)
+    before, after = held.score(model), held.score(out[0].model)
+    check = HeldOutCheck(after.mean <= before.mean, before, after, tuple(float(r.duration_s) for r in records))
+    return (*out, check)
+
+
+def _refine(args, model, linear, records, skips, period, refine_jointly, refine_model):
     jointly = bool(getattr(args, "refine_linear", False)) and linear.linear.kind == "rational"
     with Progress(None, "refine (simulations)", enabled=True) as bar:
         def progress(what: str, starts: bool = True):
@@ -72,23 +111,12 @@ def refine(args, model, linear, opts: dict, paths: list):
                             progress=progress("the model")), None
 
 
-def fit_feedback_paths(args, linear, terms, opts: dict, paths: list):
-    """``--feedback-paths``: the terms through their own paths on the linear model's poles
-    (:func:`nifo_core.feedback_paths.path_model`), the ridge chosen on the identification records."""
-    from nifo_core.feedback_paths import path_model
+def fit_feedback_paths(args, linear, terms, opts: dict, paths: list, settings):
+    """``--feedback-paths``: the terms through their own paths on the linear model's poles, identified jointly with
+    its residues (:func:`nifo_core.model_fit.joint_paths`), the ridge chosen on held-out parts of the records."""
+    from nifo_core.model_fit import joint_paths
 
-    if linear.linear.kind != "rational":
-        raise ConfigError(f"feedback paths need a rational linear part; this one is a {linear.linear.kind} "
-                          f"({linear.linear.reason})",
-                          hint="a physical one-mass body already feeds the strut force back through its mass: use "
-                               "--refine")
-    period = opts.get("period_samples")
     loaded = from_start(opts, paths)
-    fit_records = [rec.slice(skip, rec.n) for rec, skip in loaded]      # what the identification used
-    records, skips = score_records(args, linear, opts, loaded)
-    with Progress(None, "feedback paths (ridge grid)", enabled=True) as bar:
-        def progress(ridge: float, total: float):
-            bar.desc = f"feedback paths: ridge {ridge:g} predicts the records at {total:.4g} %"
-            bar.advance(1)
-        return path_model(linear, terms, fit_records, records, period_samples=period, skip_samples=skips,
-                          progress=progress)
+    with Progress(None, "feedback paths (ridge grid on held-out parts)", enabled=True):
+        return joint_paths([rec for rec, _ in loaded], terms, linear, settings,
+                           skip_samples=max(skip for _, skip in loaded))

@@ -35,6 +35,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +43,10 @@ import numpy as np
 from nifo.io.atomic import check_output, staged_dir
 from nifo.io.loader import add_input_arguments, input_options
 from nifo.io.provenance import add_system_argument, input_provenance, system_of
+from nifo.io.signals import write_signals
 from nifo.io.truth import truth_for
+from nifo.settings import add_settings_arguments, loader_options, resolve
+from nifo_core.settings import GivenSettings
 from nifo_core.errors import ConfigError, InputError
 
 HELP = "predict the body response of other data with an identified model and compare with the measurement"
@@ -56,14 +60,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", required=True, type=Path, metavar="MODEL.json",
                    help="model.json written by nifo identify or nifo loop (or the directory holding it)")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory (replaced atomically)")
-    p.add_argument("--freq-range", type=float, nargs=2, metavar=("LO", "HI"), default=(2.0, 30.0),
-                   help="band of the transmissibility errors [Hz] (default 2 30)")
     p.add_argument("--method", choices=("parametric", "nonparametric"), default="parametric",
                    help="the model's linear part (one-mass body or rational, simulated in time; default) or the "
                         "identified T21(ω), B_i(ω) line by line (frequency domain where provably convergent, else "
                         "a rational fit of them in time)")
     p.add_argument("--no-plots", action="store_true", help="write predict.json only")
     add_input_arguments(p)
+    add_settings_arguments(p, cond_limit=False, band=False)   # --freq-range: default the model's analysis band
     add_system_argument(p)
 
 
@@ -94,13 +97,19 @@ def _drive(record, model) -> tuple[np.ndarray | None, np.ndarray | None, np.ndar
     return a1, force, a1, "spindle"
 
 
-def _band_nmse(a2, pred, fs: float, band_hz, period_samples: int | None) -> dict:
+def _skip(pred, period_samples: int | None, transient: int) -> int:
+    """Samples left out of the scores: the transient the settings drop, and the prediction's own start-up (one
+    period of periodic data, else its start-up edge)."""
+    return max(int(transient), int(period_samples) if period_samples else pred.valid.start)
+
+
+def _band_nmse(a2, pred, fs: float, band_hz, period_samples: int | None, transient: int = 0) -> dict:
     """Band NMSE [%] of a prediction, or why it could not be computed."""
     from nifo_core.prediction_error import band_nmse
 
-    skip = int(period_samples) if period_samples else pred.valid.start
-    how = (f"period average after the first period of {period_samples} samples" if period_samples
-           else f"after the first {skip} samples (start-up edge)")
+    skip = _skip(pred, period_samples, transient)
+    how = (f"period average after the first {skip // int(period_samples)} period(s) of {period_samples} samples"
+           if period_samples else f"after the first {skip} samples (start-up edge)")
     try:
         return {"percent": band_nmse(a2, pred.body_accel, fs, band_hz=tuple(band_hz), period_samples=period_samples,
                                      skip_samples=skip), "band_hz": list(band_hz), "how": how}
@@ -108,9 +117,25 @@ def _band_nmse(a2, pred, fs: float, band_hz, period_samples: int | None) -> dict
         return {"percent": None, "band_hz": list(band_hz), "how": how, "not_computed": err.message}
 
 
+def _output(record, pred) -> tuple[str, str, np.ndarray, np.ndarray]:
+    """(name, unit, measured, predicted) of the output in the unit it was measured in: the body displacement when a
+    displacement was recorded on a single mass driven by a force (the prediction's z is then x2), else the body
+    acceleration."""
+    if record.body_disp is not None and record.spindle_fixed:
+        return "body_disp", "unit of the measured displacement", np.asarray(record.body_disp), np.asarray(pred.z)
+    return "body_accel", "m/s²", np.asarray(record.body_accel), np.asarray(pred.body_accel)
+
+
+def _rms_error(y: np.ndarray, yhat: np.ndarray, skip: int) -> dict:
+    e = np.asarray(y)[skip:] - np.asarray(yhat)[skip:]
+    return {"value": float(np.sqrt(np.mean(e ** 2))) if e.size else None,
+            "dc_removed": float(np.std(e)) if e.size else None, "after_samples": int(skip)}
+
+
 def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
-                period_samples: int | None = None) -> tuple[dict, dict]:
-    """Numbers (JSON-able) and arrays (for the figures) for one record."""
+                period_samples: int | None = None, transient: int = 0) -> tuple[dict, dict]:
+    """Numbers (JSON-able) and arrays (for the figures and the signal tables) for one record, predicted from rest
+    from its first sample; ``transient`` samples at its start are left out of every score."""
     from nifo_core.model import predict_body
     from nifo_core.frf import coherence, h1
     from nifo_core.spectral import cross_spectra
@@ -126,7 +151,10 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
     a2 = np.asarray(record.body_accel)
     pm = predict_body(model, a1, fs, force=force, method=method, label=str(path))
     pl = predict_body(linear, a1, fs, force=force, method=method, label=str(path))
-    valid = pm.valid
+    skip = _skip(pm, period_samples, transient)
+    valid = slice(max(pm.valid.start, skip), pm.valid.stop)
+    if valid.stop - valid.start < model.settings.block:
+        valid = pm.valid
     spec = cross_spectra(np.stack([drive[valid], a2[valid], pm.body_accel[valid], pl.body_accel[valid]]), fs,
                          model.settings)
     t_meas, t_model, t_lin = h1(spec, 0, 1), h1(spec, 0, 2), h1(spec, 0, 3)
@@ -137,17 +165,26 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
         "path": str(path), "name": path.name, "fs_hz": fs, "n_samples": record.n, "duration_s": record.duration_s,
         "valid_samples": [valid.start, valid.stop], "n_avg": int(spec.n_avg), "transmissibility_from": drive_name,
         "model": {"nmse_percent": _nmse(y, pm.body_accel[valid]),
-                  "band_nmse": _band_nmse(a2, pm, fs, band_hz, period_samples),
+                  "band_nmse": _band_nmse(a2, pm, fs, band_hz, period_samples, transient),
                   "transmissibility_error": _rel(t_model, t_meas, mask), "engine": pm.method,
                   "iterations": pm.iterations, "residual": pm.residual},
         "linear": {"nmse_percent": _nmse(y, pl.body_accel[valid]),
-                   "band_nmse": _band_nmse(a2, pl, fs, band_hz, period_samples),
+                   "band_nmse": _band_nmse(a2, pl, fs, band_hz, period_samples, transient),
                    "transmissibility_error": _rel(t_lin, t_meas, mask), "source": linear.source,
                    "engine": pl.method},
         "coherence_measured_median": float(np.median(coherence(spec, 0, 1)[mask])),
     }
+    out_name, out_unit, y_meas, y_model = _output(record, pm)
+    y_lin = _output(record, pl)[3]
+    out["output"] = {"name": out_name, "unit": out_unit}
+    out["model"]["rms_error"] = _rms_error(y_meas, y_model, skip)
+    out["linear"]["rms_error"] = _rms_error(y_meas, y_lin, skip)
+    drive_col = "force" if drive_name == "force" else "spindle_accel_m_s2"
     arrays = {"f": f, "t_meas": t_meas, "t_model": t_model, "t_linear": t_lin, "mask": mask,
-              "a2": a2, "a2_model": pm.body_accel, "a2_linear": pl.body_accel, "valid": valid, "fs": fs}
+              "a2": a2, "a2_model": pm.body_accel, "a2_linear": pl.body_accel, "valid": valid, "fs": fs,
+              "signals": {"time_s": np.arange(record.n) / fs, drive_col: np.asarray(drive, float),
+                          f"{out_name}_measured": y_meas, f"{out_name}_model": y_model,
+                          f"{out_name}_linear": y_lin}}
     out["model"]["parameter_bounds"], eps = _parameter_bounds(
         model, lambda m: predict_body(m, a1, fs, force=force, method=method, label=str(path)).body_accel,
         a2=a2, drive=drive, valid=valid, t_model=t_model, fs=fs, band_hz=band_hz, period_samples=period_samples,
@@ -273,23 +310,41 @@ def run(args: argparse.Namespace) -> int:
     from nifo.io.results import PREDICT_JSON, read_model, write_json
     from nifo_core.errors import NifoError
 
-    lo, hi = args.freq_range
-    if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):
-        raise ConfigError(f"--freq-range {lo:g} {hi:g} must satisfy 0 <= LO < HI", channel="--freq-range")
     model, linear = read_model(args.model)
     if linear is None:
         linear = _linear_part(model)
-    opts = input_options(args)
-    results, failed, figures = [], [], []
+    lo, hi = args.freq_range if args.freq_range is not None else model.analysis_band_hz
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):
+        raise ConfigError(f"--freq-range {lo:g} {hi:g} must satisfy 0 <= LO < HI", channel="--freq-range")
+    given = GivenSettings(period_samples=args.period_samples, skip_periods=args.skip_periods,
+                          skip_seconds=args.skip_seconds, analysis_band_hz=(lo, hi))
+    spectral = [k for k in ("block", "overlap", "window") if getattr(args, k) is not None]
+    if spectral:    # the transmissibilities on other blocks than the model's
+        model = replace(model, settings=replace(model.settings, **{k: getattr(args, k) for k in spectral}))
+    results, failed, figures, tables = [], [], [], []
     with staged_dir(args.out) as tmp:
         for p in args.data:   # every record it can do is written; the others are named at the end
             path = Path(p)
             try:
-                numbers, arrays = predict_one(path, load_record(path, **opts), model, linear, band_hz=(lo, hi),
-                                              method=args.method, period_samples=opts.get("period_samples"))
+                try:                                                           # its period and transient
+                    st = resolve([path], given=given, opts=input_options(args))
+                except NifoError:        # nothing to choose from these data (e.g. no clear excited band): as given
+                    st = resolve([path], given=given, opts=input_options(args), from_data=False)
+                opts = loader_options(input_options(args), st)
+                opts.update(skip_periods=None, skip_seconds=None)              # from rest, from the first sample
+                record = load_record(path, **opts)
+                numbers, arrays = predict_one(path, record, model, linear, band_hz=(lo, hi), method=args.method,
+                                              period_samples=st.period_samples,
+                                              transient=st.skip_samples(record.fs_hz))
             except NifoError as err:
                 failed.append((path, err.with_context(source=str(path))))
                 continue
+            numbers["settings"] = {k: c.to_dict() for k, c in st.choices.items()
+                                   if k in ("period_samples", "skip_periods", "skip_seconds")}
+            numbers["signals"] = write_signals(tmp, _safe(path.name), arrays["signals"],
+                                               meta={"record": str(path), "model": str(args.model),
+                                                     "output_unit": numbers["output"]["unit"]})
+            tables += numbers["signals"]
             if not args.no_plots:
                 numbers["figures"] = _figures(tmp, path.name, arrays, (lo, hi), model, system=system_of(args))
                 figures += numbers["figures"]
@@ -310,7 +365,7 @@ def run(args: argparse.Namespace) -> int:
         first = failed[0][1]
         raise type(first)(f"{len(failed)} of {len(failed) + len(results)} records could not be predicted (the others "
                           f"are in {args.out}/{PREDICT_JSON}): " + "; ".join(str(err) for _, err in failed))
-    return {"out": str(args.out), "freq_range_hz": [lo, hi], "figures": figures,
+    return {"out": str(args.out), "freq_range_hz": [lo, hi], "figures": figures, "signals": tables,
             "records": [{k: r[k] for k in ("name", "path", "model", "linear") if k in r} for r in results]}
 
 
@@ -322,8 +377,8 @@ def _summary(results: list[dict], band, out: Path) -> str:
     w = max([24] + [len(r["name"]) for r in results])     # the whole name: records often differ at its end
     # the band NMSE first: the metric of --freq-range; the whole-signal NMSE also counts energy outside the band,
     # where the model was not identified (on the F-16 at levels 5-7 it is 30-60 % where the band NMSE is 0.3 %)
-    lines = [f"{'record':<{w}} band NMSE {band[0]:g}-{band[1]:g} Hz model | linear   NMSE all frequencies "
-             f"model | linear   |T| error model (median/max) | linear (median/max)"]
+    lines = [f"{'record':<{w}} band NMSE {band[0]:.4g}-{band[1]:.4g} Hz model | linear   RMS error model | linear   "
+             f"NMSE all frequencies model | linear   |T| error model (median/max) | linear (median/max)"]
     for r in results:
         m, li = r["model"], r["linear"]
         bm, bl = (x["band_nmse"]["percent"] for x in (m, li))
@@ -331,7 +386,10 @@ def _summary(results: list[dict], band, out: Path) -> str:
         pm_txt = f" ± {pb['band_nmse_half_width_pct']:.2g}" if pb.get("available") else ""
         band_txt = ("not computed: " + m["band_nmse"].get("not_computed", "") if bm is None
                     else f"{bm:.3f}%{pm_txt} | {bl:.3f}%")
-        lines.append(f"{r['name']:<{w}} {band_txt}   {m['nmse_percent']:.2f}% | {li['nmse_percent']:.2f}%   "
+        rm, rl = m["rms_error"]["value"], li["rms_error"]["value"]
+        unit = "m/s²" if r["output"]["name"] == "body_accel" else "(displacement unit)"
+        rms_txt = f"{rm:.4g} | {rl:.4g} {unit}"
+        lines.append(f"{r['name']:<{w}} {band_txt}   {rms_txt}   {m['nmse_percent']:.2f}% | {li['nmse_percent']:.2f}%   "
                      f"{_pct(m['transmissibility_error']['median'])} / {_pct(m['transmissibility_error']['max'])}"
                      f" | {_pct(li['transmissibility_error']['median'])} / {_pct(li['transmissibility_error']['max'])}")
         if "truth" in r and "model_nominal_t21_vs_true" in r["truth"]:

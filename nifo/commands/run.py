@@ -5,12 +5,17 @@ at two road levels). Steps, each into its own subdirectory of ``--out``
 (default ``results/``), by calling the commands' own functions with the same
 options their command lines take:
 
+0. the settings, chosen once from the data where not given (the excitation's period and transient, the
+   excited band, blocks, integration band: :mod:`nifo.settings`), printed with their reasons and passed to
+   every step;
 1. ``characterize/``  restoring-force plots and the suggested model (all DATA as levels);
-2. ``identify/``      NIFO with the suggested model on the highest level (``--identify-on all``: on all;
-   several levels: the paper's two-step model), then the output-error refinement of its
-   coefficients (``nifo identify --refine``; ``--no-refine``: NIFO's equation-error values);
-3. ``predict/``       the identified model at the other level(s);
-4. ``loop/``          search for what the model lacks, error before and after (``nifo loop``);
+2. ``identify/``      NIFO with the suggested model on every level (several levels that call for it: the
+   paper's two-step model), then the output-error refinement of its coefficients, kept when it predicts a
+   held-out part no worse (``nifo identify --refine``; ``--no-refine``: NIFO's equation-error values);
+3. ``loop/``          from the linear model, what the data need: terms added while the held-out prediction
+   improves, with the model class ``nifo identify`` writes (``nifo loop``): the run's final model,
+   ``loop/model.json``;
+4. ``predict/``       the final model and the linear model of the same data on every record;
 5. ``report/report.html``  the self-contained HTML report of all of the above;
 6. ``recording/nifo.rrd``  the Rerun recording (``rerun results/recording/nifo.rrd``).
 """
@@ -23,8 +28,9 @@ import sys
 import time
 from pathlib import Path
 
-from nifo.io.loader import add_input_arguments
+from nifo.io.loader import add_input_arguments, input_options
 from nifo.io.provenance import add_system_argument
+from nifo.settings import add_settings_arguments, resolve
 from nifo_core.errors import InputError, NifoError
 
 HELP = "the whole job on the bundled sample (or given data): characterize, identify, predict, loop, report"
@@ -38,13 +44,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("data", nargs="*", type=Path, metavar="DATA",
                    help="records at one or more excitation levels (default: the bundled sample bags/sample/*)")
     p.add_argument("--out", type=Path, default=Path("results"), metavar="DIR", help="output directory (default results/)")
-    p.add_argument("--identify-on", choices=("highest", "all"), default="highest",
-                   help="identify on the highest level and predict the others (default), or on all levels")
-    p.add_argument("--no-loop", action="store_true", help="skip the loop step")
+    p.add_argument("--no-loop", action="store_true", help="skip the loop step (the identified model is the final one)")
     p.add_argument("--no-refine", action="store_true",
                    help="keep NIFO's coefficients (skip identify's output-error refinement)")
     p.add_argument("--no-recording", action="store_true", help="skip the Rerun recording")
     add_input_arguments(p)   # passed through to every step that reads data
+    add_settings_arguments(p)
     add_system_argument(p)
 
 
@@ -62,9 +67,10 @@ def _command(name: str):
 
 
 def _input_dests() -> list[str]:
-    """The attribute names :func:`add_input_arguments` defines (whatever options it has), and --system's."""
+    """The attribute names :func:`add_input_arguments` and :func:`add_settings_arguments` define, and --system's."""
     p = argparse.ArgumentParser(add_help=False)
     add_input_arguments(p)
+    add_settings_arguments(p)
     return [a.dest for a in p._actions] + ["system"]
 
 
@@ -155,11 +161,27 @@ def run(args: argparse.Namespace) -> int:
         return _run(args, data, out)
 
 
-def _run(args: argparse.Namespace, data: list[Path], out: Path) -> int:
+def _with_settings(args: argparse.Namespace, st) -> argparse.Namespace:
+    """``args`` with the settings chosen once from the data filled in where not given, so every step uses them."""
+    out = argparse.Namespace(**vars(args))
+    if out.block is None and out.window is None and out.overlap is None:
+        out.block, out.overlap, out.window = st.spectral.block, st.spectral.overlap, st.spectral.window
+    if out.band is None and st.band is not None:
+        out.band = [st.band.f_lo_hz, st.band.f_hi_hz]
+    if out.freq_range is None:
+        out.freq_range = list(st.analysis_band_hz)
+    if out.period_samples is None and st.period_samples:
+        out.period_samples = st.period_samples
+        if out.skip_periods is None and out.skip_seconds is None:
+            out.skip_periods = st.skip_periods
+    return out
+
+
+def _run(args: argparse.Namespace, data: list[Path], out: Path) -> dict:
     t0 = time.monotonic()
     dirs = {k: out / k for k in ("characterize", "identify", "predict", "loop", "report", "recording")}
     do_loop = not args.no_loop and loop_available()
-    total = 4 + (1 if do_loop else 0) + (0 if args.no_recording else 1) - (1 if len(data) < 2 else 0)
+    total = 5 + (1 if do_loop else 0) + (0 if args.no_recording else 1)
     step, timings, notes, failed = 0, {}, [], None
 
     def begin(text: str) -> float:
@@ -168,50 +190,41 @@ def _run(args: argparse.Namespace, data: list[Path], out: Path) -> int:
         _banner(step, total, text)
         return time.monotonic()
 
+    t = begin(f"settings from the data of {len(data)} record(s)")
+    st = resolve(data, args, opts=input_options(args))
+    print("\n".join("  " + line for line in st.describe()))
+    args = _with_settings(args, st)
+    timings["settings"] = time.monotonic() - t
+
     t = begin(f"characterize {len(data)} record(s): restoring force, suggested model")
     _call("characterize", [*map(str, data), "--out", str(dirs["characterize"])], args)
     timings["characterize"] = time.monotonic() - t
     model = dirs["characterize"] / "suggested_model.yaml"
     ordered = _levels(dirs["characterize"], data)
-    ident = ordered if args.identify_on == "all" else ordered[-1:]
-    others = [p for p in ordered if p not in ident]
 
     two = _two_step_model(ordered, dirs["characterize"], args) if len(ordered) >= 2 else None
     refine = [] if getattr(args, "no_refine", False) else ["--refine"]
     if two is not None:
         model, text = two
-        ident = ordered
         t = begin(f"identify (NIFO) in two steps: {text}")
         print(text)
         _call("identify", ["--model", str(model), "--out", str(dirs["identify"]), *refine], args)
         notes.append(f"Two-step model chosen from the data: {text}")
     else:
-        t = begin(f"identify (NIFO) on {', '.join(p.name for p in ident)} with the suggested model")
-        _call("identify", [*map(str, ident), "--model", str(model), "--out", str(dirs["identify"]), *refine], args)
+        t = begin(f"identify (NIFO) on {', '.join(p.name for p in ordered)} with the suggested model")
+        _call("identify", [*map(str, ordered), "--model", str(model), "--out", str(dirs["identify"]), *refine], args)
     timings["identify"] = time.monotonic() - t
-    others = [p for p in ordered if p != ordered[-1]] if two is not None else others
 
     results = [dirs["characterize"], dirs["identify"]]
-    pred_on = others or ([] if len(data) < 2 else ordered[:-1])
-    if pred_on and not (dirs["identify"] / "model.json").is_file():
-        why = ("identify wrote no model.json (no physical body model fits its T21; see its warnings), so the "
-               "other level(s) cannot be predicted: the predict step was skipped")
-        notes.append(why[0].upper() + why[1:] + ".")
-        print(f"nifo run: {why}", file=sys.stderr)
-        pred_on, total = [], total - 1
-    if pred_on:
-        t = begin(f"predict {', '.join(p.name for p in pred_on)} with the identified model")
-        _call("predict", [*map(str, pred_on), "--model", str(dirs["identify"]), "--out", str(dirs["predict"])],
-              args)
-        timings["predict"] = time.monotonic() - t
-        results.append(dirs["predict"])
-
+    final = dirs["identify"]
     if do_loop:
-        t = begin("loop: search the residual for what the model lacks, error before and after")
+        t = begin("loop: from the linear model, what the data need; error before and after")
         try:
-            _call("loop", [*map(str, ordered), "--model", str(model), "--out", str(dirs["loop"]),
+            _call("loop", [*map(str, ordered), "--out", str(dirs["loop"]),
                            *([] if refine else ["--no-refine"])], args)
             results.append(dirs["loop"])
+            if (dirs["loop"] / "model.json").is_file():
+                final = dirs["loop"]
         except NifoError as err:   # the report still shows everything else; the exit code says it failed
             print(f"nifo run: loop failed: {err}", file=sys.stderr)
             notes.append(f"The loop step failed: {err}")
@@ -220,6 +233,19 @@ def _run(args: argparse.Namespace, data: list[Path], out: Path) -> int:
     elif not args.no_loop:
         notes.append("nifo loop is not available in this build: the loop step was skipped.")
         print("nifo run: nifo loop is not available in this build: skipped", file=sys.stderr)
+
+    if (final / "model.json").is_file():
+        t = begin(f"predict every record with the final model ({final.name}/model.json) and the linear model of "
+                  f"the same data")
+        _call("predict", [*map(str, ordered), "--model", str(final), "--out", str(dirs["predict"])], args)
+        timings["predict"] = time.monotonic() - t
+        results.append(dirs["predict"])
+    else:
+        why = (f"no model.json in {final.name}/ (no linear part could be fitted; see its warnings): the predict "
+               f"step was skipped")
+        notes.append(why[0].upper() + why[1:] + ".")
+        print(f"nifo run: {why}", file=sys.stderr)
+        total -= 1
 
     from nifo.viz.results import read_results
 
@@ -247,5 +273,6 @@ def _run(args: argparse.Namespace, data: list[Path], out: Path) -> int:
     if not args.no_recording:
         print(f"  {'recording':<13} {rrd}   <- rerun {rrd}")
     return {"out": str(out), "took_s": took, "timings_s": timings, "notes": notes, "report": str(report),
+            "final_model": str(final / "model.json"), "settings": st.to_dict(),
             "recording": None if args.no_recording else str(rrd), "results": {r.kind: str(r.path) for r in read},
             "exit_code": 0 if failed is None else failed.exit_code}

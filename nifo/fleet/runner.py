@@ -29,7 +29,6 @@ bag per task, so a bag that kills its worker fails alone.
 
 from __future__ import annotations
 
-import argparse
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -104,18 +103,18 @@ class FleetRun:
 
 
 def _model_cfgs(entries: list[BagEntry]) -> dict[Path, tuple]:
-    from nifo.commands.identify import resolve_settings
+    """Per model file, its spec and the settings it gives merged with the defaults (one fleet, one set of settings:
+    a vehicle's bags are compared on the same blocks and bands)."""
     from nifo.io.modelfile import load_model_spec
+    from nifo.settings import resolve
 
-    none = argparse.Namespace(block=None, overlap=None, window=None, band=None, freq_range=None,
-                              cond_limit=1e4, chunk_samples=2)
     out = {}
     for model in dict.fromkeys(e.model for e in entries):
         spec = load_model_spec(model)
         if spec.two_step:
             raise ConfigError("nifo fleet takes single-step model files (nonlinearities:), not steps:",
                               source=str(model), hint="identify two-step models per vehicle with nifo identify")
-        out[model] = (spec, resolve_settings(none, spec.settings))
+        out[model] = (spec, resolve([], file_settings=spec.settings, from_data=False))
     return out
 
 
@@ -127,10 +126,10 @@ def base_setups(entries: list[BagEntry], *, opts: dict, chunk_samples: int) -> d
         if e.group in out:
             continue
         spec, cfg = cfgs[e.model]
-        out[e.group] = GroupSetup(terms=tuple(spec.terms), spectral=cfg["spectral"], band=cfg["band"],
-                                  with_tire_patch=None, analysis_band_hz=tuple(cfg["analysis_band_hz"]),
-                                  cond_limit=cfg["cond_limit"], chunk_samples=int(chunk_samples), opts=dict(opts),
-                                  band_from_model=cfg["band"] is not None)
+        out[e.group] = GroupSetup(terms=tuple(spec.terms), spectral=cfg.spectral, band=cfg.band,
+                                  with_tire_patch=None, analysis_band_hz=tuple(cfg.analysis_band_hz),
+                                  cond_limit=cfg.cond_limit, chunk_samples=int(chunk_samples), opts=dict(opts),
+                                  band_from_model=cfg.band is not None)
     return out
 
 

@@ -228,7 +228,7 @@ def assemble_record(channels: Mapping[str, tuple[np.ndarray | None, np.ndarray]]
         t0 += int(round(k * 1e9 / fs))
         meta["skipped_samples"] = k
     if "body_disp" in values:                                       # displacement -> acceleration
-        values["body_accel"], how = acceleration_from_displacement(values.pop("body_disp"), fs,
+        values["body_accel"], how = acceleration_from_displacement(values["body_disp"], fs,
                                                                    period_samples=asm.skip.period_samples)
         meta["body_from_displacement"] = how
     if asm.spindle_fixed:
@@ -236,7 +236,7 @@ def assemble_record(channels: Mapping[str, tuple[np.ndarray | None, np.ndarray]]
     try:
         return Record(fs, None if asm.spindle_fixed else values["spindle_accel"], values["body_accel"],
                       values.get("tire_patch_disp"), t0_ns=t0, source=Path(path).name, meta=meta,
-                      force=values.get("force"))
+                      force=values.get("force"), body_disp=values.get("body_disp"))
     except NifoError as err:
         raise err.with_context(source=src) from None
 

@@ -292,10 +292,13 @@ def _predict(r: ResultDir) -> tuple[dict, list]:
                      _pct((m.get("transmissibility_error") or {}).get("median")),
                      _pct((li.get("transmissibility_error") or {}).get("median")),
                      _pct(((rec.get("truth") or {}).get("model_nominal_t21_vs_true") or {}).get("median"))])
-        if m and li:
-            glance.append({"key": f"NMSE at {rec.get('name')}",
-                           "lines": [{"text": f"{_num(m.get('nmse_percent'), '.2f')} %",
-                                      "small": f"(linear {_num(li.get('nmse_percent'), '.2f')} %)"}]})
+        if m and li:   # the metric the CLI leads with: the band NMSE over the analysis band
+            lo, hi = (bm.get("band_hz") or [None, None])[:2]
+            where = f"{_num(lo, '.3g')}-{_num(hi, '.3g')} Hz" if lo is not None else "the analysis band"
+            glance.append({"key": f"band NMSE ({where}) at {rec.get('name')}",
+                           "lines": [{"text": band if bm.get("percent") is not None else "not computed",
+                                      "small": "(linear " + (_num(bl.get("percent"), ".3g") + " %)"
+                                                             if bl.get("percent") is not None else "not computed)")}]})
     return {"rows": rows}, glance
 
 
@@ -371,13 +374,21 @@ def _loop(r: ResultDir, words: Mapping) -> tuple[dict, list]:
             "errors": _errors_rows(eb, ea) if isinstance(eb, Mapping) and isinstance(ea, Mapping) else [],
             "rounds": rows, "coefficients": _loop_coefficients(d)}
     added = [_effect_label(x.get("added") or x.get("effect")) for x in rounds if x.get("added") or x.get("effect")]
-    if added:
+    fin, lin = d.get("final_heldout_prediction_nmse_pct"), d.get("linear_heldout_prediction_nmse_pct")
+    verdict = str(view["verdict"] or "")
+    if verdict.startswith("The model class cannot predict") or verdict.startswith("The model class does not predict"):
+        text = verdict.split(":")[0]          # a floor the model does not beat: said first, never "nothing missing"
+    elif added:
         text = ", ".join(added) + " added"
     elif d.get("nothing_missing", True):
         text = "nothing significant missing"
     else:   # nothing added, but the verdict says what these data cannot pin or tell apart
         text = "nothing added; not everything could be told apart (see the loop's verdict)"
-    return view, [{"key": "loop", "lines": [{"text": text}]}]
+    lines = [{"text": text}]
+    if fin is not None:
+        lines.append({"text": f"held-out {_num(fin, '.3g')} %",
+                      "small": "" if lin is None else f"(linear model of the same data {_num(lin, '.3g')} %)"})
+    return view, [{"key": "loop (final model)", "lines": lines}]
 
 
 # ------------------------------------------------------------------------------------ provenance
