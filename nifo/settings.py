@@ -58,6 +58,9 @@ def add_settings_arguments(p: argparse.ArgumentParser, *, cond_limit: bool = Tru
     if cond_limit:
         g.add_argument("--cond-limit", type=float, metavar="C",
                        help="scaled cond(G_UU) counted as ill-conditioned (default 1e4)")
+    g.add_argument("--no-settings-from-data", action="store_true", dest="no_settings_from_data",
+                   help="settings not given take the defaults (paper Table 2, 2-30 Hz, 0.5-200 Hz), not choices read "
+                        "off the data: what nifo fleet and the identifier node use")
 
 
 def given_from_args(args: argparse.Namespace) -> GivenSettings:
@@ -117,6 +120,8 @@ def resolve(paths: Sequence[Path], args: argparse.Namespace | None = None, *, fi
     origins = {k: ("command line", "model file")[i] for k, i in origin.items()}
     opts = dict(opts or {})
     excitation, snr, fs, durations = None, None, None, []
+    if args is not None and getattr(args, "no_settings_from_data", False):
+        from_data = False
     if from_data and paths:
         parts = []
         first = None
@@ -134,19 +139,10 @@ def resolve(paths: Sequence[Path], args: argparse.Namespace | None = None, *, fi
                     snr = suggest_band(first).band.f_lo_hz
                 except NifoError:
                     snr = None
-    if fs is None and paths:
-        fs = _rate(paths[0], opts)
+    # without the data's choices the integration band stays open (None): each step takes its default for the
+    # records it reads (default_band of the shortest, or characterize's noise edge), as before settings existed
     return resolve_settings(merged, fs_hz=fs, durations_s=durations, excitation=excitation, snr_lo_hz=snr,
                             origins=origins)
-
-
-def _rate(path, opts) -> float:
-    chunks = iter_record_chunks(path, chunk_samples=1024, **{k: v for k, v in opts.items()
-                                                             if k not in ("skip_seconds", "skip_periods")})
-    try:
-        return float(next(chunks).fs_hz)
-    finally:
-        chunks.close()
 
 
 def loader_options(opts: dict, settings: AnalysisSettings) -> dict:

@@ -143,7 +143,7 @@ def candidate_grid(kind_name: str, *, z_range: float, zdot_range: float, z_neg: 
     def geo(lo, hi):
         return np.geomspace(lo, hi, points)
 
-    if name in ("cubic_stiffness", "quadratic_damping"):
+    if name in ("cubic_stiffness", "quadratic_stiffness", "quadratic_damping"):
         return [Term(name)]
     if name == "asymmetric_damping":
         return [Term(name, {"side": "rebound"})]

@@ -17,7 +17,7 @@ __all__ = ["Thresholds", "Candidate", "FittedModel", "Characterization", "Record
            "POSITIVE_KINDS"]
 
 #: kinds searched by default (saturation/velocity_saturation are exact equivalents, named as such)
-DEFAULT_KINDS = ("cubic_stiffness", "clearance", "bump_stop", "backlash", "velocity_deadzone", "coulomb",
+DEFAULT_KINDS = ("cubic_stiffness", "quadratic_stiffness", "clearance", "bump_stop", "backlash", "velocity_deadzone", "coulomb",
                  "quadratic_damping", "asymmetric_damping")
 #: kinds whose coefficient must be positive to be physical
 POSITIVE_KINDS = frozenset({"coulomb"})
@@ -252,6 +252,8 @@ def describe(c: Candidate) -> str:
     p = t.params
     if t.kind == "cubic_stiffness":
         return f"{'hardening' if th > 0 else 'softening'} cubic stiffness"
+    if t.kind == "quadratic_stiffness":
+        return f"asymmetric stiffness: stiffer in {'rebound (z > 0)' if th > 0 else 'compression (z < 0)'}"
     if t.kind == "clearance":
         how = "stiffens (clearance/contact)" if th > 0 else "softens (saturation)"
         return f"stiffness {how} beyond ±{1e3 * p['gap']:.3g} mm"

@@ -12,6 +12,7 @@ coefficients vanish.
 kind                        variable  parameters                       g
 ==========================  ========  ===============================  =======================================
 ``cubic_stiffness``         z         —                                z³
+``quadratic_stiffness``     z         —                                z² (even: stiffer on one side)
 ``clearance``               z         ``gap`` [m]                      sign(z)·max(|z| - gap, 0)
 ``saturation``              z         ``limit`` [m]                    clip(z, -limit, limit)
 ``bump_stop``               z         ``gap`` [m], ``side``, ``offset``  compression: min(z - offset + gap, 0)
@@ -139,6 +140,9 @@ def _kinds() -> dict[str, Kind]:
     ks = [
         Kind("cubic_stiffness", "z", {}, lambda z, zd: z**3,
              "hardening (c>0) or softening (c<0) cubic spring", None, coef_unit="N/m³"),
+        Kind("quadratic_stiffness", "z", {}, lambda z, zd: z**2,
+             "asymmetric (even) quadratic spring: stiffer on one side than the other, e.g. a cubic centred off the "
+             "static position", None, coef_unit="N/m²"),
         Kind("clearance", "z", {"gap": (None, "m")}, lambda z, zd, gap: _sym_deadzone(z, gap),
              "stiffness change beyond ±gap (clearance, piecewise-linear stiffness)", "gap", coef_unit="N/m"),
         Kind("saturation", "z", {"limit": (None, "m")}, lambda z, zd, limit: np.clip(z, -limit, limit),

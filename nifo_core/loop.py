@@ -106,7 +106,7 @@ from .characterize_score import score_candidate
 from .feedback_paths import PATH_KINDS
 from .heldout import HeldOut, split_records
 from .loop_residual import _design, _Evaluator, _evidence, _g, _retune, _static_candidate, _tire_check
-from .model_fit import Fitted, choose_linear_form, fit_model
+from .model_fit import Fitted, LinearChoice, choose_linear_form, fit_model
 from .settings import AnalysisSettings
 from .loop_results import (NOTHING_MISSING, RESIDUAL_BANDS_HZ, Errors, Evidence, LoopRefinement, LoopResult,
                            LoopSettings, Round, Trial, _nothing_text, _round_text, before_after_text,
@@ -196,8 +196,17 @@ class _Predictor:
     def __init__(self, held: HeldOut, data: AnalysisSettings, settings: LoopSettings, ev: _Evaluator) -> None:
         self.held, self.data, self.settings, self.ev = held, data, settings, ev
         self.off = settings.prediction == "none"
-        self.choice = None if self.off else choose_linear_form(held, data)
         self._cache: dict = {}
+        self.choice = None
+        if not self.off:
+            try:
+                self.choice = choose_linear_form(held, data)
+            except NifoError as err:   # NIFO cannot run on these fit parts: the equation error's own body, if any
+                lin = self._equation([])
+                if lin is None:
+                    raise
+                self.choice = LinearChoice("body", lin, {"nifo": {"error": err.message}},
+                                           f"one-mass body from the force-balance equation error ({err.message})")
         if self.choice is not None and self.choice.form == "body":
             lin = self._equation([])
             if lin is not None:
@@ -428,6 +437,16 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
         s = replace(s, spectral=data.spectral, analysis_band_hz=data.analysis_band_hz)
     held = split_records(recs, skip_samples=skip, period_samples=data.period_samples, fit_fraction=s.fit_fraction,
                          band_hz=data.analysis_band_hz)
+    adapted = None
+    if data.period_samples is None:     # NIFO on the fit parts: blocks short enough for their length
+        shortest = min(k - sk for k, sk in zip(held.split, held.skip))
+        block = data.spectral.block
+        while block > 256 and 2 * block > shortest:
+            block //= 2
+        if block != data.spectral.block:
+            adapted = (f"spectral block {data.spectral.block} → {block} samples for the models fitted on the fit "
+                       f"parts and the per-band residual: the shortest fit part is {shortest / fs:.1f} s")
+            data = replace(data, spectral=replace(data.spectral, block=block))
     say = progress or (lambda f, w: None)
     say(0.0, "restoring force and the declared model")
     ev = _Evaluator(held, band, s, spectral=data.spectral if data.period_samples is None else None)
@@ -516,7 +535,7 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
                    + f"; {before_after_text(initial, current)}. "
                    + verdict)
     notes = [f"declared {n} (the declared form is kept; the data set its parameter)" for n in retuned]
-    notes += ([band_note] if band_note else []) + ev.notes
+    notes += ([band_note] if band_note else []) + ([adapted] if adapted else []) + ev.notes
     if pred.choice is not None:
         notes.append(pred.choice.reason)
     if band.f_lo_hz > 1.0:

@@ -264,6 +264,8 @@ def _stiffest_rates(cfg: SimConfig) -> tuple[float, float]:
             c += 2 * a * 2.0  # slope 2·c·|ż| up to |ż| = 2 m/s
         elif s.term.kind == "cubic_stiffness":
             k += 3 * a * 0.05**2  # slope 3·c·z² up to |z| = 50 mm
+        elif s.term.kind == "quadratic_stiffness":
+            k += 2 * a * 0.05  # slope 2·c·|z| up to |z| = 50 mm
         elif s.term.variable == "zdot":
             c += a
         else:

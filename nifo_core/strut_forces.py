@@ -25,7 +25,7 @@ from .errors import ConfigError
 __all__ = ["PLAY", "kind_code", "strut_arrays", "g_one", "strut_force", "lipschitz"]
 
 # kind codes
-_CUBIC, _CLEAR, _SAT, _BUMP_C, _BUMP_R, _PLAY, _VDZ, _VSAT, _COUL, _QUAD, _ASYM_R, _ASYM_C = range(12)
+_CUBIC, _CLEAR, _SAT, _BUMP_C, _BUMP_R, _PLAY, _VDZ, _VSAT, _COUL, _QUAD, _ASYM_R, _ASYM_C, _QSTIFF = range(13)
 #: code of the hysteretic backlash (play operator), whose state the caller keeps
 PLAY = _PLAY
 
@@ -36,7 +36,8 @@ def kind_code(t: Term) -> tuple[int, float, float]:
     simple = {"cubic_stiffness": (_CUBIC, 0.0), "clearance": (_CLEAR, p.get("gap")),
               "saturation": (_SAT, p.get("limit")), "backlash": (_PLAY, 0.5 * p.get("deadband", 0.0)),
               "velocity_deadzone": (_VDZ, p.get("knee")), "velocity_saturation": (_VSAT, p.get("limit")),
-              "coulomb": (_COUL, p.get("eps")), "quadratic_damping": (_QUAD, 0.0)}
+              "coulomb": (_COUL, p.get("eps")), "quadratic_damping": (_QUAD, 0.0),
+              "quadratic_stiffness": (_QSTIFF, 0.0)}
     if t.kind in simple:
         code, p0 = simple[t.kind]
         return code, float(p0), 0.0
@@ -63,7 +64,7 @@ def lipschitz(t: Term) -> tuple[float, float]:
     |g(z, ż) - g(z', ż')| ≤ L_z·|z - z'| + L_ż·|ż - ż'| for every pair of
     points (the play operator: in the sup norm along a path, constant 1).
     """
-    spec = {"cubic_stiffness": (np.inf, 0.0), "quadratic_damping": (0.0, np.inf),
+    spec = {"cubic_stiffness": (np.inf, 0.0), "quadratic_stiffness": (np.inf, 0.0), "quadratic_damping": (0.0, np.inf),
             "coulomb": (0.0, 1.0 / float(t.params.get("eps", 0.005)))}
     if t.kind in spec:
         return spec[t.kind]
@@ -75,6 +76,8 @@ def g_one(code, p0, p1, z, zd, y):  # pragma: no cover - compiled
     """One basis function, written as describing.py computes it (same rounding)."""
     if code == _CUBIC:
         return z**3
+    if code == _QSTIFF:
+        return z**2
     if code == _CLEAR or code == _VDZ:
         x = z if code == _CLEAR else zd
         return np.sign(x) * max(abs(x) - p0, 0.0)

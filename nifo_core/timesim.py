@@ -122,19 +122,30 @@ def _solve(z0, zd0, alpha, beta, guess, codes, coef, p0, p1, play, la, lb, atol)
         if abs(nn - n) <= 1e-13 * max(abs(nn), abs(n)) + atol:
             return nn, True
         n = nn
-    # not contracting: bracket a sign change of f(n) = n - N(n) around the guess and bisect
+    # not contracting: bracket a sign change of f(n) = n - N(n) around the guess and bisect; each half of the
+    # bracket on its own (a force that is not monotone in z, e.g. an even quadratic spring, can give f the same
+    # sign at both ends of a symmetric bracket with its root, the one next to the guess, inside)
+    fg = guess - _fb(z0 + alpha * guess, zd0 + beta * guess, codes, coef, p0, p1, play, False, la, lb)
+    if fg == 0.0:
+        return guess, True
     d = max(abs(guess), 1e-6)
     lo, hi = guess - d, guess + d
     flo = lo - _fb(z0 + alpha * lo, zd0 + beta * lo, codes, coef, p0, p1, play, False, la, lb)
     fhi = hi - _fb(z0 + alpha * hi, zd0 + beta * hi, codes, coef, p0, p1, play, False, la, lb)
     k = 0
-    while flo * fhi > 0 and k < 200:
+    while flo * fg > 0 and fhi * fg > 0 and k < 200:
         d *= 2.0
         lo, hi = guess - d, guess + d
         flo = lo - _fb(z0 + alpha * lo, zd0 + beta * lo, codes, coef, p0, p1, play, False, la, lb)
         fhi = hi - _fb(z0 + alpha * hi, zd0 + beta * hi, codes, coef, p0, p1, play, False, la, lb)
         k += 1
-    if flo * fhi > 0 or not np.isfinite(flo * fhi):
+    if not (np.isfinite(flo) and np.isfinite(fhi) and np.isfinite(fg)):
+        return guess, False
+    if flo * fg <= 0:
+        hi = guess
+    elif fhi * fg <= 0:
+        lo, flo = guess, fg
+    else:
         return guess, False
     for _ in range(200):
         mid = 0.5 * (lo + hi)

@@ -50,7 +50,7 @@ def test_paper_chirp_protocol_runs_end_to_end_with_frequency_slices(chirp_file, 
     assert top["kind"] == "velocity_deadzone" and top["status"] == "suggested"
     assert top["key_param"]["value"] == pytest.approx(0.03, rel=0.2)
     assert top["coefficient"] == pytest.approx(-700, rel=0.2)
-    assert doc["band"]["f_lo_hz"] > 0 and doc["band_choice"]["chosen_by"] == "suggest_band"
+    assert doc["band"]["f_lo_hz"] > 0 and doc["band_choice"]["chosen_by"] == "data"
     spec = load_model_spec(out / "suggested_model.yaml")
     assert [t.kind for t in spec.terms] == ["velocity_deadzone"]
     assert spec.settings["band_hz"] == [doc["band"]["f_lo_hz"], doc["band"]["f_hi_hz"]]
@@ -73,7 +73,7 @@ def test_several_files_are_amplitude_slices_and_a_linear_strut_says_nothing_foun
     doc = json.loads((out / "characterize.json").read_text())
     assert doc["nothing_found"] and doc["suggested"] == []
     assert [r["path"] for r in doc["records"]] == paths
-    assert doc["band_choice"] == {"chosen_by": "--band"}
+    assert doc["band_choice"]["chosen_by"] == "command line"
     assert load_model_spec(out / "suggested_model.yaml").terms == ()
 
 

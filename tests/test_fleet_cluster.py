@@ -136,7 +136,7 @@ def test_group_coefficients_equal_nifo_identify_on_the_groups_bags(result, fleet
     bags = sorted((fleet / vehicle / "FL").glob("bag0*.mcap"))
     out = tmp_path / "ident"
     assert main(["identify", *map(str, bags), "--model", str(fleet / "model.yaml"), "--out", str(out),
-                 "--no-plots", "--quiet"]) == 0
+                 "--no-plots", "--quiet", "--no-settings-from-data"]) == 0   # the fleet's settings: file, defaults
     doc = read_json(out / "identify.json", what="identify")
     model, _ = read_model(out)
     g = _groups(result)[vehicle]

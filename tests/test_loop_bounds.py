@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from nifo_core.describing import Term
+from nifo_core.heldout import split_records
 from nifo_core.loop import LoopSettings, loop_band
 from nifo_core.loop_residual import _design, _Evaluator
 from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
@@ -28,7 +29,8 @@ def _coverage(term: Term, coef: float) -> tuple[np.ndarray, np.ndarray]:
                         fs_hz=600.0, noise=SensorNoise(relative=0.02))
         sim = simulate(cfg, rng=500 + seed)
         band, _ = loop_band([sim.record])
-        ev = _Evaluator([sim.record], band, LoopSettings(prediction="none"))
+        held = split_records([sim.record], band_hz=(2.0, 30.0))
+        ev = _Evaluator(held, band, LoopSettings(prediction="none"))
         y, x = _design(ev.fit_parts, [term])
         b = coefficient_bounds(x, y, 600.0, segments=[p.y.size for p in ev.fit_parts])
         v = sim.truth.vehicle

@@ -393,7 +393,7 @@ def test_bundled_bag_replayed_reliably_with_a_cpu_hog_equals_nifo_identify(domai
     dom, env = domain
     bag, model = REPO / "bags" / "sample" / "road_2p5mm", CONFIG_DIR / "model.yaml"
     ident = subprocess.run([sys.executable, "-m", "nifo", "identify", str(bag), "--model", str(model), "--out",
-                            str(tmp_path / "identify"), "--no-plots", "--quiet"], env=env, capture_output=True,
+                            str(tmp_path / "identify"), "--no-plots", "--quiet", "--no-settings-from-data"], env=env, capture_output=True,
                            text=True, timeout=300)
     assert ident.returncode == 0, ident.stderr
     ref = NifoResult.from_dict(json.loads((tmp_path / "identify" / "identify.json").read_text())["result"])

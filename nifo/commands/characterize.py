@@ -33,7 +33,7 @@ from nifo_core import __version__
 from nifo_core.characterize import DEFAULT_KINDS, Characterization, Thresholds, characterize_restoring
 from nifo_core.errors import ConfigError
 from nifo_core.restoring import (FrequencyTrack, RestoringForce, amplitude_slices, frequency_slices, restoring_force,
-                                 track_frequency)
+                                 suggest_band, track_frequency)
 
 HELP = "restoring-force plots and automatic characterization of strut nonlinearities"
 DESCRIPTION = f"""{HELP}.
@@ -94,7 +94,7 @@ def run(args: argparse.Namespace) -> dict:
     opts = loader_options(input_options(args), settings)
     records = [load_record(p, **opts) for p in args.data]
     rates = {r.fs_hz for r in records}
-    band = settings.band.validate(min(rates))
+    band = (settings.band or suggest_band(records[0]).band).validate(min(rates))
     kinds = tuple(k.strip() for k in args.kinds.split(",")) if args.kinds else DEFAULT_KINDS
     thresholds = Thresholds(min_err=args.min_err, min_err_cv=min(Thresholds.min_err_cv, args.min_err / 2))
     if args.top < 1 or args.amplitude_bins < 1:

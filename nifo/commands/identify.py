@@ -206,8 +206,12 @@ def _ill_fraction(res, cond_limit: float) -> float:
     return float(np.mean(~(c <= cond_limit))) if c.size else 1.0
 
 
-def check_usable(res, cond_limit: float) -> None:
-    """Refuse (IllConditionedError) only when nothing usable is left."""
+def check_usable(res, cond_limit: float, *, periodic: bool = False) -> None:
+    """Refuse (IllConditionedError) only when nothing usable is left.
+
+    ``periodic``: one period of a periodic excitation per block — every block is the same period, so the per-line
+    G_UU of several inputs is singular by construction and only the pooled fit determines the terms (refused only
+    when that is not finite)."""
     m = res.in_band
     st = res.static
     free = [i for i, f in enumerate(res.fixed) if not f]
@@ -219,7 +223,7 @@ def check_usable(res, cond_limit: float) -> None:
     if ok_static.mean() < 0.5:
         raise IllConditionedError(f"the pooled T21 is undefined on {1 - ok_static.mean():.0%} of the analysis band",
                                   hint="check the data (coherence) and the analysis band")
-    if free and not np.any(res.cond[m] <= cond_limit):
+    if free and not periodic and not np.any(res.cond[m] <= cond_limit):
         worst = res.cond[m]
         raise IllConditionedError(
             f"G_UU is ill-conditioned on every line of the analysis band {res.analysis_band_hz[0]:g}-"
@@ -446,7 +450,7 @@ def run(args: argparse.Namespace) -> int:
             res = acc.result()
         res = replace(res, provenance={**dict(res.provenance), "sources": [d["name"] for d in data]})
         files = len(data)
-    check_usable(res, cfg.cond_limit)
+    check_usable(res, cfg.cond_limit, periodic=bool(cfg.period_samples) and cfg.spectral.block == cfg.period_samples)
     summary, warn = summarize(res, cfg.cond_limit)
     # the core's own warnings are covered by the plain sentences above; keep any other ones verbatim
     warn += [str(w.message) for w in caught if not issubclass(w.category, IllConditionedWarning)

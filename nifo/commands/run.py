@@ -203,7 +203,7 @@ def _run(args: argparse.Namespace, data: list[Path], out: Path) -> dict:
     ordered = _levels(dirs["characterize"], data)
 
     two = _two_step_model(ordered, dirs["characterize"], args) if len(ordered) >= 2 else None
-    refine = [] if getattr(args, "no_refine", False) else ["--refine"]
+    refine = [] if getattr(args, "no_refine", False) else ["--refine", "--refine-seconds", "60"]
     if two is not None:
         model, text = two
         t = begin(f"identify (NIFO) in two steps: {text}")

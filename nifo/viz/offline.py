@@ -73,7 +73,8 @@ def _log_data(records, band, *, recording, notes: list[str]) -> None:
 
 
 def _log_identify(r: ResultDir, records, *, recording) -> str:
-    """Replay the identification when its (single) data file is reachable, else log the final estimate."""
+    """Replay the identification when its data files are reachable (each file streamed in turn, the estimate of every
+    file so far logged along its stamps), else log the final estimate."""
     import warnings
 
     from nifo.io.results import read_identify
@@ -82,25 +83,31 @@ def _log_identify(r: ResultDir, records, *, recording) -> str:
     res, doc = read_identify(r.path)
     paths = [resolve_data(p, r) for p in data_paths(r)]
     recs = [rec for p in paths if p is not None for q, rec in records if q.resolve() == p.resolve()]
-    if len(recs) == 1 and len(paths) == 1 and recs[0].fs_hz == res.fs_hz and not any(res.fixed):
-        rec = recs[0]
-        s = StreamingNifo(rec.fs_hz, res.terms, settings=res.settings, band=res.band,
-                          analysis_band_hz=res.analysis_band_hz, on_ill_conditioned="warn")
-        step = max(int(REPLAY_STEP_S * rec.fs_hz), 1)
+    if recs and len(recs) == len(paths) and all(rec.fs_hz == res.fs_hz for rec in recs) and not any(res.fixed) \
+            and not any(rec.has_force or rec.spindle_fixed for rec in recs):
+        done = None
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            for i in range(0, rec.n, step):
-                j = min(i + step, rec.n)
-                s.push(rec.spindle_accel[i:j], rec.body_accel[i:j])
-                if s.n_avg == 0:
-                    continue
-                rl.log_nifo_result(int(rec.t0_ns + round((j - 1) * 1e9 / rec.fs_hz)), s.result(),
-                                   recording=recording)
-        return f"replayed through StreamingNifo in {REPLAY_STEP_S:g} s steps (scrub the timeline to see it converge)"
+            for rec in recs:
+                s = StreamingNifo(rec.fs_hz, res.terms, settings=res.settings, band=res.band,
+                                  analysis_band_hz=res.analysis_band_hz, on_ill_conditioned="warn")
+                step = max(int(REPLAY_STEP_S * rec.fs_hz), 1)
+                for i in range(0, rec.n, step):
+                    j = min(i + step, rec.n)
+                    s.push(rec.spindle_accel[i:j], rec.body_accel[i:j])
+                    if s.n_avg == 0:
+                        continue
+                    now = s if done is None else done.merge(s)
+                    rl.log_nifo_result(int(rec.t0_ns + round((j - 1) * 1e9 / rec.fs_hz)), now.result(),
+                                       recording=recording)
+                if s.n_avg:
+                    done = s if done is None else done.merge(s)
+        return (f"replayed through StreamingNifo in {REPLAY_STEP_S:g} s steps, file after file (scrub the timeline "
+                f"to see it converge)")
     data = doc.get("data") or []
     n = max((e.get("n_samples") or 0 for e in data if isinstance(e, dict)), default=0)
     rl.log_nifo_result(int(round(n * 1e9 / res.fs_hz)) if n else 0, res, recording=recording)
-    return "final estimate only (data not reachable or several files)"
+    return "final estimate only (data not reachable, or a two-step identification)"
 
 
 def _loop(r: ResultDir, *, recording) -> None:

@@ -1,0 +1,140 @@
+#!/usr/bin/env python
+"""The main job, hands off, on the two real structures: accuracy against the linear model of the same data, and time.
+
+Everything runs through the command line as a user would, with only the
+columns given (the period, the transient, the bands, the blocks are chosen
+from the data; ``nifo.settings``):
+
+- **F-16** ground-vibration test (Noël & Schoukens 2017, nonlinearbenchmark.org; ``../shared/data/f16``):
+  leave one of the shared levels out in turn — ``nifo run`` on the other three, then ``nifo predict`` of the
+  held-out level's multisine *and* its sine sweep (a second excitation, used for nothing else) with the run's
+  final model (``loop/model.json``). The baseline printed beside it, measured in the same run, is the linear
+  model of the same three levels that ``nifo predict`` reports from the same model.json (identified on the same
+  records with the same settings). Also: ``nifo loop`` on level 1 alone (practically linear) must add nothing.
+- **Silverbox** (Noël & Schoukens, IJC 2018; ``../shared/data/silverbox_multilevel``): ``nifo run`` on one level
+  (force and displacement columns), then ``nifo predict`` of every other level: the final model against the
+  linear model of the same level, and the RMS error in volts of the output as measured (the displacement).
+
+Prints one table per structure and writes ``--json``. About 6 minutes on two cores.
+
+    python benchmarks/bench_hands_off.py [--data ../shared/data] [--json out.json] [--f16-sets 3/5/7 1/3/5 ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from nifo.cli import main as nifo  # noqa: E402
+
+DATA = Path(os.environ.get("NIFO_SHARED_DATA", ROOT.parent / "shared" / "data"))
+F16_COLUMNS = "spindle_accel=Acceleration[1],body_accel=Acceleration[2],fs=Fs"
+SB_COLUMNS = "body_disp=ym,force=um@{name:_ym_=_um_},spindle_accel=fixed"
+LEVELS = (1, 3, 5, 7)
+SB_LEVELS = (5, 20, 50, 100, 150)
+
+
+def cli(*args) -> int:
+    """One ``nifo`` command in-process, its text swallowed; the exit code."""
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        return nifo(["-q", *map(str, args)])
+
+
+def predicted(out: Path) -> dict:
+    """Per record of a predict.json: band NMSE of the model and of the linear model, and the RMS errors."""
+    doc = json.loads((out / "predict.json").read_text())
+    return {r["name"]: {"model": r["model"]["band_nmse"]["percent"], "linear": r["linear"]["band_nmse"]["percent"],
+                        "rms_model": r["model"]["rms_error"]["value"], "rms_linear": r["linear"]["rms_error"]["value"],
+                        "unit": r["output"]["unit"]} for r in doc["records"]}
+
+
+def f16(data: Path, tmp: Path, sets: list[str]) -> list[dict]:
+    rows = []
+    for s in sets:
+        ids = [int(x) for x in s.split("/")]
+        held = [lv for lv in LEVELS if lv not in ids]
+        out = tmp / f"f16_{''.join(map(str, ids))}"
+        t0 = time.perf_counter()
+        code = cli("run", *[data / f"F16Data_FullMSine_Level{lv}.mat" for lv in ids], "--columns", F16_COLUMNS,
+                   "--out", out, "--no-recording")
+        took = time.perf_counter() - t0
+        loop = json.loads((out / "loop" / "loop.json").read_text())
+        row = {"set": s, "exit_code": code, "seconds": took, "added": [e["label"] for e in loop["effects_added"]],
+               "verdict": loop["verdict"], "held_out": {}}
+        for lv in held:
+            for exc in ("FullMSine", "SineSw"):
+                p = out / f"pred_{exc}_{lv}"
+                cli("predict", data / f"F16Data_{exc}_Level{lv}.mat", "--columns", F16_COLUMNS, "--model",
+                    out / "loop", "--out", p)
+                row["held_out"][f"{exc} L{lv}"] = next(iter(predicted(p).values()))
+        rows.append(row)
+        print(f"F-16 {s:8} ({took:4.0f} s) added {', '.join(row['added']) or 'nothing'}", flush=True)
+        for k, v in row["held_out"].items():
+            verdict = "better" if v["model"] < v["linear"] else "NOT better"
+            print(f"    held out {k:13} band NMSE {v['model']:.4f} % | linear of the same levels {v['linear']:.4f} %"
+                  f"  ({v['linear'] / v['model']:.2f}×, {verdict})", flush=True)
+    return rows
+
+
+def f16_level1_alone(data: Path, tmp: Path) -> dict:
+    out = tmp / "f16_loop_l1"
+    t0 = time.perf_counter()
+    cli("loop", data / "F16Data_FullMSine_Level1.mat", "--columns", F16_COLUMNS, "--out", out)
+    loop = json.loads((out / "loop.json").read_text())
+    row = {"added": [e["label"] for e in loop["effects_added"]], "verdict": loop["verdict"],
+           "seconds": time.perf_counter() - t0}
+    print(f"F-16 nifo loop on level 1 alone: added {', '.join(row['added']) or 'nothing'} "
+          f"({row['seconds']:.0f} s)", flush=True)
+    return row
+
+
+def silverbox(data: Path, tmp: Path, level: int) -> dict:
+    out = tmp / f"sb_{level}"
+    t0 = time.perf_counter()
+    code = cli("run", data / f"SNJP_ym_full_FNSI_{level}.mat", "--columns", SB_COLUMNS, "--out", out,
+               "--no-recording")
+    took = time.perf_counter() - t0
+    loop = json.loads((out / "loop" / "loop.json").read_text())
+    p = out / "pred"
+    cli("predict", *[data / f"SNJP_ym_full_FNSI_{lv}.mat" for lv in SB_LEVELS], "--columns", SB_COLUMNS, "--model",
+        out / "loop", "--out", p)
+    got = predicted(p)
+    print(f"Silverbox nifo run at {level} mV ({took:.0f} s): added {', '.join(e['label'] for e in loop['effects_added'])}"
+          , flush=True)
+    for name, v in got.items():
+        print(f"    {name:28} band NMSE {v['model']:.4f} % | linear of the same level {v['linear']:.4f} % "
+              f"({v['linear'] / v['model']:.0f}×); RMS error {1e3 * v['rms_model']:.3f} mV | {1e3 * v['rms_linear']:.3f} "
+              f"mV", flush=True)
+    return {"level": level, "exit_code": code, "seconds": took, "added": [e["label"] for e in loop["effects_added"]],
+            "refinement": loop.get("refinement"), "predicted": got}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=DATA)
+    ap.add_argument("--json", type=Path)
+    ap.add_argument("--f16-sets", nargs="*", default=["3/5/7", "1/3/5", "1/3/7", "1/5/7"])
+    ap.add_argument("--silverbox-level", type=int, default=150)
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        doc = {"f16": f16(args.data / "f16", tmp, args.f16_sets),
+               "f16_level1_alone": f16_level1_alone(args.data / "f16", tmp),
+               "silverbox": silverbox(args.data / "silverbox_multilevel", tmp, args.silverbox_level)}
+    if args.json:
+        args.json.write_text(json.dumps(doc, indent=1, default=str))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
