@@ -39,6 +39,9 @@ from nifo.cli import main as nifo  # noqa: E402
 
 DATA = Path(os.environ.get("NIFO_SHARED_DATA", ROOT.parent / "shared" / "data"))
 F16_COLUMNS = "spindle_accel=Acceleration[1],body_accel=Acceleration[2],fs=Fs"
+#: the multisine settings of docs/f16_predict.md (an expert's), for the second baseline: a plain linear model
+F16_EXPERT = ["--period-samples", "8192", "--skip-periods", "1", "--block", "8192", "--overlap", "0", "--window",
+              "boxcar", "--band", "1.5", "40", "--freq-range", "2", "15"]
 SB_COLUMNS = "body_disp=ym,force=um@{name:_ym_=_um_},spindle_accel=fixed"
 LEVELS = (1, 3, 5, 7)
 SB_LEVELS = (5, 20, 50, 100, 150)
@@ -55,6 +58,7 @@ def predicted(out: Path) -> dict:
     doc = json.loads((out / "predict.json").read_text())
     return {r["name"]: {"model": r["model"]["band_nmse"]["percent"], "linear": r["linear"]["band_nmse"]["percent"],
                         "rms_model": r["model"]["rms_error"]["value"], "rms_linear": r["linear"]["rms_error"]["value"],
+                        "band_hz": [repr(float(x)) for x in r["model"]["band_nmse"]["band_hz"]],
                         "unit": r["output"]["unit"]} for r in doc["records"]}
 
 
@@ -71,18 +75,28 @@ def f16(data: Path, tmp: Path, sets: list[str]) -> list[dict]:
         loop = json.loads((out / "loop" / "loop.json").read_text())
         row = {"set": s, "exit_code": code, "seconds": took, "added": [e["label"] for e in loop["effects_added"]],
                "verdict": loop["verdict"], "held_out": {}}
+        expert = tmp / f"f16_expert_{''.join(map(str, ids))}"      # a plain linear model, an expert's settings
+        (tmp / "linear.yaml").write_text("nifo_model: 1\nnonlinearities: []\n")
+        cli("identify", *[data / f"F16Data_FullMSine_Level{lv}.mat" for lv in ids], "--columns", F16_COLUMNS,
+            "--model", tmp / "linear.yaml", "--out", expert, "--no-plots", *F16_EXPERT)
         for lv in held:
             for exc in ("FullMSine", "SineSw"):
                 p = out / f"pred_{exc}_{lv}"
                 cli("predict", data / f"F16Data_{exc}_Level{lv}.mat", "--columns", F16_COLUMNS, "--model",
                     out / "loop", "--out", p)
-                row["held_out"][f"{exc} L{lv}"] = next(iter(predicted(p).values()))
+                got = next(iter(predicted(p).values()))
+                q = expert / f"pred_{exc}_{lv}"
+                cli("predict", data / f"F16Data_{exc}_Level{lv}.mat", "--columns", F16_COLUMNS, "--model", expert,
+                    "--out", q, "--freq-range", *got["band_hz"])
+                got["expert_linear"] = next(iter(predicted(q).values()))["model"]
+                row["held_out"][f"{exc} L{lv}"] = got
         rows.append(row)
         print(f"F-16 {s:8} ({took:4.0f} s) added {', '.join(row['added']) or 'nothing'}", flush=True)
         for k, v in row["held_out"].items():
             verdict = "better" if v["model"] < v["linear"] else "NOT better"
             print(f"    held out {k:13} band NMSE {v['model']:.4f} % | linear of the same levels {v['linear']:.4f} %"
-                  f"  ({v['linear'] / v['model']:.2f}×, {verdict})", flush=True)
+                  f"  ({v['linear'] / v['model']:.2f}×, {verdict}) | plain linear, expert settings "
+                  f"{v['expert_linear']:.4f} % ({v['expert_linear'] / v['model']:.2f}×)", flush=True)
     return rows
 
 

@@ -442,15 +442,38 @@ def _data_rows(results: Sequence[ResultDir]) -> list[list]:
     return rows
 
 
+def _choices(results: Sequence[ResultDir]) -> list[list]:
+    """The settings of the first result that recorded how they were chosen (nifo.settings): setting, value, where
+    from (command line, model file, data, default) and why."""
+    for r in results:
+        st = r.doc.get("settings_chosen") or r.doc.get("settings") or {}
+        ch = st.get("choices") if isinstance(st, Mapping) else None
+        if isinstance(ch, Mapping) and ch:
+            rows = []
+            for name, c in ch.items():
+                if not isinstance(c, Mapping):
+                    continue
+                v = c.get("value")
+                if isinstance(v, Mapping):
+                    v = ", ".join(f"{k} {x}" for k, x in v.items() if k in ("block", "window", "overlap"))
+                elif isinstance(v, list):
+                    v = " - ".join(_num(x, ".4g") for x in v)
+                rows.append([_code(name), "—" if v is None else str(v), c.get("source", ""), c.get("reason", "")])
+            return rows
+    return []
+
+
 def _provenance(results: Sequence[ResultDir]) -> dict:
     settings = []
     for r in results:
         d = r.doc
         chosen = {k: d[k] for k in _SETTING_KEYS
                   if k in d and d[k] is not None and not (r.kind == "loop" and k == "model")}
+        if isinstance(chosen.get("settings"), Mapping):    # how they were chosen: one table above
+            chosen["settings"] = {k: v for k, v in chosen["settings"].items() if k not in ("choices", "excitation")}
         settings.append({"kind": r.kind, "path": str(r.path),
                          "rows": [[_code(k), v] for k, v in _flatten(chosen)]})
-    return {"data": _data_rows(results), "settings": settings}
+    return {"data": _data_rows(results), "settings": settings, "choices": _choices(results)}
 
 
 # ------------------------------------------------------------------------------------ levels figure
