@@ -2,7 +2,8 @@
 
 Each command first runs once to completion (the reference "new" file set).
 Then, 20 times each, the output directory is given an old content (the
-previous result plus ``sentinel.json``), the command is started as a real
+previous result plus ``sentinel.json``, listed in the folder's ``.nifo-output``
+marker as nifo's own), the command is started as a real
 process and sent SIGINT, SIGTERM or SIGKILL after a random delay drawn
 uniformly over its full run time (fixed seed). After each kill the output
 must be exactly the old content, exactly the new file set (no sentinel), or
@@ -25,6 +26,7 @@ from pathlib import Path
 import pytest
 
 from nifo.io.atomic import INCOMPLETE
+from nifo.io.ownership import write_marker
 from nifo.io.loader import save_record
 from nifo_core.simulate import SimConfig, simulate
 
@@ -79,6 +81,7 @@ def _kill_trials(argv: list[str], out: Path, cwd: Path, t_full: float, rng: rand
     for k in range(KILLS):
         if not (out / INCOMPLETE).exists():
             (out / "sentinel.json").write_text(f'{{"trial": {k}}}')
+            write_marker(out)   # old content nifo wrote: its marker lists the sentinel too
         before = _snapshot(out)
         sig = rng.choice([signal.SIGINT, signal.SIGTERM, signal.SIGKILL])
         delay = rng.uniform(0.0, t_full)
