@@ -35,7 +35,7 @@ from nifo.io.results import MODEL_JSON, write_json, write_model
 from nifo.progress import Progress
 from nifo_core import __version__
 from nifo_core.characterize import DEFAULT_KINDS, Thresholds
-from nifo_core.integrate import IntegrationBand
+from nifo_core.integrate import IntegrationBand, band_for_records
 from nifo_core.loop import LoopResult, LoopSettings, close_loop
 from nifo_core.spectral import SpectralSettings
 
@@ -142,12 +142,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _band(args, spec, records) -> IntegrationBand | None:
-    fs = min(r.fs_hz for r in records)
     if args.band:
-        return IntegrationBand(*args.band).validate(fs)
+        return band_for_records(IntegrationBand(*args.band), records)
     if spec and spec.settings.get("band_hz"):
         lo, hi = spec.settings["band_hz"]
-        return IntegrationBand(float(lo), float(hi)).validate(fs)
+        return band_for_records(IntegrationBand(float(lo), float(hi)), records)
     return None
 
 
