@@ -11,6 +11,7 @@ import pytest
 
 from nifo.cli import main
 from nifo.io.loader import load_record, save_record
+from nifo.io.ownership import write_marker
 from nifo.io.results import read_identify, read_model
 from nifo_core.describing import make_term
 from nifo_core.errors import ConfigError, DataFileError, IllConditionedError, RecordTooShortError
@@ -133,10 +134,12 @@ def test_identify_keeps_an_existing_output_when_it_fails(tmp_path):
     out = tmp_path / "o"
     out.mkdir()
     (out / "identify.json").write_text("{}")
+    write_marker(out)   # an earlier result nifo wrote
     model = _model_file(tmp_path / "m.yaml", KNEE)
     assert _quietly(["identify", tmp_path / "missing.csv", "--model", model, "--out", out]) \
         == DataFileError.exit_code
-    assert [p.name for p in out.iterdir()] == ["identify.json"] and (out / "identify.json").read_text() == "{}"
+    assert sorted(p.name for p in out.iterdir()) == [".nifo-output", "identify.json"]
+    assert (out / "identify.json").read_text() == "{}"
 
 
 def test_identify_refuses_when_the_terms_cannot_be_told_apart(tmp_path, capsys):

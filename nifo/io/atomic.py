@@ -57,7 +57,7 @@ from typing import Iterator
 from nifo_core.errors import OutputError
 
 from .ownership import INCOMPLETE, LEFTOVER as _LEFTOVER, MARKER, foreign_entries, nifo_bag_dir, nifo_wrote_file
-from .ownership import write_marker
+from .ownership import why_not_nifos, write_marker
 
 __all__ = ["staged_dir", "staged_file", "staged_run", "check_output", "clean_leftovers", "interrupt_note",
            "INCOMPLETE", "MARKER", "SCRATCH_CHARS"]
@@ -194,7 +194,7 @@ def _check_existing(final: Path, kind: str) -> Path:
         raise OutputError(f"exists and is {_what(mode)}, not a regular file; it is left untouched",
                           source=str(final), hint="give the path of a new or regular file")
     if not nifo_wrote_file(final):
-        raise OutputError("exists and is a file nifo did not write (it carries no mark of nifo's); it is left "
+        raise OutputError(f"exists and nifo cannot tell it wrote this file ({why_not_nifos(final)}); it is left "
                           "untouched", source=str(final), hint=_FIX_REFUSED)
     return final
 

@@ -23,7 +23,8 @@ Files
     ``nifo_identified_model``, ...); an MCAP file whose rosbag2 metadata names
     ``generator: nifo ...``; a bag folder holding only its ``metadata.yaml``
     (naming nifo) and the MCAP files it lists; a Rerun recording whose
-    application id is nifo's. CSV, MAT, YAML and anything else are never
+    application id is nifo's; a MAT file with a ``nifo_writer`` key. CSV
+    tables (which carry no writer's mark), YAML and anything else are never
     recognised.
 """
 
@@ -39,7 +40,7 @@ import sys
 from pathlib import Path
 
 __all__ = ["MARKER", "INCOMPLETE", "set_invocation", "write_marker", "read_marker", "foreign_entries",
-           "nifo_wrote_file", "nifo_bag_dir", "GENERATOR_META"]
+           "nifo_wrote_file", "why_not_nifos", "nifo_bag_dir", "GENERATOR_META", "MAT_WRITER_KEY"]
 
 #: the marker file of every output folder nifo writes
 MARKER = ".nifo-output"
@@ -306,6 +307,19 @@ def _mcap_generator(p: Path) -> str | None:
     return None
 
 
+def why_not_nifos(p: str | os.PathLike) -> str:
+    """Why nifo cannot tell it wrote file ``p`` (for the refusal's message)."""
+    suffix = Path(p).suffix.lower()
+    return {".html": 'it has no <meta name="generator" content="nifo ..."> tag',
+            ".htm": 'it has no <meta name="generator" content="nifo ..."> tag',
+            ".json": "it holds none of nifo's document keys",
+            ".mcap": "its rosbag2 metadata does not name nifo as the generator",
+            ".rrd": "it is not a Rerun recording of nifo's",
+            ".mat": "it holds no nifo_writer key",
+            ".csv": "a CSV table carries no mark of its writer", ".tsv": "a table carries no mark of its writer",
+            ".txt": "a text table carries no mark of its writer"}.get(suffix, "nifo writes no such file")
+
+
 def nifo_wrote_file(p: str | os.PathLike) -> bool:
     """Whether regular file ``p`` is recognisably one nifo wrote (module docstring); False when unsure."""
     p = Path(p)
@@ -325,7 +339,26 @@ def nifo_wrote_file(p: str | os.PathLike) -> bool:
     if suffix == ".rrd":
         head = _head(p, 1 << 13)
         return head.startswith(b"RRF") and _RRD_APP_ID in head
+    if suffix == ".mat":
+        return _mat_writer(p).startswith("nifo ")
     return False
+
+
+#: the key of a MAT file nifo writes that names it (``nifo.io.matfile.write_mat``)
+MAT_WRITER_KEY = "nifo_writer"
+
+
+def _mat_writer(p: Path) -> str:
+    """The ``nifo_writer`` string of a MAT file ('' when absent or unreadable)."""
+    try:
+        import scipy.io
+
+        if not any(name == MAT_WRITER_KEY for name, _, _ in scipy.io.whosmat(str(p))):
+            return ""
+        v = scipy.io.loadmat(str(p), variable_names=[MAT_WRITER_KEY])[MAT_WRITER_KEY]
+        return str(v.ravel()[0]) if v.size else ""
+    except Exception:  # noqa: BLE001 - unreadable: not recognised
+        return ""
 
 
 def nifo_bag_dir(d: str | os.PathLike) -> bool:
