@@ -123,9 +123,10 @@ def text_number_note(value: Any) -> str:
     if not math.isfinite(x) or not any(c.isdigit() for c in value):
         return ""
     mant, _, exp = value.strip().lower().partition("e")
-    fixed = f"{mant if '.' in mant else mant + '.0'}e{exp}" if exp else value.strip()
+    if not exp or "." in mant:
+        return f" ({value!r} is text, not a number: write {value.strip()} without quotes)"
     return (f" ({value!r} was read as text: YAML reads a number like 1e-4 without a decimal point as a string; "
-            f"write {fixed} or {x!r})")
+            f"write {mant}.0e{exp})")
 
 
 class TermSpec(_Strict):

@@ -233,7 +233,7 @@ class _LinearDoc(_Doc):
     band_hz: _NullablePair | None = None
     reason: str = ""
     candidates: dict[str, Any] | None = None
-    absorbed: _NullablePair | None = None
+    absorbed: _Pair | None = None
 
     @model_validator(mode="after")
     def _parts(self) -> "_LinearDoc":
