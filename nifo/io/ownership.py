@@ -164,8 +164,10 @@ def foreign_entries(d: str | os.PathLike, *, limit: int = 3) -> list[str]:
     doc = read_marker(d)
     if doc is not None:
         return _unlisted(d, doc, limit)
-    if _legacy_result(d) is not None or _legacy_run(d):
-        return []
+    for recognise in (_legacy_unexpected, _legacy_run_unexpected):   # an old nifo result: name what is extra
+        kind, unexpected = recognise(d)
+        if kind is not None:
+            return unexpected[:limit]
     return [e.name for e in entries][:limit]
 
 
@@ -209,63 +211,79 @@ def _figure_names(doc, depth: int = 0) -> set[str]:
     return out
 
 
-def _legacy_result(d: Path) -> str | None:
-    """The kind of an old nifo result folder ``d`` (no marker), recognised exactly; else None."""
+def _legacy_unexpected(d: Path) -> tuple[str | None, list[str]]:
+    """(kind, entries beyond what it wrote) of an old nifo result folder (no marker); (None, []): not one."""
     if read_marker(d) is not None:
-        return "marked"
+        return "marked", []
     names = {e.name: e for e in _scan(d)}
     docs = [n for n in _LEGACY if n in names]
     if len(docs) != 1:
-        return None
+        return None, []
     name = docs[0]
     key, fixed = _LEGACY[name]
     doc = _small_json(d / name)
     if not isinstance(doc, dict) or not (doc.get(key) == 1 if key else isinstance(doc.get("nifo_version"), str)):
-        return None
+        return None, []
     allowed = {name, *fixed, *_figure_names(doc)}
-    for n, e in names.items():
-        if n not in allowed or e.is_symlink() or not e.is_file():
-            return None
-    return name.removesuffix(".json")
+    return name.removesuffix(".json"), [n for n, e in names.items()
+                                        if n not in allowed or e.is_symlink() or not e.is_file()]
+
+
+def _legacy_result(d: Path) -> str | None:
+    """The kind of an old nifo result folder ``d`` (no marker), recognised exactly; else None."""
+    kind, unexpected = _legacy_unexpected(d)
+    return kind if kind is not None and not unexpected else None
 
 
 def _legacy_run(d: Path) -> bool:
     """An old ``nifo run`` folder: only its sub-folders, each an old (or marked) result of the right kind."""
+    kind, unexpected = _legacy_run_unexpected(d)
+    return kind is not None and not unexpected
+
+
+def _legacy_run_unexpected(d: Path) -> tuple[str | None, list[str]]:
+    """("run", entries beyond what it wrote) of an old ``nifo run`` folder; (None, []): not one."""
     names = {e.name: e for e in _scan(d) if not LEFTOVER.match(e.name)}
     incomplete = names.pop(INCOMPLETE, None)
     if incomplete is not None:
         if not _head(Path(incomplete.path), 64).startswith(b"nifo run (process "):
-            return False
-    elif "characterize" not in names:
-        return False
-    if not set(names) <= _RUN_DIRS:
-        return False
+            return None, []
+    elif "characterize" not in names or _legacy_result(Path(names["characterize"].path)) not in ("characterize",
+                                                                                               "marked"):
+        return None, []
+    unexpected = [n for n in names if n not in _RUN_DIRS]
     for n, e in names.items():
+        if n not in _RUN_DIRS:
+            continue
         if e.is_symlink() or not e.is_dir():
-            return False
+            unexpected.append(n)
+            continue
         p = Path(e.path)
         if n in ("characterize", "identify", "predict", "loop"):
-            if _legacy_result(p) not in (n, "marked"):
-                return False
+            kind, extra = _legacy_unexpected(p)
+            if kind not in (n, "marked"):
+                unexpected.append(n)
+            unexpected += [f"{n}/{x}" for x in extra]
         elif n == "characterize_levels":
             for sub in _scan(p):
                 if sub.name in ("lowest", "highest") and sub.is_dir() and not sub.is_symlink():
                     if _legacy_result(Path(sub.path)) not in ("characterize", "marked"):
-                        return False
+                        unexpected.append(f"{n}/{sub.name}")
                 elif sub.name == "two_step_model.yaml" and sub.is_file() and not sub.is_symlink():
-                    if b"suggested_by: nifo run" not in Path(sub.path).read_bytes()[:1 << 16]:
-                        return False
+                    if b"suggested_by: nifo run" not in _head(Path(sub.path), 1 << 16):
+                        unexpected.append(f"{n}/{sub.name}")
                 elif not LEFTOVER.match(sub.name):
-                    return False
+                    unexpected.append(f"{n}/{sub.name}")
         else:   # report/report.html, recording/nifo.rrd
             want = {"report": "report.html", "recording": "nifo.rrd"}[n]
-            inside = [s for s in _scan(p) if not LEFTOVER.match(s.name)]
-            if any(s.name != want or s.is_symlink() or not s.is_file() for s in inside):
-                return False
-            if inside and not (n == "recording" and nifo_wrote_file(Path(inside[0].path))
-                               or n == "report" and _old_report(Path(inside[0].path))):
-                return False
-    return True
+            for s_ in _scan(p):
+                if LEFTOVER.match(s_.name):
+                    continue
+                ok = s_.name == want and not s_.is_symlink() and s_.is_file() and (
+                    nifo_wrote_file(Path(s_.path)) if n == "recording" else _old_report(Path(s_.path)))
+                if not ok:
+                    unexpected.append(f"{n}/{s_.name}")
+    return "run", unexpected
 
 
 def _old_report(p: Path) -> bool:
