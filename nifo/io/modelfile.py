@@ -44,6 +44,7 @@ from nifo_core.describing import KINDS, Term, kind as _kind, make_term
 from nifo_core.errors import ConfigError, DataFileError, NifoError
 
 from .atomic import staged_file
+from .ownership import YAML_MARK_PREFIX
 
 __all__ = ["ModelSpec", "Step", "load_model_spec", "parse_model_spec", "write_model_spec", "SETTINGS_KEYS",
            "MAX_MODEL_BYTES", "MAX_BLOCK"]
@@ -388,6 +389,8 @@ def write_model_spec(path: str | Path, terms: list[Term] | tuple[Term, ...], *, 
     doc["nonlinearities"] = [t.to_dict() for t in terms]
     if settings:
         doc["settings"] = dict(settings)
-    with staged_file(path) as tmp:
-        tmp.write_text(yaml.safe_dump(doc, sort_keys=False))
+    from nifo_core import __version__
+
+    with staged_file(path) as tmp:   # the first line marks it as nifo's (it may replace it: nifo.io.ownership)
+        tmp.write_text(f"{YAML_MARK_PREFIX}{__version__}\n" + yaml.safe_dump(doc, sort_keys=False))
     return Path(path)

@@ -20,11 +20,13 @@ Folders
 Files
     An HTML report with nifo's ``<meta name="generator" content="nifo ...">``;
     a JSON document with one of nifo's own keys (``nifo_truth``,
-    ``nifo_identified_model``, ...); an MCAP file whose rosbag2 metadata names
+    ``nifo_identified_model``, ``nifo_version``, ...); a YAML model file whose
+    first line is ``# written by nifo ...``; an identifier node's ``.npz``
+    checkpoint; an MCAP file whose rosbag2 metadata names
     ``generator: nifo ...``; a bag folder holding only its ``metadata.yaml``
     (naming nifo) and the MCAP files it lists; a Rerun recording whose
     application id is nifo's; a MAT file with a ``nifo_writer`` key. CSV
-    tables (which carry no writer's mark), YAML and anything else are never
+    tables (which carry no writer's mark) and anything else are never
     recognised.
 """
 
@@ -40,7 +42,7 @@ import sys
 from pathlib import Path
 
 __all__ = ["MARKER", "INCOMPLETE", "set_invocation", "write_marker", "read_marker", "foreign_entries",
-           "nifo_wrote_file", "why_not_nifos", "nifo_bag_dir", "GENERATOR_META", "MAT_WRITER_KEY"]
+           "nifo_wrote_file", "why_not_nifos", "nifo_bag_dir", "GENERATOR_META", "MAT_WRITER_KEY", "YAML_MARK_PREFIX"]
 
 #: the marker file of every output folder nifo writes
 MARKER = ".nifo-output"
@@ -331,6 +333,9 @@ def why_not_nifos(p: str | os.PathLike) -> str:
     return {".html": 'it has no <meta name="generator" content="nifo ..."> tag',
             ".htm": 'it has no <meta name="generator" content="nifo ..."> tag',
             ".json": "it holds none of nifo's document keys",
+            ".yaml": f"its first line is not '{YAML_MARK_PREFIX}...'",
+            ".yml": f"its first line is not '{YAML_MARK_PREFIX}...'",
+            ".npz": "it is not a nifo identifier checkpoint",
             ".mcap": "its rosbag2 metadata does not name nifo as the generator",
             ".rrd": "it is not a Rerun recording of nifo's",
             ".mat": "it holds no nifo_writer key",
@@ -351,7 +356,12 @@ def nifo_wrote_file(p: str | os.PathLike) -> bool:
         return _GENERATOR.search(_head(p, 1 << 16)) is not None
     if suffix == ".json":
         doc = _small_json(p)
-        return isinstance(doc, dict) and bool(_NIFO_JSON_KEYS & doc.keys())
+        return isinstance(doc, dict) and (bool(_NIFO_JSON_KEYS & doc.keys())
+                                          or isinstance(doc.get("nifo_version"), str))
+    if suffix in (".yaml", ".yml"):
+        return _head(p, 256).startswith(YAML_MARK_PREFIX.encode())
+    if suffix == ".npz":
+        return _npz_checkpoint(p)
     if suffix == ".mcap":
         return (_mcap_generator(p) or "").startswith("nifo ")
     if suffix == ".rrd":
@@ -360,6 +370,22 @@ def nifo_wrote_file(p: str | os.PathLike) -> bool:
     if suffix == ".mat":
         return _mat_writer(p).startswith("nifo ")
     return False
+
+
+#: the first line of a YAML file nifo writes (``nifo.io.modelfile.write_model_spec``)
+YAML_MARK_PREFIX = "# written by nifo "
+
+
+def _npz_checkpoint(p: Path) -> bool:
+    """An identifier node's checkpoint (``nifo_nodes.identifier.save_checkpoint``): its own member names."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(p) as z:
+            names = set(z.namelist())
+    except (OSError, zipfile.BadZipFile, ValueError):
+        return False
+    return {"node.version.npy", "node.next_ns.npy"} <= names
 
 
 #: the key of a MAT file nifo writes that names it (``nifo.io.matfile.write_mat``)
