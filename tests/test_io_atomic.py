@@ -99,6 +99,7 @@ def _old_identify(d, *, extra: str | None = None):
     (d / "identify.json").write_text('{"nifo_identify": 1, "nifo_version": "0.0.9", "figures": ["transmissibility.png"]}')
     (d / "model.json").write_text('{"nifo_identified_model": 1}')
     (d / "transmissibility.png").write_bytes(b"\x89PNG")
+    (d / "transmissibility.svg").write_text("<svg/>")   # written beside every PNG (nifo.plots.save_figure)
     if extra:
         (d / extra).write_text("the user's")
     return d

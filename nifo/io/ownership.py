@@ -226,7 +226,9 @@ def _legacy_unexpected(d: Path) -> tuple[str | None, list[str]]:
     doc = _small_json(d / name)
     if not isinstance(doc, dict) or not (doc.get(key) == 1 if key else isinstance(doc.get("nifo_version"), str)):
         return None, []
-    allowed = {name, *fixed, *_figure_names(doc)}
+    figures = _figure_names(doc)
+    vectors = {str(Path(f).with_suffix(".svg")) for f in figures if f.endswith(".png")}   # nifo.plots.save_figure
+    allowed = {name, *fixed, *figures, *vectors}
     return name.removesuffix(".json"), [n for n, e in names.items()
                                         if n not in allowed or e.is_symlink() or not e.is_file()]
 
