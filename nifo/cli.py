@@ -17,7 +17,9 @@ import importlib
 import io
 import json
 import os
+import signal
 import sys
+import threading
 import traceback
 
 from nifo_core import __version__
@@ -118,6 +120,29 @@ def _interrupted(exc: BaseException) -> bool:
     return False
 
 
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """SIGTERM ends a command as Ctrl-C does (outputs cleaned up, exit 130): main thread of this process only."""
+    if threading.current_thread() is not threading.main_thread() \
+            or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        yield
+        return
+    pid = os.getpid()
+
+    def on_term(signum, frame):  # noqa: ARG001
+        if os.getpid() != pid:   # a forked child (a pool worker) dies of the signal as it would have
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    signal.signal(signal.SIGTERM, on_term)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     first = next((a for a in argv if not a.startswith("-")), None)
@@ -126,14 +151,17 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "_run", None):
         parser.print_help()
         return 0
+    from nifo.io.ownership import set_invocation
     from nifo.progress import configure
 
     configure(quiet=args.quiet, verbose=args.verbose)
+    set_invocation(argv)   # recorded in the .nifo-output marker of every folder written
     # --json: stdout carries the JSON document only (the commands' text goes to stderr); --quiet: no text
     target = io.StringIO() if args.quiet else (sys.stderr if args.json else None)
     summary, err, code = None, None, 0
     try:
-        with contextlib.redirect_stdout(target) if target is not None else contextlib.nullcontext():
+        with _sigterm_as_interrupt(), \
+                contextlib.redirect_stdout(target) if target is not None else contextlib.nullcontext():
             result = args._run(args)
         if isinstance(result, dict):
             summary = result

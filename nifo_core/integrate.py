@@ -22,8 +22,12 @@ from scipy import signal
 
 from .errors import ConfigError, RecordTooShortError
 
-__all__ = ["IntegrationBand", "Integrated", "default_band", "lowest_edge_hz", "integrator_taps", "integrate",
-           "StreamingIntegrator", "integrator_response"]
+__all__ = ["IntegrationBand", "Integrated", "default_band", "lowest_edge_hz", "integrator_taps", "integrator_length",
+           "integrate", "StreamingIntegrator", "integrator_response", "lowest_resolvable_hz", "band_for_records",
+           "MAX_TAPS"]
+
+#: the longest integrator designed [taps] (its design needs ~300 bytes per tap): 0.5 Hz up to fs = 65 kHz
+MAX_TAPS = 1 << 21
 
 
 @dataclass(frozen=True)
@@ -33,17 +37,47 @@ class IntegrationBand:
     f_lo_hz: float
     f_hi_hz: float
 
-    def validate(self, fs_hz: float) -> "IntegrationBand":
+    def validate(self, fs_hz: float, *, n_samples: int | None = None) -> "IntegrationBand":
+        """``self`` if it can be integrated at ``fs_hz`` (and, given ``n_samples``, resolved by a record
+        that long), else :class:`ConfigError` saying the lowest edge that can — before anything is allocated.
+
+        The integrator spans 16 periods of ``f_lo`` (:func:`integrator_length`): it must fit in the record,
+        and in :data:`MAX_TAPS`.
+        """
         if not (0 < self.f_lo_hz < self.f_hi_hz):
             raise ConfigError(f"integration band {self.f_lo_hz}-{self.f_hi_hz} Hz must satisfy 0 < f_lo < f_hi",
                               hint="e.g. --band 0.5 200")
         if self.f_hi_hz * 1.25 > fs_hz / 2 + 1e-9:
             raise ConfigError(f"integration band upper edge {self.f_hi_hz} Hz is too close to Nyquist "
                               f"({fs_hz / 2:g} Hz at fs={fs_hz:g} Hz)", hint=f"use f_hi <= {fs_hz / 2.5:g} Hz")
+        taps = integrator_length(fs_hz, self.f_lo_hz)
+        fix = "raise the band's lower edge to at least {lo} Hz (--band {lo} {hi:g}, or settings.band_hz in the model file)"
+        if n_samples is not None and taps > n_samples:
+            lo = lowest_resolvable_hz(fs_hz, n_samples)
+            raise ConfigError(
+                f"integration band lower edge {self.f_lo_hz:g} Hz is below what the record resolves: the integrator "
+                f"spans 16 periods of it ({_TAPS_PER_CYCLE / self.f_lo_hz:.3g} s), the record is "
+                f"{n_samples / fs_hz:.3g} s ({n_samples} samples at {fs_hz:g} Hz); the lowest edge this record "
+                f"length can resolve is {_show(lo)} Hz", hint=fix.format(lo=_show(lo), hi=self.f_hi_hz))
+        if taps > MAX_TAPS:
+            lo = _TAPS_PER_CYCLE * fs_hz / (MAX_TAPS - 1)
+            raise ConfigError(
+                f"integration band lower edge {self.f_lo_hz:g} Hz needs an integrator of {taps:.3g} taps (16 periods "
+                f"at fs={fs_hz:g} Hz); nifo designs at most {MAX_TAPS} (lowest edge {_show(lo)} Hz at this rate)",
+                hint=fix.format(lo=_show(lo), hi=self.f_hi_hz))
         return self
 
     def to_dict(self) -> dict:
         return {"f_lo_hz": self.f_lo_hz, "f_hi_hz": self.f_hi_hz}
+
+
+def band_for_records(band: IntegrationBand, records) -> IntegrationBand:
+    """``band`` validated at the records' rate and against the shortest record (errors name that record)."""
+    shortest = min(records, key=lambda r: r.n)
+    try:
+        return band.validate(min(r.fs_hz for r in records), n_samples=shortest.n)
+    except ConfigError as err:
+        raise err.with_context(source=shortest.source or None) from None
 
 
 def default_band(fs_hz: float, duration_s: float | None = None) -> IntegrationBand:
@@ -72,6 +106,29 @@ def lowest_edge_hz(duration_s: float) -> float:
     return 2 * _TAPS_PER_CYCLE / float(duration_s)
 
 
+def integrator_length(fs_hz: float, f_lo_hz: float) -> float:
+    """Taps of the integrator for lower edge ``f_lo_hz`` at ``fs_hz`` (odd), computed without designing it
+    (a float: ``inf`` for an edge so low that no integer holds it)."""
+    n = _TAPS_PER_CYCLE * float(fs_hz) / float(f_lo_hz)
+    if not np.isfinite(n) or n > 1e18:
+        return float("inf")
+    return float(int(np.ceil(n)) | 1)
+
+
+def lowest_resolvable_hz(fs_hz: float, n_samples: int) -> float:
+    """The lowest band edge whose integrator (16 periods, :func:`integrator_length`) fits ``n_samples``."""
+    n = int(n_samples) if int(n_samples) % 2 else int(n_samples) - 1
+    return _TAPS_PER_CYCLE * float(fs_hz) / max(n, 1)
+
+
+def _show(f_hz: float) -> str:
+    """``f_hz`` rounded up to 3 significant digits (an edge shown this way is resolvable)."""
+    if not np.isfinite(f_hz) or f_hz <= 0:
+        return f"{f_hz:g}"
+    e = int(np.floor(np.log10(f_hz))) - 2
+    return f"{np.ceil(f_hz / 10.0 ** e) * 10.0 ** e:.3g}"
+
+
 def _window_gain(f: np.ndarray, band: IntegrationBand, fs_hz: float) -> np.ndarray:
     lo0, lo1 = 0.5 * band.f_lo_hz, band.f_lo_hz
     hi0, hi1 = band.f_hi_hz, min(1.25 * band.f_hi_hz, fs_hz / 2)
@@ -87,7 +144,7 @@ def _window_gain(f: np.ndarray, band: IntegrationBand, fs_hz: float) -> np.ndarr
 @lru_cache(maxsize=32)
 def _taps_cached(fs_hz: float, f_lo: float, f_hi: float) -> tuple[np.ndarray, np.ndarray]:
     band = IntegrationBand(f_lo, f_hi)
-    n = int(np.ceil(_TAPS_PER_CYCLE * fs_hz / band.f_lo_hz)) | 1  # odd: integer delay
+    n = int(integrator_length(fs_hz, band.f_lo_hz))  # odd: integer delay
     nfft = 1 << int(np.ceil(np.log2(8 * n)))
     f = np.fft.rfftfreq(nfft, 1 / fs_hz)
     w = _window_gain(f, band, fs_hz)
@@ -147,11 +204,9 @@ def integrate(accel: np.ndarray, fs_hz: float, *, band: IntegrationBand | None =
     """
     a = np.asarray(accel, dtype=float)
     band = band or default_band(fs_hz, a.size / fs_hz)
+    if a.size < integrator_length(fs_hz, band.f_lo_hz):   # before the taps are designed
+        band.validate(fs_hz, n_samples=a.size)
     hv, hd = integrator_taps(fs_hz, band)
-    if a.size < hv.size:
-        raise RecordTooShortError(
-            f"{a.size} samples is shorter than the integrator ({hv.size} taps for f_lo={band.f_lo_hz:g} Hz)",
-            hint=f"record at least {hv.size / fs_hz:.0f} s or raise the band's lower edge")
     v = signal.oaconvolve(a, hv, mode="same")
     x = signal.oaconvolve(a, hd, mode="same")
     return Integrated(v, x, band, (hv.size - 1) // 2)

@@ -166,7 +166,7 @@ def identify_nifo(records: Sequence[Record] | Record, terms: Sequence[Term], *,
     if use_force:
         input_measured = False
     try:
-        band = band or default_band(fs, min(r.duration_s for r in recs))
+        band = (band or default_band(fs, min(r.duration_s for r in recs))).validate(fs, n_samples=min(r.n for r in recs))
     except NifoError as err:   # name the record that is too short
         raise err.with_context(source=min(recs, key=lambda r: r.duration_s).source) from None
     proto = StreamingNifo(fs, terms, settings=settings, band=band, fixed=fixed, with_tire_patch=input_measured,

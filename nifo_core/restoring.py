@@ -196,7 +196,7 @@ def restoring_force(record: Record, *, band: IntegrationBand | None = None,
     """
     fs = float(record.fs_hz)
     try:
-        band = (band or default_band(fs, record.duration_s)).validate(fs)
+        band = (band or default_band(fs, record.duration_s)).validate(fs, n_samples=record.n)
     except NifoError as err:
         raise err.with_context(source=record.source) from None
     rel = np.asarray(record.body_accel) - np.asarray(record.spindle_accel)  # subtract first

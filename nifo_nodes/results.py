@@ -148,7 +148,10 @@ def write_result_file(path: str | Path, r, *, stamp_ns: int, stream: StreamStats
     """``NifoResult.to_dict()`` plus ``stamp_ns`` and ``stream`` (samples used/lost, gaps) as JSON, atomically."""
     from nifo.io.atomic import staged_file
 
+    from nifo_core import __version__
+
     doc = r.to_dict()
+    doc["nifo_version"] = __version__   # nifo's mark: the next write may replace it (nifo.io.ownership)
     doc["stamp_ns"] = int(stamp_ns)
     doc["stream"] = {"samples_used": int(r.n_samples), **stream.as_dict()}
     Path(path).parent.mkdir(parents=True, exist_ok=True)

@@ -78,7 +78,7 @@ def test_staged_outputs_appear_only_on_success(tmp_path):
         (d / "a.json").write_text("{}")
     with staged_dir(out) as d:  # replaces, never merges
         (d / "b.json").write_text("{}")
-    assert sorted(p.name for p in out.iterdir()) == ["b.json"]
+    assert sorted(p.name for p in out.iterdir()) == [".nifo-output", "b.json"]   # with nifo's marker
     f = tmp_path / "x.txt"
     with pytest.raises(RuntimeError):
         with staged_file(f) as p:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import struct
 import zlib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -82,3 +83,147 @@ def test_chunks_and_summary_carry_crcs(tmp_path):
     assert struct.unpack_from("<I", blob, lo - 8 - 4 - 4 - 4)[0] != 0
     assert struct.unpack_from("<I", blob, len(blob) - 8 - 4)[0] != 0   # footer summary_crc
     assert zlib.crc32(b"") == 0
+
+
+# -----------------------------------------------------------------------------
+# issue 26: the bundled sample's CRCs, receive times beyond 2^63 ns, bags from writers without CRCs
+# -----------------------------------------------------------------------------
+
+BAGS = Path(__file__).resolve().parents[1] / "bags"
+
+
+def _zero_crcs(path: Path) -> None:
+    """Make ``path`` look like a bag from a writer without CRCs: every chunk's and the summary's CRC set to 0."""
+    from nifo.io.mcap_chunks import _summary
+
+    with path.open("r+b") as f:
+        for ci in _summary(f).chunk_indexes:
+            f.seek(ci.chunk_start_offset + 1 + 8 + 8 + 8 + 8)
+            f.write(bytes(4))
+        f.seek(path.stat().st_size - 8 - 4)
+        f.write(bytes(4))
+
+
+def test_every_bag_in_bags_has_chunk_crcs():
+    from nifo.io.mcap_chunks import chunk_crc_status
+
+    mcaps = sorted(BAGS.rglob("*.mcap"))
+    assert len(mcaps) >= 3
+    for m in mcaps:
+        status = chunk_crc_status(m)
+        assert status is not None and status["chunks"] > 0 and status["without_crc"] == 0, (m, status)
+        blob = m.read_bytes()
+        assert struct.unpack_from("<I", blob, len(blob) - 8 - 4)[0] != 0, f"{m}: no summary CRC"
+    for bag in sorted(p for p in (BAGS / "sample").iterdir() if p.is_dir()):
+        meta = load_record(bag).meta
+        assert meta["chunk_crc"]["without_crc"] == 0 and "integrity_note" not in meta
+
+
+def test_100_single_bit_flips_in_the_bundled_sample_chunks_are_all_refused(tmp_path):
+    """Issue 26: 5 of 12 flips in the sample's chunks changed samples silently (no CRC). Now 0 of 100."""
+    import random
+    import shutil
+
+    rng = random.Random(SEED)
+    bags = sorted(p for p in (BAGS / "sample").iterdir() if p.is_dir())
+    copies = {b: shutil.copytree(b, tmp_path / b.name) for b in bags}
+    refused, silent, other = 0, [], []
+    for k in range(100):
+        bag = copies[bags[k % len(bags)]]
+        mcap = next(bag.glob("*.mcap"))
+        blob = mcap.read_bytes()
+        lo, hi = rng.choice(chunk_spans(blob))
+        i, bit = rng.randrange(lo, hi), rng.randrange(8)
+        with mcap.open("r+b") as f:
+            f.seek(i)
+            f.write(bytes([blob[i] ^ (1 << bit)]))
+        try:
+            load_record(bag)
+            silent.append((bag.name, i, bit))
+        except CorruptDataError as err:
+            text = str(err)
+            if (text.startswith(f"{mcap}: corrupt chunk at byte offset") and "Fix: " in text
+                    and "\n" not in text and err.exit_code == 14):
+                refused += 1
+            else:
+                other.append((bag.name, i, bit, text))
+        except Exception as err:  # noqa: BLE001 - counted and reported
+            other.append((bag.name, i, bit, f"{type(err).__name__}: {err}"))
+        finally:
+            with mcap.open("r+b") as f:
+                f.seek(i)
+                f.write(bytes([blob[i]]))
+    print(f"bundled sample: {refused}/100 single-bit flips in chunk payloads refused (exit 14), "
+          f"{len(silent)} silent changes")
+    assert refused == 100 and not silent and not other, (silent, other)
+
+
+def test_receive_times_beyond_2_63_ns_with_zero_header_stamps_are_refused_or_read_exactly(tmp_path):
+    """Issue 26: receive times above 2^63 ns wrapped to 1677 with exit 0. Now: exit 6, or (below 2^63) exact."""
+    import random
+
+    from fuzz_engine import Tally, classify, cli, guarded
+    from nifo.io.bag import IMU, TopicData, write_channels
+    from nifo.io.loader import iter_record_chunks
+    from nifo_core.errors import TimestampError
+
+    rng = random.Random(SEED)
+    n, period = 400, 10_000_000                     # 4 s at 100 Hz
+    tally = Tally()
+    for k in range(16):
+        base = 2**63 + rng.randint(-8 * 10**9, 4 * 10**9) if k else 2**63 + 10**9   # some below, some across
+        log = np.uint64(base) + np.arange(n, dtype=np.uint64) * np.uint64(period)
+        vals = np.sin(np.arange(n) / 5.0)
+        zero = np.zeros(n, np.int64)
+        path = write_channels(tmp_path / f"b{k}.mcap", [TopicData("/nifo/spindle/imu", IMU, "spindle", zero, vals, log),
+                                                       TopicData("/nifo/body/imu", IMU, "body", zero, 2 * vals, log)])
+        fits = base + (n - 1) * period < 2**63
+
+        def right(rec) -> str | None:
+            if not fits:
+                return f"receive times up to {base + (n - 1) * period} ns were read (t0={rec.t0_ns})"
+            return None if rec.t0_ns == base and rec.fs_hz == 100.0 else f"t0={rec.t0_ns} fs={rec.fs_hz}"
+
+        for how, fn in (("load", lambda: load_record(path)),
+                        ("chunks", lambda: next(iter(iter_record_chunks(path, chunk_samples=128))))):
+            outcome, value = guarded(fn, limit_s=20)
+            classify(tally, f"{how} base={base}", path, outcome, value, right)
+            if outcome == "error":
+                assert isinstance(value, TimestampError) and value.exit_code == 6, value
+        code, _, err = cli(["info", str(path)])
+        assert (code == 0) == fits and (fits or ("2^63" in err and len(err.strip().splitlines()) == 1)), err
+    print(tally.line())
+    assert tally.bad == 0 and tally.counts["error"] and tally.counts["ok"], tally.failures
+
+
+def test_a_bag_without_chunk_crcs_is_said_once_and_its_mutants_never_crash(tmp_path):
+    """A bag from a writer without CRCs: info's integrity line and the record's provenance say so (once); the
+    mutation fuzzer finds no traceback or hang; a changed sample read from such a bag carries the note."""
+    import random
+
+    from fuzz_engine import Tally, bag_mutants, classify, cli, guarded, same_record
+    from nifo.io.loader import iter_record_chunks
+
+    path = save_record(tmp_path / "other.mcap", _record(2000))
+    _zero_crcs(path)
+    rec = load_record(path)
+    assert rec.meta["chunk_crc"]["without_crc"] == rec.meta["chunk_crc"]["chunks"] > 0
+    assert "carry no CRC-32" in rec.meta["integrity_note"] and "cannot be detected" in rec.meta["integrity_note"]
+    assert next(iter(iter_record_chunks(path, chunk_samples=500))).meta["integrity_note"] == rec.meta["integrity_note"]
+    code, out, _ = cli(["info", str(path)])
+    assert code == 0 and out.count("carry no CRC-32") == 1 and "integrity" in out
+    fresh = save_record(tmp_path / "nifo.mcap", _record(2000))
+    assert "CRC-32 of every chunk checked" in cli(["info", str(fresh)])[1]
+    blob = path.read_bytes()
+    tally, announced = Tally(), 0
+    target = tmp_path / "mutant.mcap"
+    for desc, data in bag_mutants(blob, random.Random(SEED), 120):
+        target.write_bytes(data)
+        outcome, value = guarded(lambda: load_record(target), limit_s=20)
+        if outcome == "ok" and not same_record(value, rec):
+            announced += "integrity_note" in value.meta
+        classify(tally, f"no-CRC bag {desc}", target, outcome, value,
+                 lambda r: None if same_record(r, rec) or "integrity_note" in r.meta
+                 else "a changed record without the no-CRC note")
+    print(tally.line(), f"; {announced} changed records read, each carrying the no-CRC note")
+    assert tally.bad == 0, tally.failures

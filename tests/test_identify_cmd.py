@@ -14,6 +14,7 @@ from nifo_core.spectral import SpectralSettings
 
 from nifo.cli import main
 from nifo.io.loader import load_record, save_record
+from nifo.io.ownership import write_marker
 from nifo.io.results import read_identify, read_model
 from nifo_core.describing import make_term
 from nifo_core.errors import ConfigError, DataFileError, IllConditionedError, RecordTooShortError
@@ -144,16 +145,31 @@ def test_identify_keeps_an_existing_output_when_it_fails(tmp_path):
     out = tmp_path / "o"
     out.mkdir()
     (out / "identify.json").write_text("{}")
+    write_marker(out)   # an earlier result nifo wrote
     model = _model_file(tmp_path / "m.yaml", KNEE)
     assert _quietly(["identify", tmp_path / "missing.csv", "--model", model, "--out", out]) \
         == DataFileError.exit_code
-    assert [p.name for p in out.iterdir()] == ["identify.json"] and (out / "identify.json").read_text() == "{}"
+    assert sorted(p.name for p in out.iterdir()) == [".nifo-output", "identify.json"]
+    assert (out / "identify.json").read_text() == "{}"
 
 
 def test_identify_refuses_when_the_terms_cannot_be_told_apart(tmp_path, capsys):
     model = _model_file(tmp_path / "dup.yaml", KNEE, KNEE)
     assert _quietly(["identify", LOW, "--model", model, "--out", tmp_path / "o"]) == IllConditionedError.exit_code
-    assert "ill-conditioned on every line" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "ill-conditioned on every line" in err and f"error: {LOW}: " in err and "Fix: " in err   # names the data
+    assert not (tmp_path / "o").exists()
+
+
+def test_identify_on_an_axis_that_recorded_nothing_says_so_as_info_does(tmp_path, capsys):
+    """Issue 26: --axis x on z-only data ended in exit 10 (ill-conditioned); info said the axis recorded nothing."""
+    model = _model_file(tmp_path / "m.yaml", KNEE)
+    assert main(["info", str(LOW), "--axis", "x"]) == DataFileError.exit_code
+    said = capsys.readouterr().err.strip()
+    assert _quietly(["identify", LOW, "--model", model, "--axis", "x", "--out", tmp_path / "o"]) \
+        == DataFileError.exit_code
+    err = capsys.readouterr().err.strip()
+    assert "the sensor recorded nothing" in err and err.split("error: ", 1)[1] == said.split("error: ", 1)[1]
     assert not (tmp_path / "o").exists()
 
 

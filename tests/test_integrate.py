@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from nifo_core.errors import ConfigError, RecordTooShortError
-from nifo_core.integrate import (IntegrationBand, StreamingIntegrator, default_band, integrate,
+from nifo_core.errors import ConfigError
+from nifo_core.integrate import (IntegrationBand, integrator_taps, StreamingIntegrator, default_band, integrate,
                                  integrator_response)
 
 FS = 600.0
@@ -70,5 +70,31 @@ def test_default_band_contains_body_bounce_and_respects_nyquist():
 def test_bad_band_and_short_record_are_explained():
     with pytest.raises(ConfigError, match="too close to Nyquist"):
         integrate(np.zeros(100000), FS, band=IntegrationBand(0.5, 290.0))
-    with pytest.raises(RecordTooShortError, match="shorter than the integrator"):
+    with pytest.raises(ConfigError, match=r"the lowest edge this record length can resolve is 9\.61 Hz"):
         integrate(np.zeros(1000), FS, band=IntegrationBand(0.5, 200.0))
+
+
+@pytest.mark.parametrize("f_lo", [1e-300, 1e-9, 1e-6, 1e-4, 1e-3, 0.1])
+def test_a_tiny_lower_edge_is_refused_before_anything_is_allocated_with_the_lowest_resolvable_edge(f_lo):
+    """Issue 26: 1e-300 Hz raised a TypeError in log2, 1e-9 / 1e-6 Hz tried to allocate 512 TiB / 512 GiB."""
+    import re
+    import time
+    import tracemalloc
+
+    a = np.random.default_rng(0).standard_normal(36_000)   # 60 s at 600 Hz
+    band = IntegrationBand(f_lo, 200.0)
+    tracemalloc.start()
+    t = time.perf_counter()
+    with pytest.raises(ConfigError) as info:
+        integrate(a, FS, band=band)
+    took, peak = time.perf_counter() - t, tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert took < 0.5 and peak < 1 << 20, (took, peak)
+    text = str(info.value)
+    assert "the lowest edge this record length can resolve is 0.267 Hz" in text and "Fix: raise the band's lower edge" in text
+    lo = float(re.search(r"at least ([0-9.e+-]+) Hz", text)[1])
+    integrate(a, FS, band=IntegrationBand(lo, 200.0))        # the edge it names works on this record
+    with pytest.raises(ConfigError, match="can resolve"):
+        integrate(a, FS, band=IntegrationBand(0.99 * 16 * FS / 35_999, 200.0))
+    with pytest.raises(ConfigError, match=r"nifo designs at most \d+"):   # a stream (no length): the design limit
+        integrator_taps(FS, band if f_lo < 1e-2 else IntegrationBand(1e-3, 200.0))

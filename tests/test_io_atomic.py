@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -9,7 +10,8 @@ import sys
 import pytest
 
 from nifo.io import atomic
-from nifo.io.atomic import INCOMPLETE, check_output, clean_leftovers, staged_dir, staged_file, staged_run
+from nifo.io.atomic import INCOMPLETE, MARKER, check_output, clean_leftovers, staged_dir, staged_file, staged_run
+from nifo.io.ownership import write_marker
 from nifo_core.errors import OutputError
 
 
@@ -24,17 +26,18 @@ def test_staged_run_restores_the_old_output_on_error_and_replaces_it_on_success(
     out = tmp_path / "res"
     (out / "identify").mkdir(parents=True)
     (out / "identify" / "identify.json").write_text("old")
+    write_marker(out)    # what an earlier nifo run left: its marker lists what it wrote
     with pytest.raises(KeyboardInterrupt):
         with staged_run(out) as d:
             assert d == out and (out / INCOMPLETE).is_file() and not (out / "identify").exists()
             (out / "characterize").mkdir()
             raise KeyboardInterrupt
-    assert sorted(p.name for p in out.iterdir()) == ["identify"]
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "identify"]
     assert (out / "identify" / "identify.json").read_text() == "old"
     assert "earlier results in" in atomic.interrupt_note()
     with staged_run(out) as d:
         (d / "report.html").write_text("new")
-    assert sorted(p.name for p in out.iterdir()) == ["report.html"]
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "report.html"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["res"]
 
 
@@ -59,7 +62,7 @@ def test_a_directory_of_the_users_files_or_a_regular_file_is_never_replaced(tmp_
     data.mkdir()
     (data / "run1.mcap").write_bytes(b"\x89MCAP0\r\n")
     for cm in (staged_dir, staged_run):
-        with pytest.raises(OutputError, match=r"holds files nifo did not write.*Fix: give a new or empty"):
+        with pytest.raises(OutputError, match=r"holds files nifo did not write \(run1.mcap\).*Fix: give another --out"):
             with cm(data):
                 pass
     assert (data / "run1.mcap").read_bytes() == b"\x89MCAP0\r\n"
@@ -78,9 +81,113 @@ def test_a_full_disk_is_one_output_error_and_the_old_file_stays(tmp_path):
     import errno
 
     f = tmp_path / "r.json"
-    f.write_text("old")
+    f.write_text('{"nifo_truth": 1, "old": true}')   # a file nifo wrote (its own key): it may be replaced
     with pytest.raises(OutputError, match=r"r.json: cannot write the output \(the disk is full\)\. Fix: free"):
         with staged_file(f) as tmp:
             tmp.write_text("half")
             raise OSError(errno.ENOSPC, "No space left on device")
-    assert f.read_text() == "old" and sorted(p.name for p in tmp_path.iterdir()) == ["r.json"]
+    assert f.read_text() == '{"nifo_truth": 1, "old": true}' and sorted(p.name for p in tmp_path.iterdir()) == ["r.json"]
+
+
+# -----------------------------------------------------------------------------
+# issue 26: a folder is nifo's to replace only when nifo wrote it
+# -----------------------------------------------------------------------------
+
+def _old_identify(d, *, extra: str | None = None):
+    """A result folder as nifo identify wrote it before the marker: identify.json naming its figures."""
+    d.mkdir(parents=True)
+    (d / "identify.json").write_text('{"nifo_identify": 1, "nifo_version": "0.0.9", "figures": ["transmissibility.png"]}')
+    (d / "model.json").write_text('{"nifo_identified_model": 1}')
+    (d / "transmissibility.png").write_bytes(b"\x89PNG")
+    (d / "transmissibility.svg").write_text("<svg/>")   # written beside every PNG (nifo.plots.save_figure)
+    if extra:
+        (d / extra).write_text("the user's")
+    return d
+
+
+def test_an_old_result_folder_is_recognised_exactly_and_one_extra_file_makes_it_the_users(tmp_path):
+    old = _old_identify(tmp_path / "old")
+    with staged_dir(old) as d:
+        (d / "identify.json").write_text("{}")
+    assert sorted(p.name for p in old.iterdir()) == [MARKER, "identify.json"]
+    for extra in ("photo.png", "notes.txt", "model.yaml"):
+        mine = _old_identify(tmp_path / f"mine_{extra}", extra=extra)
+        with pytest.raises(OutputError, match=rf"holds files nifo did not write \({extra}\)"):
+            check_output(mine)
+        assert (mine / extra).read_text() == "the user's"
+    fake = tmp_path / "fake"
+    fake.mkdir()
+    (fake / "identify.json").write_text('{"figures": ["a.png"]}')   # not nifo's document
+    (fake / "a.png").write_bytes(b"png")
+    with pytest.raises(OutputError, match="holds files nifo did not write"):
+        check_output(fake)
+
+
+def test_an_old_nifo_run_folder_is_replaced_whole_and_a_thesis_beside_it_is_not(tmp_path):
+    def old_run(d):
+        _old_identify(d / "identify")
+        (d / "characterize").mkdir()
+        (d / "characterize" / "characterize.json").write_text('{"nifo_characterize": 1, "figures": ["ranking.png"]}')
+        (d / "characterize" / "suggested_model.yaml").write_text("nifo_model: 1\n")
+        (d / "characterize" / "ranking.png").write_bytes(b"png")
+        (d / "report").mkdir()
+        (d / "report" / "report.html").write_text("<!DOCTYPE html>\n<html><head><title>nifo run: a, b</title>")
+        return d
+
+    res = old_run(tmp_path / "results")
+    with staged_run(res) as d:
+        (d / "report.html").write_text("new")
+    assert sorted(p.name for p in res.iterdir()) == [MARKER, "report.html"]
+    mine = old_run(tmp_path / "mine")
+    (mine / "thesis.docx").write_bytes(b"PK")
+    with pytest.raises(OutputError, match=r"holds files nifo did not write \(thesis\.docx\)"):
+        check_output(mine)
+    killed = tmp_path / "killed"   # an old run killed by SIGKILL: INCOMPLETE and what it had written
+    killed.mkdir()
+    (killed / INCOMPLETE).write_text("nifo run (process 123) is writing this directory, or was killed ...\n")
+    _old_identify(killed / "identify")
+    assert check_output(killed) == killed
+
+
+def test_a_marked_folder_answers_for_its_entries_and_marked_sub_folders_for_theirs(tmp_path):
+    out = tmp_path / "res"
+    with staged_run(out) as d:
+        with staged_dir(d / "identify") as i:
+            (i / "identify.json").write_text("{}")
+        (d / "loop").mkdir()
+        (d / "loop" / "loop.json").write_text("{}")
+    marker = json.loads((out / MARKER).read_text())
+    assert marker["entries"] == ["identify", f"identify/{MARKER}", "identify/identify.json", "loop", "loop/loop.json"]
+    with staged_dir(out / "identify") as i:        # nifo identify --out res/identify: other files than before
+        (i / "coefficients.png").write_bytes(b"png")
+    assert check_output(out) == out                 # the sub-folder's own marker answers for it
+    (out / "loop" / "notes.txt").write_text("mine")
+    with pytest.raises(OutputError, match=r"holds files nifo did not write \(loop/notes\.txt\)"):
+        check_output(out)
+    (out / "loop" / "notes.txt").unlink()
+    (out / "identify" / "link").symlink_to(tmp_path)
+    with pytest.raises(OutputError, match=r"identify/link"):
+        check_output(out)
+    (out / "identify" / "link").unlink()
+    (out / MARKER).write_text("not json")           # a marker nifo cannot read is no marker
+    with pytest.raises(OutputError, match="holds files nifo did not write"):
+        check_output(out)
+
+
+def test_files_are_replaced_only_with_nifos_mark(tmp_path):
+    from nifo.io.ownership import GENERATOR_META
+
+    cases = {"r.html": ("<html><head>" + GENERATOR_META.format(version="0.1.0"), "<html><head><title>mine"),
+             "t.json": ('{"nifo_truth": 1}', '{"truth": 1}'),
+             "x.yaml": (None, "nifo_model: 1\n"), "x.csv": (None, "time,a\n"), "x.txt": (None, "notes")}
+    for name, (ours, theirs) in cases.items():
+        f = tmp_path / name
+        if ours is not None:
+            f.write_text(ours)
+            with staged_file(f) as tmp:
+                tmp.write_text("new")
+            assert f.read_text() == "new"
+        f.write_text(theirs)
+        with pytest.raises(OutputError, match=r"nifo cannot tell it wrote this file \(.+\); it is left untouched"):
+            check_output(f, kind="file")
+        assert f.read_text() == theirs

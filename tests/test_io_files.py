@@ -101,7 +101,7 @@ def test_mat_round_trip_is_exact(tmp_path, tire):
     assert_same(rec, back)
     assert back.meta["format"] == "mat" and back.meta["columns"]["fs"] == "fs"
     keys = {k for k in scipy.io.loadmat(path) if not k.startswith("__")}
-    assert keys == {"spindle_accel", "body_accel", "fs", "t0_ns"} | ({"tire_patch_disp"} if tire else set())
+    assert keys == {"spindle_accel", "body_accel", "fs", "t0_ns", "nifo_writer"} | ({"tire_patch_disp"} if tire else set())
 
 
 @pytest.mark.parametrize("layout", ["rows", "columns"])

@@ -2,7 +2,8 @@
 
 Each command first runs once to completion (the reference "new" file set).
 Then, 20 times each, the output directory is given an old content (the
-previous result plus ``sentinel.json``), the command is started as a real
+previous result plus ``sentinel.json``, listed in the folder's ``.nifo-output``
+marker as nifo's own), the command is started as a real
 process and sent SIGINT, SIGTERM or SIGKILL after a random delay drawn
 uniformly over its full run time (fixed seed). After each kill the output
 must be exactly the old content, exactly the new file set (no sentinel), or
@@ -25,6 +26,7 @@ from pathlib import Path
 import pytest
 
 from nifo.io.atomic import INCOMPLETE
+from nifo.io.ownership import write_marker
 from nifo.io.loader import save_record
 from nifo_core.simulate import SimConfig, simulate
 
@@ -79,6 +81,7 @@ def _kill_trials(argv: list[str], out: Path, cwd: Path, t_full: float, rng: rand
     for k in range(KILLS):
         if not (out / INCOMPLETE).exists():
             (out / "sentinel.json").write_text(f'{{"trial": {k}}}')
+            write_marker(out)   # old content nifo wrote: its marker lists the sentinel too
         before = _snapshot(out)
         sig = rng.choice([signal.SIGINT, signal.SIGTERM, signal.SIGKILL])
         delay = rng.uniform(0.0, t_full)
@@ -133,3 +136,32 @@ def test_run_and_identify_killed_at_random_points_leave_old_new_or_marked_output
     print(f"nifo run killed {KILLS}x: {run}; nifo identify killed {KILLS}x: {ident}")
     assert sum(run.values()) == sum(ident.values()) == KILLS
     assert not _leftovers(tmp_path), _leftovers(tmp_path)
+
+
+_TERM_WHILE_READING = """
+import os, signal, sys
+import nifo.commands.identify as cmd
+from nifo.cli import main
+
+real = cmd.accumulate
+def accumulate(*args, **kwargs):   # the command is reading its data when the signal comes
+    os.kill(os.getpid(), signal.SIGTERM)
+    return real(*args, **kwargs)
+cmd.accumulate = accumulate
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_identify_terminated_by_sigterm_exits_130_as_run_does(tmp_path):
+    """Issue 26: nifo identify killed with SIGTERM while computing exited -15 (run: 130). The signal is sent by
+    the process itself while it reads its data (a real identify otherwise), so the point is deterministic."""
+    data = _records(tmp_path)[1]
+    model = tmp_path / "model.yaml"
+    model.write_text("nifo_model: 1\nnonlinearities:\n  - {kind: velocity_deadzone, params: {knee: 0.03}}\n")
+    out = tmp_path / "ident"
+    p = subprocess.run([sys.executable, "-c", _TERM_WHILE_READING, "identify", str(data), "--model", str(model),
+                        "--out", str(out)], cwd=tmp_path, env=_env(), capture_output=True, text=True, timeout=300)
+    assert p.returncode == 130, (p.returncode, p.stderr)
+    assert "interrupted; nothing was written" in p.stderr and "Traceback" not in p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1, p.stderr
+    assert not out.exists() and not _leftovers(tmp_path)

@@ -8,7 +8,9 @@
 # (the paper's two-step procedure, §3.3). 120 s at 600 Hz, 2 % sensor noise,
 # tire patch recorded. Each bag is a rosbag2 directory (metadata.yaml +
 # zstd-chunked MCAP); its truth (vehicle, strut forces, seed) sits beside it as
-# <name>.truth.json.
+# <name>.truth.json. nifo simulate writes a CRC-32 per chunk. The bags in the
+# repository were made before that and got their CRCs from tools/add_chunk_crcs.py
+# (samples identical; regenerating gives the same samples with a current start time).
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 nifo="${NIFO:-$here/.venv/bin/nifo}"

@@ -32,6 +32,7 @@ from nifo.progress import Progress
 from nifo_core import __version__
 from nifo_core.characterize import DEFAULT_KINDS, Characterization, Thresholds, characterize_restoring
 from nifo_core.errors import ConfigError
+from nifo_core.integrate import band_for_records
 from nifo_core.restoring import (FrequencyTrack, RestoringForce, amplitude_slices, frequency_slices, restoring_force,
                                  suggest_band, track_frequency)
 
@@ -94,7 +95,7 @@ def run(args: argparse.Namespace) -> dict:
     opts = loader_options(input_options(args), settings)
     records = [load_record(p, **opts) for p in args.data]
     rates = {r.fs_hz for r in records}
-    band = (settings.band or suggest_band(records[0]).band).validate(min(rates))
+    band = band_for_records(settings.band or suggest_band(records[0]).band, records)
     kinds = tuple(k.strip() for k in args.kinds.split(",")) if args.kinds else DEFAULT_KINDS
     thresholds = Thresholds(min_err=args.min_err, min_err_cv=min(Thresholds.min_err_cv, args.min_err / 2))
     if args.top < 1 or args.amplitude_bins < 1:
@@ -299,8 +300,10 @@ def _document(args, records, rfs, tracks, char: Characterization, figures, *, ba
     doc = {"nifo_characterize": 1, "nifo_version": __version__, "inputs": [str(p) for p in args.data],
            "band_choice": band_source, "freq_window_hz": args.freq_window, "figures": figures, **char.to_dict(),
            "input": input_provenance(args), "system": system_of(args)}
-    for rec_doc, path, tr in zip(doc["records"], args.data, tracks):
+    for rec_doc, path, tr, rec in zip(doc["records"], args.data, tracks, records):
         rec_doc["path"] = str(path)
+        if rec.meta.get("integrity_note"):   # a bag whose chunks carry no CRC: said once, here
+            rec_doc["integrity_note"] = rec.meta["integrity_note"]
         rec_doc["sweep"] = {"detected": tr.is_sweep, "range_hz": list(tr.range_hz),
                             "reliable_fraction": tr.reliable_fraction, "trend": tr.trend}
     return doc

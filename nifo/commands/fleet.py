@@ -93,6 +93,9 @@ def _check(args) -> None:
         raise ConfigError(f"--freqs {args.freqs} must be positive frequencies [Hz]", channel="--freqs")
     if args.model is not None and not args.model.is_file():
         raise ConfigError("no such model file", source=str(args.model), hint="check the --model path")
+    from nifo.io.atomic import check_output
+
+    check_output(args.out)   # refuse a file or a folder nifo did not write before any work
 
 
 def run(args: argparse.Namespace) -> int:

@@ -157,7 +157,7 @@ def accumulate(paths: list[Path], terms, cfg: AnalysisSettings, *, opts: dict, c
     spindle_fixed = fixed_sp.pop()
     has_tp = all(c.has_tire_patch for c in firsts) and not has_force
     try:
-        band = cfg.band or default_band(fs, min(totals) / fs)
+        band = (cfg.band or default_band(fs, min(totals) / fs)).validate(fs, n_samples=min(totals))
     except NifoError as err:   # name the record that is too short
         raise err.with_context(source=str(paths[int(np.argmin(totals))])) from None
 
@@ -450,7 +450,11 @@ def run(args: argparse.Namespace) -> int:
             res = acc.result()
         res = replace(res, provenance={**dict(res.provenance), "sources": [d["name"] for d in data]})
         files = len(data)
-    check_usable(res, cfg.cond_limit, periodic=bool(cfg.period_samples) and cfg.spectral.block == cfg.period_samples)
+    try:
+        check_usable(res, cfg.cond_limit,
+                     periodic=bool(cfg.period_samples) and cfg.spectral.block == cfg.period_samples)
+    except IllConditionedError as err:   # name the data it was identified on
+        raise err.with_context(source=", ".join(str(d["path"]) for d in _entries(data))) from None
     summary, warn = summarize(res, cfg.cond_limit)
     # the core's own warnings are covered by the plain sentences above; keep any other ones verbatim
     warn += [str(w.message) for w in caught if not issubclass(w.category, IllConditionedWarning)

@@ -50,6 +50,9 @@ def describe(rec: Record, *, block: int | None = None, units: str = "m/s²") -> 
              f"  duration     {rec.duration_s:.3f} s ({rec.n} samples)"]
     if m.get("stamps") == "receive_time":
         lines.append("  stamps       receive time (header stamps are all zero)")
+    if "chunk_crc" in m:
+        lines.append(f"  integrity    {m['integrity_note']}" if m.get("integrity_note") else
+                     f"  integrity    CRC-32 of every chunk checked ({m['chunk_crc']['chunks']} chunks)")
     if "trimmed" in m:
         cut = "; ".join(f"{k}: {a} at start, {b} at end" for k, (a, b) in m["trimmed"].items())
         lines.append(f"  trimmed      {cut} (to samples common to all channels)")

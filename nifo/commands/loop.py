@@ -24,6 +24,7 @@ repeats (:mod:`nifo_core.loop`). Writes, atomically, to DIR:
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
 
 
@@ -36,6 +37,7 @@ from nifo.progress import Progress
 from nifo_core import __version__
 from nifo_core.characterize import DEFAULT_KINDS, Thresholds
 from nifo.settings import add_settings_arguments, loader_options, resolve
+from nifo_core.integrate import band_for_records
 from nifo_core.loop import LoopResult, LoopSettings, close_loop
 
 HELP = "find the effect the model lacks from the residual, add it, report the error before and after"
@@ -101,6 +103,8 @@ def run(args: argparse.Namespace) -> dict:
     opts = loader_options(input_options(args), data)
     opts.update(skip_periods=None, skip_seconds=None)   # whole records: simulated from rest, the transient not scored
     records = [load_record(p, **opts) for p in args.data]
+    if data.band is not None:   # an edge too low for the shortest record: refused before any work, naming it
+        data = replace(data, band=band_for_records(data.band, records))
     kinds = tuple(k.strip() for k in args.kinds.split(",")) if args.kinds else DEFAULT_KINDS
     settings = LoopSettings(max_rounds=args.max_rounds, fit_fraction=args.fit_fraction, kinds=kinds,
                             grid_points=args.grid, spectral=data.spectral, analysis_band_hz=data.analysis_band_hz,

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nifo.io.atomic import staged_file
+from nifo.io.atomic import check_output, staged_file
 from nifo.progress import Progress
 from nifo_core.describing import make_term
 from nifo_core.errors import ConfigError
@@ -131,7 +131,10 @@ def _summary(sim: Simulation, out: Path) -> str:
 
 def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
-    from nifo.io.loader import save_record  # imported late: the I/O stack is heavy
+    from nifo.io.loader import check_record_output, save_record  # imported late: the I/O stack is heavy
+
+    check_record_output(args.out)   # refuse a file or folder nifo did not write before any work
+    check_output(truth_path(args.out), kind="file")
 
     with Progress(1.0, "simulate", enabled=config.duration >= 60) as bar:
         sim = simulate(config, rng=args.seed, progress=lambda frac: bar.advance(frac - bar.done))

@@ -34,12 +34,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import rerun as rr
 
+    from nifo.io.atomic import check_output
     from nifo.viz import rerun_log as rl
     from nifo.viz.offline import log_results, save_recording
     from nifo.viz.results import read_results
 
+    saving = args.save and not (args.connect or args.serve or args.stdout)
+    if saving:
+        check_output(args.save, kind="file")   # refuse a file nifo did not write before any work
     results = read_results(args.results)
-    if args.save and not (args.connect or args.serve or args.stdout):
+    if saving:
         out = save_recording(results, args.save, with_data=not args.no_data)   # atomic, no global state
         print(f"wrote {out} (open it with: rerun {out})")
         return {"out": str(out)}

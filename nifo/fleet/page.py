@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from nifo.fleet.runner import FleetRun
+from nifo_core import __version__
 
 __all__ = ["plot_t21", "plot_coefficients", "write_page", "FLEET_HTML"]
 
@@ -14,7 +15,7 @@ FLEET_HTML = "fleet.html"
 _FLAG, _OK, _NA = "#c0392b", "#1f4e79", "#999999"
 
 _TEMPLATE = """<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>nifo fleet: {{ title }}</title>
+<html lang="en"><head><meta charset="utf-8"><meta name="generator" content="nifo {{ version }}"><title>nifo fleet: {{ title }}</title>
 <style>
 body{font-family:system-ui,sans-serif;margin:2em;max-width:1200px;color:#222}
 table{border-collapse:collapse;margin:1em 0;font-size:90%}th,td{border:1px solid #ccc;padding:3px 7px}
@@ -172,7 +173,7 @@ def write_page(out: Path, run: FleetRun, *, title: str) -> list[str]:
         rows.append(row)
     env = jinja2.Environment(autoescape=True, undefined=jinja2.StrictUndefined)
     text = env.from_string(_TEMPLATE).render(
-        title=title, n_groups=len(run.groups), n_bags=len(run.bags), n_failed=run.n_failed,
+        title=title, version=__version__, n_groups=len(run.groups), n_bags=len(run.bags), n_failed=run.n_failed,
         n_cached=run.n_cached, n_flagged=sum(1 for _, r in ok if r["health"].flagged), health=run.settings.health,
         flags=flags, t21_png="t21.png", coef_png="coefficients.png", coef_heads=heads, rows=rows,
         failed=[b for b in run.bags if b["status"] != "ok"])

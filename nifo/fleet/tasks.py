@@ -136,7 +136,7 @@ def bag_setup(base: GroupSetup, probe: dict) -> GroupSetup:
     fs = probe["fs_hz"]
     band = base.band or default_band(fs, probe["n_samples"] / fs)
     tp = probe["has_tire_patch"] if base.with_tire_patch is None else base.with_tire_patch
-    return replace(base, band=band.validate(fs), with_tire_patch=bool(tp))
+    return replace(base, band=band.validate(fs, n_samples=probe["n_samples"]), with_tire_patch=bool(tp))
 
 
 def _accumulate(chunks, path: str, setup: GroupSetup):

@@ -18,10 +18,17 @@ Every command that writes goes through one of three context managers:
 
 Shared rules (:func:`check_output`):
 
-- an existing path of the other kind (a regular file where a directory is to
-  be written, a directory where a file is) is refused, as is an existing
-  directory that does not look like nifo output (it holds data or other
-  files): nothing a user keeps there is ever deleted;
+- nifo replaces only what it can tell it wrote (:mod:`nifo.io.ownership`):
+  a folder carrying its ``.nifo-output`` marker and nothing beyond what the
+  marker lists (or an empty one), a file with nifo's mark (an HTML report's
+  generator <meta>, a bag whose metadata names nifo, ...). Anything else —
+  a folder holding a user's files, a file nifo cannot tell it wrote, a path
+  of the other kind, a FIFO or device — is refused with one line naming it
+  and the fix: nothing a user keeps is ever deleted or overwritten;
+- every folder :func:`staged_dir` / :func:`staged_run` writes gets the marker
+  (the command, nifo's version, the time and the entries written);
+- a name too long for the file system (with room for the scratch name) is
+  refused before anything is written;
 - leftovers of a killed run (``.<name>.partial-<pid>-*``, ``.<name>.old-<pid>``
   whose process is gone) are removed by the next writer of ``<name>``;
 - a read-only file system, a full disk, a path under a regular file or a
@@ -39,9 +46,9 @@ import contextlib
 import ctypes
 import errno
 import os
-import re
 import shutil
 import signal
+import stat
 import tempfile
 import threading
 from pathlib import Path
@@ -49,17 +56,15 @@ from typing import Iterator
 
 from nifo_core.errors import OutputError
 
+from .ownership import INCOMPLETE, LEFTOVER as _LEFTOVER, MARKER, foreign_entries, nifo_bag_dir, nifo_wrote_file
+from .ownership import why_not_nifos, write_marker
+
 __all__ = ["staged_dir", "staged_file", "staged_run", "check_output", "clean_leftovers", "interrupt_note",
-           "INCOMPLETE", "NIFO_SUFFIXES"]
+           "INCOMPLETE", "MARKER", "SCRATCH_CHARS"]
 
-#: the marker file of a ``nifo run`` output that is being written (or was cut short by a kill)
-INCOMPLETE = "INCOMPLETE"
-
-#: file suffixes nifo writes into its output directories (a directory of only these may be replaced)
-NIFO_SUFFIXES = frozenset({".json", ".png", ".svg", ".pdf", ".yaml", ".yml", ".html", ".rrd", ".npz", ".txt",
-                           ".parquet", ".arrow", ".feather", ".log", ".md", ".tex"})
-
-_LEFTOVER = re.compile(r"^\.(?P<name>.+)\.(?:partial|old)-(?P<pid>\d+)(?:-.*)?$")
+#: characters a scratch or aside name adds to an output's name: ``.<name>.partial-<pid>-XXXXXXXX``
+#: (pid up to 7 digits); an output name must leave room for them within the file system's name limit
+SCRATCH_CHARS = len(".") + len(".partial-") + 7 + len("-") + 8
 
 #: what this process has committed, and what an interrupted run restored (for :func:`interrupt_note`)
 _state: dict[str, list[str]] = {"committed": [], "restored": []}
@@ -93,66 +98,110 @@ def output_error(err: OSError, final: Path) -> OutputError:
 # checks and leftovers
 # -----------------------------------------------------------------------------
 
-def _looks_like_output(d: Path, depth: int = 0) -> bool:
-    """Whether directory ``d`` holds only what nifo writes (so replacing it loses nothing of the user's)."""
-    try:
-        entries = list(os.scandir(d))
-    except OSError:
-        return False
-    for e in entries:
-        if e.name == INCOMPLETE or _LEFTOVER.match(e.name):
+_FIX_REFUSED = "give another --out, or move or remove it yourself if it may go"
+
+
+def _what(mode: int) -> str:
+    """What a non-directory path is, in words."""
+    return ("a regular file" if stat.S_ISREG(mode) else "a FIFO (named pipe)" if stat.S_ISFIFO(mode)
+            else "a character device" if stat.S_ISCHR(mode) else "a block device" if stat.S_ISBLK(mode)
+            else "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
+
+
+def _name_max(final: Path) -> int:
+    for parent in (final, *final.parents):
+        try:
+            return int(os.pathconf(parent, "PC_NAME_MAX"))
+        except (OSError, ValueError):
             continue
-        if e.is_dir(follow_symlinks=False):
-            if depth >= 2 or not _looks_like_output(Path(e.path), depth + 1):
-                return False
-        elif not (e.is_file(follow_symlinks=False) and Path(e.name).suffix.lower() in NIFO_SUFFIXES):
-            return False
-    return True
+    return 255
+
+
+def _check_names(final: Path) -> None:
+    """Refuse a path with a component longer than the file system holds (ENAMETOOLONG), before any work."""
+    limit = _name_max(final)
+    parts = [p for p in final.parts if p not in ("/", "")]
+    for i, part in enumerate(parts):
+        n = len(os.fsencode(part))
+        last = i == len(parts) - 1
+        room = limit - SCRATCH_CHARS if last else limit
+        if n > room:
+            shown = part if len(part) <= 24 else part[:20] + "..."
+            why = (f"at most {room} fit (the file system holds {limit}, and nifo first writes the output under "
+                   f"a scratch name {SCRATCH_CHARS} characters longer)" if last else
+                   f"the file system holds at most {limit}")
+            raise OutputError(f"the name {shown!r} is {n} bytes long; {why}", source=str(final),
+                              hint=f"give an --out path whose names are at most {room} characters")
+    if len(os.fsencode(str(final.absolute()))) + SCRATCH_CHARS > 4000:
+        raise OutputError("the path is too long for the file system", source=str(final),
+                          hint="give a shorter --out path")
 
 
 def check_output(final: str | os.PathLike, *, kind: str = "dir") -> Path:
-    """Refuse an output path that would destroy something; returns it as a Path.
+    """Refuse an output path that would destroy something nifo did not write; returns it as a Path.
 
-    ``kind="dir"``: ``final`` may be absent, an empty directory, or one that
-    holds only nifo output (:data:`NIFO_SUFFIXES`, sub-directories of the
-    same); ``kind="file"``: absent or a regular file; ``kind="bag"``: absent,
-    a file, an empty directory or a rosbag2 bag directory. Raises
-    :class:`OutputError`.
+    ``kind="dir"``: ``final`` may be absent, an empty directory, or one nifo
+    wrote (its ``.nifo-output`` marker lists everything in it; see
+    :mod:`nifo.io.ownership`); ``kind="file"``: absent or a regular file nifo
+    recognisably wrote; ``kind="bag"``: absent, a bag file nifo wrote, an
+    empty directory or a rosbag2 bag directory nifo wrote. Raises
+    :class:`OutputError` (one line naming the path and the fix).
     """
     final = Path(final)
     if kind not in ("dir", "file", "bag"):
         raise ValueError(f"{kind=}")
+    _check_names(final)
+    try:
+        return _check_existing(final, kind)
+    except OSError as err:
+        raise output_error(err, final) from err
+
+
+def _check_existing(final: Path, kind: str) -> Path:
     if not (final.exists() or final.is_symlink()):
         for parent in final.parents:   # a path under a regular file
             if parent.exists():
                 if not parent.is_dir():
-                    raise OutputError(f"{parent} is a regular file, not a directory", source=str(final),
+                    raise OutputError(f"{parent} is {_what(parent.stat().st_mode)}, not a directory",
+                                      source=str(final),
                                       hint="give an output path whose parent directories are directories")
                 break
         return final
     if final.is_symlink():
         raise OutputError(f"is a symbolic link (to {os.readlink(final)}); it is left untouched", source=str(final),
                           hint="give the real path for the output")
-    if final.is_dir():
+    mode = final.stat().st_mode
+    if stat.S_ISDIR(mode):
         if kind == "file":
             raise OutputError("is a directory; a file was to be written there", source=str(final),
                               hint="give a file name (or remove the directory yourself)")
         if kind == "bag":
-            if any(final.iterdir()) and not ((final / "metadata.yaml").is_file() or any(final.glob("*.mcap"))):
-                raise OutputError("is a directory that is not a rosbag2 bag; it is left untouched",
-                                  source=str(final), hint="give a new path for the bag")
-        elif not _looks_like_output(final):
-            raise OutputError("exists and holds files nifo did not write (data, other files); it is left "
-                              "untouched", source=str(final),
-                              hint="give a new or empty output directory (--out), or empty this one yourself")
+            if any(final.iterdir()) and not nifo_bag_dir(final):
+                names = sorted(p.name for p in final.iterdir())
+                raise OutputError(f"exists and is not a bag nifo wrote (it holds {_listing(names)}); it is left "
+                                  "untouched", source=str(final), hint=_FIX_REFUSED)
+            return final
+        foreign = foreign_entries(final)
+        if foreign:
+            raise OutputError(f"exists and holds files nifo did not write ({_listing(foreign)}); it is left "
+                              "untouched", source=str(final), hint=_FIX_REFUSED)
         return final
     if kind == "dir":
-        raise OutputError("exists and is a regular file, not a directory; it is left untouched", source=str(final),
-                          hint="give a directory name for --out (or move the file away)")
-    if not final.is_file():
-        raise OutputError("exists and is not a regular file (FIFO, device or socket)", source=str(final),
-                          hint="give the path of a regular file")
+        raise OutputError(f"exists and is {_what(mode)}, not a directory; it is left untouched", source=str(final),
+                          hint="give a directory name for --out" + (" (or move the file away)"
+                                                                     if stat.S_ISREG(mode) else ""))
+    if not stat.S_ISREG(mode):
+        raise OutputError(f"exists and is {_what(mode)}, not a regular file; it is left untouched",
+                          source=str(final), hint="give the path of a new or regular file")
+    if not nifo_wrote_file(final):
+        raise OutputError(f"exists and nifo cannot tell it wrote this file ({why_not_nifos(final)}); it is left "
+                          "untouched", source=str(final), hint=_FIX_REFUSED)
     return final
+
+
+def _listing(names: list[str]) -> str:
+    shown = [n if len(n) <= 40 else n[:37] + "..." for n in names[:3]]
+    return ", ".join(shown) + (", ..." if len(names) > 3 else "")
 
 
 def _alive(pid: int) -> bool:
@@ -303,6 +352,7 @@ def staged_dir(out: str | os.PathLike) -> Iterator[Path]:
         tmp = _scratch(final)
         try:
             yield tmp
+            write_marker(tmp)
             _commit(tmp, final)
         except BaseException as err:
             _remove(tmp)
@@ -354,6 +404,7 @@ def staged_run(out: str | os.PathLike) -> Iterator[Path]:
                 if had_old:
                     os.replace(final, old)
                 final.mkdir()
+                write_marker(final, complete=False)
                 (final / INCOMPLETE).write_text(
                     f"nifo run (process {os.getpid()}) is writing this directory, or was killed while it did: "
                     "its content is incomplete. Run nifo run again.\n")
@@ -367,6 +418,7 @@ def staged_run(out: str | os.PathLike) -> Iterator[Path]:
         try:
             yield final
             with _signals_held():
+                write_marker(final)
                 (final / INCOMPLETE).unlink()
                 _state["committed"][start:] = [str(final)]
         except BaseException as err:

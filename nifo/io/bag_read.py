@@ -18,7 +18,7 @@ from .bag_topics import BagTopics, _topic_table, resolve_topics
 from .cdr import AXES as _AXES, Axis
 from .inputs import regular_input
 from .mcap_chunks import (_decode, _Decoded, _iter_mcap_indexed, _NoUsableIndex, check_metadata_topics,
-                          check_structure)
+                          check_structure, chunk_crc_status, crc_note, receive_stamps)
 
 if TYPE_CHECKING:
     from rosbags.interfaces import Connection
@@ -76,7 +76,7 @@ def _read_mcap_indexed(path: Path, wanted: Mapping[str, tuple[str, str]], *, exp
     out = {}
     for role, ps in parts.items():
         stamps, values, log_ns = (np.concatenate([p[k] for p in ps]) if ps else np.zeros(0, dt)
-                                  for k, dt in enumerate((np.int64, np.float64, np.int64)))
+                                  for k, dt in enumerate((np.int64, np.float64, np.uint64)))
         order = np.argsort(log_ns, kind="stable")  # log-time order; ties in file order
         out[role] = (stamps[order], values[order], log_ns[order])
     return out
@@ -96,7 +96,7 @@ def _iterate(reader, conns: Sequence["Connection"], wanted: Mapping[str, tuple[s
     out = {}
     for role, (_, msgtype) in wanted.items():
         stamps, values = _decode(datas[role], msgtype=msgtype, axis=axis, typestore=typestore)
-        out[role] = (stamps, values, np.asarray(logs[role], np.int64))
+        out[role] = (stamps, values, np.asarray(logs[role], np.uint64))
     return out
 
 
@@ -145,9 +145,24 @@ def read_bag(path: str | os.PathLike, *, topics: BagTopics | None = None, axis: 
             "axis": axis, "stamps": "receive_time" if use_log_time else "header"}
     if use_log_time:
         meta["stamps_note"] = "header stamps are all zero; the bag's receive (log) time was used"
+    meta.update(integrity_meta(storage))
     return assemble_record(
-        {_CHANNEL_OF_ROLE[r]: (ch.log_ns if use_log_time else ch.stamp_ns, ch.values) for r, ch in chans.items()},
+        {_CHANNEL_OF_ROLE[r]: (receive_stamps(ch.log_ns, source=src, channel=ch.topic) if use_log_time else ch.stamp_ns,
+                               ch.values) for r, ch in chans.items()},
         labels={_CHANNEL_OF_ROLE[r]: ch.topic for r, ch in chans.items()}, path=path, meta=meta, stamp_tol_ns=1.0)
+
+
+def integrity_meta(storage: Path) -> dict:
+    """``{"chunk_crc": {...}, "integrity_note": ...}`` of a bag's MCAP file (say once when chunks have no CRC)."""
+    try:
+        mcap = _mcap_file(storage)
+    except Exception:  # noqa: BLE001 - unreadable metadata was reported by the reader already
+        mcap = None
+    status = chunk_crc_status(mcap) if mcap is not None else None
+    if status is None:
+        return {}
+    note = crc_note(status)
+    return {"chunk_crc": status, **({"integrity_note": note} if note else {})}
 
 
 def _is_sqlite(storage: Path) -> bool:

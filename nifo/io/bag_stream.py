@@ -11,11 +11,11 @@ from nifo_core.errors import ConfigError, DataFileError, NifoError, RecordTooSho
 from nifo_core.record import Record
 
 from .assemble import check_rate_range, check_values, nominal_rate
-from .bag_read import _CHANNEL_OF_ROLE, _is_sqlite, _mcap_file, _open_checked, read_bag
+from .bag_read import _CHANNEL_OF_ROLE, _is_sqlite, _mcap_file, _open_checked, integrity_meta, read_bag
 from .bag_topics import BagTopics, _topic_table, resolve_topics
 from .cdr import Axis
 from .mcap_chunks import (_Decoded, _iter_mcap_indexed, _NoUsableIndex, check_metadata_topics, check_structure,
-                          indexed_counts)
+                          indexed_counts, receive_stamps)
 
 __all__ = ["iter_bag_chunks", "record_chunks"]
 
@@ -40,6 +40,8 @@ class _ChunkAssembler:
         self.emitted = 0
         self.index = 0
         self.aligned = False
+        self.first: dict[str, float] = {}   # each channel's first value, and the channels that ever left it
+        self.varied: set[str] = set()
 
     def add(self, role: str, stamps: np.ndarray, values: np.ndarray) -> None:
         if stamps.size:
@@ -115,6 +117,11 @@ class _ChunkAssembler:
             meta = dict(self.meta)
             meta["chunk"] = {"index": self.index, "start": self.emitted, "total_samples": self.total}
             vals = {r: taken[r][1] for r in self.roles}
+            for r, v in vals.items():
+                if r not in self.varied and v.size:
+                    f = self.first.setdefault(r, float(v[0]))
+                    if (v != f).any():
+                        self.varied.add(r)
             check_values({_CHANNEL_OF_ROLE[r]: v for r, v in vals.items()}, fs=self.fs, source=self.src, constant=False,
                          labels={_CHANNEL_OF_ROLE[r]: self.labels[r] for r in self.roles})
             try:
@@ -127,6 +134,16 @@ class _ChunkAssembler:
             self.emitted += k
             self.index += 1
             yield rec
+
+
+    def check_recorded(self) -> None:
+        """After the last chunk: an acceleration channel that never changed recorded nothing (as
+        :func:`~nifo.io.assemble.check_values` says of a whole record; chunk by chunk it cannot be told earlier)."""
+        for r in self.roles:
+            if r != "tire_patch" and self.emitted > 1 and r not in self.varied:
+                raise DataFileError(f"all {self.emitted} samples are {self.first.get(r, 0.0):g}: the sensor recorded "
+                                    "nothing", source=self.src, channel=self.labels[r],
+                                    hint="check the channel mapping (--topics/--columns/--axis) and the sensor")
 
 
 def record_chunks(rec: Record, chunk_samples: int) -> "Iterator[Record]":
@@ -204,7 +221,7 @@ def iter_bag_chunks(path: str | os.PathLike, *, chunk_samples: int, topics: BagT
     meta = {"format": "rosbag2", "storage": "mcap", "path": src,
             "topics": {role: wanted[role][0] if role in wanted else None for role in _CHANNEL_OF_ROLE
                        if role != "force" or role in wanted},
-            "axis": axis, "stamps": "header", "streamed": True}
+            "axis": axis, "stamps": "header", "streamed": True, **integrity_meta(storage)}
     asm = _ChunkAssembler(roles, chunk_samples=chunk_samples, src=src, name=path.name,
                           labels={r: wanted[r][0] for r in roles}, meta=meta, total=min(expected.values()))
     use_log: bool | None = None
@@ -231,6 +248,7 @@ def iter_bag_chunks(path: str | os.PathLike, *, chunk_samples: int, topics: BagT
             if use_log:
                 asm.meta["stamps"] = "receive_time"
         for role, (s, v, t) in part.items():
-            asm.add(role, t if use_log else s, v)
+            asm.add(role, receive_stamps(t, source=src, channel=wanted[role][0]) if use_log else s, v)
         yield from asm.ready()
     yield from asm.ready(final=True)
+    asm.check_recorded()

@@ -42,7 +42,7 @@ class TopicData:
     frame_id: str
     stamp_ns: np.ndarray
     values: np.ndarray
-    log_ns: np.ndarray | None = None  #: bag receive time; default: the header stamps
+    log_ns: np.ndarray | None = None  #: bag receive time [ns, int64 or uint64]; default: the header stamps
 
 
 def _topic_data(record: Record, topics: BagTopics) -> list[TopicData]:
@@ -93,7 +93,7 @@ def _write_bag_dir(bagdir: Path, data: Sequence[TopicData], axis: Axis) -> None:
                              msgtype=td.msgtype, axis=axis)
             raw, size = rows.tobytes(), rows.shape[1]
             # (log time, topic order, message index, connection, bytes): interleaved as a recorder logs them
-            log_ns = stamps if td.log_ns is None else np.asarray(td.log_ns, np.int64)
+            log_ns = stamps if td.log_ns is None else np.asarray(td.log_ns)   # int64, or uint64 as MCAP holds
             streams.append(_stream(log_ns, k, conn, raw, size))
         write = writer.write
         for t, _, i, conn, raw, size in heapq.merge(*streams, key=lambda m: (m[0], m[1], m[2])):

@@ -63,7 +63,7 @@ from .inputs import regular_input
 if TYPE_CHECKING:
     from .bag import BagTopics
 
-__all__ = ["load_record", "save_record", "load_records", "iter_record_chunks", "detect_format", "assemble_record",
+__all__ = ["load_record", "save_record", "check_record_output", "load_records", "iter_record_chunks", "detect_format", "assemble_record",
            "parse_columns", "add_input_arguments", "input_options", "COLUMN_KEYS", "READ_ROLES", "Assembly", "Skip"]
 
 Format = Literal["bag", "csv", "mat"]
@@ -321,6 +321,25 @@ def iter_record_chunks(path: str | os.PathLike, *, chunk_samples: int, topics: "
 def load_records(paths: Iterable[str | os.PathLike], **kw) -> list[Record]:
     """:func:`load_record` for each path (same options), in order."""
     return [load_record(p, **kw) for p in paths]
+
+
+def check_record_output(path: str | os.PathLike) -> Path:
+    """Refuse ``path`` before any work when :func:`save_record` would refuse to write there.
+
+    A CSV or MAT file that exists is never replaced (nifo cannot tell it wrote
+    it); an existing ``.mcap`` file or bag directory only when nifo wrote it
+    (:mod:`nifo.io.ownership`).
+    """
+    from .atomic import check_output
+
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix in _CSV_SUFFIXES or suffix in _MAT_SUFFIXES or suffix == ".mcap":
+        return check_output(p, kind="file")
+    if not suffix or p.is_dir():
+        return check_output(p, kind="bag")
+    raise DataFileError(f"cannot tell the output format from the suffix {p.suffix!r}", source=str(p),
+                        hint="name the output *.mcap, *.csv, *.mat, or a directory (rosbag2 bag)")
 
 
 def save_record(path: str | os.PathLike, record: Record, *, topics: "BagTopics | None" = None,

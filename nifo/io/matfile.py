@@ -15,7 +15,8 @@ MATLAB v7.3 files are HDF5, which scipy cannot read (and h5py is not a
 dependency): re-save them with ``save(name, ..., '-v7')``.
 
 :func:`write_mat` writes MAT v5 with ``spindle_accel``, ``body_accel``
-(N×1 columns), ``tire_patch_disp`` when present, ``fs`` and ``t0_ns``.
+(N×1 columns), ``tire_patch_disp`` when present, ``fs``, ``t0_ns`` and
+``nifo_writer`` (``"nifo VERSION"``: nifo replaces only a file it wrote).
 """
 
 from __future__ import annotations
@@ -33,11 +34,13 @@ from nifo_core.record import Record
 from .assemble import READ_ROLES, Assembly, assemble_record, check_declared_rate, seconds_to_ns
 from .atomic import staged_file
 from .inputs import regular_input
+from .ownership import MAT_WRITER_KEY
 
 __all__ = ["read_mat", "write_mat"]
 
 _KEY = re.compile(r"^\s*(?P<key>[^\[\]]+?)\s*(?:\[\s*(?P<idx>-?\d+)\s*\])?\s*$")
 _FS_KEYS = ("fs", "Fs", "fs_hz", "FS")
+_LOGICAL = "__nifo_logical__"   # the keys MATLAB stored as logical (set by _load)
 _FIX_KEYS = ("name the keys, e.g. --columns spindle_accel=Acceleration[1],body_accel=Acceleration[2],fs=Fs "
              "(columns={...} in Python)")
 
@@ -63,7 +66,13 @@ def _pick(data: Mapping[str, object], spec: str, *, role: str, src: str) -> np.n
         raise MissingChannelError(f"no key {key!r}; the file holds {_listing(data)}", source=src,
                                   channel=role, hint=_FIX_KEYS)
     arr = data[key]
-    if not isinstance(arr, np.ndarray) or arr.dtype.kind not in "biuf":
+    if isinstance(arr, np.ndarray) and (arr.dtype.kind == "b" or key in data.get(_LOGICAL, ())):
+        # a MATLAB logical: true would read as 1
+        what = "the sample rate" if role == "fs" else "time" if role == "time" else "a signal"
+        raise DataFileError(f"key {key!r} is a logical (true/false) array, not {what}", source=src, channel=role,
+                            hint="store it as a double (e.g. fs = 600, not fs = true)"
+                                 + (", or give the rate with --fs HZ" if role == "fs" else ""))
+    if not isinstance(arr, np.ndarray) or arr.dtype.kind not in "iuf":
         raise DataFileError(f"key {key!r} is not a numeric array ({type(arr).__name__} "
                             f"{getattr(arr, 'dtype', '')})", source=src, channel=role,
                             hint="store the signal as a real double vector")
@@ -102,7 +111,13 @@ def _load(path: Path) -> dict:
         raise DataFileError("MATLAB v7.3 (HDF5) files cannot be read", source=src,
                             hint="re-save it in MATLAB with save(name, vars..., '-v7')")
     try:
-        return scipy.io.loadmat(str(path), squeeze_me=False, appendmat=False)
+        data = scipy.io.loadmat(str(path), squeeze_me=False, appendmat=False)
+        # loadmat gives a MATLAB logical as uint8 (true reads as 1): remember which keys are logical
+        try:
+            data[_LOGICAL] = frozenset(name for name, _, cls in scipy.io.whosmat(str(path)) if cls == "logical")
+        except Exception:  # noqa: BLE001 - the data were read; only the logical flags are unknown
+            data[_LOGICAL] = frozenset()
+        return data
     except NotImplementedError as err:  # v7.3 that slipped past the version probe
         raise DataFileError("MATLAB v7.3 (HDF5) files cannot be read", source=src,
                             hint="re-save it in MATLAB with save(name, vars..., '-v7')") from err
@@ -173,7 +188,7 @@ def read_mat(path: str | os.PathLike, *, columns: Mapping[str, str] | None = Non
     t0_spec = cols.get("t0_ns", "t0_ns")
     if _key_name(t0_spec) in data:
         raw_t0 = np.asarray(data[_key_name(t0_spec)]).ravel()
-        if raw_t0.size != 1 or raw_t0.dtype.kind not in "iuf":
+        if raw_t0.size != 1 or raw_t0.dtype.kind not in "iuf" or _key_name(t0_spec) in data.get(_LOGICAL, ()):
             raise DataFileError(f"key {t0_spec!r} is not one number", source=src, channel="t0_ns",
                                 hint="store t0_ns as an int64 scalar, or drop it")
         if not (np.isfinite(raw_t0[0]) and abs(float(raw_t0[0])) < 4e18):   # NaN, or past year 2096
@@ -201,8 +216,11 @@ def write_mat(path: str | os.PathLike, record: Record) -> Path:
     import scipy.io
 
     final = Path(path)
+    from nifo_core import __version__
+
     out = {"spindle_accel": np.asarray(record.spindle_accel), "body_accel": np.asarray(record.body_accel),
-           "fs": np.float64(record.fs_hz), "t0_ns": np.int64(record.t0_ns)}
+           "fs": np.float64(record.fs_hz), "t0_ns": np.int64(record.t0_ns),
+           MAT_WRITER_KEY: f"nifo {__version__}"}   # nifo may replace a file that names it (nifo.io.ownership)
     for name in ("tire_patch_disp", "force"):
         if getattr(record, name) is not None:
             out[name] = np.asarray(getattr(record, name))

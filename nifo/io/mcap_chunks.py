@@ -15,12 +15,13 @@ from typing import BinaryIO
 
 import numpy as np
 
-from nifo_core.errors import CorruptDataError, DataFileError
+from nifo_core.errors import CorruptDataError, DataFileError, TimestampError
 
 from .cdr import AXES as _AXES, CDR_LE as _CDR_LE, IMU
 from .cdr import LAYOUT as _LAYOUT, POINT_STAMPED, Axis
 
-__all__ = ["indexed_counts", "write_chunk_crcs", "check_structure", "file_topics", "check_metadata_topics"]
+__all__ = ["receive_stamps", "indexed_counts", "write_chunk_crcs", "check_structure", "file_topics", "check_metadata_topics",
+           "chunk_crc_status"]
 
 _GATHER16 = np.arange(16)
 _GATHER8 = np.arange(8)
@@ -94,8 +95,24 @@ def _decompress(data: bytes, compression: str, size: int) -> bytes | None:
     return None
 
 
-#: one topic's messages, decoded: (header stamp [ns], value, log time [ns]) per message
+#: one topic's messages, decoded: (header stamp [ns] int64, value, log time [ns] uint64 as MCAP stores it)
 _Decoded = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+_INT64_MAX = np.iinfo(np.int64).max
+
+
+def receive_stamps(log_ns: np.ndarray, *, source: str, channel: str) -> np.ndarray:
+    """Receive (log) times [ns, uint64] as int64 stamps, or :class:`TimestampError` beyond what int64 holds
+    (2^63 ns: the year 2262; a wrapped value would put the record in 1677)."""
+    log = np.asarray(log_ns, np.uint64)
+    if log.size and int(log.max()) > _INT64_MAX:
+        i = int(np.argmax(log > np.uint64(_INT64_MAX)))
+        raise TimestampError(f"the header stamps are all zero and the receive times reach {int(log.max())} ns "
+                             f"(first at message {i}), beyond 2^63 ns (the year 2262): not a time",
+                             source=source, channel=channel,
+                             hint="re-record with header stamps set by the sensor driver, or fix the recorder's "
+                                  "clock; nifo cannot tell when these samples were taken")
+    return log.astype(np.int64)
 
 
 class _NoUsableIndex(Exception):
@@ -178,6 +195,51 @@ def file_topics(path: Path) -> dict[str, str]:
             for ch in summary.channels.values()}
 
 
+def _writer(f: BinaryIO) -> str:
+    """The MCAP header's ``library`` (who wrote the file), or '' when unreadable."""
+    f.seek(0)
+    head = f.read(8 + 9 + 4 + 256 + 4 + 256)
+    try:
+        if head[:8] != _MAGIC or head[8] != 0x01:
+            return ""
+        pos = 17
+        n = struct.unpack_from("<I", head, pos)[0]
+        pos += 4 + n
+        n = struct.unpack_from("<I", head, pos)[0]
+        return head[pos + 4:pos + 4 + n].decode("utf-8", "replace")
+    except struct.error:
+        return ""
+
+
+def chunk_crc_status(path: Path) -> dict | None:
+    """``{"chunks", "without_crc", "writer"}`` of an MCAP file (None when it has no chunk index to tell).
+
+    A chunk whose ``uncompressed_crc`` is 0 has none recorded: a flipped bit inside it cannot be detected
+    (nifo writes a CRC for every chunk; some other writers do not).
+    """
+    try:
+        with path.open("rb") as f:
+            summary = _summary(f)
+            without = 0
+            for ci in summary.chunk_indexes:
+                # chunk record: opcode u8, length u64, start u64, end u64, uncompressed_size u64, uncompressed_crc u32
+                f.seek(ci.chunk_start_offset + 1 + 8 + 8 + 8 + 8)
+                raw = f.read(4)
+                without += len(raw) == 4 and struct.unpack("<I", raw)[0] == 0
+            return {"chunks": len(summary.chunk_indexes), "without_crc": int(without), "writer": _writer(f)}
+    except Exception:  # noqa: BLE001 - damage is reported by the reader; here only what can be told
+        return None
+
+
+def crc_note(status: dict | None) -> str | None:
+    """The sentence ``nifo info`` and the results' provenance carry for chunks without CRC (None: all have one)."""
+    if not status or not status["without_crc"]:
+        return None
+    who = f" (written by {status['writer']})" if status["writer"] else ""
+    return (f"{status['without_crc']} of {status['chunks']} chunks carry no CRC-32{who}: damage inside them "
+            "cannot be detected")
+
+
 def check_metadata_topics(listed: Mapping[str, str], path: Path, *, source: str) -> None:
     """metadata.yaml's {topic: type} must be the MCAP file's own (else metadata.yaml was damaged or edited)."""
     try:
@@ -249,7 +311,7 @@ def _iter_mcap_indexed(path: Path, wanted: Mapping[str, tuple[str, str]], *, axi
                         raise _corrupt(path, off, "message records do not match their index")
                     stamps, values = _decode_buffer(buf, o + 31, length - 22, msgtype=wanted[role][1], axis=axis,
                                                     typestore=typestore)
-                    parts.append((stamps, values, idx["t"].astype(np.int64)))
+                    parts.append((stamps, values, idx["t"].astype(np.uint64)))
                 if parts:
                     s, v, t = (np.concatenate([p[k] for p in parts]) for k in range(3))
                     order = np.argsort(t, kind="stable")

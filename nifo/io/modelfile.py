@@ -44,6 +44,7 @@ from nifo_core.describing import KINDS, Term, kind as _kind, make_term
 from nifo_core.errors import ConfigError, DataFileError, NifoError
 
 from .atomic import staged_file
+from .ownership import YAML_MARK_PREFIX
 
 __all__ = ["ModelSpec", "Step", "load_model_spec", "parse_model_spec", "write_model_spec", "SETTINGS_KEYS",
            "MAX_MODEL_BYTES", "MAX_BLOCK"]
@@ -111,6 +112,24 @@ def _short(v: Any) -> str:
     return r if len(r) <= 40 else r[:37] + "..."
 
 
+def text_number_note(value: Any) -> str:
+    """For a string that reads as a number (YAML 1.1 takes ``1e-4`` without a decimal point for text):
+    what happened and how to write it; '' otherwise."""
+    if not isinstance(value, str) or len(value) > 40:
+        return ""
+    try:
+        x = float(value)
+    except ValueError:
+        return ""
+    if not math.isfinite(x) or not any(c.isdigit() for c in value):
+        return ""
+    mant, _, exp = value.strip().lower().partition("e")
+    if not exp or "." in mant:
+        return f" ({value!r} is text, not a number: write {value.strip()} without quotes)"
+    return (f" ({value!r} was read as text: YAML reads a number like 1e-4 without a decimal point as a string; "
+            f"write {mant}.0e{exp})")
+
+
 class TermSpec(_Strict):
     """One nonlinearity: ``{kind: NAME, params: {...}}`` (short forms are normalised to this)."""
 
@@ -153,7 +172,8 @@ class TermSpec(_Strict):
                     raise ValueError(f"{k.name}.{name}={_short(value)} must be one of {unit.replace('|', ', ')}")
             elif not _is_number(value):
                 raise ValueError(f"{k.name}.{name}={_short(value)} must be a number [{unit}]"
-                                 + (" (true/false is not a number)" if isinstance(value, bool) else ""))
+                                 + (" (true/false is not a number)" if isinstance(value, bool) else "")
+                                 + text_number_note(value))
             elif abs(value) > 1e300 or not math.isfinite(value):
                 raise ValueError(f"{k.name}.{name}={_short(value)} must be finite [{unit}]")
             elif name != "offset" and (value < 0 or (value == 0 and not (k.name == "bump_stop" and name == "gap"))):
@@ -185,6 +205,13 @@ class ModelFile(_Strict):
     settings: Settings | None = None
     note: _Text | None = None
     suggested_by: _Text | None = None
+
+    @field_validator("nifo_model", mode="before")
+    @classmethod
+    def _version(cls, v: Any) -> Any:
+        if type(v) is not int or v != 1:   # strict: true, 1.0 and "1" are not the format version 1
+            raise ValueError(f"must be the integer 1 (the format version), got {_short(v)}")
+        return v
 
     @model_validator(mode="after")
     def _either(self) -> "ModelFile":
@@ -236,7 +263,9 @@ def _where(loc: tuple) -> str:
     return out
 
 
-def _validation_error(err: ValidationError, src: str) -> ConfigError:
+def validation_error(err: ValidationError, src: str, *, hint: str = _FIX, yaml: bool = True) -> ConfigError:
+    """One :class:`ConfigError` line for the first problem pydantic found: where (dotted path), what, the value
+    (``yaml``: and, for a number YAML read as text, how to write it)."""
     first = err.errors(include_url=False)[0]
     where = _where(first["loc"])
     msg = first["msg"].removeprefix("Value error, ")
@@ -245,9 +274,15 @@ def _validation_error(err: ValidationError, src: str) -> ConfigError:
         else type(value).__name__
     more = f" (and {err.error_count() - 1} more problem(s))" if err.error_count() > 1 else ""
     text = f"{where}: {msg}" if where else msg
-    if first["type"] not in ("value_error", "assertion_error") and value is not None:
-        text += f", got {shown}"
-    return ConfigError(text + more, source=src, hint=_FIX)
+    if first["type"] not in ("value_error", "assertion_error"):
+        if value is None and first["type"] != "missing":
+            text += ", got null"
+        elif value is not None and first["type"] != "missing":
+            text += f", got {shown}" + (text_number_note(value) if yaml else "")
+    return ConfigError(text + more, source=src, hint=hint)
+
+
+_validation_error = validation_error
 
 
 def _terms(items: list[TermSpec] | None, where: str, src: str) -> tuple[Term, ...]:
@@ -354,6 +389,8 @@ def write_model_spec(path: str | Path, terms: list[Term] | tuple[Term, ...], *, 
     doc["nonlinearities"] = [t.to_dict() for t in terms]
     if settings:
         doc["settings"] = dict(settings)
-    with staged_file(path) as tmp:
-        tmp.write_text(yaml.safe_dump(doc, sort_keys=False))
+    from nifo_core import __version__
+
+    with staged_file(path) as tmp:   # the first line marks it as nifo's (it may replace it: nifo.io.ownership)
+        tmp.write_text(f"{YAML_MARK_PREFIX}{__version__}\n" + yaml.safe_dump(doc, sort_keys=False))
     return Path(path)

@@ -15,7 +15,7 @@
     samples, duration, the reader's ``meta``), per step for two-step models.
     ``model_file``: the model file and its steps. ``settings``: as run.
 
-``model.json`` (``nifo_identified_model: 1``)
+``model.json`` (``nifo_identified_model: 1``; read through :class:`ModelDocument`)
     :meth:`IdentifiedModel.to_dict` (T21, B_i, terms, pooled c_i/M2, the
     one-mass body model or null, ``linear_part``: the linear part predictions
     use — ``kind`` body or rational, ``order``, ``fit_rms``, ``stable``,
@@ -32,9 +32,10 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Annotated, Any, Literal, Mapping
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from nifo_core import __version__
 from nifo_core.errors import ConfigError, DataFileError
@@ -43,9 +44,10 @@ from nifo_core.nifo import NifoResult
 from nifo_core.record import Record
 
 from .atomic import staged_file
+from .modelfile import TermSpec, validation_error
 
 __all__ = ["data_entry", "identify_document", "write_json", "read_json", "read_identify", "model_document",
-           "write_model", "read_model", "IDENTIFY_JSON", "MODEL_JSON", "PREDICT_JSON"]
+           "write_model", "read_model", "ModelDocument", "IDENTIFY_JSON", "MODEL_JSON", "PREDICT_JSON"]
 
 IDENTIFY_JSON = "identify.json"
 MODEL_JSON = "model.json"
@@ -179,6 +181,138 @@ def write_model(path: str | os.PathLike, model: IdentifiedModel, *, linear: Iden
     return write_json(path, model_document(model, linear=linear), atomic=atomic)
 
 
+# -----------------------------------------------------------------------------
+# model.json's schema: the same discipline as model files (pydantic, strict types), on what is read back
+# -----------------------------------------------------------------------------
+
+_Finite = Annotated[float, Field(allow_inf_nan=False)]
+_Nullable = Annotated[float, Field(allow_inf_nan=False)] | None       # JSON writes NaN as null
+_Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+_Pair = Annotated[list[_Finite], Field(min_length=2, max_length=2)]
+_NullablePair = Annotated[list[_Nullable], Field(min_length=2, max_length=2)]
+_MODEL_FIX = ("give the model.json nifo identify or nifo loop wrote (this one was edited or damaged); "
+              "run nifo identify again to write it anew")
+
+
+class _Doc(BaseModel):
+    """A part of a document nifo wrote: strict types; keys it does not read are ignored."""
+
+    model_config = ConfigDict(strict=True, extra="ignore", frozen=True)
+
+
+class _Complex(_Doc):
+    re: list[_Nullable]
+    im: list[_Nullable]
+
+    @model_validator(mode="after")
+    def _same_length(self) -> "_Complex":
+        if len(self.re) != len(self.im):
+            raise ValueError(f"re has {len(self.re)} values, im {len(self.im)}")
+        return self
+
+
+class _FiniteComplex(_Complex):
+    re: list[_Finite]
+    im: list[_Finite]
+
+
+class _BodyDoc(_Doc):
+    k: _Finite
+    c: _Finite
+    k3: _Finite = 0.0
+    fit_rms: _Nullable = None
+
+
+class _LinearDoc(_Doc):
+    kind: Literal["body", "rational"]
+    body: _BodyDoc | None = None
+    poles: _FiniteComplex | None = None
+    residues: _FiniteComplex | None = None
+    paths: list[_FiniteComplex] | None = None
+    fit_rms: _Nullable = None
+    band_hz: _NullablePair | None = None
+    reason: str = ""
+    candidates: dict[str, Any] | None = None
+    absorbed: _Pair | None = None
+
+    @model_validator(mode="after")
+    def _parts(self) -> "_LinearDoc":
+        if self.kind == "body" and self.body is None:
+            raise ValueError("a linear part of kind 'body' needs 'body' (k, c)")
+        if self.kind == "rational":
+            if self.poles is None or self.residues is None:
+                raise ValueError("a rational linear part needs 'poles' and 'residues'")
+            if len(self.poles.re) != len(self.residues.re):
+                raise ValueError(f"{len(self.poles.re)} poles but {len(self.residues.re)} residues")
+        return self
+
+
+class _BandDoc(_Doc):
+    f_lo_hz: _Positive
+    f_hi_hz: _Positive
+
+
+class _SpectralDoc(_Doc):
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+
+    block: Annotated[int, Field(ge=8)]
+    overlap: Annotated[float, Field(ge=0.0, lt=1.0, allow_inf_nan=False)]
+    window: str
+    detrend: str = "constant"
+
+
+class ModelDocument(_Doc):
+    """``model.json`` as :func:`read_model` accepts it: every field prediction uses, of the right type and
+    finite (null only where NaN is a value nifo writes: T21 and B lines, fit errors)."""
+
+    nifo_identified_model: int
+    freq_hz: list[_Finite]
+    t21: _Complex
+    b: list[_Complex]
+    terms: list[TermSpec]
+    c_over_m2: list[_Finite]
+    body: _BodyDoc | None
+    linear_part: _LinearDoc | None = None
+    force_gain: Annotated[float, Field(ge=0.0, allow_inf_nan=False)] | None = None
+    analysis_band_hz: _Pair
+    fs_hz: _Positive
+    settings: _SpectralDoc
+    band: _BandDoc
+    source: str = "static"
+    provenance: dict[str, Any] | None = None
+    linear_h1: "ModelDocument | None" = None
+
+    @field_validator("nifo_identified_model", mode="before")
+    @classmethod
+    def _version(cls, v: Any) -> Any:
+        if type(v) is not int or v != 1:
+            raise ValueError(f"must be the integer 1, got {v!r}")
+        return v
+
+    @model_validator(mode="after")
+    def _shapes(self) -> "ModelDocument":
+        nf, nt = len(self.freq_hz), len(self.terms)
+        if len(self.t21.re) != nf:
+            raise ValueError(f"t21 has {len(self.t21.re)} lines but freq_hz {nf}")
+        if len(self.b) != nt or any(len(x.re) != nf for x in self.b):
+            raise ValueError(f"b must hold {nt} term(s) of {nf} lines each")
+        if len(self.c_over_m2) != nt:
+            raise ValueError(f"c_over_m2 has {len(self.c_over_m2)} value(s) for {nt} term(s)")
+        if self.body is None and self.linear_part is None:
+            raise ValueError("the model has no linear part: neither 'body' nor 'linear_part'")
+        return self
+
+
+def check_model_document(doc: Mapping, source: str) -> None:
+    """Raise :class:`ConfigError` naming the file and the first field that is missing, null or of a wrong type."""
+    try:
+        ModelDocument.model_validate(dict(doc))
+    except ValidationError as err:
+        raise validation_error(err, source, hint=_MODEL_FIX, yaml=False) from None
+    except RecursionError:
+        raise ConfigError("the document nests too deeply", source=source, hint=_MODEL_FIX) from None
+
+
 def read_model(path: str | os.PathLike) -> tuple[IdentifiedModel, IdentifiedModel | None]:
     """The identified model and (when stored) its plain-H1 linear counterpart from a ``model.json``.
 
@@ -196,9 +330,10 @@ def read_model(path: str | os.PathLike) -> tuple[IdentifiedModel, IdentifiedMode
         raise DataFileError(f"identified model file {p.name} does not exist", source=str(p),
                             hint=f"give the {MODEL_JSON} (or its directory) that nifo identify or nifo loop wrote")
     doc = read_json(p, what="identified model")
-    if doc.get("nifo_identified_model") != 1:
+    if "nifo_identified_model" not in doc:
         raise ConfigError("not an identified model file (no 'nifo_identified_model: 1')", source=str(p),
                           hint="give the model.json that nifo identify wrote")
+    check_model_document(doc, str(p))
     try:
         model = IdentifiedModel.from_dict(_nan(doc))
         lin = doc.get("linear_h1")

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import csv
 import os
+import re
 import warnings
 from collections.abc import Mapping
 from pathlib import Path
@@ -43,28 +44,70 @@ def _delimiter(header: str) -> str:
     return best if counts[best] else ","
 
 
+#: what np.loadtxt reads as a number: ASCII digits, optional sign, point and exponent; inf, infinity, nan
+_PLAIN_NUMBER = re.compile(r"^[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|inf(?:inity)?|nan)$", re.I)
+_FIX_CELL = "write plain numbers with the digits 0-9 (e.g. 1000, -0.5, 1.5e-3), without quotes or digit separators"
+
+
+def _why_not_a_number(cell: str) -> str:
+    """Why ``cell`` is not a number np.loadtxt reads, in words (empty when it is one)."""
+    c = cell.strip()
+    if _PLAIN_NUMBER.match(c):
+        return ""
+    if len(c) >= 2 and c[0] == c[-1] and c[0] in "\"'":
+        return "it is quoted"
+    plain = c.replace("_", "")
+    try:
+        float(plain)
+        readable = True
+    except ValueError:
+        readable = False
+    if readable and "_" in c:
+        return "digit-group underscores are not read"
+    if readable and not c.isascii():
+        return "digits other than 0-9"
+    if not c:
+        return "the cell is empty"
+    return "not a number"
+
+
 def _bad_cell(path: Path, delim: str, header: list[str], wanted: Mapping[str, int]) -> DataFileError:
-    """Find the first cell np.loadtxt could not read, to say where it is."""
+    """Find the first cell np.loadtxt could not read (split as loadtxt splits: no quoting), to say where it is."""
     with path.open(newline="", encoding="utf-8-sig") as f:
         seen_header = False
-        for line_no, row in enumerate(csv.reader(f, delimiter=delim), start=1):
-            if not row or row[0].lstrip().startswith("#"):
+        for line_no, line in enumerate(f, start=1):
+            text = line.split("#", 1)[0].rstrip("\r\n")
+            if not text.strip():
                 continue
             if not seen_header:
                 seen_header = True
                 continue
+            row = text.split(delim)
             if len(row) != len(header):
                 return DataFileError(f"row {line_no} has {len(row)} cells but the header has {len(header)}",
                                      source=str(path), hint=f"fix or delete row {line_no}")
             for name, j in wanted.items():
-                try:
-                    float(row[j])
-                except ValueError:
-                    return DataFileError(f"row {line_no}: cell {row[j]!r} is not a number", source=str(path),
-                                         channel=f"column {name}",
-                                         hint=f"fix or delete row {line_no}; write missing values as nan "
-                                              "only if you then cut them out")
+                why = _why_not_a_number(row[j])
+                if why:
+                    return DataFileError(f"row {line_no}, column {j + 1}: cell {row[j].strip()!r} is not a number"
+                                         + ("" if why == "not a number" else f" ({why})"), source=str(path),
+                                         channel=f"column {name}", hint=f"fix or delete row {line_no}: {_FIX_CELL}")
     return DataFileError("cannot read the table", source=str(path), hint="check the file is a CSV table")
+
+
+def _not_utf8(path: Path, err: UnicodeDecodeError) -> DataFileError:
+    """A CSV that is not UTF-8: say which encoding it looks like and how to convert it."""
+    with path.open("rb") as f:
+        head = f.read(1 << 16)
+    looks_text = b"\x00" not in head and sum(32 <= b < 127 or b in b"\t\r\n" for b in head) > 0.9 * len(head)
+    at = f"byte 0x{err.object[err.start]:02x} at offset {err.start}" if err.object else "an undecodable byte"
+    if looks_text:
+        return DataFileError(f"the file is not UTF-8 text ({at}); it looks like Latin-1 (ISO-8859-1) or "
+                             "Windows-1252, and nifo reads CSV tables as UTF-8", source=str(path),
+                             hint=f"convert it, e.g. iconv -f latin1 -t utf-8 {path.name} > {path.stem}.utf8.csv "
+                                  "(use -f cp1252 for a Windows export)")
+    return DataFileError(f"the file is not text ({at}; nifo reads CSV tables as UTF-8): is it a CSV table?",
+                         source=str(path), hint="give a CSV table with a header row, saved as UTF-8")
 
 
 def _ragged_row(path: Path, delim: str, width: int) -> DataFileError | None:
@@ -116,6 +159,12 @@ def read_csv(path: str | os.PathLike, *, columns: Mapping[str, str] | None = Non
             explicit = set(columns or {})
             for role in ("time", *READ_ROLES):
                 name = names.get(role)
+                if name in index and header.count(name) > 1:
+                    cols = [str(j + 1) for j, h in enumerate(header) if h == name]
+                    raise DataFileError(f"column {name!r} appears {len(cols)} times in the header (columns "
+                                        f"{', '.join(cols)}): nifo cannot tell which one to read", source=src,
+                                        channel=role, hint=f"rename all but one {name!r} column in the header, or "
+                                                           f"read another column with --columns {role}=NAME")
                 if name in index:
                     wanted[role] = index[name]
                 elif role in asm.required or role in explicit:
@@ -138,14 +187,15 @@ def read_csv(path: str | os.PathLike, *, columns: Mapping[str, str] | None = Non
                     warnings.simplefilter("ignore", UserWarning)
                     data = np.loadtxt(f, delimiter=delim, usecols=list(wanted.values()), ndmin=2,
                                       dtype=np.float64, comments="#")
+            except UnicodeDecodeError:
+                raise
             except ValueError as err:
                 raise _bad_cell(path, delim, header,
                                 {header[j]: j for j in wanted.values()}) from err
     except NifoError:
         raise
     except UnicodeDecodeError as err:
-        raise DataFileError("the file is not text (is it a CSV table?)", source=src,
-                            hint="give a CSV table with a header row") from err
+        raise _not_utf8(path, err) from err
     except OSError as err:
         raise DataFileError(f"cannot read the file ({err.strerror or err})", source=src,
                             hint="check the path and the file's permissions") from err
