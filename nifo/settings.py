@@ -141,8 +141,13 @@ def resolve(paths: Sequence[Path], args: argparse.Namespace | None = None, *, fi
                     snr = None
     # without the data's choices the integration band stays open (None): each step takes its default for the
     # records it reads (default_band of the shortest, or characterize's noise edge), as before settings existed
-    return resolve_settings(merged, fs_hz=fs, durations_s=durations, excitation=excitation, snr_lo_hz=snr,
-                            origins=origins)
+    try:
+        return resolve_settings(merged, fs_hz=fs, durations_s=durations, excitation=excitation, snr_lo_hz=snr,
+                                origins=origins)
+    except NifoError as err:     # a setting the data cannot take (e.g. a band edge too low): name the data
+        shortest = paths[int(min(range(len(durations)), key=lambda i: durations[i]))] if durations else \
+            (paths[0] if paths else None)
+        raise err.with_context(source=None if shortest is None else str(shortest)) from None
 
 
 def loader_options(opts: dict, settings: AnalysisSettings) -> dict:

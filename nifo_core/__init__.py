@@ -17,13 +17,18 @@ or logging set-up in here (a test enforces it). Modules, one concern each:
 """
 
 import os as _os
-
-import scipy.linalg as _scipy_linalg  # noqa: F401  (loads scipy's BLAS so that the limit below reaches it too)
-from threadpoolctl import threadpool_limits as _threadpool_limits
+import sys as _sys
 
 __version__ = "0.1.0"
 
 # One BLAS thread per process: nifo's linear algebra is small (a few hundred rows), where OpenBLAS's threads only
 # add overhead — 14× slower rational fits on a busy two-core machine (benchmarks/bench_blas_threads.py prints the
-# ratio). NIFO_BLAS_THREADS overrides; the fleet scales over processes instead.
-_threadpool_limits(int(_os.environ.get("NIFO_BLAS_THREADS", "1")), user_api="blas")
+# ratio). Set before numpy and scipy load their OpenBLAS (cheap: nothing heavy is imported here, so a Ctrl-C at
+# start-up still lands where the command catches it); a numpy loaded before nifo_core is limited now.
+# NIFO_BLAS_THREADS overrides; the fleet scales over processes instead.
+_BLAS_THREADS = _os.environ.get("NIFO_BLAS_THREADS", "1")
+_os.environ.setdefault("OPENBLAS_NUM_THREADS", _BLAS_THREADS)
+if "numpy" in _sys.modules:
+    from threadpoolctl import threadpool_limits as _threadpool_limits
+
+    _threadpool_limits(int(_BLAS_THREADS), user_api="blas")
