@@ -321,8 +321,8 @@ def resolve_settings(given: GivenSettings, *, fs_hz: float | None, durations_s: 
     else:
         band = None
         choices["band"] = Choice(None, "default", "default_band(fs, duration) of each record")
-    if band is not None and fs_hz:
-        band = band.validate(fs_hz)
+    if band is not None and fs_hz:   # an edge the shortest record cannot resolve is refused here, before any work
+        band = band.validate(fs_hz, n_samples=int(shortest * fs_hz) if shortest else None)
     if g.analysis_band_hz is None and ex is not None and band is not None:
         lo = max(analysis[0], band.f_lo_hz)
         hi = min(analysis[1], band.f_hi_hz)
