@@ -13,11 +13,12 @@ from the data; ``nifo.settings``):
   records with the same settings). Also: ``nifo loop`` on level 1 alone (practically linear) must add nothing.
 - **Silverbox** (Noël & Schoukens, IJC 2018; ``../shared/data/silverbox_multilevel``): ``nifo run`` on one level
   (force and displacement columns), then ``nifo predict`` of every other level: the final model against the
-  linear model of the same level, and the RMS error in volts of the output as measured (the displacement).
+  linear model of the same record, and the RMS error in volts of the output as measured (the displacement).
 
-Prints one table per structure and writes ``--json``. About 6 minutes on two cores.
+Prints one table per structure, writes ``--json`` and, with ``--img DIR``, the figure of docs/f16_loop.md
+(``hands_off.png``; ``--replot out.json`` redraws it from a saved run). About 10 minutes on two cores.
 
-    python benchmarks/bench_hands_off.py [--data ../shared/data] [--json out.json] [--f16-sets 3/5/7 1/3/5 ...]
+    python benchmarks/bench_hands_off.py [--data ../shared/data] [--json out.json] [--img docs/img] [--f16-sets 3/5/7 ...]
 """
 
 from __future__ import annotations
@@ -126,20 +127,63 @@ def silverbox(data: Path, tmp: Path, level: int) -> dict:
     print(f"Silverbox nifo run at {level} mV ({took:.0f} s): added {', '.join(e['label'] for e in loop['effects_added'])}"
           , flush=True)
     for name, v in got.items():
-        print(f"    {name:28} band NMSE {v['model']:.4f} % | linear of the same level {v['linear']:.4f} % "
+        print(f"    {name:28} band NMSE {v['model']:.4f} % | linear of the same record {v['linear']:.4f} % "
               f"({v['linear'] / v['model']:.0f}×); RMS error {1e3 * v['rms_model']:.3f} mV | {1e3 * v['rms_linear']:.3f} "
               f"mV", flush=True)
     return {"level": level, "exit_code": code, "seconds": took, "added": [e["label"] for e in loop["effects_added"]],
             "refinement": loop.get("refinement"), "predicted": got}
 
 
+def figure(doc: dict, path: Path) -> None:
+    """Held-out band NMSE of the hands-off model against the two linear baselines (F-16) and the linear model of
+    the same level (Silverbox), log scale, one group per held-out record."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    cases = [(f"{k.split()[1]} {'multisine' if k.startswith('Full') else 'sweep'}\nfrom {row['set']}", v)
+             for row in doc["f16"] for k, v in row["held_out"].items()]
+    sb = sorted(doc["silverbox"]["predicted"].items(), key=lambda kv: int(kv[0].split("_")[-1]))
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [len(cases), len(sb) * 0.8]})
+    x = np.arange(len(cases))
+    for i, (key, label, colour) in enumerate([("model", "nifo run (final model)", "C0"),
+                                              ("linear", "linear, same levels and settings", "C7"),
+                                              ("expert_linear", "linear, an expert's settings", "C1")]):
+        ax.bar(x + (i - 1) * 0.27, [v[key] for _, v in cases], 0.27, label=label, color=colour)
+    ax.set_xticks(x, [c for c, _ in cases], fontsize=8)
+    ax.set_yscale("log")
+    ax.set_ylabel("held-out band NMSE of ẍ₂ [%]")
+    ax.set_title("F-16 GVT: held-out level, two excitations")
+    ax.legend(fontsize=8, loc="upper left")
+    ax.grid(axis="y", which="both", alpha=0.3)
+    y = np.arange(len(sb))
+    bx.bar(y - 0.2, [v["model"] for _, v in sb], 0.4, color="C0", label="nifo run at "
+           f"{doc['silverbox']['level']} mV")
+    bx.bar(y + 0.2, [v["linear"] for _, v in sb], 0.4, color="C7", label="linear, same record")
+    bx.set_xticks(y, [f"{n.split('_')[-1]} mV" for n, _ in sb], fontsize=8)
+    bx.set_yscale("log")
+    bx.set_ylabel("band NMSE of the displacement [%]")
+    bx.set_title("Silverbox: every level from one")
+    bx.legend(fontsize=8, loc="lower left")
+    bx.grid(axis="y", which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--img", type=Path, help="directory for hands_off.png")
+    ap.add_argument("--replot", type=Path, help="a --json of an earlier run: redraw the figure only")
     ap.add_argument("--f16-sets", nargs="*", default=["3/5/7", "1/3/5", "1/3/7", "1/5/7"])
     ap.add_argument("--silverbox-level", type=int, default=150)
     args = ap.parse_args()
+    if args.replot:
+        figure(json.loads(args.replot.read_text()), (args.img or Path(".")) / "hands_off.png")
+        return 0
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         doc = {"f16": f16(args.data / "f16", tmp, args.f16_sets),
@@ -147,6 +191,8 @@ def main() -> int:
                "silverbox": silverbox(args.data / "silverbox_multilevel", tmp, args.silverbox_level)}
     if args.json:
         args.json.write_text(json.dumps(doc, indent=1, default=str))
+    if args.img:
+        figure(doc, args.img / "hands_off.png")
     return 0
 
 
