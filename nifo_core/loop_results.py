@@ -424,11 +424,14 @@ class LoopResult:
         """
         if self.bounds is None:
             return []
-        units = ["1/s²", "1/s", *[t.spec.coef_unit + "/kg" for t in self.terms]]
-        names = ["k = K2/M2", "c = C2/M2", *[t.label for t in self.terms]]
+        # a measured force is one more column of the fit, after k and c: its coefficient is -1/M2
+        force = len(self.bounds.theta) == 3 + len(self.terms)
+        units = ["1/s²", "1/s", *(["1/kg"] if force else []), *[t.spec.coef_unit + "/kg" for t in self.terms]]
+        names = ["k = K2/M2", "c = C2/M2", *(["-1/M2 (force column)"] if force else []),
+                 *[t.label for t in self.terms]]
         out = []
         for n, u, d in zip(names, units, self.bounds.to_list(names)):
-            m = self.m2_kg
+            m = None if n.startswith("-1/M2") else self.m2_kg
             out.append({**d, "unit": u, "value_times_m2": None if m is None else d["value"] * m,
                         "half_width_times_m2": None if m is None else d["half_width"] * m})
         return out

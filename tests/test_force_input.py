@@ -182,6 +182,22 @@ def test_identified_forced_model_predicts_a_held_out_level(fixed_rec):
         assert out["cubic"] < 1.0 and out["cubic"] < out["linear"] / 20
 
 
+def test_loop_coefficients_are_named_after_their_columns_with_a_measured_force(fixed_rec):
+    """The force is a column of the equation-error fit between c and the terms: each reported coefficient is the
+    one its name says (the cubic per kg is B3/M; the force column's coefficient is -1/M)."""
+    from nifo_core.loop import LoopSettings, close_loop
+
+    res = close_loop([fixed_rec], ["cubic_stiffness"], band=IntegrationBand(0.5, 150.0),
+                     settings=LoopSettings(max_rounds=1, refine=False, prediction="none"))
+    got = {d["name"]: d for d in res.coefficients()}
+    assert got["k = K2/M2"]["value"] == pytest.approx(K / M, rel=0.05)
+    assert got["c = C2/M2"]["value"] == pytest.approx(D / M, rel=0.1)
+    assert got["-1/M2 (force column)"]["value"] == pytest.approx(-1 / M, rel=0.05)
+    cubic = next(d for n, d in got.items() if n.startswith("cubic"))
+    assert cubic["value"] == pytest.approx(B3 / M, rel=0.05)
+    assert got["-1/M2 (force column)"]["value_times_m2"] is None
+
+
 def test_characterize_takes_the_force_as_a_linear_column(fixed_rec):
     ch = characterize(fixed_rec, band=IntegrationBand(1.0, 200.0), kinds=("cubic_stiffness", "coulomb",
                                                                           "quadratic_damping"))
