@@ -198,6 +198,24 @@ def test_loop_coefficients_are_named_after_their_columns_with_a_measured_force(f
     assert got["-1/M2 (force column)"]["value_times_m2"] is None
 
 
+def test_a_model_predicts_a_record_at_a_quarter_of_its_identification_rate(fixed_rec):
+    """The model is continuous-time: a record at another rate (a benchmark's test record often is) is predicted on
+    the fine step the model was identified with, as well as at the identification rate."""
+    from nifo_core.model import fine_factor
+
+    model = IdentifiedModel.from_nifo(identify_nifo(fixed_rec, [make_term("cubic")], settings=SETTINGS,
+                                                    analysis_band_hz=BAND, on_ill_conditioned="ignore"))
+    held = _forced(7, force_rms=40.0, seconds=40.0)       # band-limited to 100 Hz: every 4th sample is exact
+    got = {}
+    for q in (1, 4):
+        p = predict_body(model, None, FS / q, force=held.force[::q])
+        y = held.body_accel[::q][p.valid]
+        got[q] = 100 * np.mean((y - p.body_accel[p.valid]) ** 2) / np.var(y)
+    print(f"held-out NMSE at {FS:g} Hz {got[1]:.4f} %, at {FS / 4:g} Hz {got[4]:.4f} %")
+    assert fine_factor(FS / 4, FS) == 4 * fine_factor(FS, FS)
+    assert got[4] < 1.0 and got[4] < 1.5 * got[1] + 0.02
+
+
 def test_characterize_takes_the_force_as_a_linear_column(fixed_rec):
     ch = characterize(fixed_rec, band=IntegrationBand(1.0, 200.0), kinds=("cubic_stiffness", "coulomb",
                                                                           "quadratic_damping"))

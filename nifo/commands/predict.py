@@ -141,9 +141,17 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
     from nifo_core.spectral import cross_spectra
 
     fs = record.fs_hz
+    rate_note = None
     if abs(fs - model.fs_hz) > 1e-3 * model.fs_hz:
-        raise InputError(f"the record is sampled at {fs:g} Hz but the model was identified at {model.fs_hz:g} Hz",
-                         source=str(path), hint="resample the record to the model's rate")
+        # the model is continuous-time (a linear part in s, coefficients per unit mass): it predicts at any rate
+        # whose Nyquist frequency holds the band it is scored over
+        if band_hz[1] >= 0.5 * fs:
+            raise InputError(f"the record is sampled at {fs:g} Hz (Nyquist {0.5 * fs:g} Hz) and the band scored, "
+                             f"{band_hz[0]:g}-{band_hz[1]:g} Hz, reaches beyond it (the model was identified at "
+                             f"{model.fs_hz:g} Hz)", source=str(path),
+                             hint=f"give --freq-range LO HI with HI below {0.5 * fs:g} Hz")
+        rate_note = (f"predicted at the record's rate, {fs:g} Hz; the model was identified at {model.fs_hz:g} Hz "
+                     f"(its parameters are continuous-time)")
     a1, force, drive, drive_name = _drive(record, model)
     if a1 is None and force is None:
         raise InputError("the spindle is fixed and the model has no force input: nothing drives the model",
@@ -191,6 +199,8 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
         skip=int(period_samples) if period_samples else valid.start, settings=model.settings)
     if eps is not None:
         arrays["t_model_eps"] = eps
+    if rate_note:
+        out["note"] = rate_note
     tp = truth_for(path)
     if tp is not None and drive_name == "spindle":
         out["truth"] = _truth_comparison(tp, model, f, t_meas, mask)
@@ -398,5 +408,7 @@ def _summary(results: list[dict], band, out: Path) -> str:
                          f"{_pct(tr['model_linear_part_t21_vs_true']['median'])}, NIFO nominal T21 "
                          f"{_pct(tr['model_nominal_t21_vs_true']['median'])}, measured H1 "
                          f"{_pct(tr['measured_h1_vs_true']['median'])}")
+        if r.get("note"):
+            lines.append(f"  note: {r['note']}")
     lines.append(f"wrote {out}/predict.json")
     return "\n".join(lines)
