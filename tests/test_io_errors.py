@@ -165,6 +165,15 @@ def test_mat_2d_array_without_row(tmp_path):
           cli_args=("--columns", cols), columns=dict(c.split("=") for c in cols.split(",")))
 
 
+def test_mat_3d_array_says_one_experiment_per_file(tmp_path):
+    """A benchmark file may hold several realisations in one 3-D key (channels × samples × experiments)."""
+    scipy.io.savemat(tmp_path / "f.mat", {"Acceleration": np.zeros((3, 50, 2)), "Fs": 400})
+    cols = "spindle_accel=Acceleration[1],body_accel=Acceleration[2],fs=Fs"
+    check(tmp_path / "f.mat", MissingChannelError, r"'Acceleration' is a 3-D array \(shape \(3, 50, 2\)\).*"
+          r"Fix: save each experiment as its own file", cli_args=("--columns", cols),
+          columns=dict(c.split("=") for c in cols.split(",")))
+
+
 def test_mat_without_rate(tmp_path):
     scipy.io.savemat(tmp_path / "norate.mat", {"spindle_accel": np.zeros(50), "body_accel": np.zeros(50)})
     check(tmp_path / "norate.mat", MissingChannelError, r"norate\.mat: fs: no sample rate.*--fs HZ")

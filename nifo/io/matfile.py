@@ -78,6 +78,12 @@ def _pick(data: Mapping[str, object], spec: str, *, role: str, src: str) -> np.n
                             hint="store the signal as a real double vector")
     arr = np.squeeze(arr)
     if idx is not None:
+        if arr.ndim > 2:   # e.g. several realisations of a multisine, each its own experiment
+            raise MissingChannelError(f"{key!r} is a {arr.ndim}-D array (shape {np.shape(data[key])}): several "
+                                      f"experiments in one key; nifo reads a vector or a row of a 2-D array",
+                                      source=src, channel=role,
+                                      hint=f"save each experiment as its own file, e.g. in Python scipy.io.savemat("
+                                           f"'r0.mat', {{'{key}': d['{key}'][..., 0], ...}}) with the other keys")
         if arr.ndim != 2:
             raise MissingChannelError(f"{key!r} has shape {np.shape(data[key])}; [i] picks a row of a 2-D array",
                                       source=src, channel=role, hint=f"use {key} without [i]")
