@@ -134,6 +134,11 @@ def silverbox(data: Path, tmp: Path, level: int) -> dict:
             "refinement": loop.get("refinement"), "predicted": got}
 
 
+def _mv(name: str) -> int:
+    """The level in mV of a Silverbox record's name (SNJP_ym_full_FNSI_150.mat → 150)."""
+    return int(Path(name).stem.rsplit("_", 1)[-1])
+
+
 def figure(doc: dict, path: Path) -> None:
     """Held-out band NMSE of the hands-off model against the two linear baselines (F-16) and the linear model of
     the same level (Silverbox), log scale, one group per held-out record."""
@@ -144,7 +149,7 @@ def figure(doc: dict, path: Path) -> None:
 
     cases = [(f"{k.split()[1]} {'multisine' if k.startswith('Full') else 'sweep'}\nfrom {row['set']}", v)
              for row in doc["f16"] for k, v in row["held_out"].items()]
-    sb = sorted(doc["silverbox"]["predicted"].items(), key=lambda kv: int(kv[0].split("_")[-1]))
+    sb = sorted(doc["silverbox"]["predicted"].items(), key=lambda kv: _mv(kv[0]))
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [len(cases), len(sb) * 0.8]})
     x = np.arange(len(cases))
     for i, (key, label, colour) in enumerate([("model", "nifo run (final model)", "C0"),
@@ -161,11 +166,11 @@ def figure(doc: dict, path: Path) -> None:
     bx.bar(y - 0.2, [v["model"] for _, v in sb], 0.4, color="C0", label="nifo run at "
            f"{doc['silverbox']['level']} mV")
     bx.bar(y + 0.2, [v["linear"] for _, v in sb], 0.4, color="C7", label="linear, same record")
-    bx.set_xticks(y, [f"{n.split('_')[-1]} mV" for n, _ in sb], fontsize=8)
+    bx.set_xticks(y, [f"{_mv(n)} mV" for n, _ in sb], fontsize=8)
     bx.set_yscale("log")
     bx.set_ylabel("band NMSE of the displacement [%]")
     bx.set_title("Silverbox: every level from one")
-    bx.legend(fontsize=8, loc="lower left")
+    bx.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2)
     bx.grid(axis="y", which="both", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=150)
