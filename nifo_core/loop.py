@@ -106,7 +106,7 @@ from .characterize_score import score_candidate
 from .feedback_paths import PATH_KINDS
 from .heldout import HeldOut, split_records
 from .loop_residual import _design, _Evaluator, _evidence, _g, _retune, _static_candidate, _tire_check
-from .model_fit import Fitted, LinearChoice, choose_linear_form, fit_model
+from .model_fit import RATIONAL_MARGIN, Fitted, LinearChoice, choose_linear_form, fit_model
 from .settings import AnalysisSettings
 from .loop_results import (NOTHING_MISSING, RESIDUAL_BANDS_HZ, Errors, Evidence, LoopRefinement, LoopResult,
                            LoopSettings, Round, Trial, _nothing_text, _round_text, before_after_text,
@@ -198,6 +198,8 @@ class _Predictor:
         self.off = settings.prediction == "none"
         self._cache: dict = {}
         self.choice = None
+        self._form: str | None = None      # the form in use when it changed after the linear choice
+        self.switched = ""
         if not self.off:
             try:
                 self.choice = choose_linear_form(held, data)
@@ -219,7 +221,29 @@ class _Predictor:
     @property
     def flexible(self) -> bool:
         """A rational linear part: a multi-mode structure, the terms' forces through their own paths."""
-        return self.choice is not None and self.choice.form == "rational"
+        return self.choice is not None and self.form == "rational"
+
+    @property
+    def form(self) -> str:
+        return self._form or self.choice.form
+
+    def reconsider(self, terms: Sequence[Term]) -> bool:
+        """Once terms are in, the one-mass body again (True when the form changes): a linear model of a strongly
+        nonlinear quarter car predicts poorly in either form, and the black box's extra poles stand in for what the
+        terms now model — the choice made on the linear model alone is biased towards it. The body is taken when
+        its equation-error fit with the terms is physical and the rational model does not predict the held-out
+        parts clearly better (:data:`~nifo_core.model_fit.RATIONAL_MARGIN`), as for the linear choice."""
+        if self.off or not self.flexible or not terms:
+            return False
+        body, flex = self._equation(terms), self.fit(terms)
+        if body is None or body.score is None or flex.score is None or flex.score <= RATIONAL_MARGIN * body.score:
+            return False
+        self._form, self._cache = "body", {}
+        self.switched = (f"one-mass body from round {len(terms)} on: with {', '.join(t.label for t in terms)} its "
+                         f"equation-error fit is physical and predicts the held-out parts at {body.score:.4g} % "
+                         f"against {flex.score:.4g} % for the rational model (the rational form was chosen on the "
+                         f"linear model alone)")
+        return True
 
     def _equation(self, terms: Sequence[Term]) -> Fitted | None:
         model = self.ev.equation_model(terms, self.data.spectral, self.data.analysis_band_hz)
@@ -231,7 +255,7 @@ class _Predictor:
     def fit(self, terms: Sequence[Term]) -> Fitted:
         key = tuple(t.label for t in terms)
         if key not in self._cache:
-            got = self._equation(terms) if self.choice.form == "body" else None
+            got = self._equation(terms) if self.form == "body" else None
             self._cache[key] = got or fit_model(self.held, terms, self.data, linear=self.linear,
                                                 structure=self.settings.structure)
         return self._cache[key]
@@ -525,6 +549,8 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
         rounds.append(Round(i, tuple(terms), ranked, tuple(trials), current, added, evid, text))
         terms = [*terms, added.candidate.term]
         current = added.after
+        if pred.reconsider(terms):
+            current = _errors(ev, pred, terms)
     else:
         verdict = (f"Stopped after the limit of {s.max_rounds} round(s); more may be missing: run again with more "
                    f"rounds.")
@@ -538,6 +564,8 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
     notes += ([band_note] if band_note else []) + ([adapted] if adapted else []) + ev.notes
     if pred.choice is not None:
         notes.append(pred.choice.reason)
+    if pred.switched:
+        notes.append(pred.switched)
     if band.f_lo_hz > 1.0:
         notes.append(f"the integration band starts at {band.f_lo_hz:g} Hz: motion below it is only partly in z, ż")
     limits, confounded = (), ()
