@@ -81,6 +81,10 @@ class LoopSettings:
     path_widths : int
         On a rational linear part (a flexible body): widths tried per kind that can act through a
         feedback path (backlash, clearance, saturation), geometric over the relative motion.
+    noise_correction : bool
+        Remove the bias that noise on both sensors gives the equation-error fit (errors in variables:
+        :mod:`nifo_core.simex`, with each record's noise estimated from its spectra,
+        :mod:`nifo_core.noise`); its uncertainty joins the coefficients' bounds.
     retune : bool
         Before each round, re-tune the parameter (gap, knee, eps...) of every term of the model
         over its grid (a key parameter within a factor 2 of its value) (declared terms state the form; the data set the parameter). Without it a
@@ -117,6 +121,7 @@ class LoopSettings:
     min_prediction_gain: float = 0.02
     max_record_rise: float = 0.05
     path_widths: int = 8
+    noise_correction: bool = True
 
     def __post_init__(self) -> None:
         if isinstance(self.max_rounds, bool) or not isinstance(self.max_rounds, (int, np.integer)) \
