@@ -16,12 +16,15 @@ Models*, ch. 5 for the measurement-error case):
    (:mod:`nifo_core.noise`) is added to both channels, one draw and its negative (antithetic).
 3. θ_syn = the same fit on them; the bias b = θ_syn - θ; the corrected θ ← θ₀ - b.
    Repeated :data:`ITERATIONS` times (θ from the previous step: the fixed point is the θ whose
-   synthetic fit reproduces θ₀).
+   synthetic fit reproduces θ₀). Where the steps do not contract (terms that share their shape —
+   a friction beside a damper knee — make the bias map ill-conditioned: measured, a knee's
+   coefficient moved by -130 %) there is no correction (None): the caller says the fit may be biased.
 
 Uncertainty (:meth:`Correction.extra_sd`): the draws' scatter (the correction's Monte-Carlo error) and
 the noise level's own error (:data:`NOISE_LEVEL_RTOL`, measured: estimates 0.7-1.3 × the truth on
 simulated records) times the part of the bias the noise makes (b minus the bias of a noise-free
-synthetic fit). The random error of θ₀ carries over unchanged (b is computed on the same input).
+synthetic fit). The random error of θ₀ carries over, times 1/(1 - r) with r the iteration's
+contraction (the bias's sensitivity to θ).
 What it cannot remove is bias from a model outside the family (an effect the model lacks).
 """
 
@@ -39,6 +42,10 @@ __all__ = ["ITERATIONS", "NOISE_LEVEL_RTOL", "Correction", "simulated_correction
 
 #: bias-correction iterations (1: θ₀ - b(θ₀); 2: once more from the corrected θ)
 ITERATIONS = 2
+#: a correction whose last step exceeds MAX_CONTRACTION × the one before (plus CONVERGED_RTOL·|θ₀|) is refused;
+#: measured: 0.05 on a friction or a cubic alone, 0.4-0.7 for a friction beside a damper knee
+MAX_CONTRACTION = 0.25
+CONVERGED_RTOL = 0.01
 #: relative error of an estimated noise variance (measured on simulated records: 0.7-1.3 × the truth)
 NOISE_LEVEL_RTOL = 0.3
 
@@ -57,12 +64,15 @@ class Correction:
         The part of the bias the sensor noise makes (the rest is the processing's).
     draw_sd : ndarray
         Standard deviation of the correction from its noise draws.
+    gain : float
+        Factor on θ₀'s random error carried into θ: 1/(1 - r), r the iteration's contraction.
     """
 
     theta: np.ndarray
     theta_fit: np.ndarray
     noise_bias: np.ndarray
     draw_sd: np.ndarray
+    gain: float = 1.0
 
     @property
     def bias(self) -> np.ndarray:
@@ -96,6 +106,7 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
     t0 = np.asarray(theta0, float)
     theta = t0.copy()
     noise_bias, draw_sd = np.zeros_like(t0), np.zeros_like(t0)
+    steps = []
     for _ in range(max(int(iterations), 1)):
         bodies = [simulate(theta, r) for r in records]
         if any(b is None or not np.all(np.isfinite(b)) for b in bodies):
@@ -105,5 +116,13 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
         clean = np.asarray(fit([_noisy(r, b, e, None) for r, b, e in zip(records, bodies, noise)]), float)
         syn = 0.5 * (got[0] + got[1])
         noise_bias, draw_sd = syn - clean, 0.5 * np.abs(got[0] - got[1])
-        theta = theta + (t0 - syn)
-    return Correction(theta, t0, noise_bias, draw_sd)
+        steps.append(t0 - syn)
+        theta = theta + steps[-1]
+    gain = 1.0
+    if len(steps) > 1:
+        if np.any(np.abs(steps[-1]) > MAX_CONTRACTION * np.abs(steps[-2]) + CONVERGED_RTOL * np.abs(t0)):
+            return None     # the fixed point contracts slowly: the bias map is ill-conditioned (confounded terms)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.where(np.abs(steps[-2]) > 0, np.abs(steps[-1]) / np.abs(steps[-2]), 0.0)
+        gain = float(1.0 / (1.0 - min(float(np.max(r)), MAX_CONTRACTION)))
+    return Correction(theta, t0, noise_bias, draw_sd, gain)

@@ -520,6 +520,7 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
                 verdict = NOTHING_MISSING if i > 1 else f"The declared model lacks nothing the library can name. " \
                                                          f"{NOTHING_MISSING}"
             break
+        added = _with_corrected_coefficient(ev, terms, added, m2_kg)
         evid = _evidence(ev, terms, added.candidate.term, s)
         text = pre + _round_text(i, added, current, evid, m2_kg, len(recs), ranked)
         rounds.append(Round(i, tuple(terms), ranked, tuple(trials), current, added, evid, text))
@@ -552,8 +553,10 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
         if confounded and verdict.endswith(NOTHING_MISSING):
             verdict = (verdict[: -len(NOTHING_MISSING)] + "Nothing these data can separate is missing, but "
                        + "; ".join(c.text() for c in confounded) + ".")
-    y_fit, x_fit = _design(ev.fit_parts, terms, ev.static)
-    bounds = coefficient_bounds(x_fit, y_fit, recs[0].fs_hz, segments=[p.y.size for p in ev.fit_parts])
+    bounds = ev.bounds(terms)
+    bias_note = _bias_note(ev, terms)
+    if bias_note:
+        notes.append(bias_note)
     n = ev.n_lin
     undetermined = undetermined_terms(ev.fit_rfs, terms, bounds.half_width[n:n + len(terms)] /
                                       np.maximum(np.abs(bounds.theta[n:n + len(terms)]), 1e-300)) if terms else ()
@@ -583,8 +586,36 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
                       test_seconds=tuple(b.duration_s for b in ev.test_recs), notes=tuple(notes), model=model,
                       linear_model=linear, model_unavailable=unavailable, detection_limits=limits,
                       confounded=confounded, bounds=bounds, undetermined=undetermined, refinement=refinement,
-                      linear_heldout_pct=None if pred.linear is None else pred.linear.score,
+                      linear_heldout_pct=None if pred.linear is None else pred.linear.score, noise=ev.noise,
+                      bias_corrected=ev.corrected(terms) is not None,
                       final_heldout_pct=final_score)
+
+
+def _with_corrected_coefficient(ev: _Evaluator, terms: Sequence[Term], trial: Trial,
+                                m2_kg: float | None) -> Trial:
+    """The added term's coefficient from the loop's joint fit beside the model's terms (each re-estimated), with
+    the fit's bias removed (:meth:`_Evaluator.corrected`): the ranking's coefficient is conditional on the
+    others held and on the noisy, band-limited ż."""
+    b = ev.bounds([*terms, trial.candidate.term])
+    th, hw = float(b.theta[-1]), float(b.half_width[-1])
+    c = trial.candidate
+    return replace(trial, candidate=replace(c, theta=th, theta_half_width=hw,
+                                            coefficient=None if m2_kg is None else th * m2_kg))
+
+
+def _bias_note(ev: _Evaluator, terms: Sequence[Term]) -> str:
+    """What the bias correction moved, or why the coefficients may be biased."""
+    noise = "; ".join(e.text() for e in ev.noise)
+    cor = ev.corrected(terms)
+    if cor is None:
+        why = ("switched off" if not ev.corrects else "the model cannot be simulated, or its terms share their shape "
+               "so that the correction does not converge")
+        return (f"the equation-error coefficients are not bias-corrected ({why}): noise on ż and the band-limited "
+                f"z, ż may bias them (a friction or a stiffness low); {noise}")
+    names = ["k", "c", *[t.label for t in terms]]
+    moved = ", ".join(f"{n} {100 * (a / b - 1):+.1f} %" for n, a, b in zip(names, cor.theta, cor.theta_fit) if b != 0)
+    return (f"coefficients corrected for the fit's bias (noise on both sensors and the band-limited z, ż; simulated "
+            f"with the estimated noise, nifo_core.bias_correction): against the plain fit {moved}; {noise}")
 
 
 def _floors(final: float | None, pred: _Predictor, terms: Sequence[Term]) -> str:

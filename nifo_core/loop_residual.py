@@ -211,7 +211,8 @@ class _Evaluator:
         if cor is None:
             return b
         z = stats.norm.ppf(0.5 + level / 2)
-        return replace(b, theta=cor.theta, half_width=np.sqrt(b.half_width ** 2 + (z * cor.extra_sd()) ** 2))
+        return replace(b, theta=cor.theta,
+                       half_width=np.sqrt((cor.gain * b.half_width) ** 2 + (z * cor.extra_sd()) ** 2))
 
     def equation(self, terms: Sequence[Term]) -> dict:
         """The equation-error numbers of ``terms`` (fit on the fit parts, NMSE on the held-out parts)."""

@@ -240,6 +240,7 @@ class Errors:
                 "equation_band_residual_db": dict(self.equation_band_residual_db),
                 "transmissibility_error_pct": [{"record": s, "error_pct": e}
                                                for s, e in self.transmissibility_error_pct],
+                "noise": [e.to_dict() for e in self.noise], "bias_corrected": self.bias_corrected,
                 "notes": list(self.notes)}
 
 
@@ -420,12 +421,16 @@ class LoopResult:
     refinement: LoopRefinement | None = None
     linear_heldout_pct: float | None = None
     final_heldout_pct: float | None = None
+    noise: tuple = ()                 # NoiseEstimate per record (nifo_core.noise)
+    bias_corrected: bool = False      # coefficients and bounds with the fit's bias removed (nifo_core.bias_correction)
 
     def coefficients(self) -> list[dict]:
         """The final model's equation-error coefficients with 95 % random-error bounds (per kg, and × M2).
 
-        Random error only (:mod:`nifo_core.uncertainty`): noise reaching the regressors through z biases
-        some kinds beyond it (measured: Coulomb −5 % against a ±0.6 % bound).
+        With ``bias_corrected``, θ has the fit's bias removed (noise on both sensors and the band-limited z, ż;
+        :mod:`nifo_core.bias_correction`) and the bound holds its uncertainty; otherwise random error only
+        (:mod:`nifo_core.uncertainty`), and noise reaching the regressors biases some kinds beyond it
+        (measured: Coulomb −4.5 % against a ±0.6 % bound).
         """
         if self.bounds is None:
             return []
@@ -470,7 +475,9 @@ class LoopResult:
         lines.append(self.verdict)
         if self.bounds is not None:
             m = self.m2_kg
-            lines.append("Final model, equation-error fit on the fit parts (95 % bounds, random error only): " + "; ".join(
+            what = ("bias-corrected, bounds: random error and the correction's uncertainty" if self.bias_corrected else
+                    "random error only; may be biased low by noise on z, ż")
+            lines.append(f"Final model, equation-error fit on the fit parts (95 % bounds, {what}): " + "; ".join(
                 f"{d['name']} {d['value']:.4g} ± {d['half_width']:.2g} {d['unit']}"
                 + (f" (× M2: {d['value_times_m2']:.4g} ± {d['half_width_times_m2']:.2g})" if m else "")
                 for d in self.coefficients()) + ".")
