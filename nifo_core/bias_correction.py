@@ -16,7 +16,8 @@ Models*, ch. 5 for the measurement-error case):
    (:mod:`nifo_core.noise`) is added to both channels, one draw and its negative (antithetic).
 3. θ_syn = the same fit on them; the bias b = θ_syn - θ; the corrected θ ← θ₀ - b.
    Repeated :data:`ITERATIONS` times (θ from the previous step: the fixed point is the θ whose
-   synthetic fit reproduces θ₀). Where the steps do not contract (terms that share their shape —
+   synthetic fit reproduces θ₀). Where the steps do not contract (:data:`MAX_CONTRACTION`) or the
+   correction exceeds half a coefficient (:data:`MAX_RELATIVE_BIAS`: terms that share their shape —
    a friction beside a damper knee — make the bias map ill-conditioned: measured, a knee's
    coefficient moved by -130 %) there is no correction (None): the caller says the fit may be biased.
 
@@ -43,8 +44,11 @@ __all__ = ["ITERATIONS", "NOISE_LEVEL_RTOL", "Correction", "simulated_correction
 #: bias-correction iterations (1: θ₀ - b(θ₀); 2: once more from the corrected θ)
 ITERATIONS = 2
 #: a correction whose last step exceeds MAX_CONTRACTION × the one before (plus CONVERGED_RTOL·|θ₀|) is refused;
-#: measured: 0.05 on a friction or a cubic alone, 0.4-0.7 for a friction beside a damper knee
-MAX_CONTRACTION = 0.25
+#: measured: 0.05 on a friction or a cubic alone, 0.43 on a bump stop (its contact depends on the amplitude)
+MAX_CONTRACTION = 0.6
+#: a correction larger than this fraction of a coefficient is refused: the fit cannot tell the term apart
+#: (measured: a friction beside a damper knee, the knee's coefficient moved by -130 %, the friction's +53 %)
+MAX_RELATIVE_BIAS = 0.5
 CONVERGED_RTOL = 0.01
 #: relative error of an estimated noise variance (measured on simulated records: 0.7-1.3 × the truth)
 NOISE_LEVEL_RTOL = 0.3
@@ -118,6 +122,8 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
         noise_bias, draw_sd = syn - clean, 0.5 * np.abs(got[0] - got[1])
         steps.append(t0 - syn)
         theta = theta + steps[-1]
+    if np.any(np.abs(theta - t0) > MAX_RELATIVE_BIAS * np.abs(t0)):
+        return None
     gain = 1.0
     if len(steps) > 1:
         if np.any(np.abs(steps[-1]) > MAX_CONTRACTION * np.abs(steps[-2]) + CONVERGED_RTOL * np.abs(t0)):
