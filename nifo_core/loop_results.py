@@ -240,7 +240,6 @@ class Errors:
                 "equation_band_residual_db": dict(self.equation_band_residual_db),
                 "transmissibility_error_pct": [{"record": s, "error_pct": e}
                                                for s, e in self.transmissibility_error_pct],
-                "noise": [e.to_dict() for e in self.noise], "bias_corrected": self.bias_corrected,
                 "notes": list(self.notes)}
 
 
@@ -509,6 +508,7 @@ class LoopResult:
                 "band": self.band.to_dict(), "m2_kg": self.m2_kg, "settings": self.settings.to_dict(),
                 "records": [{"source": s, "fit_s": a, "test_s": b}
                             for s, a, b in zip(self.sources, self.fit_seconds, self.test_seconds)],
+                "noise": [e.to_dict() for e in self.noise], "bias_corrected": self.bias_corrected,
                 "notes": list(self.notes)}
 
 
