@@ -115,7 +115,6 @@ from .model import IdentifiedModel
 from .refine import refine_model, start_up_samples
 from .record import Record
 from .restoring import suggest_band
-from .uncertainty import coefficient_bounds
 
 __all__ = ["LoopSettings", "Errors", "Trial", "Evidence", "Round", "LoopRefinement", "LoopResult", "close_loop",
            "RESIDUAL_BANDS_HZ", "NOTHING_MISSING"]
