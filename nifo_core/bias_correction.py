@@ -100,14 +100,22 @@ def _noisy(rec: Record, body: np.ndarray, est: NoiseEstimate, draw: np.ndarray |
 def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
                          simulate: Callable[[np.ndarray, Record], np.ndarray | None],
                          records: Sequence[Record], noise: Sequence[NoiseEstimate], theta0: np.ndarray, *,
-                         seed: int = 0, iterations: int = ITERATIONS) -> Correction | None:
+                         seed: int = 0, iterations: int = ITERATIONS, scale: np.ndarray | None = None,
+                         noise_only: bool = False, hold: np.ndarray | None = None) -> Correction | None:
     """``theta0`` (the fit ``fit`` on ``records``) with the fit's bias removed (module docstring).
 
     ``simulate(θ, record)`` is the body acceleration the model with θ gives for the record's spindle
-    signal (None: it cannot: no correction). ``noise`` holds one estimate per record."""
+    signal (None: it cannot: no correction). ``noise`` holds one estimate per record.
+    ``scale``: the size each coordinate of θ is judged against (refusal, convergence; default |θ₀|:
+    give it where a coordinate is a log factor that is 0 at θ₀). ``noise_only``: the fit is consistent
+    on noise-free records of its own model (an output-error fit: no noise-free synthetic fit is run,
+    the whole bias counts as the noise's). ``hold``: coordinates kept at θ₀, neither corrected nor judged
+    (those the data do not determine: their synthetic refits scatter along a flat valley of the cost)."""
     rng = np.random.default_rng(seed)
     draws = [noise_draw(r.n, rng) for r in records]
     t0 = np.asarray(theta0, float)
+    size = np.abs(t0) if scale is None else np.broadcast_to(np.abs(np.asarray(scale, float)), t0.shape)
+    free = np.ones(t0.shape, bool) if hold is None else ~np.asarray(hold, bool)
     theta = t0.copy()
     noise_bias, draw_sd = np.zeros_like(t0), np.zeros_like(t0)
     steps = []
@@ -117,16 +125,17 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
             return None
         got = [np.asarray(fit([_noisy(r, b, e, s * d) for r, b, e, d in zip(records, bodies, noise, draws)]), float)
                for s in (1.0, -1.0)]
-        clean = np.asarray(fit([_noisy(r, b, e, None) for r, b, e in zip(records, bodies, noise)]), float)
         syn = 0.5 * (got[0] + got[1])
-        noise_bias, draw_sd = syn - clean, 0.5 * np.abs(got[0] - got[1])
-        steps.append(t0 - syn)
+        clean = theta if noise_only else np.asarray(fit([_noisy(r, b, e, None)
+                                                         for r, b, e in zip(records, bodies, noise)]), float)
+        noise_bias, draw_sd = free * (syn - clean), free * 0.5 * np.abs(got[0] - got[1])
+        steps.append(free * (t0 - syn))
         theta = theta + steps[-1]
-    if np.any(np.abs(theta - t0) > MAX_RELATIVE_BIAS * np.abs(t0)):
+    if np.any(np.abs(theta - t0) > MAX_RELATIVE_BIAS * size):
         return None
     gain = 1.0
     if len(steps) > 1:
-        if np.any(np.abs(steps[-1]) > MAX_CONTRACTION * np.abs(steps[-2]) + CONVERGED_RTOL * np.abs(t0)):
+        if np.any(np.abs(steps[-1]) > MAX_CONTRACTION * np.abs(steps[-2]) + CONVERGED_RTOL * size):
             return None     # the fixed point contracts slowly: the bias map is ill-conditioned (confounded terms)
         with np.errstate(divide="ignore", invalid="ignore"):
             r = np.where(np.abs(steps[-2]) > 0, np.abs(steps[-1]) / np.abs(steps[-2]), 0.0)

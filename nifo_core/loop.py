@@ -78,11 +78,14 @@ Given records and a *declared* model (describing functions, :mod:`nifo_core.desc
 6. **Refine** (``settings.refine``): the final model, an equation-error fit, is refined by output
    error (:func:`nifo_core.refine.refine_model`: every fit part simulated from its measured input,
    its first ``refine_seconds``; the coefficients, gaps/knees and the body's k, c that minimise the
-   band-limited prediction error) and scored on the held-out parts like every model of the loop.
-   The refined model becomes the loop's model when its held-out prediction NMSE is not worse; the
-   report gives both fits' parameters and both NMSEs. A final step: the acceptance of terms
-   (step 3) does not use it. Measured (tests/test_loop_refine.py, 2 % noise): a bump stop
-   2e5 N/m beyond 8 mm, 1.56e5 at first addition → 1.81e5 refined, gap 8.07 mm from static.
+   band-limited prediction error), its bias from the noisy spindle drive removed by simulating it
+   (:mod:`nifo_core.refine_bias`, with ``noise_correction``; :mod:`nifo_core.loop_refine`) and
+   scored on the held-out parts like every model of the loop. The refined model becomes the loop's
+   model when its held-out prediction NMSE is not worse; the report gives both fits' parameters and
+   both NMSEs. A final step: the acceptance of terms (step 3) does not use it. Measured
+   (tests/test_loop_refine.py, 2 % noise): a bump stop 2e5 N/m beyond 8 mm, 1.56e5 at first
+   addition → 1.81e5 refined, gap 8.07 mm from static; beside a declared damper knee 1.67e5
+   refined plainly, 1.89e5 with the refinement's bias removed.
 
 References: Billings (error reduction ratio, forward orthogonal regression);
 Bendat & Piersol (conditioned/partial coherence); Worden & Tomlinson (NMSE);
@@ -111,8 +114,7 @@ from .settings import AnalysisSettings
 from .loop_results import (NOTHING_MISSING, RESIDUAL_BANDS_HZ, Errors, Evidence, LoopRefinement, LoopResult,
                            LoopSettings, Round, Trial, _nothing_text, _round_text, before_after_text,
                            unconfirmed_text)
-from .model import IdentifiedModel
-from .refine import refine_model, start_up_samples
+from .loop_refine import refine_final
 from .record import Record
 from .restoring import suggest_band
 
@@ -569,7 +571,7 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
         unavailable = f"no predictive model: {current.prediction_unavailable}"
     if model is not None and terms and s.refine and current.structure == "constant":
         say(0.98, "output-error refinement")
-        refinement, model = _refine_final(ev, pred, model, linear, m2_kg, say, current)
+        refinement, model = refine_final(ev, pred.held, model, linear, m2_kg, say, current)
     final_score = current.prediction_nmse_pct
     if refinement is not None and refinement.kept and refinement.heldout_after_pct is not None:
         final_score = refinement.heldout_after_pct
@@ -633,84 +635,3 @@ def _floors(final: float | None, pred: _Predictor, terms: Sequence[Term]) -> str
         return (f"The model class does not predict these data better than a linear model: {what} predicts the "
                 f"held-out parts at {final:.3g} %, the linear model of the same data at {lin:.3g} %.")
     return ""
-
-
-def _refine_final(ev: _Evaluator, pred: "_Predictor", model: IdentifiedModel, linear: IdentifiedModel | None,
-                  m2_kg: float | None, say: Callable[[float, str], None],
-                  final: Errors) -> tuple[LoopRefinement, IdentifiedModel]:
-    """Output-error refinement of the loop's final model on the fit parts, scored on the held-out parts.
-
-    :func:`~nifo_core.refine.refine_model` on the first ``refine_seconds`` of every fit part (the
-    equation-error fit and, where it does not already beat it, the linear model as starts); both
-    models' held-out prediction NMSE on the loop's one metric (the equation-error model's from ``final``,
-    the last round's errors of the same terms). Returns the record of it and the model
-    the loop keeps: the refined one unless its held-out prediction is worse (or cannot be made).
-    """
-    s = ev.settings
-    held = pred.held
-    p = held.period_samples
-    recs, skips = [], []
-    for r, sk, k in zip(held.records, held.skip, held.split):     # from rest, the fit part, at most refine_seconds
-        n = min(k, sk + int(round(s.refine_seconds * r.fs_hz)))
-        if p:
-            n = sk + max(2 * p, (n - sk) // p * p) if k - sk >= 2 * p else k
-        recs.append(r.slice(0, min(n, k)))
-        skips.append(max(sk, p or 0))
-    secs = tuple(float(r.duration_s) for r in recs)
-    try:
-        ref = refine_model(model, recs, linear=linear, band_hz=held.band_hz, period_samples=p,
-                           skip_samples=[max(sk, start_up_samples(model, r, p)) for r, sk in zip(recs, skips)],
-                           progress=lambda start, n, cost: say(0.98, f"output-error refinement from the {start} "
-                                                                     f"start ({n} simulations)"))
-    except NifoError as err:
-        return LoopRefinement(False, None, None, seconds=secs, unavailable=str(err)), model
-    # the equation-error model's held-out prediction is the final round's (``final``, same model): not re-run
-    b, bper = final.prediction_nmse_pct, tuple(final.prediction_nmse_per_record_pct)
-    a, aper = _heldout(pred, ref.model)
-    kept = a is not None and (b is None or a <= b)
-    out = LoopRefinement(kept, b, a, bper, aper, tuple(_compare(model, ref.model, m2_kg, ref.parameters)), secs,
-                         ref.to_dict())
-    return out, (ref.model if kept else model)
-
-
-def _heldout(pred: "_Predictor", model: IdentifiedModel) -> tuple[float | None, tuple[float, ...]]:
-    sc = pred.held.score(model)
-    if sc.unavailable is not None:
-        return None, ()
-    return sc.mean, tuple(float(v) for v in sc.per_record)
-
-
-def _compare(before: IdentifiedModel, after: IdentifiedModel, m2: float | None,
-             refined: Sequence[Mapping] = ()) -> list[dict]:
-    """Every refined parameter: the equation-error value and the refined one (× M2 where it scales).
-
-    ``refined``: :attr:`~nifo_core.refine.Refinement.parameters`, whose 95 % half-widths (where given)
-    are carried as ``refined_half_width_95`` (and × M2).
-    """
-    widths = [p.get("half_width_95") for p in refined]
-    n_terms = len(before.terms)
-    coef_w = widths[:n_terms] + [None] * (n_terms - len(widths[:n_terms]))
-    named = {p["name"]: p.get("half_width_95") for p in refined[n_terms:]}
-
-    def width(prefix):
-        return next((w for n, w in named.items() if n.startswith(prefix)), None)
-
-    def entry(name, unit, v0, v1, unit_m2=None, hw=None):
-        d = {"name": name, "unit": unit, "equation_error": float(v0), "refined": float(v1),
-             "refined_half_width_95": None if hw is None else float(hw)}
-        if m2 is not None and unit_m2 is not None:
-            d.update(equation_error_times_m2=float(v0) * m2, refined_times_m2=float(v1) * m2, unit_times_m2=unit_m2,
-                     refined_half_width_95_times_m2=None if hw is None else float(hw) * m2)
-        return d
-
-    out = []
-    for i, (t0, t1, g0, g1) in enumerate(zip(before.terms, after.terms, before.c_over_m2, after.c_over_m2)):
-        out.append(entry(f"{t0.kind} coefficient", f"{t0.spec.coef_unit}/kg", g0, g1, t0.spec.coef_unit, coef_w[i]))
-        key = t0.spec.key_param
-        if key is not None and isinstance(t0.params.get(key), float):
-            out.append(entry(f"{t0.kind}.{key}", t0.spec.params[key][1], t0.params[key], t1.params[key],
-                             hw=named.get(f"{t0.kind}.{key}")))
-    if before.body is not None and after.body is not None:
-        out.append(entry("k = K2/M2", "1/s²", before.body.k, after.body.k, "N/m", width("k = K2/M2")))
-        out.append(entry("c = C2/M2", "1/s", before.body.c, after.body.c, "N·s/m", width("c = C2/M2")))
-    return out

@@ -365,9 +365,11 @@ class LoopRefinement:
         which = ("model.json holds the refined model" if self.kept else
                  "not better on held-out data: model.json holds the equation-error fit")
         secs = ", ".join(f"{v:.0f}" for v in self.seconds)
+        note = (self.refinement or {}).get("bias_note", "")
         return (f"Output-error refinement (every record simulated from its measured input, the prediction error "
                 f"minimised over the coefficients, gaps/knees and the body's k, c; on the first {secs} s of the "
-                f"fit parts), equation-error fit → refined: {what}; {score}: {which}.")
+                f"fit parts), equation-error fit → refined: {what}; {score}: {which}."
+                + (f" Bias correction of the refined values: {note}." if note else ""))
 
     def to_dict(self) -> dict:
         return {"kept": self.kept, "heldout_prediction_nmse_before_pct": self.heldout_before_pct,

@@ -195,8 +195,10 @@ def test_bump_stop_beside_a_declared_knee_gap_from_static_and_nothing_spurious(b
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="measured: beside the knee the refined stop holds 1.67e5 N/m for 2e5 (-16.5 %; "
-                   "first addition 1.53e5, -24 %): the refinement trades it against the linear stiffness (k +12 %)")
 def test_bump_stop_beside_a_declared_knee_refined_stiffness_within_15_percent(bump_beside_knee):
+    # the plain output-error refinement holds 1.67e5 N/m (-16.5 %, the linear stiffness +12 %): driven by the noisy
+    # spindle signal it is biased; the loop removes that bias by simulating the refinement (nifo_core.refine_bias),
+    # the knee's parameters, which these data do not determine, held
     _, res = bump_beside_knee
+    print(f"\nrefined bump stop beside the knee: {res.refinement.refinement['message']}")
     assert res.refinement.parameter("bump_stop coefficient")["refined_times_m2"] == pytest.approx(STOP_N_M, rel=0.15)
