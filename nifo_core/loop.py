@@ -114,6 +114,7 @@ from .settings import AnalysisSettings
 from .loop_results import (NOTHING_MISSING, RESIDUAL_BANDS_HZ, Errors, Evidence, LoopRefinement, LoopResult,
                            LoopSettings, Round, Trial, _nothing_text, _round_text, before_after_text,
                            unconfirmed_text)
+from .loop_gates import heldout_failures, one_of_kind_alternatives, one_of_kind_failures, prediction_failures
 from .loop_refine import refine_final
 from .record import Record
 from .restoring import suggest_band
@@ -150,38 +151,6 @@ def loop_band(records: Sequence[Record], band: IntegrationBand | None = None) ->
                  f"({shortest:.0f} s) must span {LOOP_PERIODS_PER_RECORD:g} periods of it to keep a held-out part "
                  f"after the integrator's edges (records of {LOOP_PERIODS_PER_RECORD / band.f_lo_hz:.0f} s keep "
                  f"{band.f_lo_hz:g} Hz)")
-
-
-def _heldout_failures(current: Errors, after: Errors, s: LoopSettings) -> tuple[list[str], list[str]]:
-    """Why a candidate does not improve the model on held-out data: (equation side, prediction side).
-
-    Equation side: it must lower the held-out equation error by ``min_heldout_gain`` (relative) and
-    raise no band of it by more than ``max_band_rise_db``. Prediction side: it must lower the held-out
-    prediction NMSE whenever the current model has one (a model that cannot be predicted any more
-    fails) and raise no band of the prediction error by more than ``max_band_rise_db``. A significance
-    test alone trusts a mis-specified model (F-16 level 1: a multi-mode structure read as one mass
-    takes a play that lowers the error at 2-15 Hz while the 20-30 Hz residual grows by 22 dB).
-    """
-    eq, pred = [], []
-    e0, e1 = current.equation_nmse_pct, after.equation_nmse_pct
-    gain = 1 - e1 / e0 if e0 > 0 else 0.0
-    if not gain >= s.min_heldout_gain:
-        eq.append(f"held-out equation error {e0:.3g} % → {e1:.3g} % does not fall by {100 * s.min_heldout_gain:g} %")
-    eq += _worse_bands("equation error", current.equation_band_residual_db, after.equation_band_residual_db, s)
-    p0, p1 = current.prediction_nmse_pct, after.prediction_nmse_pct
-    if p0 is not None and p1 is None:
-        pred.append(f"the model with it cannot be predicted ({after.prediction_unavailable})")
-    elif p0 is not None:
-        if not p1 < p0:
-            pred.append(f"held-out prediction NMSE does not fall ({p0:.3g} % → {p1:.3g} %)")
-        pred += _worse_bands("prediction error", current.band_residual_db, after.band_residual_db, s)
-    return eq, pred
-
-
-def _worse_bands(what: str, b0, b1, s: LoopSettings) -> list[str]:
-    worse = [f"{k} Hz {b0[k]:+.1f} → {b1[k]:+.1f} dB" for k in b0
-             if k in b1 and np.isfinite(b0[k]) and np.isfinite(b1[k]) and b1[k] > b0[k] + s.max_band_rise_db]
-    return [f"the held-out {what} grows by more than {s.max_band_rise_db:g} dB in " + ", ".join(worse)] if worse else []
 
 
 class _Predictor:
@@ -271,44 +240,6 @@ def _errors(ev: _Evaluator, pred: _Predictor, terms: Sequence[Term]) -> Errors:
                   model_note="" if fitted is None else fitted.note, fitted=fitted)
 
 
-def _prediction_failures(current: Errors, after: Errors, s: LoopSettings, twin: Errors | None = None,
-                         floor: Sequence[float] = ()) -> list[str]:
-    """Why a candidate does not improve the held-out prediction enough (a rational linear part: the only gate).
-
-    It must lower the held-out prediction NMSE by ``min_prediction_gain`` (relative) and by more than the noise
-    floor (``floor``: per record, what a perfect model would still show, :meth:`HeldOut.noise_floor`), beat its
-    linear twin (the same model with one more *linear* path: else what it adds is flexibility) by as much, and make
-    no record's held-out prediction worse by more than ``max_record_rise`` (relative), the record's noise floor or a
-    quarter of the mean gain (a term that trades one level for another is not an effect of the structure).
-    """
-    p0, p1 = current.prediction_nmse_pct, after.prediction_nmse_pct
-    if p1 is None:
-        return [f"the model with it cannot be predicted ({after.prediction_unavailable})"]
-    if p0 is None:
-        return []
-    nf = float(np.mean(floor)) if len(floor) else 0.0
-    out = []
-    need = max(s.min_prediction_gain * p0, nf)
-    if not p1 <= p0 - need:
-        why = (f"does not fall by {100 * s.min_prediction_gain:g} %" if need > nf else
-               f"does not fall by more than the noise floor of the held-out parts ({nf:.2g} %)")
-        out.append(f"held-out prediction NMSE {p0:.3g} % → {p1:.3g} % {why}")
-    elif twin is not None and twin.prediction_nmse_pct is not None and \
-            not p1 <= twin.prediction_nmse_pct - max(s.min_prediction_gain * twin.prediction_nmse_pct, nf):
-        out.append(f"it predicts the held-out parts no better than the same model with one more linear path "
-                   f"({p1:.3g} % against {twin.prediction_nmse_pct:.3g} %): what it adds is flexibility, not a "
-                   f"nonlinearity")
-    gain = max(p0 - p1, 0.0)
-    floors = list(floor) + [0.0] * (len(current.prediction_nmse_per_record_pct) - len(floor))
-    worse = [(src, a, b) for src, a, b, f in zip(_names(current), current.prediction_nmse_per_record_pct,
-                                                 after.prediction_nmse_per_record_pct, floors)
-             if b - a > max(s.max_record_rise * a, f, 0.25 * gain)]
-    if worse:
-        out.append("it makes the held-out prediction of " + ", ".join(f"{n} worse ({a:.3g} % → {b:.3g} %)"
-                                                                      for n, a, b in worse))
-    return out
-
-
 #: a term whose describing function the linear columns z, ż explain to this R² on the fit parts acts linearly there
 #: (a play wider than the motion is stuck: its force a constant; a slipping play of 0.4 mm in 5 mm of motion: 0.998)
 LINEAR_R2 = 0.9999
@@ -324,11 +255,6 @@ def acts_linearly(ev: _Evaluator, term: Term) -> float:
         return 1.0
     r = g - x @ np.linalg.lstsq(x, g, rcond=None)[0]
     return float(1 - (r @ r) / tss)
-
-
-def _names(e: Errors) -> list[str]:
-    names = [n for n, _ in e.transmissibility_error_pct]
-    return names + [f"record {i + 1}" for i in range(len(names), len(e.prediction_nmse_per_record_pct))]
 
 
 def _path_grid(ev: _Evaluator, kinds: Sequence[str], points: int) -> list[Term]:
@@ -496,10 +422,14 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
             after = _errors(ev, pred, [*terms, c.term])
             gain = 1 - after.equation_nmse_pct / current.equation_nmse_pct if current.equation_nmse_pct > 0 else 0.0
             if pred.flexible:
-                eq_failed, pred_failed = [], _prediction_failures(current, after, s, twin, floor)
+                eq_failed, pred_failed = [], prediction_failures(current, after, s, twin, floor)
             else:
-                eq_failed, pred_failed = _heldout_failures(current, after, s)
+                eq_failed, pred_failed = heldout_failures(current, after, s)
             failed += eq_failed + pred_failed
+            if not failed and not pred.flexible:   # one term of a kind already present must not do as well
+                alts = [(k, a, _errors(ev, pred, [*terms[:k], a, *terms[k + 1:]]))
+                        for k, a in one_of_kind_alternatives(terms, c.term, [r.term for r in ranked], ev.static)]
+                failed += one_of_kind_failures(terms, c.term, after, alts, s)
             t = Trial(candidate=c, tire_shift=shift, tire_excluded_fraction=frac, heldout_gain=gain, after=after,
                       accepted=not failed, failed=tuple(failed),
                       unconfirmed=bool(pred_failed) and len(failed) == len(pred_failed) and not pred.flexible)

@@ -82,8 +82,9 @@ class LoopSettings:
         On a rational linear part (a flexible body): widths tried per kind that can act through a
         feedback path (backlash, clearance, saturation), geometric over the relative motion.
     noise_correction : bool
-        Remove the bias that noise on both sensors gives the equation-error fit (errors in variables:
-        :mod:`nifo_core.simex`, with each record's noise estimated from its spectra,
+        Remove the bias that noise on both sensors gives the equation-error fit and the final
+        output-error refinement (errors in variables: :mod:`nifo_core.bias_correction`,
+        :mod:`nifo_core.refine_bias`, with each record's noise estimated from its spectra,
         :mod:`nifo_core.noise`); its uncertainty joins the coefficients' bounds.
     retune : bool
         Before each round, re-tune the parameter (gap, knee, eps...) of every term of the model
