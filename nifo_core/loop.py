@@ -78,11 +78,14 @@ Given records and a *declared* model (describing functions, :mod:`nifo_core.desc
 6. **Refine** (``settings.refine``): the final model, an equation-error fit, is refined by output
    error (:func:`nifo_core.refine.refine_model`: every fit part simulated from its measured input,
    its first ``refine_seconds``; the coefficients, gaps/knees and the body's k, c that minimise the
-   band-limited prediction error) and scored on the held-out parts like every model of the loop.
-   The refined model becomes the loop's model when its held-out prediction NMSE is not worse; the
-   report gives both fits' parameters and both NMSEs. A final step: the acceptance of terms
-   (step 3) does not use it. Measured (tests/test_loop_refine.py, 2 % noise): a bump stop
-   2e5 N/m beyond 8 mm, 1.56e5 at first addition → 1.81e5 refined, gap 8.07 mm from static.
+   band-limited prediction error), its bias from the noisy spindle drive removed by simulating it
+   (:mod:`nifo_core.refine_bias`, with ``noise_correction``; :mod:`nifo_core.loop_refine`) and
+   scored on the held-out parts like every model of the loop. The refined model becomes the loop's
+   model when its held-out prediction NMSE is not worse; the report gives both fits' parameters and
+   both NMSEs. A final step: the acceptance of terms (step 3) does not use it. Measured
+   (tests/test_loop_refine.py, 2 % noise): a bump stop 2e5 N/m beyond 8 mm, 1.56e5 at first
+   addition → 1.81e5 refined, gap 8.07 mm from static; beside a declared damper knee 1.67e5
+   refined plainly, 1.89e5 with the refinement's bias removed.
 
 References: Billings (error reduction ratio, forward orthogonal regression);
 Bendat & Piersol (conditioned/partial coherence); Worden & Tomlinson (NMSE);
@@ -111,11 +114,10 @@ from .settings import AnalysisSettings
 from .loop_results import (NOTHING_MISSING, RESIDUAL_BANDS_HZ, Errors, Evidence, LoopRefinement, LoopResult,
                            LoopSettings, Round, Trial, _nothing_text, _round_text, before_after_text,
                            unconfirmed_text)
-from .model import IdentifiedModel
-from .refine import refine_model, start_up_samples
+from .loop_gates import heldout_failures, one_of_kind_alternatives, one_of_kind_failures, prediction_failures
+from .loop_refine import refine_final
 from .record import Record
 from .restoring import suggest_band
-from .uncertainty import coefficient_bounds
 
 __all__ = ["LoopSettings", "Errors", "Trial", "Evidence", "Round", "LoopRefinement", "LoopResult", "close_loop",
            "RESIDUAL_BANDS_HZ", "NOTHING_MISSING"]
@@ -149,38 +151,6 @@ def loop_band(records: Sequence[Record], band: IntegrationBand | None = None) ->
                  f"({shortest:.0f} s) must span {LOOP_PERIODS_PER_RECORD:g} periods of it to keep a held-out part "
                  f"after the integrator's edges (records of {LOOP_PERIODS_PER_RECORD / band.f_lo_hz:.0f} s keep "
                  f"{band.f_lo_hz:g} Hz)")
-
-
-def _heldout_failures(current: Errors, after: Errors, s: LoopSettings) -> tuple[list[str], list[str]]:
-    """Why a candidate does not improve the model on held-out data: (equation side, prediction side).
-
-    Equation side: it must lower the held-out equation error by ``min_heldout_gain`` (relative) and
-    raise no band of it by more than ``max_band_rise_db``. Prediction side: it must lower the held-out
-    prediction NMSE whenever the current model has one (a model that cannot be predicted any more
-    fails) and raise no band of the prediction error by more than ``max_band_rise_db``. A significance
-    test alone trusts a mis-specified model (F-16 level 1: a multi-mode structure read as one mass
-    takes a play that lowers the error at 2-15 Hz while the 20-30 Hz residual grows by 22 dB).
-    """
-    eq, pred = [], []
-    e0, e1 = current.equation_nmse_pct, after.equation_nmse_pct
-    gain = 1 - e1 / e0 if e0 > 0 else 0.0
-    if not gain >= s.min_heldout_gain:
-        eq.append(f"held-out equation error {e0:.3g} % → {e1:.3g} % does not fall by {100 * s.min_heldout_gain:g} %")
-    eq += _worse_bands("equation error", current.equation_band_residual_db, after.equation_band_residual_db, s)
-    p0, p1 = current.prediction_nmse_pct, after.prediction_nmse_pct
-    if p0 is not None and p1 is None:
-        pred.append(f"the model with it cannot be predicted ({after.prediction_unavailable})")
-    elif p0 is not None:
-        if not p1 < p0:
-            pred.append(f"held-out prediction NMSE does not fall ({p0:.3g} % → {p1:.3g} %)")
-        pred += _worse_bands("prediction error", current.band_residual_db, after.band_residual_db, s)
-    return eq, pred
-
-
-def _worse_bands(what: str, b0, b1, s: LoopSettings) -> list[str]:
-    worse = [f"{k} Hz {b0[k]:+.1f} → {b1[k]:+.1f} dB" for k in b0
-             if k in b1 and np.isfinite(b0[k]) and np.isfinite(b1[k]) and b1[k] > b0[k] + s.max_band_rise_db]
-    return [f"the held-out {what} grows by more than {s.max_band_rise_db:g} dB in " + ", ".join(worse)] if worse else []
 
 
 class _Predictor:
@@ -294,44 +264,6 @@ def _errors(ev: _Evaluator, pred: _Predictor, terms: Sequence[Term]) -> Errors:
                   model_note="" if fitted is None else fitted.note, fitted=fitted)
 
 
-def _prediction_failures(current: Errors, after: Errors, s: LoopSettings, twin: Errors | None = None,
-                         floor: Sequence[float] = ()) -> list[str]:
-    """Why a candidate does not improve the held-out prediction enough (a rational linear part: the only gate).
-
-    It must lower the held-out prediction NMSE by ``min_prediction_gain`` (relative) and by more than the noise
-    floor (``floor``: per record, what a perfect model would still show, :meth:`HeldOut.noise_floor`), beat its
-    linear twin (the same model with one more *linear* path: else what it adds is flexibility) by as much, and make
-    no record's held-out prediction worse by more than ``max_record_rise`` (relative), the record's noise floor or a
-    quarter of the mean gain (a term that trades one level for another is not an effect of the structure).
-    """
-    p0, p1 = current.prediction_nmse_pct, after.prediction_nmse_pct
-    if p1 is None:
-        return [f"the model with it cannot be predicted ({after.prediction_unavailable})"]
-    if p0 is None:
-        return []
-    nf = float(np.mean(floor)) if len(floor) else 0.0
-    out = []
-    need = max(s.min_prediction_gain * p0, nf)
-    if not p1 <= p0 - need:
-        why = (f"does not fall by {100 * s.min_prediction_gain:g} %" if need > nf else
-               f"does not fall by more than the noise floor of the held-out parts ({nf:.2g} %)")
-        out.append(f"held-out prediction NMSE {p0:.3g} % → {p1:.3g} % {why}")
-    elif twin is not None and twin.prediction_nmse_pct is not None and \
-            not p1 <= twin.prediction_nmse_pct - max(s.min_prediction_gain * twin.prediction_nmse_pct, nf):
-        out.append(f"it predicts the held-out parts no better than the same model with one more linear path "
-                   f"({p1:.3g} % against {twin.prediction_nmse_pct:.3g} %): what it adds is flexibility, not a "
-                   f"nonlinearity")
-    gain = max(p0 - p1, 0.0)
-    floors = list(floor) + [0.0] * (len(current.prediction_nmse_per_record_pct) - len(floor))
-    worse = [(src, a, b) for src, a, b, f in zip(_names(current), current.prediction_nmse_per_record_pct,
-                                                 after.prediction_nmse_per_record_pct, floors)
-             if b - a > max(s.max_record_rise * a, f, 0.25 * gain)]
-    if worse:
-        out.append("it makes the held-out prediction of " + ", ".join(f"{n} worse ({a:.3g} % → {b:.3g} %)"
-                                                                      for n, a, b in worse))
-    return out
-
-
 #: a term whose describing function the linear columns z, ż explain to this R² on the fit parts acts linearly there
 #: (a play wider than the motion is stuck: its force a constant; a slipping play of 0.4 mm in 5 mm of motion: 0.998)
 LINEAR_R2 = 0.9999
@@ -347,11 +279,6 @@ def acts_linearly(ev: _Evaluator, term: Term) -> float:
         return 1.0
     r = g - x @ np.linalg.lstsq(x, g, rcond=None)[0]
     return float(1 - (r @ r) / tss)
-
-
-def _names(e: Errors) -> list[str]:
-    names = [n for n, _ in e.transmissibility_error_pct]
-    return names + [f"record {i + 1}" for i in range(len(names), len(e.prediction_nmse_per_record_pct))]
 
 
 def _path_grid(ev: _Evaluator, kinds: Sequence[str], points: int) -> list[Term]:
@@ -519,10 +446,14 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
             after = _errors(ev, pred, [*terms, c.term])
             gain = 1 - after.equation_nmse_pct / current.equation_nmse_pct if current.equation_nmse_pct > 0 else 0.0
             if pred.flexible:
-                eq_failed, pred_failed = [], _prediction_failures(current, after, s, twin, floor)
+                eq_failed, pred_failed = [], prediction_failures(current, after, s, twin, floor)
             else:
-                eq_failed, pred_failed = _heldout_failures(current, after, s)
+                eq_failed, pred_failed = heldout_failures(current, after, s)
             failed += eq_failed + pred_failed
+            if not failed and not pred.flexible:   # one term of a kind already present must not do as well
+                alts = [(k, a, _errors(ev, pred, [*terms[:k], a, *terms[k + 1:]]))
+                        for k, a in one_of_kind_alternatives(terms, c.term, [r.term for r in ranked], ev.static)]
+                failed += one_of_kind_failures(terms, c.term, after, alts, s)
             t = Trial(candidate=c, tire_shift=shift, tire_excluded_fraction=frac, heldout_gain=gain, after=after,
                       accepted=not failed, failed=tuple(failed),
                       unconfirmed=bool(pred_failed) and len(failed) == len(pred_failed) and not pred.flexible)
@@ -544,6 +475,7 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
                 verdict = NOTHING_MISSING if i > 1 else f"The declared model lacks nothing the library can name. " \
                                                          f"{NOTHING_MISSING}"
             break
+        added = _with_corrected_coefficient(ev, terms, added, m2_kg)
         evid = _evidence(ev, terms, added.candidate.term, s)
         text = pre + _round_text(i, added, current, evid, m2_kg, len(recs), ranked)
         rounds.append(Round(i, tuple(terms), ranked, tuple(trials), current, added, evid, text))
@@ -580,8 +512,10 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
         if confounded and verdict.endswith(NOTHING_MISSING):
             verdict = (verdict[: -len(NOTHING_MISSING)] + "Nothing these data can separate is missing, but "
                        + "; ".join(c.text() for c in confounded) + ".")
-    y_fit, x_fit = _design(ev.fit_parts, terms, ev.static)
-    bounds = coefficient_bounds(x_fit, y_fit, recs[0].fs_hz, segments=[p.y.size for p in ev.fit_parts])
+    bounds = ev.bounds(terms)
+    bias_note = _bias_note(ev, terms)
+    if bias_note:
+        notes.append(bias_note)
     n = ev.n_lin
     undetermined = undetermined_terms(ev.fit_rfs, terms, bounds.half_width[n:n + len(terms)] /
                                       np.maximum(np.abs(bounds.theta[n:n + len(terms)]), 1e-300)) if terms else ()
@@ -595,7 +529,7 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
         unavailable = f"no predictive model: {current.prediction_unavailable}"
     if model is not None and terms and s.refine and current.structure == "constant":
         say(0.98, "output-error refinement")
-        refinement, model = _refine_final(ev, pred, model, linear, m2_kg, say, current)
+        refinement, model = refine_final(ev, pred.held, model, linear, m2_kg, say, current)
     final_score = current.prediction_nmse_pct
     if refinement is not None and refinement.kept and refinement.heldout_after_pct is not None:
         final_score = refinement.heldout_after_pct
@@ -611,8 +545,36 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
                       test_seconds=tuple(b.duration_s for b in ev.test_recs), notes=tuple(notes), model=model,
                       linear_model=linear, model_unavailable=unavailable, detection_limits=limits,
                       confounded=confounded, bounds=bounds, undetermined=undetermined, refinement=refinement,
-                      linear_heldout_pct=None if pred.linear is None else pred.linear.score,
+                      linear_heldout_pct=None if pred.linear is None else pred.linear.score, noise=ev.noise,
+                      bias_corrected=ev.corrected(terms) is not None,
                       final_heldout_pct=final_score)
+
+
+def _with_corrected_coefficient(ev: _Evaluator, terms: Sequence[Term], trial: Trial,
+                                m2_kg: float | None) -> Trial:
+    """The added term's coefficient from the loop's joint fit beside the model's terms (each re-estimated), with
+    the fit's bias removed (:meth:`_Evaluator.corrected`): the ranking's coefficient is conditional on the
+    others held and on the noisy, band-limited ż."""
+    b = ev.bounds([*terms, trial.candidate.term])
+    th, hw = float(b.theta[-1]), float(b.half_width[-1])
+    c = trial.candidate
+    return replace(trial, candidate=replace(c, theta=th, theta_half_width=hw,
+                                            coefficient=None if m2_kg is None else th * m2_kg))
+
+
+def _bias_note(ev: _Evaluator, terms: Sequence[Term]) -> str:
+    """What the bias correction moved, or why the coefficients may be biased."""
+    noise = "; ".join(e.text() for e in ev.noise)
+    cor = ev.corrected(terms)
+    if cor is None:
+        why = ("switched off" if not ev.corrects else "the model cannot be simulated, or its terms share their shape "
+               "so that the correction does not converge")
+        return (f"the equation-error coefficients are not bias-corrected ({why}): noise on ż and the band-limited "
+                f"z, ż may bias them (a friction or a stiffness low); {noise}")
+    names = ["k", "c", *[t.label for t in terms]]
+    moved = ", ".join(f"{n} {100 * (a / b - 1):+.1f} %" for n, a, b in zip(names, cor.theta, cor.theta_fit) if b != 0)
+    return (f"coefficients corrected for the fit's bias (noise on both sensors and the band-limited z, ż; simulated "
+            f"with the estimated noise, nifo_core.bias_correction): against the plain fit {moved}; {noise}")
 
 
 def _floors(final: float | None, pred: _Predictor, terms: Sequence[Term]) -> str:
@@ -631,84 +593,3 @@ def _floors(final: float | None, pred: _Predictor, terms: Sequence[Term]) -> str
         return (f"The model class does not predict these data better than a linear model: {what} predicts the "
                 f"held-out parts at {final:.3g} %, the linear model of the same data at {lin:.3g} %.")
     return ""
-
-
-def _refine_final(ev: _Evaluator, pred: "_Predictor", model: IdentifiedModel, linear: IdentifiedModel | None,
-                  m2_kg: float | None, say: Callable[[float, str], None],
-                  final: Errors) -> tuple[LoopRefinement, IdentifiedModel]:
-    """Output-error refinement of the loop's final model on the fit parts, scored on the held-out parts.
-
-    :func:`~nifo_core.refine.refine_model` on the first ``refine_seconds`` of every fit part (the
-    equation-error fit and, where it does not already beat it, the linear model as starts); both
-    models' held-out prediction NMSE on the loop's one metric (the equation-error model's from ``final``,
-    the last round's errors of the same terms). Returns the record of it and the model
-    the loop keeps: the refined one unless its held-out prediction is worse (or cannot be made).
-    """
-    s = ev.settings
-    held = pred.held
-    p = held.period_samples
-    recs, skips = [], []
-    for r, sk, k in zip(held.records, held.skip, held.split):     # from rest, the fit part, at most refine_seconds
-        n = min(k, sk + int(round(s.refine_seconds * r.fs_hz)))
-        if p:
-            n = sk + max(2 * p, (n - sk) // p * p) if k - sk >= 2 * p else k
-        recs.append(r.slice(0, min(n, k)))
-        skips.append(max(sk, p or 0))
-    secs = tuple(float(r.duration_s) for r in recs)
-    try:
-        ref = refine_model(model, recs, linear=linear, band_hz=held.band_hz, period_samples=p,
-                           skip_samples=[max(sk, start_up_samples(model, r, p)) for r, sk in zip(recs, skips)],
-                           progress=lambda start, n, cost: say(0.98, f"output-error refinement from the {start} "
-                                                                     f"start ({n} simulations)"))
-    except NifoError as err:
-        return LoopRefinement(False, None, None, seconds=secs, unavailable=str(err)), model
-    # the equation-error model's held-out prediction is the final round's (``final``, same model): not re-run
-    b, bper = final.prediction_nmse_pct, tuple(final.prediction_nmse_per_record_pct)
-    a, aper = _heldout(pred, ref.model)
-    kept = a is not None and (b is None or a <= b)
-    out = LoopRefinement(kept, b, a, bper, aper, tuple(_compare(model, ref.model, m2_kg, ref.parameters)), secs,
-                         ref.to_dict())
-    return out, (ref.model if kept else model)
-
-
-def _heldout(pred: "_Predictor", model: IdentifiedModel) -> tuple[float | None, tuple[float, ...]]:
-    sc = pred.held.score(model)
-    if sc.unavailable is not None:
-        return None, ()
-    return sc.mean, tuple(float(v) for v in sc.per_record)
-
-
-def _compare(before: IdentifiedModel, after: IdentifiedModel, m2: float | None,
-             refined: Sequence[Mapping] = ()) -> list[dict]:
-    """Every refined parameter: the equation-error value and the refined one (× M2 where it scales).
-
-    ``refined``: :attr:`~nifo_core.refine.Refinement.parameters`, whose 95 % half-widths (where given)
-    are carried as ``refined_half_width_95`` (and × M2).
-    """
-    widths = [p.get("half_width_95") for p in refined]
-    n_terms = len(before.terms)
-    coef_w = widths[:n_terms] + [None] * (n_terms - len(widths[:n_terms]))
-    named = {p["name"]: p.get("half_width_95") for p in refined[n_terms:]}
-
-    def width(prefix):
-        return next((w for n, w in named.items() if n.startswith(prefix)), None)
-
-    def entry(name, unit, v0, v1, unit_m2=None, hw=None):
-        d = {"name": name, "unit": unit, "equation_error": float(v0), "refined": float(v1),
-             "refined_half_width_95": None if hw is None else float(hw)}
-        if m2 is not None and unit_m2 is not None:
-            d.update(equation_error_times_m2=float(v0) * m2, refined_times_m2=float(v1) * m2, unit_times_m2=unit_m2,
-                     refined_half_width_95_times_m2=None if hw is None else float(hw) * m2)
-        return d
-
-    out = []
-    for i, (t0, t1, g0, g1) in enumerate(zip(before.terms, after.terms, before.c_over_m2, after.c_over_m2)):
-        out.append(entry(f"{t0.kind} coefficient", f"{t0.spec.coef_unit}/kg", g0, g1, t0.spec.coef_unit, coef_w[i]))
-        key = t0.spec.key_param
-        if key is not None and isinstance(t0.params.get(key), float):
-            out.append(entry(f"{t0.kind}.{key}", t0.spec.params[key][1], t0.params[key], t1.params[key],
-                             hw=named.get(f"{t0.kind}.{key}")))
-    if before.body is not None and after.body is not None:
-        out.append(entry("k = K2/M2", "1/s²", before.body.k, after.body.k, "N/m", width("k = K2/M2")))
-        out.append(entry("c = C2/M2", "1/s", before.body.c, after.body.c, "N·s/m", width("c = C2/M2")))
-    return out

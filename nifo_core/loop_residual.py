@@ -32,6 +32,16 @@ from .model import IdentifiedModel
 from .restoring import RestoringForce, bandpass, bandpass_settle_samples, restoring_force
 from .frf import h1, partial_coherence
 from .spectral import SpectralSettings, auto_spectrum, cross_spectra
+from .noise import estimate_noise
+from .record import Record
+from .bias_correction import Correction, simulated_correction
+from .errors import NifoError
+from .model import predict_body
+from .uncertainty import CoefficientBounds, coefficient_bounds
+from scipy import stats
+
+#: the seed of the noise the bias correction adds (fixed: the same data give the same model)
+BIAS_SEED = 28
 
 @dataclass(frozen=True)
 class _Part:
@@ -125,6 +135,8 @@ class _Evaluator:
             self.fit_recs.append(rec.slice(0, rf.start + k))
             self.test_recs.append(rec.slice(rf.start + k, rec.n))
         self.fit_parts = [_part(rf, i) for i, rf in enumerate(self.fit_rfs)]
+        #: each record's sensor noise (:mod:`nifo_core.noise`), whole record after its transient
+        self.noise = tuple(estimate_noise(r.slice(k, r.n)) for r, k in zip(held.records, held.skip))
         self.test_parts = [_part(rf, i) for i, rf in enumerate(self.test_rfs)]
         #: linear columns of the equation error: z, ż and the measured force when there is one
         self.n_lin = len(self.fit_parts[0].linear)
@@ -141,10 +153,66 @@ class _Evaluator:
                               f"the shortest held-out part is {shortest / held.records[0].fs_hz:.1f} s")
         self._cache: dict = {}
 
+    def _fit_parts_of(self, records: Sequence[Record]) -> list[_Part]:
+        """The fit parts of ``records`` (the held records, renoised), cut exactly as :attr:`fit_parts`."""
+        out = []
+        for i, (rec, skip) in enumerate(zip(records, self.held.skip)):
+            rf = restoring_force(rec.slice(skip, rec.n), band=self.band)
+            out.append(_part(rf.select(slice(0, self.fit_rfs[i].n)), i))
+        return out
+
+    @property
+    def corrects(self) -> bool:
+        """Whether coefficients are reported with the fit's bias removed (:mod:`nifo_core.bias_correction`)."""
+        return bool(self.settings.noise_correction) and not any(r.spindle_fixed for r in self.held.records)
+
+    def _lstsq(self, parts: Sequence[_Part], terms: Sequence[Term]) -> np.ndarray:
+        y, x = _design(parts, terms, self.static)
+        return np.linalg.lstsq(x, y, rcond=None)[0]
+
+    def corrected(self, terms: Sequence[Term]) -> Correction | None:
+        """The equation-error coefficients with the fit's bias (noise on both sensors, processing) removed by
+        simulating the fit (:func:`nifo_core.bias_correction.simulated_correction`); None when it cannot."""
+        if not self.corrects:
+            return None
+        terms = tuple(terms)
+        key = ("corrected", tuple(t.label for t in terms), tuple(sorted(self.static.items())))
+        if key not in self._cache:
+            recs = list(self.held.records)
+            spectral, band_hz = self.settings.spectral, self.settings.analysis_band_hz
+
+            def simulate(theta: np.ndarray, rec: Record) -> np.ndarray | None:
+                model = self._model_of(terms, theta, spectral, band_hz)
+                if model is None:
+                    return None
+                try:
+                    return predict_body(model, np.asarray(rec.spindle_accel), rec.fs_hz, force=rec.force
+                                        if self.n_lin == 3 else None).body_accel
+                except (NifoError, np.linalg.LinAlgError, FloatingPointError):
+                    return None
+
+            t0 = self._lstsq(self.fit_parts, terms)
+            self._cache[key] = simulated_correction(lambda rs: self._lstsq(self._fit_parts_of(rs), terms),
+                                                    simulate, recs, self.noise, t0, seed=BIAS_SEED)
+        return self._cache[key]
+
     def joint(self, terms: Sequence[Term]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(θ = [k, c, θ_i...], fit rows y, X) of the equation-error fit on the fit part."""
         y, x = _design(self.fit_parts, terms, self.static)
         return np.linalg.lstsq(x, y, rcond=None)[0], y, x
+
+    def bounds(self, terms: Sequence[Term], *, level: float = 0.95) -> CoefficientBounds:
+        """θ with bounds: random error (:func:`coefficient_bounds`) and, when the bias is removed
+        (:meth:`corrected`), the corrected θ with what the correction adds to the bound."""
+        y, x = _design(self.fit_parts, terms, self.static)
+        b = coefficient_bounds(x, y, self.fit_parts[0].rf.fs_hz, level=level,
+                               segments=[p.y.size for p in self.fit_parts])
+        cor = self.corrected(terms)
+        if cor is None:
+            return b
+        z = stats.norm.ppf(0.5 + level / 2)
+        return replace(b, theta=cor.theta,
+                       half_width=np.sqrt((cor.gain * b.half_width) ** 2 + (z * cor.extra_sd()) ** 2))
 
     def equation(self, terms: Sequence[Term]) -> dict:
         """The equation-error numbers of ``terms`` (fit on the fit parts, NMSE on the held-out parts)."""
@@ -175,7 +243,10 @@ class _Evaluator:
         with a measured force, its gain 1/M2 (the force column's coefficient is -1/M2). None when the body is not
         physical (a multi-mode structure read as one mass)."""
         terms = tuple(terms)
-        theta = self.joint(terms)[0]
+        return self._model_of(terms, self.joint(terms)[0], spectral, analysis_band_hz)
+
+    def _model_of(self, terms: tuple[Term, ...], theta: np.ndarray, spectral: SpectralSettings,
+                  analysis_band_hz: tuple[float, float]) -> IdentifiedModel | None:
         n = self.n_lin
         gain = -float(theta[2]) if n == 3 else 0.0
         if not (theta[0] > 0 and theta[1] > 0 and gain >= 0):

@@ -81,6 +81,11 @@ class LoopSettings:
     path_widths : int
         On a rational linear part (a flexible body): widths tried per kind that can act through a
         feedback path (backlash, clearance, saturation), geometric over the relative motion.
+    noise_correction : bool
+        Remove the bias that noise on both sensors gives the equation-error fit and the final
+        output-error refinement (errors in variables: :mod:`nifo_core.bias_correction`,
+        :mod:`nifo_core.refine_bias`, with each record's noise estimated from its spectra,
+        :mod:`nifo_core.noise`); its uncertainty joins the coefficients' bounds.
     retune : bool
         Before each round, re-tune the parameter (gap, knee, eps...) of every term of the model
         over its grid (a key parameter within a factor 2 of its value) (declared terms state the form; the data set the parameter). Without it a
@@ -117,6 +122,7 @@ class LoopSettings:
     min_prediction_gain: float = 0.02
     max_record_rise: float = 0.05
     path_widths: int = 8
+    noise_correction: bool = True
 
     def __post_init__(self) -> None:
         if isinstance(self.max_rounds, bool) or not isinstance(self.max_rounds, (int, np.integer)) \
@@ -360,9 +366,11 @@ class LoopRefinement:
         which = ("model.json holds the refined model" if self.kept else
                  "not better on held-out data: model.json holds the equation-error fit")
         secs = ", ".join(f"{v:.0f}" for v in self.seconds)
+        note = (self.refinement or {}).get("bias_note", "")
         return (f"Output-error refinement (every record simulated from its measured input, the prediction error "
                 f"minimised over the coefficients, gaps/knees and the body's k, c; on the first {secs} s of the "
-                f"fit parts), equation-error fit → refined: {what}; {score}: {which}.")
+                f"fit parts), equation-error fit → refined: {what}; {score}: {which}."
+                + (f" Bias correction of the refined values: {note}." if note else ""))
 
     def to_dict(self) -> dict:
         return {"kept": self.kept, "heldout_prediction_nmse_before_pct": self.heldout_before_pct,
@@ -415,12 +423,16 @@ class LoopResult:
     refinement: LoopRefinement | None = None
     linear_heldout_pct: float | None = None
     final_heldout_pct: float | None = None
+    noise: tuple = ()                 # NoiseEstimate per record (nifo_core.noise)
+    bias_corrected: bool = False      # coefficients and bounds with the fit's bias removed (nifo_core.bias_correction)
 
     def coefficients(self) -> list[dict]:
         """The final model's equation-error coefficients with 95 % random-error bounds (per kg, and × M2).
 
-        Random error only (:mod:`nifo_core.uncertainty`): noise reaching the regressors through z biases
-        some kinds beyond it (measured: Coulomb −5 % against a ±0.6 % bound).
+        With ``bias_corrected``, θ has the fit's bias removed (noise on both sensors and the band-limited z, ż;
+        :mod:`nifo_core.bias_correction`) and the bound holds its uncertainty; otherwise random error only
+        (:mod:`nifo_core.uncertainty`), and noise reaching the regressors biases some kinds beyond it
+        (measured: Coulomb −4.5 % against a ±0.6 % bound).
         """
         if self.bounds is None:
             return []
@@ -468,7 +480,9 @@ class LoopResult:
         lines.append(self.verdict)
         if self.bounds is not None:
             m = self.m2_kg
-            lines.append("Final model, equation-error fit on the fit parts (95 % bounds, random error only): " + "; ".join(
+            what = ("bias-corrected, bounds: random error and the correction's uncertainty" if self.bias_corrected else
+                    "random error only; may be biased low by noise on z, ż")
+            lines.append(f"Final model, equation-error fit on the fit parts (95 % bounds, {what}): " + "; ".join(
                 f"{d['name']} {d['value']:.4g} ± {d['half_width']:.2g} {d['unit']}"
                 + (f" (× M2: {d['value_times_m2']:.4g} ± {d['half_width_times_m2']:.2g})" if m else "")
                 for d in self.coefficients()) + ".")
@@ -500,6 +514,7 @@ class LoopResult:
                 "band": self.band.to_dict(), "m2_kg": self.m2_kg, "settings": self.settings.to_dict(),
                 "records": [{"source": s, "fit_s": a, "test_s": b}
                             for s, a, b in zip(self.sources, self.fit_seconds, self.test_seconds)],
+                "noise": [e.to_dict() for e in self.noise], "bias_corrected": self.bias_corrected,
                 "notes": list(self.notes)}
 
 

@@ -49,6 +49,10 @@ residues from two starts, NIFO's coefficients and zero (the refined linear
 model itself), the better on the identification records kept: the result
 never predicts them worse than the equally refined linear model.
 
+Driven by the *measured* spindle signal, the fit is biased by that sensor's noise (errors in
+variables); :func:`nifo_core.refine_bias.correct_refinement` removes the bias by simulating the
+refinement with the estimated noise (the loop does so; ``refine_model`` itself does not).
+
 Minimised by :func:`scipy.optimize.least_squares` (trust-region reflective,
 finite-difference Jacobian: one simulation per parameter and record per
 iteration). The refinement never makes the model worse on the records it is
@@ -72,7 +76,8 @@ from .model import IdentifiedModel, PredictionDivergedError, predict_body, recor
 from .prediction_error import band_spectra
 from .record import Record
 
-__all__ = ["Refinement", "refine_model", "refine_jointly", "model_nmse", "parameter_space", "start_up_samples"]
+__all__ = ["Refinement", "refine_model", "refine_jointly", "model_nmse", "parameter_space", "start_up_samples",
+           "prediction_residual", "moved_refinement"]
 
 #: relative error a diverged simulation counts as (per record; 1 = predicting zero)
 _DIVERGED = 10.0
@@ -111,11 +116,13 @@ class Refinement:
     evaluations: int
     message: str
     labels: list = field(default_factory=list)
+    #: what a bias correction did, or why there is none (:mod:`nifo_core.refine_bias`; empty: not tried)
+    bias_note: str = ""
 
     def to_dict(self) -> dict:
         return {"start": self.start, "nmse_before_pct": {k: list(v) for k, v in self.nmse_before.items()},
                 "nmse_pct": list(self.nmse), "records": list(self.labels), "parameters": list(self.parameters),
-                "evaluations": self.evaluations, "message": self.message}
+                "evaluations": self.evaluations, "message": self.message, "bias_note": self.bias_note}
 
 
 @dataclass(frozen=True)
@@ -549,13 +556,8 @@ def _stored_covariance(sp: _Space, x: np.ndarray, cov: np.ndarray | None) -> dic
             "residues": bool(sp.residues), "matrix": (d[:, None] * cov * d[None, :]).tolist()}
 
 
-def parameter_space(model: IdentifiedModel) -> tuple[Callable[[np.ndarray], IdentifiedModel], np.ndarray,
-                                                        np.ndarray] | None:
-    """(θ' → model, θ'* of ``model`` itself, cov(θ')) from a refined model's stored covariance, or None.
-
-    For propagating the refinement's parameter uncertainty to predictions
-    (:mod:`nifo_core.prediction_bounds`): ``to_model(theta_star)`` is ``model``.
-    """
+def _stored_space(model: IdentifiedModel) -> tuple[_Space, np.ndarray] | None:
+    """The refined model's own space θ' and cov(θ') from its stored covariance, or None."""
     c = (model.provenance.get("refined") or {}).get("covariance")
     if not c:
         return None
@@ -566,7 +568,45 @@ def parameter_space(model: IdentifiedModel) -> tuple[Callable[[np.ndarray], Iden
     cov = np.asarray(c["matrix"], float)
     if cov.shape != (sp.size, sp.size) or not np.all(np.isfinite(cov)):
         return None
-    return sp.model, sp.x0(gam), cov
+    return sp, cov
+
+
+def parameter_space(model: IdentifiedModel) -> tuple[Callable[[np.ndarray], IdentifiedModel], np.ndarray,
+                                                        np.ndarray] | None:
+    """(θ' → model, θ'* of ``model`` itself, cov(θ')) from a refined model's stored covariance, or None.
+
+    For propagating the refinement's parameter uncertainty to predictions
+    (:mod:`nifo_core.prediction_bounds`): ``to_model(theta_star)`` is ``model``.
+    """
+    got = _stored_space(model)
+    if got is None:
+        return None
+    sp, cov = got
+    return sp.model, sp.x0(np.asarray(model.c_over_m2, float)), cov
+
+
+def moved_refinement(model: IdentifiedModel, x: np.ndarray, cov: np.ndarray,
+                     note: Mapping) -> tuple[IdentifiedModel, list[dict]]:
+    """A refined ``model`` moved to θ' = ``x`` of its :func:`parameter_space` with covariance ``cov`` (there):
+    the moved model (its stored covariance re-expressed around it, ``note`` stored as the refinement's
+    ``bias_correction``) and its reported parameters (before as in ``model``, after, 95 % half-widths)."""
+    sp, _ = _stored_space(model)
+    moved = sp.model(x)
+    old = model.provenance["refined"]
+    params = [{**p, "after": float(v), "half_width_95": h}
+              for p, v, h in zip(old["parameters"], _values(sp, x), _half_widths(sp, x, cov))]
+    prov = {**dict(model.provenance), "refined": {**old, "parameters": params, "bias_correction": dict(note),
+                                                  "covariance": _stored_covariance(sp, x, cov)}}
+    return replace(moved, provenance=prov), params
+
+
+def prediction_residual(model: IdentifiedModel, record: Record, *, band_hz: tuple[float, float],
+                        period_samples: int | None = None, skip_samples: int = 0,
+                        oversample: int | None = None) -> np.ndarray:
+    """(Ŷ - Y)/‖Y‖ on the band's lines of ``record`` (complex): what the refinement minimises.
+
+    Raises :class:`~nifo_core.model.PredictionDivergedError` where the simulation diverges."""
+    return _residual(model, record, band_hz, period_samples, skip_samples, oversample)
 
 
 def _values(sp: _Space, x: np.ndarray) -> list[float]:

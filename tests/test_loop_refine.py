@@ -104,11 +104,15 @@ def test_bump_stop_gap_from_static_stiffness_refined_and_nothing_spurious(bump):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="measured: the equation-error fit at first addition gives 1.56e5 N/m for "
-                   "2e5 (-22 %; noise-free 1.75e5, -12 %: the band-limited z and the noise integrated into it "
-                   "both pull it low); the loop's final, refined model holds 1.81e5 (-9.5 %)")
 def test_bump_stop_stiffness_within_15_percent_at_first_addition(bump):
+    # the plain equation-error fit gives 1.56e5 N/m (-22 %; noise-free -12 %: the band-limited z and the noise
+    # integrated into it both pull it low); the loop removes that bias by simulating its fit
     _, res = bump
+    doc = res.to_dict()
+    print(f"\nbump stop {STOP_N_M:.3g} N/m at first addition: {res.added[0].coefficient:.4g} N/m "
+          f"({100 * (res.added[0].coefficient / STOP_N_M - 1):+.1f} %), bias-corrected {res.bias_corrected}; "
+          f"noise: {[e['text'] for e in doc['noise']]}")
+    assert len(doc["noise"]) == 2 and all(e["available"] for e in doc["noise"])
     assert res.added[0].coefficient == pytest.approx(STOP_N_M, rel=0.15)
 
 
@@ -142,8 +146,12 @@ def test_refinement_can_be_switched_off_and_the_command_says_which_model_it_wrot
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason="measured: beside a declared damper knee (-700 N·s/m beyond 0.03 m/s) at 2.5 mm "
                    "road, Coulomb 30 N is added at 52.2 N (+74 %): beyond the knee both carry a sign(ż) part and "
-                   "share it; the final equation-error fit holds 36.2 N, the refined 28.3 N, but the refined model "
-                   "predicts the held-out third worse (0.911 % vs 0.871 %) and is not kept")
+                   "share it (the knee re-tuned to 0.022 m/s, the friction's eps 0.017 for 0.005); the bias "
+                   "correction is refused there (it would move the knee's coefficient by -130 %: confounded); "
+                   "the final equation-error fit holds 36.2 N, the refined 34.2 N. Tried (issue 28): the pair fitted "
+                   "jointly by output error at first addition (knee, coefficients, k, c free; bias-corrected) lands on "
+                   "another explanation that predicts as well: knee 0.056 m/s, its coefficient undetermined (±200 %), "
+                   "Coulomb 60 N — at 2 % noise these data do not separate the friction from the knee's sign(ż) part")
 def test_coulomb_beside_a_declared_knee_is_within_10_percent_at_first_addition():
     knee = Term("velocity_deadzone", {"knee": 0.03})
     sim = _sim((StrutForce(knee, -700.0), StrutForce(Term("coulomb", {"eps": 0.005}), COULOMB_N)), 0.0025, 120.0, 11)
@@ -190,8 +198,10 @@ def test_bump_stop_beside_a_declared_knee_gap_from_static_and_nothing_spurious(b
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="measured: beside the knee the refined stop holds 1.67e5 N/m for 2e5 (-16.5 %; "
-                   "first addition 1.53e5, -24 %): the refinement trades it against the linear stiffness (k +12 %)")
 def test_bump_stop_beside_a_declared_knee_refined_stiffness_within_15_percent(bump_beside_knee):
+    # the plain output-error refinement holds 1.67e5 N/m (-16.5 %, the linear stiffness +12 %): driven by the noisy
+    # spindle signal it is biased; the loop removes that bias by simulating the refinement (nifo_core.refine_bias),
+    # the knee's parameters, which these data do not determine, held
     _, res = bump_beside_knee
+    print(f"\nrefined bump stop beside the knee: {res.refinement.refinement['message']}")
     assert res.refinement.parameter("bump_stop coefficient")["refined_times_m2"] == pytest.approx(STOP_N_M, rel=0.15)

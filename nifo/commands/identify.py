@@ -414,6 +414,21 @@ def _two_step(args, spec, cfg, opts):
     return res, data, per_file, caught
 
 
+def _noise_doc(data, opts) -> list[dict]:
+    """Each record's sensor noise per channel (:mod:`nifo_core.noise`): what may bias the fit (errors in
+    variables), read off its spectra. A file that cannot be read again gives its reason."""
+    from nifo.io.loader import load_record
+    from nifo_core.noise import estimate_noise
+
+    out = []
+    for d in _entries(data):
+        try:
+            out.append(estimate_noise(load_record(d["path"], **opts)).to_dict())
+        except NifoError as err:
+            out.append({"source": d.get("name"), "available": False, "unavailable": err.message, "channels": []})
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     from nifo.io.modelfile import load_model_spec
     from nifo.io.results import IDENTIFY_JSON, MODEL_JSON, identify_document, write_json, write_model
@@ -507,7 +522,7 @@ def run(args: argparse.Namespace) -> int:
                                                          system=system_of(args))
         doc = identify_document(res, data=data, summary=summary, warnings=warn, settings=settings_doc,
                                 model_file=model_file, figures=figures)
-        doc.update(input=input_provenance(args), system=system_of(args))
+        doc.update(input=input_provenance(args), system=system_of(args), noise=_noise_doc(data, opts))
         write_json(tmp / IDENTIFY_JSON, doc, atomic=False)
         if model is not None:
             model = replace(model, provenance={**dict(model.provenance), **prov})

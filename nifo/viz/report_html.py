@@ -241,7 +241,13 @@ def _identify(r: ResultDir, system: Mapping) -> tuple[dict, list]:
         lines = lines + [{"text": f"feedback paths (model.json): ridge {_num(fp.get('ridge'))}"}]
     return {"terms": rows, "t21_bounds": _t21_bounds(r.doc), "refinement": refinement, "paths": paths}, [{"key": "pooled coefficients", "lines": lines or [{"text": "none (linear)"}]},
                              {"key": "coherence, median",
-                              "lines": [{"text": _num(s.get("coherence_h1_median"), ".3f")}]}]
+                              "lines": [{"text": _num(s.get("coherence_h1_median"), ".3f")}]}, _noise_key(r.doc)]
+
+
+def _noise_key(doc: Mapping) -> dict:
+    """The sensor noise per record and channel (identify.json / loop.json ``noise``)."""
+    lines = [{"text": e.get("text") or f"{e.get('source')}: {e.get('unavailable')}"} for e in doc.get("noise") or []]
+    return {"key": "sensor noise", "lines": lines or [{"text": "not estimated"}]}
 
 
 def _t21_bounds(doc: Mapping) -> list[list]:
@@ -388,7 +394,7 @@ def _loop(r: ResultDir, words: Mapping) -> tuple[dict, list]:
     if fin is not None:
         lines.append({"text": f"held-out {_num(fin, '.3g')} %",
                       "small": "" if lin is None else f"(linear model of the same data {_num(lin, '.3g')} %)"})
-    return view, [{"key": "loop (final model)", "lines": lines}]
+    return view, [{"key": "loop (final model)", "lines": lines}, _noise_key(r.doc)]
 
 
 # ------------------------------------------------------------------------------------ provenance
