@@ -9,7 +9,7 @@ or logging set-up in here (a test enforces it). Modules, one concern each:
 - ``vehicle``     the linear quarter car and its analytical transfer functions (the truth)
 - ``simulate``    the nonlinear quarter-car simulator
 - ``integrate``   band-limited integration of accelerations (one FIR, batch and streaming)
-- ``describing``  the describing-function library (forms of METHOD.md §2)
+- ``describing``  the describing-function library (forms of docs/method.md §2)
 - ``spectral``    the one spectral engine (cross-spectral matrix, batch and streaming)
 - ``nifo``        output-only and input-measured NIFO (paper Eq. 5, 8-10)
 - ``model``       the identified model and its predictions

@@ -1,4 +1,4 @@
-"""Automatic characterization: which describing function explains the restoring force (METHOD.md §5).
+"""Automatic characterization: which describing function explains the restoring force (docs/method.md §5).
 
 Equation error of the body equation (paper Eq. 2) per unit sprung mass::
 
@@ -7,7 +7,7 @@ Equation error of the body equation (paper Eq. 2) per unit sprung mass::
 For every kind of the describing-function library (:mod:`nifo_core.describing`,
 the one place the forms live) over a grid of its parameters scaled to the
 observed motion, the candidate g is evaluated on the measured z, ż and then
-band-passed with the integrator's band (METHOD.md §5 step 3). Candidates are
+band-passed with the integrator's band (docs/method.md §5 step 3). Candidates are
 scored by the error reduction ratio (Billings) — the fraction of the variance
 the linear fit leaves that the candidate explains:
 
@@ -51,7 +51,7 @@ Exact equivalences once z and ż are in the fit: ``saturation(limit=x) =
 z - clearance(gap=x)`` and ``velocity_saturation(limit=x) = ż -
 velocity_deadzone(knee=x)`` explain the data identically; the
 clearance/deadzone form is reported (its linear part is then the small-motion
-behaviour, METHOD.md §3) and the other is named as its equivalent.
+behaviour, docs/method.md §3) and the other is named as its equivalent.
 ``asymmetric_damping`` rebound and compression differ by a linear term: the
 side with the positive (added-damping) coefficient is reported.
 """
@@ -223,7 +223,7 @@ def rank_beyond(rfs: Sequence[RestoringForce], declared: Sequence[Term], *, m2_k
     """Each kind's best candidate on top of a linear strut AND the ``declared`` terms, ranked by ERR.
 
     What a model holding ``declared`` still lacks (the tracing step of the
-    loop, METHOD.md §5): the same grids, band-limiting and QR-orthogonalised
+    loop, docs/method.md §5): the same grids, band-limiting and QR-orthogonalised
     scoring as :func:`characterize_restoring`, with the declared terms' regressors
     (coefficients refitted) in the base. ERR is then the fraction of what the
     linear + declared fit leaves that the candidate explains; every statistic of

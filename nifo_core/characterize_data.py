@@ -1,4 +1,4 @@
-"""The characterization's regression data and grid search (:mod:`nifo_core.characterize`, METHOD.md §5).
+"""The characterization's regression data and grid search (:mod:`nifo_core.characterize`, docs/method.md §5).
 
 :class:`RegressionData` band-passes every column once more with the one
 filter (the module docstring of :mod:`nifo_core.characterize` says why);

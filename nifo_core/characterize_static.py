@@ -1,4 +1,4 @@
-"""Where the static position lies in each record: bump stops measured from it (METHOD.md §5).
+"""Where the static position lies in each record: bump stops measured from it (docs/method.md §5).
 
 z and ż are band-limited integrals of accelerations: their mean is lost, so z is
 measured from each record's *mean* position. A one-sided force (a bump stop)

@@ -1,10 +1,10 @@
 """The describing-function library: static and hysteretic strut nonlinearities.
 
 Each *kind* is a basis function g(z, ż; params) of the relative displacement
-z = x2 - x1 [m] and velocity ż [m/s] (METHOD.md §2, paper Fig. 1). A strut
+z = x2 - x1 [m] and velocity ż [m/s] (docs/method.md §2, paper Fig. 1). A strut
 nonlinearity is ``c · g`` with a coefficient c added to the linear strut force
 (body equation ``M2·ẍ2 = -K2·z - C2·ż - K3·x2 - Σ c_i·g_i``). The forms are kept
-*whole* (their linear part is not removed, METHOD.md §3), and every one is
+*whole* (their linear part is not removed, docs/method.md §3), and every one is
 zero at zero motion, so the nominal linear system is what remains when all
 coefficients vanish.
 

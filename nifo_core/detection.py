@@ -1,4 +1,4 @@
-"""What the data could not reveal: detection limits per kind, and confounded pairs (METHOD.md §5).
+"""What the data could not reveal: detection limits per kind, and confounded pairs (docs/method.md §5).
 
 "Nothing significant is missing" is only half an answer; the other half is how
 big an effect would have had to be to be seen in *these* data (their noise,

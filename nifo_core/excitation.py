@@ -1,6 +1,6 @@
 """What the excitation of a record is: periodic or not, its period and transient, the band it excites.
 
-What a test engineer reads off the data before identifying (METHOD.md §8),
+What a test engineer reads off the data before identifying (docs/method.md §8),
 read off by the program:
 
 - **Periodic excitation** (a multisine repeats exactly). The period P is the

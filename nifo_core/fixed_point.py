@@ -1,4 +1,4 @@
-"""Frequency-domain prediction: a fast path, used only where it provably converges (METHOD.md §4).
+"""Frequency-domain prediction: a fast path, used only where it provably converges (docs/method.md §4).
 
 On the whole zero-padded record, the model's feedback reads (K3 = 0)
 

@@ -1,4 +1,4 @@
-"""Band-limited integration of accelerations (METHOD.md §2, pitfalls in §3).
+"""Band-limited integration of accelerations (docs/method.md §2, pitfalls in §3).
 
 One linear-phase FIR pair approximates 1/(jω) (velocity) and -1/ω²
 (displacement) inside a band [f_lo, f_hi] with raised-cosine edges and is zero
@@ -83,7 +83,7 @@ def band_for_records(band: IntegrationBand, records) -> IntegrationBand:
 def default_band(fs_hz: float, duration_s: float | None = None) -> IntegrationBand:
     """A band that contains the body-bounce mode (≈1-1.5 Hz) and keeps integration honest.
 
-    f_lo is 0.5 Hz (METHOD.md §3: the band must contain body bounce; 1.5 Hz
+    f_lo is 0.5 Hz (docs/method.md §3: the band must contain body bounce; 1.5 Hz
     biased T21 by 10 %, 0.8 Hz by 0.5 %), raised for short records so the
     integrator spans at most half of the record; f_hi = min(200 Hz, fs/2.5)
     (the paper's 200 Hz low-pass, Table 2).

@@ -116,7 +116,7 @@ def _usable(freq_hz, t21, band_hz, weights):
 def fit_body_model(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[float, float] = (2.0, 30.0),
                    fit_k3: bool = False, weights: np.ndarray | None = None,
                    require_physical: bool = True) -> BodyModel:
-    """Fit k = K2/M2, c = C2/M2 (and k3 = K3/M2) to a nominal T21 (METHOD.md §4).
+    """Fit k = K2/M2, c = C2/M2 (and k3 = K3/M2) to a nominal T21 (docs/method.md §4).
 
     Linear least squares of the equation error ``(k + jωc)·(T21 - 1) + k3·T21 - ω²·T21``
     over the lines of ``band_hz`` (real and imaginary parts), each line

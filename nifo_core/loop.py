@@ -1,4 +1,4 @@
-"""Closing the loop: residual → the effect the model lacks → add it → error before and after (METHOD.md §5).
+"""Closing the loop: residual → the effect the model lacks → add it → error before and after (docs/method.md §5).
 
 Given records and a *declared* model (describing functions, :mod:`nifo_core.describing`),
 :func:`close_loop` repeats, for at most ``max_rounds`` rounds:
@@ -20,7 +20,7 @@ Given records and a *declared* model (describing functions, :mod:`nifo_core.desc
 
    The displacement-form NIFO residual / multiple coherence is *not* used: a
    describing function of z = x2 - x1 carries the output into the regressors,
-   and the fit absorbs whatever is missing (METHOD.md §3).
+   and the fit absorbs whatever is missing (docs/method.md §3).
 
 2. **Tracing.** Every kind of the library, over parameter grids scaled to the
    motion, is scored by the fraction of the linear + declared equation error it

@@ -3,7 +3,7 @@
 The force-balance equation error of the body (paper Eq. 2 per unit sprung
 mass, every column band-passed after the nonlinear map; a measured force on
 the body is one more linear column, coefficient -1/M2) traces what the model
-lacks (METHOD.md §5 step 1). The other residual, the held-out prediction
+lacks (docs/method.md §5 step 1). The other residual, the held-out prediction
 error of the model class ``nifo identify`` writes, is :mod:`nifo_core.heldout`
 and :mod:`nifo_core.model_fit`. Also here: the tire check, the evidence behind
 an added effect, the re-tuning of the terms' parameters and the per-band
@@ -64,7 +64,7 @@ def _part(rf: RestoringForce, index: int = 0) -> _Part:
 
 
 def _g(part: _Part, term: Term, offsets: Mapping[str, Sequence[float]] | None = None) -> np.ndarray:
-    """g(z, ż) on the part's motion, band-passed AFTER the map (METHOD.md §5 step 3).
+    """g(z, ż) on the part's motion, band-passed AFTER the map (docs/method.md §5 step 3).
 
     ``offsets``: term label → one ``offset`` [m] per record (a bump stop measured from the static
     position, which sits elsewhere in each record: :mod:`nifo_core.characterize_static`).

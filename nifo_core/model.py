@@ -1,4 +1,4 @@
-"""The identified model and its predictions (METHOD.md §4, paper §3.3 validation).
+"""The identified model and its predictions (docs/method.md §4, paper §3.3 validation).
 
 A model is what the static NIFO fit identifies (:mod:`nifo_core.nifo`)::
 
@@ -359,7 +359,7 @@ def predict_body(model: IdentifiedModel, spindle_accel: np.ndarray | None, fs_hz
                  force: np.ndarray | None = None, method: Method = "parametric", engine: Engine | None = None,
                  oversample: int | None = None, label: str | None = None, tol: float = 1e-6,
                  max_iter: int = 200, relax: float = 1.0, pad_s: float = 5.0) -> Prediction:
-    """Predict the body acceleration from a measured spindle acceleration (METHOD.md §4).
+    """Predict the body acceleration from a measured spindle acceleration (docs/method.md §4).
 
     Parameters
     ----------

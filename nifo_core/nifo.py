@@ -1,4 +1,4 @@
-"""Output-only and input-measured NIFO (paper §2.2, Eq. 5 and 7-10; METHOD.md §3).
+"""Output-only and input-measured NIFO (paper §2.2, Eq. 5 and 7-10; docs/method.md §3).
 
 Output-only (paper Eq. 8-9). The spindle motion is the input to the body:
 
@@ -6,7 +6,7 @@ Output-only (paper Eq. 8-9). The spindle motion is the input to the body:
 
 Xn_i is the Fourier transform of describing function g_i evaluated on the
 measured relative motion (z, ż), z = x2 - x1. We regress in accelerations
-(A = -ω²X, METHOD.md §3: equivalent for the linear part and free of
+(A = -ω²X, docs/method.md §3: equivalent for the linear part and free of
 integration error in x1, x2); only z, ż are integrated (from ẍ2 - ẍ1, subtract
 first). With channels [a1, a2, g_1..g_N] in ONE cross-spectral accumulator
 (:mod:`nifo_core.spectral`) the per-line H1 solve (Eq. 9 multiplied by the
@@ -35,7 +35,7 @@ with γ pooled over the analysis band: this is the recommended T21 and the one
 :mod:`nifo_core.model` predicts with. Check its assumption with the free
 ``c_over_m2`` (flat and real for a static or rate-independent nonlinearity).
 
-Describing functions are kept whole (METHOD.md §3: removing their linear part
+Describing functions are kept whole (docs/method.md §3: removing their linear part
 yields the equivalent linearisation), and the integration band must contain
 the body-bounce mode (``default_band``: 0.5 Hz upwards).
 
@@ -200,7 +200,7 @@ def identify_two_step(records_1: Sequence[Record] | Record, terms_1: Sequence[Te
                       input_measured: bool | None = None,
                       spindle_noise_psd: tuple[float | None, float | None] = (None, None),
                       rounds: int = 2) -> NifoResult:
-    """Two-step NIFO (paper §3.3, METHOD.md §3) combined into one result.
+    """Two-step NIFO (paper §3.3, docs/method.md §3) combined into one result.
 
     Step 1 identifies ``terms_1`` (e.g. backlash) on ``records_1`` (a level
     where ``terms_2`` hardly act); step 2 identifies ``terms_2`` (e.g. the

@@ -232,7 +232,7 @@ class NifoResult:
         Plain H1 a1→a2 and its ordinary coherence on the same blocks (the
         equivalent linearisation at the test level, for comparison).
     multiple_coherence : ndarray, shape (nf,)
-        γ²_y:U of the (output-only) fit. Near 1 whatever is missing (METHOD.md
+        γ²_y:U of the (output-only) fit. Near 1 whatever is missing (docs/method.md
         §3 pitfalls): not a model check.
     partial_coherence : ndarray, shape (1 + n_terms, nf)
         Of a2 with [a1, g_1..] each given the others (NaN for fixed terms).

@@ -48,7 +48,7 @@ class StreamingNifo:
         Spectral block/overlap/window (paper Table 2 by default).
     band : IntegrationBand, optional
         Integration band for z, ż; default ``default_band(fs_hz)`` (0.5 Hz up:
-        it must contain body bounce, METHOD.md §3).
+        it must contain body bounce, docs/method.md §3).
     fixed : NifoResult, FixedTerms or sequence of (Term, float), optional
         Terms held fixed at constant c_i/M2 (two-step, paper §3.3).
     with_tire_patch : bool

@@ -1,4 +1,4 @@
-"""Restoring-force data from two accelerations, and its slices (paper §2.1, §3.2; METHOD.md §2).
+"""Restoring-force data from two accelerations, and its slices (paper §2.1, §3.2; docs/method.md §2).
 
 From the body equation (paper Eq. 2, signs of :mod:`nifo_core.vehicle`)::
 
@@ -9,7 +9,7 @@ sprung mass; plotted against the relative velocity ż it shows damping
 nonlinearities, against the relative displacement z stiffness nonlinearities
 (paper Figs. 3, 4, 7). Only the two accelerations are needed.
 
-Processing (METHOD.md §2-3):
+Processing (docs/method.md §2-3):
 
 1. Subtract first, then integrate: r̈ = ẍ2 - ẍ1 → ż, z with the band-limited,
    zero-phase FIR of :mod:`nifo_core.integrate`.
@@ -72,7 +72,7 @@ def bandpass(x: np.ndarray, fs_hz: float, band: IntegrationBand) -> np.ndarray:
 
     ``bandpass(a) == d/dt integrate(a).velocity`` (to rounding): apply it to
     the body acceleration and to every describing function g(z, ż) so they are
-    band-limited exactly as z and ż are (METHOD.md §5 step 3). Like
+    band-limited exactly as z and ż are (docs/method.md §5 step 3). Like
     :func:`~nifo_core.integrate.integrate` the ends see zero padding; see
     :func:`bandpass_settle_samples`.
     """
@@ -177,7 +177,7 @@ class RestoringForce:
 
 def restoring_force(record: Record, *, band: IntegrationBand | None = None,
                     body_displacement: bool = False) -> RestoringForce:
-    """Restoring-force data of a record (paper Eq. 2; METHOD.md §2).
+    """Restoring-force data of a record (paper Eq. 2; docs/method.md §2).
 
     Parameters
     ----------
@@ -223,7 +223,7 @@ def restoring_force(record: Record, *, band: IntegrationBand | None = None,
 # --------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class BandSuggestion:
-    """A data-driven integration band and why (METHOD.md §3).
+    """A data-driven integration band and why (docs/method.md §3).
 
     ``snr_db_at_hz`` maps a few frequencies (0.5, 1, 1.5, 2, 3 Hz) to the
     signal-to-noise ratio of ẍ2 - ẍ1 there: the SNR of z, ż at that frequency.
@@ -241,7 +241,7 @@ class BandSuggestion:
 
 def suggest_band(record: Record, *, min_snr_db: float = 10.0, check_to_hz: float = 5.0,
                  f_hi_hz: float | None = None) -> BandSuggestion:
-    """Choose the band's lower edge where the relative motion rises out of the noise (METHOD.md §3).
+    """Choose the band's lower edge where the relative motion rises out of the noise (docs/method.md §3).
 
     White accelerometer noise integrated twice grows as 1/ω⁴, so below some
     frequency z is mostly noise; noisy z makes every stiffness candidate
@@ -257,7 +257,7 @@ def suggest_band(record: Record, *, min_snr_db: float = 10.0, check_to_hz: float
     Body bounce (≈1-1.5 Hz) then often lies in the integrator's transition
     band ``f_lo/2..f_lo`` and is passed only in part: fine for characterizing
     (y, z and every candidate see the same band), worth knowing for NIFO's T21
-    (METHOD.md §3), for which a lower edge may be chosen knowingly.
+    (docs/method.md §3), for which a lower edge may be chosen knowingly.
     """
     fs = float(record.fs_hz)
     try:

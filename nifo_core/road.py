@@ -4,7 +4,7 @@ A road is a frozen description; :func:`road_signal` turns it into the tire-patch
 displacement xb [m] and velocity ẋb [m/s] on a uniform grid. The grid starts
 ``warmup_s`` before t = 0 (the first recorded sample); over the first part of
 the warm-up the input fades in with a raised cosine, so the vehicle starts at
-rest without a jolt and is settled when recording begins (METHOD.md §6).
+rest without a jolt and is settled when recording begins (docs/method.md §6).
 
 - :class:`RandomRoad`: Gaussian, flat displacement spectrum in [f_lo, f_hi]
   with raised-cosine edges (f_lo/2..f_lo and f_hi..1.25·f_hi), made by shaping
@@ -45,13 +45,13 @@ class RandomRoad:
     Parameters
     ----------
     rms_m : float
-        RMS of the displacement xb [m]; 0.5-7 mm is typical (METHOD.md §6).
+        RMS of the displacement xb [m]; 0.5-7 mm is typical (docs/method.md §6).
     f_lo_hz, f_hi_hz : float
         Band of the displacement spectrum [Hz].
     spectrum : {'flat', 'iso8608'}
         ``'flat'``: flat displacement spectrum in the band. ``'iso8608'``: displacement PSD
         ∝ f⁻² (amplitude ∝ 1/f, constant velocity spectrum) from ``corner_hz`` up, as real
-        roads (ISO 8608 at constant speed; METHOD.md §6): a low RMS level then keeps ż small, so
+        roads (ISO 8608 at constant speed; docs/method.md §6): a low RMS level then keeps ż small, so
         a play is seen apart from a damper knee (the paper's two-step procedure).
     corner_hz : float
         Where the ISO-like spectrum starts to fall [Hz] (flat below).

@@ -15,7 +15,7 @@ records for each setting its value, where it came from and why
 (:attr:`AnalysisSettings.choices`), so a command prints each choice once and a
 result carries them.
 
-Chosen from the data (METHOD.md §8), where not given:
+Chosen from the data (docs/method.md §8), where not given:
 
 - periodic excitation: one period per block, boxcar window, no overlap
   (leakage-free), the transient periods dropped;

@@ -1,4 +1,4 @@
-"""The nonlinear quarter-car simulator (paper Eq. 1-2, METHOD.md §1 and §6).
+"""The nonlinear quarter-car simulator (paper Eq. 1-2, docs/method.md §1 and §6).
 
 Equations of motion (signs as in :mod:`nifo_core.vehicle`), z = x2 - x1::
 

@@ -2,7 +2,7 @@
 
 Every spectral estimate in nifo (auto and cross spectra here; H1/H2, ordinary,
 multiple and partial coherence and the MIMO fits in :mod:`nifo_core.frf`; NIFO)
-derives from one :class:`CrossSpectra` made by one segment-FFT path (STYLE.md: "one spectral engine"). The path is
+derives from one :class:`CrossSpectra` made by one segment-FFT path (docs/method.md §3: "one spectral engine"). The path is
 
 1. cut each channel into blocks of ``block`` samples, hop ``block - noverlap``
    (a strided view, no copy, no Python loop over blocks);

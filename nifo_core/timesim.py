@@ -1,4 +1,4 @@
-"""Time-domain simulation of an identified model: the prediction engine (METHOD.md §4).
+"""Time-domain simulation of an identified model: the prediction engine (docs/method.md §4).
 
 The model (:mod:`nifo_core.linear_part`) is a linear part Hz = Z/U with the
 nonlinear strut force fed back into its input::

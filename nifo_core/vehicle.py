@@ -1,6 +1,6 @@
 """The linear quarter car (paper Eq. 1 with N1 = N2 = 0) and its transfer functions.
 
-Sign conventions, used everywhere in nifo (METHOD.md §1):
+Sign conventions, used everywhere in nifo (docs/method.md §1):
 
     z = x2 - x1                                    (relative displacement, rebound positive)
     M2·ẍ2 = -K2·z - C2·ż - K3·x2 - N1              (body, paper Eq. 2)
@@ -8,7 +8,7 @@ Sign conventions, used everywhere in nifo (METHOD.md §1):
 
 The truth a simulation is scored against is this linear system: every
 nonlinear force is an *addition* N1 to the linear strut, zero at zero motion
-(describing functions are kept whole, METHOD.md §3).
+(describing functions are kept whole, docs/method.md §3).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ G_ACCEL = 9.80665  # m/s²
 
 @dataclass(frozen=True)
 class QuarterCar:
-    """Linear quarter-car parameters (SI). Defaults: a mid-size car corner (METHOD.md §6)."""
+    """Linear quarter-car parameters (SI). Defaults: a mid-size car corner (docs/method.md §6)."""
 
     m1: float = 40.0        # unsprung mass [kg]
     m2: float = 300.0       # sprung mass per corner [kg]

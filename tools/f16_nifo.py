@@ -130,7 +130,7 @@ def choose_gap(recs: dict[int, Record], mask: np.ndarray, band: IntegrationBand 
 
 
 def characterize_level(rec: Record, band: IntegrationBand = BAND) -> dict:
-    """Restoring-force characterization (METHOD.md §5, :func:`nifo_core.characterize.characterize`) of one level.
+    """Restoring-force characterization (docs/method.md §5, :func:`nifo_core.characterize.characterize`) of one level.
 
     Returns the suggested terms and the best clearance gap among the candidates.
     """

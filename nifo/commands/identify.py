@@ -1,4 +1,4 @@
-"""``nifo identify``: output-only NIFO on one or more records (paper Eq. 8-9, METHOD.md §3).
+"""``nifo identify``: output-only NIFO on one or more records (paper Eq. 8-9, docs/method.md §3).
 
 Data files are streamed chunk by chunk into one :class:`~nifo_core.nifo.StreamingNifo`
 each (bags are decoded chunk by chunk, so memory does not grow with the

@@ -1,4 +1,4 @@
-"""``nifo predict``: apply an identified model to other data (METHOD.md §4, paper §3.3 validation).
+"""``nifo predict``: apply an identified model to other data (docs/method.md §4, paper §3.3 validation).
 
 For each record the measured spindle acceleration (and a measured force on
 the body, for a model identified with one) drives the model
