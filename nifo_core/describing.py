@@ -34,6 +34,14 @@ digressive damper blowing off above 0.03 m/s from C2 = 1400 to 700 N·s/m is
 ``velocity_deadzone(knee=0.03)`` with c = -700 N·s/m; 100 N of strut friction
 is ``coulomb`` with c = 100 N; a bump stop of 50 kN/m is ``bump_stop`` with
 c = 50e3 N/m.
+
+The kind registry: :data:`KINDS` holds every fact the rest of the core needs about a kind — its variable,
+parameters and g; ``hysteretic`` (it carries a state from sample to sample: the play); ``absorb`` (the slopes
+(α, β) of the linear part α·z + β·ż its g leaves to the model's linear part, its remainder being bounded);
+``path_slopes`` (for a kind with a bounded remainder that a feedback path may carry: its slope of z at large and
+at small amplitude); ``compiled`` (its numba code and parameters for :mod:`nifo_core.strut_forces`); and
+``lipschitz`` (global Lipschitz constants of g, for the fixed point's contraction bound). Adding a kind touches
+this file (and the numba ``g_one`` of :mod:`nifo_core.strut_forces`, for its compiled form).
 """
 
 from __future__ import annotations
@@ -47,7 +55,8 @@ import numpy as np
 
 from .errors import ConfigError
 
-__all__ = ["Kind", "Term", "KINDS", "ALIASES", "kind", "make_term", "evaluate_terms", "play_operator"]
+__all__ = ["Kind", "Term", "KINDS", "ALIASES", "kind", "make_term", "evaluate_terms", "play_operator", "path_slopes",
+           "CODES"]
 
 Variable = Literal["z", "zdot"]
 
@@ -115,6 +124,14 @@ class Kind:
     key_param: str | None = None
     hysteretic: bool = False
     coef_unit: str = ""
+    #: (α, β): g = α·z + β·ż + a bounded remainder, the linear part the model's linear part absorbs
+    absorb: tuple[float, float] = (0.0, 0.0)
+    #: (slope at large amplitude, slope at small amplitude) of z for a kind a feedback path may carry; None: not
+    path_slopes: tuple[float, float] | None = None
+    #: params -> (numba code, p0, p1) for :func:`nifo_core.strut_forces.g_one`
+    compiled: Callable[[Mapping[str, object]], tuple[int, float, float]] | None = None
+    #: params -> global Lipschitz constants (L_z, L_ż) of g (inf: none); None: 1 in its variable
+    lipschitz: Callable[[Mapping[str, object]], tuple[float, float]] | None = None
 
     def check(self, params: Mapping[str, object]) -> dict:
         unknown = set(params) - set(self.params)
@@ -136,34 +153,59 @@ class Kind:
         return out
 
 
+#: numba codes of the compiled forms (:mod:`nifo_core.strut_forces`), one per kind and side
+CODES: Mapping[str, int] = MappingProxyType({name: i for i, name in enumerate(
+    ("cubic", "clearance", "saturation", "bump_compression", "bump_rebound", "play", "velocity_deadzone",
+     "velocity_saturation", "coulomb", "quadratic_damping", "asymmetric_rebound", "asymmetric_compression",
+     "quadratic_stiffness"))})
+
+
+def _code(name: str, p0: str | None = None, scale: float = 1.0):
+    return lambda p: (CODES[name], scale * float(p[p0]) if p0 else 0.0, 0.0)
+
+
 def _kinds() -> dict[str, Kind]:
+    inf = float("inf")
     ks = [
         Kind("cubic_stiffness", "z", {}, lambda z, zd: z**3,
-             "hardening (c>0) or softening (c<0) cubic spring", None, coef_unit="N/m³"),
+             "hardening (c>0) or softening (c<0) cubic spring", None, coef_unit="N/m³",
+             compiled=_code("cubic"), lipschitz=lambda p: (inf, 0.0)),
         Kind("quadratic_stiffness", "z", {}, lambda z, zd: z**2,
              "asymmetric (even) quadratic spring: stiffer on one side than the other, e.g. a cubic centred off the "
-             "static position", None, coef_unit="N/m²"),
+             "static position", None, coef_unit="N/m²", compiled=_code("quadratic_stiffness"),
+             lipschitz=lambda p: (inf, 0.0)),
         Kind("clearance", "z", {"gap": (None, "m")}, lambda z, zd, gap: _sym_deadzone(z, gap),
-             "stiffness change beyond ±gap (clearance, piecewise-linear stiffness)", "gap", coef_unit="N/m"),
+             "stiffness change beyond ±gap (clearance, piecewise-linear stiffness)", "gap", coef_unit="N/m",
+             absorb=(1.0, 0.0), path_slopes=(1.0, 0.0), compiled=_code("clearance", "gap")),
         Kind("saturation", "z", {"limit": (None, "m")}, lambda z, zd, limit: np.clip(z, -limit, limit),
-             "stiffness that saturates beyond ±limit", "limit", coef_unit="N/m"),
+             "stiffness that saturates beyond ±limit", "limit", coef_unit="N/m",
+             path_slopes=(0.0, 1.0), compiled=_code("saturation", "limit")),
         Kind("bump_stop", "z", {"gap": (None, "m"), "side": ("compression", "compression|rebound"), "offset": (0.0, "m")},
              lambda z, zd, gap, side, offset: _bump(z, gap, side, offset),
-             "one-sided contact stiffness beyond gap (compression: z < offset-gap)", "gap", coef_unit="N/m"),
+             "one-sided contact stiffness beyond gap (compression: z < offset-gap)", "gap", coef_unit="N/m",
+             compiled=lambda p: (CODES["bump_compression" if p["side"] == "compression" else "bump_rebound"],
+                                 p["gap"], p["offset"])),
         Kind("backlash", "z", {"deadband": (None, "m")}, lambda z, zd, deadband: play_operator(z, deadband),
              "hysteretic stiffness through a play of total width deadband (paper Fig. 9a)", "deadband",
-             hysteretic=True, coef_unit="N/m"),
+             hysteretic=True, coef_unit="N/m", absorb=(1.0, 0.0), path_slopes=(1.0, 0.0),
+             compiled=lambda p: (CODES["play"], 0.5 * float(p.get("deadband", 0.0)), 0.0)),
         Kind("velocity_deadzone", "zdot", {"knee": (None, "m/s")}, lambda z, zd, knee: _sym_deadzone(zd, knee),
-             "damping change beyond ±knee (digressive/progressive damper, paper Fig. 12a)", "knee", coef_unit="N·s/m"),
+             "damping change beyond ±knee (digressive/progressive damper, paper Fig. 12a)", "knee", coef_unit="N·s/m",
+             absorb=(0.0, 1.0), compiled=_code("velocity_deadzone", "knee")),
         Kind("velocity_saturation", "zdot", {"limit": (None, "m/s")}, lambda z, zd, limit: np.clip(zd, -limit, limit),
-             "damping force that saturates beyond ±limit", "limit", coef_unit="N·s/m"),
+             "damping force that saturates beyond ±limit", "limit", coef_unit="N·s/m",
+             compiled=_code("velocity_saturation", "limit")),
         Kind("coulomb", "zdot", {"eps": (0.005, "m/s")}, lambda z, zd, eps: np.tanh(zd / eps),
-             "dry friction, smoothed over ±eps", None, coef_unit="N"),
+             "dry friction, smoothed over ±eps", None, coef_unit="N", compiled=_code("coulomb", "eps"),
+             lipschitz=lambda p: (0.0, 1.0 / float(p.get("eps", 0.005)))),
         Kind("quadratic_damping", "zdot", {}, lambda z, zd: zd * np.abs(zd),
-             "velocity-squared (orifice) damping", None, coef_unit="N·s²/m²"),
+             "velocity-squared (orifice) damping", None, coef_unit="N·s²/m²", compiled=_code("quadratic_damping"),
+             lipschitz=lambda p: (0.0, inf)),
         Kind("asymmetric_damping", "zdot", {"side": ("rebound", "rebound|compression")},
              lambda z, zd, side: _asym(zd, side), "extra damping on one side (rebound ≠ compression)", None,
-             coef_unit="N·s/m"),
+             coef_unit="N·s/m",
+             compiled=lambda p: (CODES["asymmetric_rebound" if p["side"] == "rebound" else "asymmetric_compression"],
+                                 0.0, 0.0)),
     ]
     return {k.name: k for k in ks}
 
@@ -184,6 +226,17 @@ def kind(name: str) -> Kind:
     except KeyError:
         raise ConfigError(f"unknown nonlinearity kind {name!r}",
                           hint=f"use one of {', '.join(KINDS)}") from None
+
+
+def path_slopes(terms) -> np.ndarray:
+    """The large-amplitude slopes α_i of terms a feedback path may carry (``Kind.path_slopes``);
+    :class:`ConfigError` for a kind without a bounded remainder, or no terms."""
+    paths = {n: KINDS[n].path_slopes[0] for n in sorted(KINDS) if KINDS[n].path_slopes is not None}
+    bad = [t.kind for t in terms if t.kind not in paths]
+    if bad or not terms:
+        raise ConfigError(f"feedback paths need terms with a bounded remainder ({', '.join(paths)}); "
+                          f"got {', '.join(bad) or 'no terms'}", hint="declare backlash, clearance or saturation terms")
+    return np.array([paths[t.kind] for t in terms])
 
 
 @dataclass(frozen=True)

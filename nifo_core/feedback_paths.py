@@ -56,10 +56,11 @@ from typing import Callable, Sequence
 import numba
 import numpy as np
 
-from .describing import Term
+from .describing import KINDS, Term, path_slopes
 from .errors import ConfigError
 from .integrate import IntegrationBand, integrate
 from .linear_part import LinearPart, pole_residue_response
+from .refine import model_nmse
 from .spectral import SpectralSettings, block_ffts
 from .strut_forces import g_one, strut_arrays
 
@@ -68,22 +69,17 @@ __all__ = ["PATH_KINDS", "SMALL_SLOPE", "JointFit", "PathFit", "PathResult", "ch
 
 #: kinds a feedback path may carry, with the slope α of z their remainder g - α·z leaves in Hz (their slope at
 #: large amplitude: the fully active regime feeds nothing back linearly)
-PATH_KINDS = {"backlash": 1.0, "clearance": 1.0, "saturation": 0.0}
+PATH_KINDS = {name: KINDS[name].path_slopes[0] for name in sorted(KINDS) if KINDS[name].path_slopes is not None}
 #: their slope at small amplitude (a play stuck, inside a clearance, below a saturation's limit)
-SMALL_SLOPE = {"backlash": 0.0, "clearance": 0.0, "saturation": 1.0}
+SMALL_SLOPE = {name: KINDS[name].path_slopes[1] for name in PATH_KINDS}
 
 #: the default grid of ridge weights λ (relative to the largest entry of the regression matrix): from barely
 #: regularised to paths shrunk almost to nothing (the linear model)
 RIDGE_GRID = (0.01, 0.03, 0.1, 0.3, 1.0, 3.0, 10.0)
 
 
-def check_terms(terms: Sequence[Term]) -> np.ndarray:
-    """The slopes α_i of the terms; :class:`ConfigError` for a kind without a bounded remainder."""
-    bad = [t.kind for t in terms if t.kind not in PATH_KINDS]
-    if bad or not terms:
-        raise ConfigError(f"feedback paths need terms with a bounded remainder ({', '.join(PATH_KINDS)}); "
-                          f"got {', '.join(bad) or 'no terms'}", hint="declare backlash, clearance or saturation terms")
-    return np.array([PATH_KINDS[t.kind] for t in terms])
+#: the slopes α_i of the terms; :class:`ConfigError` for a kind without a bounded remainder (the registry's)
+check_terms = path_slopes
 
 
 @numba.njit(cache=True)
@@ -437,8 +433,6 @@ def path_model(linear_model, terms: Sequence[Term], fit_records: Sequence, score
     -------
     PathResult
     """
-    from .refine import model_nmse     # refine → model → timesim → this module
-
     lin = linear_model.linear
     band_hz = linear_model.analysis_band_hz
     fits = fit_paths(fit_records, terms, lin, settings=linear_model.settings, band=linear_model.band,

@@ -35,7 +35,7 @@ def contraction_bound(terms: Sequence[Term], bz: np.ndarray, freq_hz: np.ndarray
     if not len(terms):
         return 0.0
     lips = np.array([lipschitz(t) for t in terms])
-    if np.any(~np.isfinite(lips)) or any(t.kind == "backlash" for t in terms):
+    if np.any(~np.isfinite(lips)) or any(t.spec.hysteretic for t in terms):
         return float("inf")
     w = 2 * np.pi * np.asarray(freq_hz, float)
     mag = np.abs(np.where(np.isfinite(bz), bz, 0))
@@ -51,7 +51,7 @@ def contraction_bound(terms: Sequence[Term], bz: np.ndarray, freq_hz: np.ndarray
 def _evaluate(terms: Sequence[Term], z: np.ndarray, zdot: np.ndarray) -> np.ndarray:
     out = np.empty((len(terms), z.size))
     for i, t in enumerate(terms):
-        out[i] = play_operator(z, t.params["deadband"]) if t.kind == "backlash" else t.evaluate(z, zdot)
+        out[i] = play_operator(z, t.params["deadband"]) if t.spec.hysteretic else t.evaluate(z, zdot)
     return out
 
 

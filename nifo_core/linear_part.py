@@ -39,6 +39,7 @@ from typing import Literal, Mapping, Sequence
 import numpy as np
 import scipy.linalg
 
+from .describing import KINDS
 from .errors import ConfigError
 
 __all__ = ["BodyModel", "LinearPart", "RecordLines", "absorbed_rates", "fit_body_model", "fit_rational",
@@ -48,7 +49,8 @@ __all__ = ["BodyModel", "LinearPart", "RecordLines", "absorbed_rates", "fit_body
 BODY_FIT_LIMIT = 0.10
 
 #: the linear part each kind gives to the linear part of the model: g = α·z + β·ż + (a bounded remainder)
-_ABSORB = {"backlash": (1.0, 0.0), "clearance": (1.0, 0.0), "velocity_deadzone": (0.0, 1.0)}
+#: (from the kind registry, ``Kind.absorb``)
+_ABSORB = {name: k.absorb for name, k in KINDS.items() if any(k.absorb)}
 
 
 def absorbed_rates(terms, gammas) -> tuple[float, float]:

@@ -184,7 +184,7 @@ class StreamingNifo:
     def _evaluate(self, z: np.ndarray, zdot: np.ndarray) -> list[np.ndarray]:
         out = []
         for i, t in enumerate(self.all_terms):
-            if t.kind == "backlash":   # the play operator's state carries over chunks
+            if t.spec.hysteretic:   # the play operator's state carries over chunks
                 y0 = None if np.isnan(self._play[i]) else float(self._play[i])
                 g = play_operator(z, t.params["deadband"], y0=y0)
                 self._play[i] = g[-1]

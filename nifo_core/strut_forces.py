@@ -19,33 +19,28 @@ from typing import Sequence
 import numba
 import numpy as np
 
-from .describing import Term
+from .describing import CODES, Term
 from .errors import ConfigError
 
 __all__ = ["PLAY", "kind_code", "strut_arrays", "g_one", "strut_force", "lipschitz"]
 
-# kind codes
-_CUBIC, _CLEAR, _SAT, _BUMP_C, _BUMP_R, _PLAY, _VDZ, _VSAT, _COUL, _QUAD, _ASYM_R, _ASYM_C, _QSTIFF = range(13)
+# kind codes, from the kind registry (numba reads these module globals as constants)
+_CUBIC, _CLEAR, _SAT, _BUMP_C, _BUMP_R, _PLAY, _VDZ, _VSAT, _COUL, _QUAD, _ASYM_R, _ASYM_C, _QSTIFF = (
+    CODES["cubic"], CODES["clearance"], CODES["saturation"], CODES["bump_compression"], CODES["bump_rebound"],
+    CODES["play"], CODES["velocity_deadzone"], CODES["velocity_saturation"], CODES["coulomb"],
+    CODES["quadratic_damping"], CODES["asymmetric_rebound"], CODES["asymmetric_compression"],
+    CODES["quadratic_stiffness"])
 #: code of the hysteretic backlash (play operator), whose state the caller keeps
 PLAY = _PLAY
 
 
 def kind_code(t: Term) -> tuple[int, float, float]:
-    """(code, p0, p1) of a term for the compiled force evaluation."""
-    p = t.params
-    simple = {"cubic_stiffness": (_CUBIC, 0.0), "clearance": (_CLEAR, p.get("gap")),
-              "saturation": (_SAT, p.get("limit")), "backlash": (_PLAY, 0.5 * p.get("deadband", 0.0)),
-              "velocity_deadzone": (_VDZ, p.get("knee")), "velocity_saturation": (_VSAT, p.get("limit")),
-              "coulomb": (_COUL, p.get("eps")), "quadratic_damping": (_QUAD, 0.0),
-              "quadratic_stiffness": (_QSTIFF, 0.0)}
-    if t.kind in simple:
-        code, p0 = simple[t.kind]
-        return code, float(p0), 0.0
-    if t.kind == "bump_stop":
-        return (_BUMP_C if p["side"] == "compression" else _BUMP_R), p["gap"], p["offset"]
-    if t.kind == "asymmetric_damping":
-        return (_ASYM_R if p["side"] == "rebound" else _ASYM_C), 0.0, 0.0
-    raise ConfigError(f"no compiled code for nonlinearity kind {t.kind!r}")  # pragma: no cover
+    """(code, p0, p1) of a term for the compiled force evaluation (``Kind.compiled`` of the registry)."""
+    compiled = t.spec.compiled
+    if compiled is None:  # pragma: no cover - every kind of the registry has one
+        raise ConfigError(f"no compiled code for nonlinearity kind {t.kind!r}")
+    code, p0, p1 = compiled(t.params)
+    return code, float(p0), float(p1)
 
 
 def strut_arrays(terms: Sequence[Term], coefficients: Sequence[float]):
@@ -62,12 +57,11 @@ def lipschitz(t: Term) -> tuple[float, float]:
     """Global Lipschitz constants (L_z, L_ż) of g, or inf where g has none (cubic, quadratic).
 
     |g(z, ż) - g(z', ż')| ≤ L_z·|z - z'| + L_ż·|ż - ż'| for every pair of
-    points (the play operator: in the sup norm along a path, constant 1).
+    points (the play operator: in the sup norm along a path, constant 1). ``Kind.lipschitz`` of the registry;
+    1 in the kind's variable where it has none.
     """
-    spec = {"cubic_stiffness": (np.inf, 0.0), "quadratic_stiffness": (np.inf, 0.0), "quadratic_damping": (0.0, np.inf),
-            "coulomb": (0.0, 1.0 / float(t.params.get("eps", 0.005)))}
-    if t.kind in spec:
-        return spec[t.kind]
+    if t.spec.lipschitz is not None:
+        return t.spec.lipschitz(t.params)
     return (1.0, 0.0) if t.variable == "z" else (0.0, 1.0)
 
 

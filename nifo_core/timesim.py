@@ -44,9 +44,8 @@ import numpy as np
 import scipy.linalg
 from scipy import signal
 
-from .describing import Term
+from .describing import Term, path_slopes
 from .errors import ConfigError
-from .feedback_paths import check_terms
 from .linear_part import LinearPart
 from .simulate import _antialias_taps
 from .strut_forces import g_one, strut_arrays, strut_force
@@ -283,7 +282,7 @@ def _run_paths(phi, g0b, g1b, g0e, g1e, cz, cd, ca, ddb, dde, v, codes, p0, p1, 
 
 
 def _simulate_paths(linear: LinearPart, terms, v: np.ndarray, h: float, z_limit: float):
-    alpha = check_terms(terms)
+    alpha = path_slopes(terms)
     if len(terms) != linear.paths.shape[0]:
         raise ConfigError(f"{len(terms)} terms but {linear.paths.shape[0]} feedback paths")
     a, b, e, c = linear.path_state_space()

@@ -6,7 +6,7 @@ ones and the live nodes cannot tell a replay from the vehicle. Topics keep
 their recorded (absolute) names. ``ros2 bag play BAG`` is the vehicle-side
 equivalent.
 
-Two QoS modes (matrix in :mod:`nifo_nodes.common`):
+Two QoS modes (matrix in :mod:`nifo_nodes.common`; the profiles in :mod:`nifo.io.ros_qos`):
 
 * default — the sensor-data profile (best effort) with a deep history, as the
   vehicle publishes. When the process falls behind schedule (descheduled on a
@@ -31,6 +31,8 @@ from pathlib import Path
 from typing import Callable
 
 from nifo_core.errors import ConfigError, DataFileError
+
+from .ros_qos import publish_blocking, reliable_input_qos, sensor_qos
 
 __all__ = ["ReplayStats", "replay_bag", "message_class"]
 
@@ -76,12 +78,10 @@ def replay_bag(path: str | Path, *, rate: float = 1.0, loop: bool = False, start
     every topic before starting; ``topics`` restricts what is published;
     ``reliable`` selects the lossless QoS (module docstring).
     """
-    import rclpy
+    import rclpy  # optional dependency (nifo[ros]): imported here so the shell loads without ROS
     from rclpy.node import Node
     from rclpy.duration import Duration
     from rosbags.rosbag2 import Reader
-
-    from .common import publish_blocking, reliable_input_qos, sensor_qos
 
     if rate < 0:
         raise ConfigError(f"{rate=} must be >= 0 (0: as fast as possible)", channel="--rate")
