@@ -8,7 +8,7 @@ hour bag takes a few minutes; later runs reuse it.
 
 Then runs ``nifo identify`` on each as a child process (streaming: the bag is
 decoded MCAP chunk by MCAP chunk and pushed into StreamingNifo, see
-``nifo/commands/identify.py``) and prints, measured in this run:
+``nifo/pipeline/identify.py``) and prints, measured in this run:
 
 - wall time as a fraction of the recording's duration (target ≤ 1 %);
 - the child's peak resident memory (``os.wait4`` → ``ru_maxrss``; target

@@ -36,7 +36,6 @@ acquisition, default     dropped under load          incompatible-QoS warning)
 from __future__ import annotations
 
 import sys
-import time
 from dataclasses import dataclass
 from typing import Callable
 

@@ -140,7 +140,7 @@ def test_run_and_identify_killed_at_random_points_leave_old_new_or_marked_output
 
 _TERM_WHILE_READING = """
 import os, signal, sys
-import nifo.commands.identify as cmd
+import nifo.pipeline.identify as cmd   # the identify step, which nifo identify calls
 from nifo.cli import main
 
 real = cmd.accumulate

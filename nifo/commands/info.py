@@ -68,7 +68,7 @@ def describe(rec: Record, *, block: int | None = None, units: str = "m/s²") -> 
     return lines
 
 
-def run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> dict:
     opts = input_options(args)
     first_code, files = 0, []
     for path in args.data:

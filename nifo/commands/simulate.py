@@ -129,7 +129,7 @@ def _summary(sim: Simulation, out: Path) -> str:
     ])
 
 
-def run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> dict:
     config = config_from_args(args)
     from nifo.io.loader import check_record_output, save_record  # imported late: the I/O stack is heavy
 

@@ -5,16 +5,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from nifo.io.loader import load_record
 from nifo.progress import Progress
-from nifo_core.errors import ConfigError
-from nifo_core.heldout import Scores
+from nifo_core.heldout import Scores, split_records
+from nifo_core.model_fit import joint_paths
+from nifo_core.refine import refine_jointly, refine_model, start_up_samples
 
 
 def from_start(opts: dict, paths: list) -> list[tuple]:
     """Every identification record read once, whole from its start, with the samples the identification skipped
     (--skip-periods/--skip-seconds)."""
-    from nifo.io.loader import load_record
-
     period = opts.get("period_samples")
     load_opts = {k: v for k, v in opts.items() if k not in ("skip_periods", "skip_seconds")}
     out = []
@@ -33,8 +33,6 @@ def score_records(args, model, opts: dict, loaded: list[tuple]) -> tuple[list, l
     the identification skipped (--skip-periods/--skip-seconds) is left out of the score, and --refine-seconds
     counts after it.
     """
-    from nifo_core.refine import start_up_samples
-
     period = opts.get("period_samples")
     records, skips = [], []
     for rec, skip in loaded:
@@ -79,9 +77,6 @@ def refine(args, model, linear, opts: dict, paths: list):
     (:func:`nifo_core.refine.refine_jointly`): the linear model's residues refined alone, then the terms with
     them from two starts; (refinement, the linear model's refinement, check).
     """
-    from nifo_core.heldout import split_records
-    from nifo_core.refine import refine_jointly, refine_model
-
     period = opts.get("period_samples")
     loaded = from_start(opts, paths)
     held = split_records([rec for rec, _ in loaded], skip_samples=max(skip for _, skip in loaded),
@@ -114,8 +109,6 @@ def _refine(args, model, linear, records, skips, period, refine_jointly, refine_
 def fit_feedback_paths(args, linear, terms, opts: dict, paths: list, settings):
     """``--feedback-paths``: the terms through their own paths on the linear model's poles, identified jointly with
     its residues (:func:`nifo_core.model_fit.joint_paths`), the ridge chosen on held-out parts of the records."""
-    from nifo_core.model_fit import joint_paths
-
     loaded = from_start(opts, paths)
     with Progress(None, "feedback paths (ridge grid on held-out parts)", enabled=True):
         return joint_paths([rec for rec, _ in loaded], terms, linear, settings,
