@@ -390,6 +390,9 @@ def _data_settings(recs: Sequence[Record], band: IntegrationBand | None, s: Loop
     return AnalysisSettings(spectral=s.spectral, band=band, analysis_band_hz=s.analysis_band_hz, cond_limit=1e4)
 
 
+# Long (over 100 lines): each round's fit, residual, ranking, acceptance tests and refit share the round's
+# state. Left whole here while the noise branch (issue 28) edits its body; to split after
+# the merge.
 def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Mapping | str] = (), *,
                m2_kg: float | None = None, band: IntegrationBand | None = None,
                settings: LoopSettings = LoopSettings(), data: AnalysisSettings | None = None,

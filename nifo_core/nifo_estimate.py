@@ -201,6 +201,81 @@ def _input_measured(spec: CrossSpectra, nt: int, t21_nominal: np.ndarray, mask: 
                          tire_over_m2=np.array([mu, k1, c1]))
 
 
+def _check_request(spec: CrossSpectra, all_terms, with_tire_patch: bool, with_force: bool,
+                   spindle_noise_psd: float | None) -> None:
+    """ConfigError when the spectra do not hold the channels NIFO needs or the noise floor is not a PSD."""
+    want = _channel_names(all_terms, with_tire_patch, with_force)
+    if spec.n_channels != len(want):
+        raise ConfigError(f"cross spectra hold {spec.n_channels} channels, NIFO with {len(all_terms)} terms needs "
+                          f"{len(want)}", hint="accumulate with StreamingNifo")
+    if spindle_noise_psd is not None and not (np.isfinite(spindle_noise_psd) and spindle_noise_psd >= 0):
+        raise ConfigError(f"spindle_noise_psd={spindle_noise_psd!r} must be a finite PSD >= 0 [(m/s²)²/Hz]")
+
+
+def _check_inputs(nfx: int, *, with_tire_patch: bool, with_force: bool, spindle_fixed: bool) -> None:
+    """ConfigError for a fixed spindle without a force, or a force with fixed terms or the tire patch."""
+    if spindle_fixed and not with_force:
+        raise ConfigError("a fixed spindle leaves NIFO without an input", channel=FORCE,
+                          hint="give the measured force or the spindle acceleration")
+    if with_force and (nfx or with_tire_patch):
+        raise ConfigError("NIFO with a measured force supports neither fixed (two-step) terms nor the "
+                          "tire patch", hint="identify all terms in one step; drop the tire patch")
+
+
+def _band_lines(f: np.ndarray, analysis_band_hz: tuple[float, float]) -> np.ndarray:
+    """The lines of the analysis band (ConfigError for a band that is not one or holds none)."""
+    lo, hi = analysis_band_hz
+    if not (0 <= lo < hi):
+        raise ConfigError(f"analysis band {lo}-{hi} Hz must satisfy 0 <= lo < hi", hint="e.g. 2 30")
+    mask = (f >= lo) & (f <= hi)
+    if not mask.any():
+        raise ConfigError(f"analysis band {lo:g}-{hi:g} Hz holds no frequency line", hint="widen it")
+    return mask
+
+
+def _with_fixed_inputs(spec: CrossSpectra, gamma_fixed: np.ndarray, nt: int) -> CrossSpectra:
+    """The spectra of [u, y, g_free..] with u = A1 + Σ_fixed γ_i·Gn_i, y = A2 + Σ_fixed γ_i·Gn_i (the fixed terms
+    as an extra known input, exactly: see :func:`nifo_from_spectra`)."""
+    nfx = gamma_fixed.size
+    comb = np.zeros((2 + nt - nfx, spec.n_channels))
+    comb[0, 0] = comb[1, 1] = 1.0
+    comb[0:2, 2:2 + nfx] = gamma_fixed
+    comb[2:, 2 + nfx:2 + nt] = np.eye(nt - nfx)
+    return spec.combine(comb, names=(A1 + "+fixed", A2 + "+fixed", *spec.names[2 + nfx:2 + nt]))
+
+
+def _per_line(fit: MimoFit, gamma_fixed: np.ndarray, nt: int, inv_w2: np.ndarray):
+    """(T21, B, μ/K2, c/M2, partial coherences, random errors) of the per-line fit, the fixed terms' rows from their
+    constant γ_i (partial coherence and error NaN there)."""
+    nfx = gamma_fixed.size
+    t21 = fit.h[0]
+    d = np.concatenate([gamma_fixed[:, None] * (t21 - 1)[None, :], fit.h[1:]]) if nfx else fit.h[1:]
+    b = -d * inv_w2                                                        # D = -ω²·B
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mu_over_k2 = b / t21                                               # Eq. 8: B = (μ/K2)·T21
+        c_over_m2 = -d / (1 - t21)                                         # = ω²B/(1 - T21) = c/M2 (K3 = 0)
+    n_lines = t21.size
+    pc = np.full((1 + nt, n_lines), np.nan)
+    pc[0] = fit.partial_coherence[0]
+    pc[1 + nfx:] = fit.partial_coherence[1:]
+    err = np.full((1 + nt, n_lines), np.nan)
+    err[0] = fit.random_error[0]
+    err[1 + nfx:] = fit.random_error[1:]
+    return t21, b, mu_over_k2, c_over_m2, pc, err
+
+
+def _static_with_fixed(work: CrossSpectra, fit: MimoFit, t21: np.ndarray, gamma_fixed: np.ndarray, nt: int,
+                       mask: np.ndarray, w: np.ndarray, inv_w2: np.ndarray, noise: float | None) -> StaticFit:
+    """The constant-coefficient fit of the free terms, with the fixed terms' γ_i in front."""
+    st = _static_fit(work, t21, fit.residual_psd, nt - gamma_fixed.size, mask, w, noise)  # no free term: H1 u -> y
+    gam = np.concatenate([gamma_fixed, st.c_over_m2])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bs = gam[:, None] * (1 - st.t21)[None, :] * inv_w2[None, :]
+        mus = bs / st.t21
+    return StaticFit(c_over_m2=gam, t21=st.t21, b=bs, mu_over_k2=mus, coherence=st.coherence,
+                     random_error=st.random_error)
+
+
 def nifo_from_spectra(spec: CrossSpectra, terms: Sequence[Term], *, band: IntegrationBand,
                       fixed: "NifoResult | FixedTerms | Sequence | None" = None,
                       analysis_band_hz: tuple[float, float] = DEFAULT_ANALYSIS_BAND_HZ,
@@ -257,30 +332,15 @@ def nifo_from_spectra(spec: CrossSpectra, terms: Sequence[Term], *, band: Integr
     fixed_terms = tuple(fixed.terms) if fixed is not None else ()
     all_terms = (*fixed_terms, *terms)
     nfx, nt = len(fixed_terms), len(all_terms)
-    want = _channel_names(all_terms, with_tire_patch, with_force)
-    if spec.n_channels != len(want):
-        raise ConfigError(f"cross spectra hold {spec.n_channels} channels, NIFO with {nt} terms needs {len(want)}",
-                          hint="accumulate with StreamingNifo")
-    if spindle_noise_psd is not None and not (np.isfinite(spindle_noise_psd) and spindle_noise_psd >= 0):
-        raise ConfigError(f"spindle_noise_psd={spindle_noise_psd!r} must be a finite PSD >= 0 [(m/s²)²/Hz]")
+    _check_request(spec, all_terms, with_tire_patch, with_force, spindle_noise_psd)
     f = spec.freq_hz
     w = 2 * np.pi * f
-    lo, hi = analysis_band_hz
-    if not (0 <= lo < hi):
-        raise ConfigError(f"analysis band {lo}-{hi} Hz must satisfy 0 <= lo < hi", hint="e.g. 2 30")
-    mask = (f >= lo) & (f <= hi)
-    if not mask.any():
-        raise ConfigError(f"analysis band {lo:g}-{hi:g} Hz holds no frequency line", hint="widen it")
+    mask = _band_lines(f, analysis_band_hz)
     with np.errstate(divide="ignore", invalid="ignore"):
         inv_w2 = np.where(w > 0, 1.0 / np.where(w > 0, w, 1) ** 2, np.nan)
     noise = None if spindle_noise_psd is None else float(spindle_noise_psd)
-    if spindle_fixed and not with_force:
-        raise ConfigError("a fixed spindle leaves NIFO without an input", channel=FORCE,
-                          hint="give the measured force or the spindle acceleration")
+    _check_inputs(nfx, with_tire_patch=with_tire_patch, with_force=with_force, spindle_fixed=spindle_fixed)
     if with_force:
-        if nfx or with_tire_patch:
-            raise ConfigError("NIFO with a measured force supports neither fixed (two-step) terms nor the "
-                              "tire patch", hint="identify all terms in one step; drop the tire patch")
         return _nifo_with_force(spec, all_terms, band=band, mask=mask, w=w, inv_w2=inv_w2,
                                 spindle_fixed=spindle_fixed, analysis_band_hz=analysis_band_hz,
                                 on_ill_conditioned=on_ill_conditioned, cond_limit=cond_limit,
@@ -289,40 +349,14 @@ def nifo_from_spectra(spec: CrossSpectra, terms: Sequence[Term], *, band: Integr
     # fixed (step-1) terms enter through their constant c_i/M2 = γ_i: with D_i = γ_i·(T21 - 1),
     # A2 = T21·A1 + Σ_fixed D_i·Gn_i + Σ_free D_i·Gn_i  <=>  y = T21·u + Σ_free D_i·Gn_i
     # with u = A1 + Σ_fixed γ_i·Gn_i and y = A2 + Σ_fixed γ_i·Gn_i (an extra known input, exactly).
-    gamma_fixed = np.zeros(0)
-    work = spec
-    if nfx:
-        gamma_fixed = np.asarray(fixed.c_over_m2, float)
-        comb = np.zeros((2 + nt - nfx, spec.n_channels))
-        comb[0, 0] = comb[1, 1] = 1.0
-        comb[0:2, 2:2 + nfx] = gamma_fixed
-        comb[2:, 2 + nfx:2 + nt] = np.eye(nt - nfx)
-        work = spec.combine(comb, names=(A1 + "+fixed", A2 + "+fixed",
-                                         *spec.names[2 + nfx:2 + nt]))
+    gamma_fixed = np.asarray(fixed.c_over_m2, float) if nfx else np.zeros(0)
+    work = _with_fixed_inputs(spec, gamma_fixed, nt) if nfx else spec
     free = list(range(2, 2 + nt - nfx))
     fit: MimoFit = mimo_fit(work, [0, *free], 1)                            # Eq. 9, H1
     _check_conditioning(fit.cond, mask, what="output-only NIFO", cond_limit=cond_limit, on_ill=on_ill_conditioned)
 
-    t21 = fit.h[0]
-    d = np.concatenate([gamma_fixed[:, None] * (t21 - 1)[None, :], fit.h[1:]]) if nfx else fit.h[1:]
-    b = -d * inv_w2                                                        # D = -ω²·B
-    with np.errstate(divide="ignore", invalid="ignore"):
-        mu_over_k2 = b / t21                                               # Eq. 8: B = (μ/K2)·T21
-        c_over_m2 = -d / (1 - t21)                                         # = ω²B/(1 - T21) = c/M2 (K3 = 0)
-    pc = np.full((1 + nt, f.size), np.nan)
-    pc[0] = fit.partial_coherence[0]
-    pc[1 + nfx:] = fit.partial_coherence[1:]
-    err = np.full((1 + nt, f.size), np.nan)
-    err[0] = fit.random_error[0]
-    err[1 + nfx:] = fit.random_error[1:]
-
-    st = _static_fit(work, t21, fit.residual_psd, nt - nfx, mask, w, noise)  # no free term: H1 of u -> y
-    gam = np.concatenate([gamma_fixed, st.c_over_m2])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        bs = gam[:, None] * (1 - st.t21)[None, :] * inv_w2[None, :]
-        mus = bs / st.t21
-    static = StaticFit(c_over_m2=gam, t21=st.t21, b=bs, mu_over_k2=mus, coherence=st.coherence,
-                       random_error=st.random_error)
+    t21, b, mu_over_k2, c_over_m2, pc, err = _per_line(fit, gamma_fixed, nt, inv_w2)
+    static = _static_with_fixed(work, fit, t21, gamma_fixed, nt, mask, w, inv_w2, noise)
 
     im = None
     if with_tire_patch:                                                     # Eq. 10, first row

@@ -214,6 +214,9 @@ def resolve_settings(given: GivenSettings, *, fs_hz: float | None, durations_s: 
                      origins: Mapping[str, str] | None = None) -> AnalysisSettings:
     """Merge ``given`` (already command line > model file, :func:`merge_given`) with the choices from the data.
 
+    Long because it is the one place every setting is decided, each with the reason it is printed with: one
+    short stanza per setting, read top to bottom, rather than nine helpers each passed the same context.
+
     Parameters
     ----------
     given : GivenSettings

@@ -135,7 +135,12 @@ def base_setups(entries: list[BagEntry], *, opts: dict, chunk_samples: int) -> d
 
 def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSettings = FleetSettings(),
               quiet: bool = False) -> FleetRun:
-    """Run the fleet on ``client`` (module docstring); failed bags are recorded, never raised."""
+    """Run the fleet on ``client`` (module docstring); failed bags are recorded, never raised.
+
+    Long because the scheduler's state (which task holds which bag's partial, which group still waits for which
+    bag, each group's fixed set-up) is shared by the ``submit`` and ``group_ready`` closures and the completion
+    loop that drives them; splitting it further means turning that state into a class.
+    """
     from distributed import as_completed
 
     from nifo.fleet.cache import settings_hash
@@ -249,6 +254,16 @@ def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSet
                 waiting[g].discard(i)
                 if not waiting[g]:
                     group_ready(g)
+    groups = _collect(solves, loops, chars, members)
+    del solves, loops, chars, holder, status
+    _health(groups, s.health)
+    return FleetRun(bags=rows, groups=groups, settings=s,
+                    setups={g: st.cache_settings() for g, st in final_setup.items() if st is not None})
+
+
+def _collect(solves: dict, loops: dict, chars: dict, members: dict) -> dict:
+    """Every group's result in the manifest's order (not completion order), with its loop and characterization;
+    a group with no usable bag at all says so."""
     groups = {g: _result(f) for g, f in solves.items()}
     for g, f in loops.items():
         lr = _result(f)
@@ -257,14 +272,10 @@ def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSet
         cr = _result(f)
         groups[g]["characterization"] = cr if "text" in cr else {
             "ok": False, "text": f"characterization not run: {cr['reason']}", "suggested": []}
-    del solves, loops, chars, holder, status
-    for g in members:   # groups with no usable bag at all
+    for g in members:
         if g not in groups:
             groups[g] = {"ok": False, "reason": "no usable bag", "bags": []}
-    groups = {g: groups[g] for g in members}     # manifest order, not completion order
-    _health(groups, s.health)
-    return FleetRun(bags=rows, groups=groups, settings=s,
-                    setups={g: st.cache_settings() for g, st in final_setup.items() if st is not None})
+    return {g: groups[g] for g in members}
 
 
 def _result(fut) -> dict:
