@@ -93,7 +93,7 @@ def identify_alone(entries) -> dict:
     from nifo.pipeline.identify import accumulate, check_usable, summarize
     from nifo.settings import resolve
     from nifo.io.modelfile import load_model_spec
-    from nifo_core.model import IdentifiedModel
+    from nifo_core.predict.model import IdentifiedModel
 
     groups: dict = {}
     for e in entries:

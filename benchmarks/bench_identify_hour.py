@@ -42,8 +42,8 @@ def make_bags(cache: Path) -> dict[str, Path]:
     import numpy as np
 
     from nifo.io.loader import save_record
-    from nifo_core.record import Record
-    from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, preset, simulate
+    from nifo_core.signal.record import Record
+    from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, preset, simulate
 
     cache.mkdir(parents=True, exist_ok=True)
     quarter, hour = cache / "quarter_hour_600hz.mcap", cache / "hour_600hz.mcap"

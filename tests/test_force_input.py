@@ -19,14 +19,14 @@ from scipy.signal import butter, sosfiltfilt
 
 from nifo.cli import main as nifo_main
 from nifo.io.loader import iter_record_chunks, load_record, save_record
-from nifo_core.characterize import characterize
-from nifo_core.describing import make_term
+from nifo_core.characterize.automatic import characterize
+from nifo_core.kinds.describing import make_term
 from nifo_core.errors import ConfigError, DataFileError, InputError, RecordTooShortError, TimestampError
-from nifo_core.integrate import IntegrationBand
-from nifo_core.model import IdentifiedModel, predict_body
-from nifo_core.nifo import IllConditionedWarning, identify_nifo
-from nifo_core.record import Record, acceleration_from_displacement
-from nifo_core.spectral import SpectralSettings
+from nifo_core.signal.integrate import IntegrationBand
+from nifo_core.predict.model import IdentifiedModel, predict_body
+from nifo_core.nifo.identify import IllConditionedWarning, identify_nifo
+from nifo_core.signal.record import Record, acceleration_from_displacement
+from nifo_core.signal.spectral import SpectralSettings
 
 M, K = 2.0, (2 * np.pi * 20) ** 2 * 2.0          # 2 kg on 31.6 kN/m: 20 Hz
 D = 2 * 0.05 * np.sqrt(K * M)                      # 5 % damping
@@ -142,7 +142,7 @@ def test_moving_spindle_and_force_both_enter():
 
 
 def test_force_result_round_trips_through_json(fixed_rec):
-    from nifo_core.nifo import NifoResult
+    from nifo_core.nifo.identify import NifoResult
     res = identify_nifo(fixed_rec, [make_term("cubic")], settings=SETTINGS, analysis_band_hz=BAND,
                         on_ill_conditioned="ignore")
     back = NifoResult.from_dict(json.loads(json.dumps(res.to_dict())))

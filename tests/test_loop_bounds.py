@@ -1,4 +1,4 @@
-"""Coverage of the loop's coefficient bounds (nifo_core.uncertainty) over 20 simulated seeds.
+"""Coverage of the loop's coefficient bounds (nifo_core.signal.uncertainty) over 20 simulated seeds.
 
 The equation-error fit of the loop (k, c, θ of the true term) on 60 s records
 with 2 % sensor noise; the 95 % random-error bound must hold the truth in at
@@ -12,12 +12,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nifo_core.describing import Term
-from nifo_core.heldout import split_records
-from nifo_core.loop import LoopSettings, loop_band
-from nifo_core.loop_residual import _design, _Evaluator
-from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
-from nifo_core.uncertainty import coefficient_bounds
+from nifo_core.kinds.describing import Term
+from nifo_core.predict.heldout import split_records
+from nifo_core.loop.closing import LoopSettings, loop_band
+from nifo_core.loop.residual import _design, _Evaluator
+from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
+from nifo_core.signal.uncertainty import coefficient_bounds
 
 M2 = 300.0
 

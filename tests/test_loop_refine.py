@@ -15,10 +15,10 @@ import pytest
 from nifo.cli import main
 from nifo.io.loader import save_record
 from nifo.io.results import read_model
-from nifo_core.describing import Term
+from nifo_core.kinds.describing import Term
 from nifo_core.errors import ConfigError
-from nifo_core.loop import LoopSettings, close_loop
-from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
+from nifo_core.loop.closing import LoopSettings, close_loop
+from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
 
 M2 = 300.0  # QuarterCar default sprung mass [kg]
 COULOMB_N, STOP_N_M, GAP_M = 30.0, 2e5, 0.008

@@ -1,4 +1,4 @@
-"""Prediction bounds from the refined model's parameter covariance (nifo_core.prediction_bounds).
+"""Prediction bounds from the refined model's parameter covariance (nifo_core.predict.prediction_bounds).
 
 The check against truth: on a cubic strut (in the model family) with 2 % noise on the body sensor,
 the refined model's prediction of another level, driven by the noise-free spindle signal, misses the
@@ -18,13 +18,13 @@ import json
 import numpy as np
 import pytest
 
-from nifo_core.describing import Term
-from nifo_core.model import IdentifiedModel, predict_body
-from nifo_core.nifo import identify_nifo
-from nifo_core.prediction_bounds import line_spread, prediction_spread
-from nifo_core.prediction_error import band_spectra
-from nifo_core.refine import parameter_space, refine_model
-from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
+from nifo_core.kinds.describing import Term
+from nifo_core.predict.model import IdentifiedModel, predict_body
+from nifo_core.nifo.identify import identify_nifo
+from nifo_core.predict.prediction_bounds import line_spread, prediction_spread
+from nifo_core.predict.prediction_error import band_spectra
+from nifo_core.predict.refine import parameter_space, refine_model
+from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
 
 FS = 600.0
 BAND = (2.0, 30.0)

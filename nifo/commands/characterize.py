@@ -3,7 +3,7 @@
 Reads each DATA file (several files = several excitation levels), integrates
 ẍ2 - ẍ1 in one band, ranks the describing functions of the library by how much
 of the restoring force they explain beyond a linear strut
-(:mod:`nifo_core.characterize`) and writes, atomically, to DIR:
+(:mod:`nifo_core.characterize.automatic`) and writes, atomically, to DIR:
 
 - ``characterize.json``   ranked candidates with parameters, scores and confidence,
                           the suggested model, the band and a per-file summary;
@@ -25,7 +25,7 @@ from nifo.io.provenance import add_system_argument
 from nifo.pipeline.characterize import run_characterize
 from nifo.pipeline.options import CharacterizeOptions
 from nifo.settings import add_settings_arguments
-from nifo_core.characterize import DEFAULT_KINDS, Thresholds
+from nifo_core.characterize.automatic import DEFAULT_KINDS, Thresholds
 
 HELP = "restoring-force plots and automatic characterization of strut nonlinearities"
 DESCRIPTION = f"""{HELP}.

@@ -1,12 +1,12 @@
 """``nifo identify``: output-only NIFO on one or more records (paper Eq. 8-9, docs/method.md §3).
 
-Data files are streamed chunk by chunk into one :class:`~nifo_core.nifo.StreamingNifo`
+Data files are streamed chunk by chunk into one :class:`~nifo_core.nifo.identify.StreamingNifo`
 each (bags are decoded chunk by chunk, so memory does not grow with the
 recording's length) and the accumulators are merged: several files are
-averaged exactly as :func:`~nifo_core.nifo.identify_nifo` averages records.
-A two-step model file (``steps:``) runs :func:`~nifo_core.nifo.identify_two_step`
+averaged exactly as :func:`~nifo_core.nifo.identify.identify_nifo` averages records.
+A two-step model file (``steps:``) runs :func:`~nifo_core.nifo.identify.identify_two_step`
 on each step's data. ``--refine`` then refines the model's coefficients by
-output error (:mod:`nifo_core.refine`: every record simulated, the band
+output error (:mod:`nifo_core.predict.refine`: every record simulated, the band
 prediction NMSE minimised). Writes ``identify.json``, ``model.json`` and
 figures into ``--out`` atomically (all or nothing); see :mod:`nifo.io.results`
 for the files.
@@ -76,7 +76,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--chunk-samples", type=int, default=CHUNK_SAMPLES, metavar="N",
                    help=f"streaming chunk length [samples] (default {CHUNK_SAMPLES})")
     p.add_argument("--no-plots", action="store_true", help="write the JSON files only")
-    r = p.add_argument_group("output-error refinement (nifo_core.refine)")
+    r = p.add_argument_group("output-error refinement (nifo_core.predict.refine)")
     r.add_argument("--refine", action="store_true",
                    help="refine the coefficients (and gaps/knees, a one-mass body's k and c) by simulating every "
                         "record and minimising the band-limited prediction NMSE; starts from the NIFO model and "
@@ -94,7 +94,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "through the body's modes); the paths' residues and the linear part's by one least squares "
                         "with a ridge on the paths, the ridge chosen by how well the model predicts held-out parts "
                         "of the records (their last third); needs a rational linear part and backlash, clearance or "
-                        "saturation terms; seconds (nifo_core.model_fit.joint_paths, docs/f16_predict.md)")
+                        "saturation terms; seconds (nifo_core.predict.model_fit.joint_paths, docs/f16_predict.md)")
     r.add_argument("--refine-seconds", type=float, default=120.0, metavar="S",
                    help="simulate at most this much of each record per evaluation (--refine, --feedback-paths; "
                         "default 120 s; whole periods "

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 
 from nifo_core.errors import NifoError
-from nifo_core.record import Record
+from nifo_core.signal.record import Record
 
 from nifo.io.loader import add_input_arguments, input_options, load_record
 from nifo.io.provenance import add_system_argument, system_of

@@ -5,13 +5,13 @@ that can show what is missing (force-balance equation error, and the
 prediction error on the held-out part), ranks every describing function of
 the library by how much of it it explains, adds the best one that is
 significant, stable, lowers the held-out error and is not a tire artefact, and
-repeats (:mod:`nifo_core.loop`). Writes, atomically, to DIR:
+repeats (:mod:`nifo_core.loop.closing`). Writes, atomically, to DIR:
 
 - ``loop.json``          declared model, ranked candidates of each round, effects added
                          (kind and parameters as in the library), errors before/after, verdict;
 - ``model.json``         the loop's final model with its linear counterpart: ``nifo predict --model
                          DIR/model.json`` takes it directly. The equation-error fit on the fit parts,
-                         refined by output error (:mod:`nifo_core.refine`, ``--no-refine``: not) when the
+                         refined by output error (:mod:`nifo_core.predict.refine`, ``--no-refine``: not) when the
                          refined model's held-out prediction NMSE is not worse; loop.json's
                          ``refinement`` holds both fits' parameters and held-out NMSE and says which was
                          written. Absent, with the reason in loop.json and on screen, when no predictive
@@ -31,7 +31,7 @@ from nifo.io.provenance import add_system_argument
 from nifo.pipeline.loop import run_loop
 from nifo.pipeline.options import LoopOptions
 from nifo.settings import add_settings_arguments
-from nifo_core.characterize import DEFAULT_KINDS
+from nifo_core.characterize.automatic import DEFAULT_KINDS
 
 HELP = "find the effect the model lacks from the residual, add it, report the error before and after"
 DESCRIPTION = f"""{HELP}.

@@ -2,7 +2,7 @@
 
 For each record the measured spindle acceleration (and a measured force on
 the body, for a model identified with one) drives the model
-(:func:`nifo_core.model.predict_body`: the identified model simulated in
+(:func:`nifo_core.predict.model.predict_body`: the identified model simulated in
 time, from its linear part — one-mass body or rational, as model.json says —
 with the strut forces fed back), and the predicted body acceleration is
 compared with the measured one:
@@ -10,7 +10,7 @@ compared with the measured one:
 - NMSE in time, 100·Σ(y - ŷ)²/(N·σ_y²) % over the prediction's valid part
   (start-up edges left out; below 5 % good, below 1 % excellent);
 - the band NMSE, 100·Σ|Y - Ŷ|²/Σ|Y|² over the DFT lines of ``--freq-range``
-  (:mod:`nifo_core.prediction_error`; the same number ``nifo identify --refine``
+  (:mod:`nifo_core.predict.prediction_error`; the same number ``nifo identify --refine``
   minimises): after the start-up edge, or — with ``--period-samples`` — on the
   period average after the first, transient period of the prediction (the
   multisine benchmarks' convention);

@@ -20,9 +20,9 @@ from typing import Sequence
 
 import numpy as np
 
-from nifo_core.describing import Term
-from nifo_core.simulate import RandomRoad, SimConfig, StrutForce, simulate
-from nifo_core.vehicle import QuarterCar
+from nifo_core.kinds.describing import Term
+from nifo_core.simulate.quarter_car import RandomRoad, SimConfig, StrutForce, simulate
+from nifo_core.simulate.vehicle import QuarterCar
 
 __all__ = ["write_simulated_fleet", "NOMINAL_KNEE", "NOMINAL_DEADZONE"]
 

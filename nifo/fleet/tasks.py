@@ -29,16 +29,16 @@ from nifo.fleet.cache import (cache_key, content_hash, load_note, load_partial, 
                               store_partial)
 from nifo.io.loader import detect_format, iter_record_chunks, load_record
 from nifo.pipeline.identify import check_usable, summarize
-from nifo_core.characterize import characterize
-from nifo_core.describing import Term
+from nifo_core.characterize.automatic import characterize
+from nifo_core.kinds.describing import Term
 from nifo_core.errors import NifoError, RecordTooShortError
 from nifo_core.fleet import interval_halfwidth, standard_error
-from nifo_core.integrate import IntegrationBand, default_band
-from nifo_core.linear_part import BODY_FIT_LIMIT, nominal_linear_part
-from nifo_core.loop import LoopSettings, close_loop
-from nifo_core.model import IdentifiedModel
-from nifo_core.nifo import StreamingNifo, nifo_from_spectra, static_fits
-from nifo_core.spectral import SpectralSettings
+from nifo_core.signal.integrate import IntegrationBand, default_band
+from nifo_core.predict.linear_part import BODY_FIT_LIMIT, nominal_linear_part
+from nifo_core.loop.closing import LoopSettings, close_loop
+from nifo_core.predict.model import IdentifiedModel
+from nifo_core.nifo.identify import StreamingNifo, nifo_from_spectra, static_fits
+from nifo_core.signal.spectral import SpectralSettings
 
 __all__ = ["GroupSetup", "coefficient_specs", "bag_setup", "group_setup", "bag_coefficients", "compute_batch",
            "batch_status", "pick", "merge_outcomes", "solve_group", "loop_group", "characterize_group"]
@@ -189,7 +189,7 @@ def bag_coefficients(specs: list, setup: GroupSetup) -> list[dict[str, float]]:
     ``specs``: the bags' :func:`_band_spectra` (one set-up). The values are those of
     ``nifo identify`` on each bag alone (the static fit and the one-mass body use only
     the analysis band's lines): the static fits of all bags are solved as one batch
-    (:func:`nifo_core.nifo.static_fits`, 0.1 instead of ~1 ms per bag), then each
+    (:func:`nifo_core.nifo.identify.static_fits`, 0.1 instead of ~1 ms per bag), then each
     bag's body (:func:`nominal_linear_part`); a bag whose body is not physical or
     misfits T21 takes the full solve and the automatic choice of its linear part.
     """

@@ -3,7 +3,7 @@
 Reads each DATA file (several files = several excitation levels), integrates
 ẍ2 - ẍ1 in one band, ranks the describing functions of the library by how much
 of the restoring force they explain beyond a linear strut
-(:mod:`nifo_core.characterize`) and writes, atomically, to DIR:
+(:mod:`nifo_core.characterize.automatic`) and writes, atomically, to DIR:
 
 - ``characterize.json``   ranked candidates with parameters, scores and confidence,
                           the suggested model, the band and a per-file summary;
@@ -30,10 +30,10 @@ from nifo.pipeline.options import CharacterizeOptions
 from nifo.progress import Progress
 from nifo.settings import loader_options, resolve
 from nifo_core import __version__
-from nifo_core.characterize import Characterization, DEFAULT_KINDS, FittedModel, Thresholds, characterize_restoring
+from nifo_core.characterize.automatic import Characterization, DEFAULT_KINDS, FittedModel, Thresholds, characterize_restoring
 from nifo_core.errors import ConfigError
-from nifo_core.integrate import band_for_records
-from nifo_core.restoring import (FrequencyTrack, RestoringForce, amplitude_slices, frequency_slices, restoring_force,
+from nifo_core.signal.integrate import band_for_records
+from nifo_core.characterize.restoring import (FrequencyTrack, RestoringForce, amplitude_slices, frequency_slices, restoring_force,
                                  suggest_band, track_frequency)
 
 

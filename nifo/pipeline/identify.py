@@ -25,13 +25,13 @@ from nifo.progress import Progress
 from nifo.settings import loader_options, resolve
 from nifo_core.errors import (ConfigError, IllConditionedError, InputError, NifoError, RecordTooShortError,
                               SampleRateError)
-from nifo_core.frf import h1
-from nifo_core.integrate import default_band
-from nifo_core.linear_part import RecordLines
-from nifo_core.model import IdentifiedModel
-from nifo_core.nifo import IllConditionedWarning, StreamingNifo, identify_two_step
+from nifo_core.signal.frf import h1
+from nifo_core.signal.integrate import default_band
+from nifo_core.predict.linear_part import RecordLines
+from nifo_core.predict.model import IdentifiedModel
+from nifo_core.nifo.identify import IllConditionedWarning, StreamingNifo, identify_two_step
 from nifo_core.settings import AnalysisSettings
-from nifo_core.spectral import cross_spectra
+from nifo_core.signal.spectral import cross_spectra
 
 __all__ = ["CHUNK_SAMPLES", "accumulate", "check_usable", "summarize", "format_summary", "write_figures", "run_identify"]
 
@@ -44,7 +44,7 @@ def accumulate(paths: list[Path], terms, cfg: AnalysisSettings, *, opts: dict, c
     """Stream every file into its own StreamingNifo and merge them.
 
     Returns (merged StreamingNifo, [data provenance entries], [(name, freq, plain H1) per file], each file's
-    :class:`~nifo_core.linear_part.RecordLines` (None for records driven by a measured force)).
+    :class:`~nifo_core.predict.linear_part.RecordLines` (None for records driven by a measured force)).
     ``opts``: the loaders' input options with the settings' period and transient
     (:func:`nifo.settings.loader_options`). The integration band, when the settings have none, is
     ``default_band(fs, shortest duration)`` as in :func:`identify_nifo`, so the answer equals it on the same records.

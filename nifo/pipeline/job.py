@@ -97,7 +97,7 @@ def loop_available() -> bool:
     try:
         importlib.import_module("nifo.pipeline.loop")
     except ModuleNotFoundError as err:
-        if err.name in ("nifo.pipeline.loop", "nifo_core.loop"):
+        if err.name in ("nifo.pipeline.loop", "nifo_core.loop.closing"):
             return False
         raise
     return True

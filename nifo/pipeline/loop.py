@@ -5,13 +5,13 @@ that can show what is missing (force-balance equation error, and the
 prediction error on the held-out part), ranks every describing function of
 the library by how much of it it explains, adds the best one that is
 significant, stable, lowers the held-out error and is not a tire artefact, and
-repeats (:mod:`nifo_core.loop`). Writes, atomically, to DIR:
+repeats (:mod:`nifo_core.loop.closing`). Writes, atomically, to DIR:
 
 - ``loop.json``          declared model, ranked candidates of each round, effects added
                          (kind and parameters as in the library), errors before/after, verdict;
 - ``model.json``         the loop's final model with its linear counterpart: ``nifo predict --model
                          DIR/model.json`` takes it directly. The equation-error fit on the fit parts,
-                         refined by output error (:mod:`nifo_core.refine`, ``--no-refine``: not) when the
+                         refined by output error (:mod:`nifo_core.predict.refine`, ``--no-refine``: not) when the
                          refined model's held-out prediction NMSE is not worse; loop.json's
                          ``refinement`` holds both fits' parameters and held-out NMSE and says which was
                          written. Absent, with the reason in loop.json and on screen, when no predictive
@@ -35,9 +35,9 @@ from nifo.pipeline.options import LoopOptions
 from nifo.progress import Progress
 from nifo.settings import loader_options, resolve
 from nifo_core import __version__
-from nifo_core.characterize import DEFAULT_KINDS, Thresholds
-from nifo_core.integrate import band_for_records
-from nifo_core.loop import LoopResult, LoopSettings, close_loop
+from nifo_core.characterize.automatic import DEFAULT_KINDS, Thresholds
+from nifo_core.signal.integrate import band_for_records
+from nifo_core.loop.closing import LoopResult, LoopSettings, close_loop
 
 
 def run_loop(args: LoopOptions) -> dict:

@@ -2,7 +2,7 @@
 
 For each record the measured spindle acceleration (and a measured force on
 the body, for a model identified with one) drives the model
-(:func:`nifo_core.model.predict_body`: the identified model simulated in
+(:func:`nifo_core.predict.model.predict_body`: the identified model simulated in
 time, from its linear part — one-mass body or rational, as model.json says —
 with the strut forces fed back), and the predicted body acceleration is
 compared with the measured one:
@@ -10,7 +10,7 @@ compared with the measured one:
 - NMSE in time, 100·Σ(y - ŷ)²/(N·σ_y²) % over the prediction's valid part
   (start-up edges left out; below 5 % good, below 1 % excellent);
 - the band NMSE, 100·Σ|Y - Ŷ|²/Σ|Y|² over the DFT lines of ``--freq-range``
-  (:mod:`nifo_core.prediction_error`; the same number ``nifo identify --refine``
+  (:mod:`nifo_core.predict.prediction_error`; the same number ``nifo identify --refine``
   minimises): after the start-up edge, or — with ``--period-samples`` — on the
   period average after the first, transient period of the prediction (the
   multisine benchmarks' convention);
@@ -48,13 +48,13 @@ from nifo.io.truth import truth_for
 from nifo.pipeline.options import PredictOptions
 from nifo.settings import loader_options, resolve
 from nifo_core.errors import ConfigError, InputError, NifoError
-from nifo_core.frf import coherence, h1
-from nifo_core.model import predict_body, record_inputs
-from nifo_core.prediction_bounds import Z95, half_width, line_spread, prediction_spread
-from nifo_core.prediction_error import band_nmse, band_spectra
+from nifo_core.signal.frf import coherence, h1
+from nifo_core.predict.model import predict_body, record_inputs
+from nifo_core.predict.prediction_bounds import Z95, half_width, line_spread, prediction_spread
+from nifo_core.predict.prediction_error import band_nmse, band_spectra
 from nifo_core.settings import GivenSettings
-from nifo_core.spectral import cross_spectra
-from nifo_core.vehicle import QuarterCar
+from nifo_core.signal.spectral import cross_spectra
+from nifo_core.simulate.vehicle import QuarterCar
 
 EXCERPT_S = 4.0
 
@@ -182,7 +182,7 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
 
 def _parameter_bounds(model, simulate, *, a2, drive, valid, t_model, fs, band_hz, period_samples, skip,
                       settings) -> tuple[dict, np.ndarray | None]:
-    """The prediction's 95 % bounds from the model's parameter covariance (:mod:`nifo_core.prediction_bounds`):
+    """The prediction's 95 % bounds from the model's parameter covariance (:mod:`nifo_core.predict.prediction_bounds`):
     (JSON-able numbers or why there are none, the transmissibility's ε per line for the plot's band)."""
     spread = prediction_spread(model, simulate)
     if not spread.available:

@@ -7,9 +7,9 @@ from dataclasses import dataclass
 
 from nifo.io.loader import load_record
 from nifo.progress import Progress
-from nifo_core.heldout import Scores, split_records
-from nifo_core.model_fit import joint_paths
-from nifo_core.refine import refine_jointly, refine_model, start_up_samples
+from nifo_core.predict.heldout import Scores, split_records
+from nifo_core.predict.model_fit import joint_paths
+from nifo_core.predict.refine import refine_jointly, refine_model, start_up_samples
 
 
 def from_start(opts: dict, paths: list) -> list[tuple]:
@@ -74,7 +74,7 @@ def refine(args, model, linear, opts: dict, paths: list):
     it predicts their held-out parts no worse: (refinement, None, check).
 
     ``--refine-linear`` with a rational linear part: the joint procedure
-    (:func:`nifo_core.refine.refine_jointly`): the linear model's residues refined alone, then the terms with
+    (:func:`nifo_core.predict.refine.refine_jointly`): the linear model's residues refined alone, then the terms with
     them from two starts; (refinement, the linear model's refinement, check).
     """
     period = opts.get("period_samples")
@@ -108,7 +108,7 @@ def _refine(args, model, linear, records, skips, period, refine_jointly, refine_
 
 def fit_feedback_paths(args, linear, terms, opts: dict, paths: list, settings):
     """``--feedback-paths``: the terms through their own paths on the linear model's poles, identified jointly with
-    its residues (:func:`nifo_core.model_fit.joint_paths`), the ridge chosen on held-out parts of the records."""
+    its residues (:func:`nifo_core.predict.model_fit.joint_paths`), the ridge chosen on held-out parts of the records."""
     loaded = from_start(opts, paths)
     with Progress(None, "feedback paths (ridge grid on held-out parts)", enabled=True):
         return joint_paths([rec for rec, _ in loaded], terms, linear, settings,
