@@ -32,10 +32,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from nifo.fleet.cache import settings_hash
 from nifo.fleet.manifest import BagEntry
 from nifo.fleet.tasks import (GroupSetup, batch_status, characterize_group, compute_batch, group_setup, loop_group,
                               merge_outcomes, solve_group)
+from nifo.io.modelfile import load_model_spec
 from nifo.progress import Progress
+from nifo.settings import resolve
 from nifo_core.errors import ConfigError
 from nifo_core.fleet import Estimate, HealthSettings, assess_health, batch_plan, reduction_plan
 
@@ -105,9 +108,6 @@ class FleetRun:
 def _model_cfgs(entries: list[BagEntry]) -> dict[Path, tuple]:
     """Per model file, its spec and the settings it gives merged with the defaults (one fleet, one set of settings:
     a vehicle's bags are compared on the same blocks and bands)."""
-    from nifo.io.modelfile import load_model_spec
-    from nifo.settings import resolve
-
     out = {}
     for model in dict.fromkeys(e.model for e in entries):
         spec = load_model_spec(model)
@@ -143,7 +143,6 @@ def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSet
     """
     from distributed import as_completed
 
-    from nifo.fleet.cache import settings_hash
 
     s = settings
     bases = base_setups(entries, opts=opts, chunk_samples=s.chunk_samples)
