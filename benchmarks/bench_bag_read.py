@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
 
     from nifo.io.bag import read_bag, write_bag
-    from nifo_core.record import Record
+    from nifo_core.signal.record import Record
 
     with tempfile.TemporaryDirectory(prefix="nifo-bench-") as tmp:
         path = args.bag

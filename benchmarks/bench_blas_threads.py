@@ -22,7 +22,7 @@ CHILD = r"""
 import sys, time
 sys.path.insert(0, {root!r})
 import numpy as np
-from nifo_core.linear_part import fit_rational
+from nifo_core.predict.linear_part import fit_rational
 rng = np.random.default_rng(3)
 f = np.linspace(2.0, 15.0, 266)
 s = 2j * np.pi * f

@@ -2,7 +2,7 @@
 
 Simulates a 300 s, 600 Hz record (180 000 samples; the paper's Table 2 size)
 of the quarter car with the paper's velocity deadzone and 2 % sensor noise,
-then times :func:`nifo_core.characterize.characterize` (band choice,
+then times :func:`nifo_core.characterize.automatic.characterize` (band choice,
 integration, every kind of the library over its grid, refinement, full-length
 refits, forward selection), best of ``--repeat``. Prints the time, the
 top candidate and the time split; exits 1 above ``--limit`` seconds.
@@ -27,10 +27,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fs", type=float, default=600.0, help="sample rate [Hz] (default 600)")
     args = ap.parse_args(argv)
 
-    from nifo_core.characterize import characterize
-    from nifo_core.describing import Term
-    from nifo_core.restoring import restoring_force, suggest_band
-    from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
+    from nifo_core.characterize.automatic import characterize
+    from nifo_core.kinds.describing import Term
+    from nifo_core.characterize.restoring import restoring_force, suggest_band
+    from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
 
     cfg = SimConfig(strut=(StrutForce(Term("velocity_deadzone", {"knee": 0.03}), -700.0),),
                     road=RandomRoad(rms_m=0.0025), duration_s=args.duration, fs_hz=args.fs,

@@ -90,10 +90,10 @@ def identify_alone(entries) -> dict:
     """``nifo identify``'s work per vehicle (accumulate; solve, summarize, body model), in this process."""
     import warnings
 
-    from nifo.commands.identify import accumulate, check_usable, summarize
+    from nifo.pipeline.identify import accumulate, check_usable, summarize
     from nifo.settings import resolve
     from nifo.io.modelfile import load_model_spec
-    from nifo_core.model import IdentifiedModel
+    from nifo_core.predict.model import IdentifiedModel
 
     groups: dict = {}
     for e in entries:
@@ -245,6 +245,8 @@ def memory_run(base, entries, cache: Path) -> dict:
 
 # --- main ---------------------------------------------------------------------------------------
 def main() -> int:
+    """The benchmark as a script: make the fleet, run it, print and check every figure. Long because it is the
+    measurement protocol, one stage after the other, that docs/fleet.md reports."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", type=Path, default=Path("/tmp/nifo_bench/fleet_20x10"),
                     help="where the simulated fleet is kept (made once)")

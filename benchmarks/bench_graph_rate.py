@@ -95,7 +95,7 @@ def run_rate(fs: float, seconds: float, tmp: Path, a_poll_s: float = 0.002) -> d
 
 def _run_rate(fs: float, seconds: float, tmp: Path, dom: int, a_poll_s: float) -> dict:
     from nifo.io.loader import save_record
-    from nifo_core.record import Record
+    from nifo_core.signal.record import Record
 
     rng = np.random.default_rng(0)
     n = int(fs * seconds)
@@ -144,7 +144,7 @@ def run_reliable(fs: float, seconds: float, tmp: Path) -> dict:
 
 def _run_reliable(fs: float, seconds: float, tmp: Path, dom: int) -> dict:
     from nifo.io.loader import save_record
-    from nifo_core.record import Record
+    from nifo_core.signal.record import Record
 
     rng = np.random.default_rng(1)
     n = int(fs * seconds)

@@ -8,7 +8,7 @@ hour bag takes a few minutes; later runs reuse it.
 
 Then runs ``nifo identify`` on each as a child process (streaming: the bag is
 decoded MCAP chunk by MCAP chunk and pushed into StreamingNifo, see
-``nifo/commands/identify.py``) and prints, measured in this run:
+``nifo/pipeline/identify.py``) and prints, measured in this run:
 
 - wall time as a fraction of the recording's duration (target ≤ 1 %);
 - the child's peak resident memory (``os.wait4`` → ``ru_maxrss``; target
@@ -42,8 +42,8 @@ def make_bags(cache: Path) -> dict[str, Path]:
     import numpy as np
 
     from nifo.io.loader import save_record
-    from nifo_core.record import Record
-    from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, preset, simulate
+    from nifo_core.signal.record import Record
+    from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, preset, simulate
 
     cache.mkdir(parents=True, exist_ok=True)
     quarter, hour = cache / "quarter_hour_600hz.mcap", cache / "hour_600hz.mcap"

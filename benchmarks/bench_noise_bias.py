@@ -1,7 +1,7 @@
 """Coefficients and 95 % bounds of the loop's equation-error fit with 2 % noise on both sensors, 20 seeds.
 
 For each kind (truth in the model): the median of estimate/truth for k, c and the term, plain least
-squares against the bias-corrected fit (nifo_core.bias_correction), and how often the 95 % bounds
+squares against the bias-corrected fit (nifo_core.signal.bias_correction), and how often the 95 % bounds
 (random error + the correction's uncertainty) hold the truth. Run:
 
     PYTHONPATH=. python benchmarks/bench_noise_bias.py [seeds]
@@ -14,10 +14,10 @@ import time
 
 import numpy as np
 
-from nifo_core.describing import Term
-from nifo_core.heldout import split_records
+from nifo_core.kinds.describing import Term
+from nifo_core.predict.heldout import split_records
 from nifo_core.loop import LoopSettings, loop_band
-from nifo_core.loop_residual import _Evaluator
+from nifo_core.loop.residual import _Evaluator
 from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
 
 M2 = 300.0

@@ -2,13 +2,13 @@
 
 Run: ``.venv/bin/python benchmarks/bench_predict.py [--duration S] [--fs HZ] [--oversample Q]``.
 Also a structure like the F-16's (rational order 30) with three plays, with constant coefficients and through
-feedback paths (:mod:`nifo_core.feedback_paths`), the ratio printed.
+feedback paths (:mod:`nifo_core.predict.feedback_paths`), the ratio printed.
 Target: 300 s at 600 Hz predicted in less than 2 s after compilation (CPU
 time of the process; the wall time is printed beside it, with the load). Each
 model is the true one of a simulated record (so the accuracy printed beside
 the time is the engine's own error, and the linear part alone is the
 baseline). The frequency-domain path (Picard iteration on the zero-padded
-record, :mod:`nifo_core.fixed_point`) runs only where its contraction bound
+record, :mod:`nifo_core.predict.fixed_point`) runs only where its contraction bound
 holds: the paper's velocity dead zone; for the others it is refused, which is
 printed. The first call (numba compile or cache load) is a warm-up and not timed.
 """
@@ -21,10 +21,10 @@ import time
 
 import numpy as np
 
-from nifo_core.describing import Term
+from nifo_core.kinds.describing import Term
 from nifo_core.errors import ConfigError
-from nifo_core.model import BodyModel, IdentifiedModel, predict_body
-from nifo_core.simulate import RandomRoad, SimConfig, StrutForce, preset, simulate
+from nifo_core.predict.model import BodyModel, IdentifiedModel, predict_body
+from nifo_core.simulate.quarter_car import RandomRoad, SimConfig, StrutForce, preset, simulate
 
 TARGET_S = 2.0
 
@@ -52,14 +52,14 @@ def _nmse(y, yhat, v) -> float:
 
 def _rational_cases(duration: float, fs: float, q, repeats: int):
     """A structure like the F-16's (15 modes in 2-15 Hz, rational order 30) with three plays, predicted with
-    constant coefficients (one input) and through feedback paths (:mod:`nifo_core.feedback_paths`, two inputs):
+    constant coefficients (one input) and through feedback paths (:mod:`nifo_core.predict.feedback_paths`, two inputs):
     (wall, CPU) of each."""
     from dataclasses import replace
 
-    from nifo_core.describing import make_term
-    from nifo_core.integrate import IntegrationBand
-    from nifo_core.linear_part import LinearPart
-    from nifo_core.spectral import SpectralSettings
+    from nifo_core.kinds.describing import make_term
+    from nifo_core.signal.integrate import IntegrationBand
+    from nifo_core.predict.linear_part import LinearPart
+    from nifo_core.signal.spectral import SpectralSettings
 
     rng = np.random.default_rng(0)
     wn = 2 * np.pi * np.linspace(2.5, 14.5, 15)

@@ -1,8 +1,8 @@
 """The output-error refinement with 2 % noise on both sensors: plain against bias-corrected, 20 seeds.
 
 A cubic strut (2e8 N/m³, in the model family) identified by NIFO on 40 s at 2.5 mm road and refined by
-output error (nifo_core.refine) from the noisy spindle signal; then the refinement's bias removed by
-simulating it with the estimated sensor noise (nifo_core.refine_bias). Printed per seed and summarised:
+output error (nifo_core.predict.refine) from the noisy spindle signal; then the refinement's bias removed by
+simulating it with the estimated sensor noise (nifo_core.predict.refine_bias). Printed per seed and summarised:
 refined/truth of the cubic coefficient (median), how often its 95 % bound holds the truth, and the
 prediction of another level (5 mm, noise-free) against the variance the bounds state (the ratio
 miss/stated: of order one when the bounds are right). Run:
@@ -17,14 +17,14 @@ import time
 
 import numpy as np
 
-from nifo_core.describing import Term
-from nifo_core.model import IdentifiedModel, predict_body
+from nifo_core.kinds.describing import Term
+from nifo_core.predict.model import IdentifiedModel, predict_body
 from nifo_core.nifo import identify_nifo
-from nifo_core.noise import estimate_noise
-from nifo_core.prediction_bounds import line_spread, prediction_spread
-from nifo_core.prediction_error import band_spectra
-from nifo_core.refine import refine_model
-from nifo_core.refine_bias import correct_refinement
+from nifo_core.signal.noise import estimate_noise
+from nifo_core.predict.prediction_bounds import line_spread, prediction_spread
+from nifo_core.predict.prediction_error import band_spectra
+from nifo_core.predict.refine import refine_model
+from nifo_core.predict.refine_bias import correct_refinement
 from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
 
 FS, BAND, M2, CUBIC = 600.0, (2.0, 30.0), 300.0, 2e8

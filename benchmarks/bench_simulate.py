@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from nifo_core.simulate import SimConfig, preset, simulate
+from nifo_core.simulate.quarter_car import SimConfig, preset, simulate
 
 TARGET_RATIO = 1 / 50
 

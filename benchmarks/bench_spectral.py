@@ -1,4 +1,4 @@
-"""Benchmark of the one spectral engine (nifo_core.spectral), measured in one run.
+"""Benchmark of the one spectral engine (nifo_core.signal.spectral), measured in one run.
 
 Compares, for the paper's settings (Table 2: block 6144, 52 % overlap,
 flattop, fs 600 Hz) on 4 channels of 180 000 samples:
@@ -22,7 +22,7 @@ import scipy.fft
 from numpy.lib.stride_tricks import sliding_window_view
 from scipy import signal
 
-from nifo_core.spectral import SpectralSettings, cross_spectra
+from nifo_core.signal.spectral import SpectralSettings, cross_spectra
 
 
 def _best_of(fn, repeat: int) -> float:

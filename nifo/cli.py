@@ -1,7 +1,7 @@
 """The ``nifo`` command: argument parsing, output conventions, error reporting and exit codes.
 
 Sub-commands live in :mod:`nifo.commands` (one module each); ``run(args)``
-returns a summary dict (or an exit code). Global options, before or after the
+returns a summary dict (its ``exit_code`` key, when present, the exit code). Global options, before or after the
 command: ``--json`` prints one JSON document on stdout summarising the result
 (the human text goes to stderr), ``--quiet`` keeps only warnings and errors,
 ``--verbose`` shows progress for short work too and a traceback with errors.

@@ -8,7 +8,7 @@ come with the input options of :func:`nifo.io.loader.add_input_arguments`).
 data > default — through :func:`nifo_core.settings.resolve_settings`: the
 data are probed once (the first :data:`PROBE_SAMPLES` samples of each file,
 bounded memory whatever the recording's length) for a periodic excitation,
-its transient and the excited band (:mod:`nifo_core.excitation`). It returns
+its transient and the excited band (:mod:`nifo_core.signal.excitation`). It returns
 the :class:`~nifo_core.settings.AnalysisSettings` and the input options with
 the period and transient filled in, for the loaders.
 """
@@ -23,9 +23,9 @@ from typing import Sequence
 
 from nifo.io.loader import iter_record_chunks
 from nifo_core.errors import NifoError, RecordTooShortError
-from nifo_core.record import concatenate
-from nifo_core.excitation import Excitation, analyse_excitation, combine_excitations
-from nifo_core.restoring import suggest_band
+from nifo_core.signal.record import concatenate
+from nifo_core.signal.excitation import Excitation, analyse_excitation, combine_excitations
+from nifo_core.characterize.restoring import suggest_band
 from nifo_core.settings import AnalysisSettings, GivenSettings, merge_given, resolve_settings
 
 __all__ = ["add_settings_arguments", "given_from_args", "given_from_file", "resolve", "loader_options",

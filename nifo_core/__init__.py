@@ -1,19 +1,20 @@
 """nifo_core: the pure library behind nifo.
 
 Arrays and frozen configs in, frozen results out. No ROS, Rerun, file formats
-or logging set-up in here (a test enforces it). Modules, one concern each:
+or logging set-up in here (``.importlinter`` and a test enforce it). Grouped by
+concern into subpackages, each a layer that imports only the ones below it
+(``.importlinter``), each ``__init__`` the front door saying what it offers:
 
-- ``errors``      the error hierarchy (``NifoError`` and friends, with exit codes)
-- ``record``      ``Record``: two accelerations (and optionally the tire patch) on one time base
-- ``timebase``    checks that turn raw stamps into a uniform sample rate
-- ``vehicle``     the linear quarter car and its analytical transfer functions (the truth)
-- ``simulate``    the nonlinear quarter-car simulator
-- ``integrate``   band-limited integration of accelerations (one FIR, batch and streaming)
-- ``describing``  the describing-function library (forms of METHOD.md §2)
-- ``spectral``    the one spectral engine (cross-spectral matrix, batch and streaming)
-- ``nifo``        output-only and input-measured NIFO (paper Eq. 5, 8-10)
-- ``model``       the identified model and its predictions
-- ``restoring``   restoring-force data, slicing and automatic characterization
+- ``loop``          closing the loop: residual → missing effect → refit (docs/method.md §5)
+- ``characterize``  restoring force and automatic characterization (docs/method.md §2, §5)
+- ``predict``       the identified model, its linear part, its prediction in time, refinement (§4)
+- ``nifo``          output-only and input-measured NIFO, batch and streaming (paper Eq. 5, 8-10; §3)
+- ``simulate``      the simulated quarter car and road: the truth tests check against (§1, §6)
+- ``settings``      the one settings object: given > model file > chosen from the data (§8)
+- ``kinds``         the nonlinearity kinds: the describing functions and the registry of their facts
+- ``signal``        records, time bases, integration, the one spectral engine, FRFs, excitation
+- ``fleet``         fleet statistics (standard errors, intervals, outliers)
+- ``errors``        the error hierarchy (``NifoError`` and friends, with exit codes)
 """
 
 import os as _os

@@ -1,7 +1,7 @@
 """The fleet's pure parts: tree reduction of partial accumulations, and strut health.
 
 A fleet is many records of many vehicles. Each record (bag) gives a partial
-spectral accumulation (a :class:`~nifo_core.nifo.StreamingNifo` state); the
+spectral accumulation (a :class:`~nifo_core.nifo.identify.StreamingNifo` state); the
 partials of one group (vehicle, corner) merge exactly (sums of block
 cross-spectra, paper Eq. 8's G matrices) in any order, so they are reduced as
 a tree: ⌈log_f n⌉ levels of f-way merges instead of one long chain, which a

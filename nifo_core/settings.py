@@ -2,20 +2,20 @@
 
 Every spectral and band setting an identification needs is here, once:
 
-- ``spectral``: block, window, overlap (:class:`~nifo_core.spectral.SpectralSettings`);
-- ``band``: the integration band of z, ż (:class:`~nifo_core.integrate.IntegrationBand`);
+- ``spectral``: block, window, overlap (:class:`~nifo_core.signal.spectral.SpectralSettings`);
+- ``band``: the integration band of z, ż (:class:`~nifo_core.signal.integrate.IntegrationBand`);
 - ``analysis_band_hz``: where NIFO pools, the linear part is fitted and predictions are scored;
 - ``period_samples`` / ``skip_periods`` / ``skip_seconds``: a periodic excitation and the transient to drop;
 - ``cond_limit``: the conditioning that counts as ill-conditioned.
 
 :func:`resolve_settings` merges what the user gave on the command line, what
-the model file's ``settings:`` say, what :mod:`nifo_core.excitation` read off
+the model file's ``settings:`` say, what :mod:`nifo_core.signal.excitation` read off
 the data, and the defaults, in that order, validates the result once, and
 records for each setting its value, where it came from and why
 (:attr:`AnalysisSettings.choices`), so a command prints each choice once and a
 result carries them.
 
-Chosen from the data (METHOD.md §8), where not given:
+Chosen from the data (docs/method.md §8), where not given:
 
 - periodic excitation: one period per block, boxcar window, no overlap
   (leakage-free), the transient periods dropped;
@@ -40,9 +40,9 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from .errors import ConfigError
-from .excitation import Excitation
-from .integrate import IntegrationBand, default_band, lowest_edge_hz
-from .spectral import SpectralSettings
+from .signal.excitation import Excitation
+from .signal.integrate import IntegrationBand, default_band, lowest_edge_hz
+from .signal.spectral import SpectralSettings
 
 __all__ = ["Choice", "GivenSettings", "AnalysisSettings", "DEFAULT_ANALYSIS_BAND_HZ", "DEFAULT_COND_LIMIT",
            "resolve_settings", "merge_given"]
@@ -214,20 +214,23 @@ def resolve_settings(given: GivenSettings, *, fs_hz: float | None, durations_s: 
                      origins: Mapping[str, str] | None = None) -> AnalysisSettings:
     """Merge ``given`` (already command line > model file, :func:`merge_given`) with the choices from the data.
 
+    Long because it is the one place every setting is decided, each with the reason it is printed with: one
+    short stanza per setting, read top to bottom, rather than nine helpers each passed the same context.
+
     Parameters
     ----------
     given : GivenSettings
         What the user and the model file gave.
     fs_hz : float or None
         The records' rate; None (no data yet, e.g. a node before its first sample): an integration band not
-        given stays None, the default of each record (:func:`~nifo_core.integrate.default_band`).
+        given stays None, the default of each record (:func:`~nifo_core.signal.integrate.default_band`).
     durations_s : sequence of float
         The records' durations after the transient [s] (the shortest bounds the integration band).
     excitation : Excitation, optional
-        :func:`~nifo_core.excitation.analyse_excitation` of the records (combined); None: the defaults.
+        :func:`~nifo_core.signal.excitation.analyse_excitation` of the records (combined); None: the defaults.
     snr_lo_hz : float, optional
         Random data: where z rises out of the integrated accelerometer noise
-        (:func:`nifo_core.restoring.suggest_band`): the integration band starts no lower.
+        (:func:`nifo_core.characterize.restoring.suggest_band`): the integration band starts no lower.
     origins : mapping, optional
         Setting name → 'command line' / 'model file' (for the record of choices).
     """

@@ -36,9 +36,10 @@ acquisition, default     dropped under load          incompatible-QoS warning)
 from __future__ import annotations
 
 import sys
-import time
 from dataclasses import dataclass
 from typing import Callable
+
+from nifo.io.ros_qos import publish_blocking, reliable_input_qos, sensor_qos  # shared with nifo replay
 
 __all__ = ["TOPICS", "sensor_qos", "reliable_input_qos", "input_qos", "block_qos", "result_qos", "run_node", "declare_parameters",
            "BLOCK_DEPTH", "IDENTIFIER_BLOCK_DEPTH", "RELIABILITIES", "polled_group", "take_raw", "publish_blocking", "Param",
@@ -66,35 +67,6 @@ BLOCK_DEPTH = 100
 #: the identifier's block history: 10 000 s of data at 10 blocks/s (it never falls that far behind;
 #: if it did, the loss would be a counted gap)
 IDENTIFIER_BLOCK_DEPTH = 100_000
-
-
-def sensor_qos(depth: int = 5):
-    """``qos_profile_sensor_data`` (best effort, volatile) with history ``depth``.
-
-    Subscribers use a deeper history than the default 5 so that a burst
-    (replay, scheduling hiccup) is not dropped before the executor takes it.
-    """
-    from rclpy.qos import QoSProfile, qos_profile_sensor_data
-
-    p = QoSProfile(**{k: getattr(qos_profile_sensor_data, k) for k in
-                      ("history", "reliability", "durability", "liveliness")}, depth=int(depth))
-    return p
-
-
-def reliable_input_qos():
-    """Per-sample input for offline replay: reliable, volatile, **keep all** (on both ends).
-
-    Keep-all on both sides is what makes it lossless: when the subscriber's
-    history is full the DDS reader stops acknowledging, the publisher's history
-    fills and ``publish`` blocks (:func:`publish_blocking`), so a CPU-starved
-    subscriber slows the replay down instead of losing samples. (A keep-last
-    writer overwrites unacknowledged samples; a keep-last reader overwrites
-    untaken ones: both lose data when a node falls behind.)
-    """
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-
-    return QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.VOLATILE)
 
 
 def input_qos(reliability: str, depth: int):
@@ -139,33 +111,6 @@ def take_raw(sub, limit: int) -> list[bytes]:
     except InvalidHandle:  # destroyed while shutting down
         pass
     return out
-
-
-def publish_blocking(pub, data, *, timeout_s: float = 60.0, should_stop: Callable[[], bool] = lambda: False,
-                     ) -> bool:
-    """``pub.publish(data)``, retried while a keep-all reliable history is full (backpressure).
-
-    rmw_fastrtps blocks ``publish`` for a while and then fails with "cannot
-    publish data" when the subscriber has not taken enough; we wait and
-    retry. Returns False if ``should_stop()`` became true; raises the last
-    error after ``timeout_s`` without progress (a subscriber that is stuck).
-    """
-    from rclpy.impl.implementation_singleton import rclpy_implementation
-
-    RCLError = rclpy_implementation.RCLError
-    deadline = None
-    while True:
-        try:
-            pub.publish(data)
-            return True
-        except RCLError:
-            now = time.monotonic()
-            deadline = deadline or now + timeout_s
-            if now > deadline:
-                raise
-            if should_stop():
-                return False
-            time.sleep(0.002)
 
 
 def block_qos(*, keep_all: bool = False, depth: int = 0):

@@ -1,7 +1,7 @@
 """The identifier node: aligned acceleration blocks in, the live NIFO estimate out.
 
 Subscribes ``accel/block`` (from the integrator node) and feeds the samples to
-:class:`nifo_core.nifo.StreamingNifo` — the code path ``identify_nifo`` (``nifo
+:class:`nifo_core.nifo.identify.StreamingNifo` — the code path ``identify_nifo`` (``nifo
 identify``) runs, so the live estimate is the batch one. Every
 ``publish_period_s`` (when new spectral blocks were averaged) it publishes,
 reliable + transient local (a late subscriber gets the latest), typed
@@ -97,7 +97,7 @@ def load_checkpoint(path: str | Path):
     Anything else — a truncated or corrupt file, another program's ``.npz``, an
     older layout — raises one :class:`ConfigError` naming the file and the fix.
     """
-    from nifo_core.nifo import StreamingNifo
+    from nifo_core.nifo.identify import StreamingNifo
 
     def bad(why: str) -> ConfigError:
         return ConfigError(f"not a usable nifo identifier checkpoint ({why})", source=str(path),
@@ -248,8 +248,8 @@ class IdentifierNode(Node):
         return tuple(terms), resolve_settings(self._given, fs_hz=None).spectral
 
     def _new_nifo(self, fs_hz: float):
-        from nifo_core.integrate import IntegrationBand
-        from nifo_core.nifo import StreamingNifo
+        from nifo_core.signal.integrate import IntegrationBand
+        from nifo_core.nifo.identify import StreamingNifo
         from nifo_core.settings import resolve_settings
 
         st = resolve_settings(self._given, fs_hz=fs_hz)

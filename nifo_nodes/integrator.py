@@ -10,12 +10,12 @@ publishes
 
 * ``accel/block`` — the aligned accelerations, channels
   ``spindle_accel|body_accel`` [m/s²] (what the identifier consumes);
-* ``motion/block`` — :class:`nifo_core.integrate.StreamingIntegrator` output,
+* ``motion/block`` — :class:`nifo_core.signal.integrate.StreamingIntegrator` output,
   channels ``spindle_vel|spindle_disp|body_vel|body_disp|rel_vel|rel_disp``
   [m/s, m] (rel = body − spindle, integrated from ẍ2 − ẍ1 as the contract
   says).
 
-Phase and band: the integrator is the offline :func:`nifo_core.integrate.integrate`
+Phase and band: the integrator is the offline :func:`nifo_core.signal.integrate.integrate`
 in streaming form — the same linear-phase FIR, zero phase once its delay of
 ``(taps-1)/2`` samples is removed, band ``[f_lo, f_hi]`` with raised-cosine
 edges (``f_lo/2..f_lo``, ``f_hi..1.25·f_hi``), zero outside. Motion samples
@@ -26,7 +26,7 @@ as the batch form's edges); the last ``delay_samples`` of a segment are
 published (zero-padded, as the batch form does) only when the segment ends.
 
 Parameters: ``fs_hz`` (0: infer from the first 64 spindle stamps, snapped to
-1 mHz), ``f_lo_hz``/``f_hi_hz`` (0: :func:`nifo_core.integrate.default_band`),
+1 mHz), ``f_lo_hz``/``f_hi_hz`` (0: :func:`nifo_core.signal.integrate.default_band`),
 ``block_s`` (samples per published block, as seconds), ``flush_s`` (publish a
 partial block after this much wall time), ``max_lag_s`` (how long a missing
 sample is waited for), ``restart_s``, ``qos_depth``, ``axis``, ``input_reliability`` (``best_effort``:
@@ -105,7 +105,7 @@ class IntegratorNode(Node):
         self._pub_motion = self.create_publisher(Float64MultiArray, TOPICS["motion"], block_qos())
         # the slow one-off set-up (scipy import ≈ 1 s, FIR taps) happens here, before subscribing: done
         # lazily in the first drain it stalled the input for a second and the best-effort history overflowed
-        import nifo_core.integrate  # noqa: F401
+        import nifo_core.signal.integrate  # noqa: F401
         if self._fs > 0:
             self._start(self._fs)
         qos, group = input_qos(str(self.get_parameter("input_reliability").value), depth), polled_group()
@@ -195,7 +195,7 @@ class IntegratorNode(Node):
             self._publish()
 
     def _infer(self, channel: int, stamp: int, value: float) -> None:
-        from nifo_core.timebase import sample_rate_from_stamps
+        from nifo_core.signal.timebase import sample_rate_from_stamps
 
         self._early.append((channel, stamp, value))
         st = sorted({s for c, s, _ in self._early if c == 0})
@@ -228,7 +228,7 @@ class IntegratorNode(Node):
 
     # ------------------------------------------------------------------ output
     def _new_integrators(self):
-        from nifo_core.integrate import IntegrationBand, StreamingIntegrator, default_band
+        from nifo_core.signal.integrate import IntegrationBand, StreamingIntegrator, default_band
 
         lo, hi = float(self.get_parameter("f_lo_hz").value), float(self.get_parameter("f_hi_hz").value)
         d = default_band(self._fs)

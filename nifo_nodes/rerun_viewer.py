@@ -132,7 +132,7 @@ class RerunViewerNode(Node):
         key = (msg.result_file, msg.n_avg)
         if not msg.result_file or key == self._shown:
             return
-        from nifo_core.nifo import NifoResult
+        from nifo_core.nifo.identify import NifoResult
 
         try:
             doc = json.loads(Path(msg.result_file).read_text())

@@ -38,7 +38,7 @@ from typing import Callable
 import numpy as np
 
 from nifo_core.errors import ConfigError
-from nifo_core.record import Record
+from nifo_core.signal.record import Record
 
 __all__ = ["Samples", "Source", "RecordSource", "FileSource", "SimulatorSource", "make_source"]
 
@@ -134,7 +134,7 @@ class SimulatorSource(Source):
     def __init__(self, *, fs_hz: float = 600.0, chunk_s: float = 60.0, road_rms_m: float = 0.0025,
                  strut: str = "paper", seed: int = 0, speed: float = 1.0, stamp0_ns: int | None = None,
                  clock: Callable[[], float] = time.monotonic) -> None:
-        from nifo_core.simulate import RandomRoad, SimConfig, preset
+        from nifo_core.simulate.quarter_car import RandomRoad, SimConfig, preset
 
         self.fs_hz = float(fs_hz)
         self.has_tire_patch = True
@@ -148,7 +148,7 @@ class SimulatorSource(Source):
         self._prefetch()
 
     def _simulate(self, i: int) -> Record:
-        from nifo_core.simulate import simulate
+        from nifo_core.simulate.quarter_car import simulate
 
         return simulate(self._cfg, rng=self._seed + i).record
 

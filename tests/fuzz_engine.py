@@ -22,7 +22,7 @@ from typing import Callable
 import numpy as np
 
 from nifo_core.errors import NifoError
-from nifo_core.record import Record
+from nifo_core.signal.record import Record
 
 __all__ = ["Tally", "guarded", "bag_mutants", "fuzz_bag", "fuzz_metadata", "same_record", "cli"]
 

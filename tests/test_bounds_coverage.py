@@ -4,7 +4,7 @@
 spectra), identified by output-only NIFO; over the lines of 2-30 Hz of all
 seeds, the band |T21|·(1 ± k·ε) must hold the true linear |T21| in 90-98 % of
 lines (issue 13), k the Student-t factor of the fit's degrees of freedom
-(:func:`nifo_core.frf.bound_factor`; 60 s give 5 blocks, where k = 2 held only
+(:func:`nifo_core.signal.frf.bound_factor`; 60 s give 5 blocks, where k = 2 held only
 91.2 % and 89.5 %). The bounds carry the random error only; a strut whose
 describing function sees noise through z (paper §2.2) may add bias: the knee
 case measures it.
@@ -15,9 +15,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nifo_core.describing import Term
-from nifo_core.nifo import identify_nifo
-from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
+from nifo_core.kinds.describing import Term
+from nifo_core.nifo.identify import identify_nifo
+from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
 
 SEEDS = range(20)
 

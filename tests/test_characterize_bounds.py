@@ -9,10 +9,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nifo_core.characterize import characterize
-from nifo_core.describing import Term
-from nifo_core.integrate import IntegrationBand
-from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
+from nifo_core.characterize.automatic import characterize
+from nifo_core.kinds.describing import Term
+from nifo_core.signal.integrate import IntegrationBand
+from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
 
 M2, TRUTH = 300.0, 2000.0
 

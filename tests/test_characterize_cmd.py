@@ -11,8 +11,8 @@ import pytest
 from nifo.cli import main
 from nifo.io.loader import save_record
 from nifo.io.modelfile import load_model_spec
-from nifo_core.describing import Term
-from nifo_core.simulate import ChirpRoad, RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
+from nifo_core.kinds.describing import Term
+from nifo_core.simulate.quarter_car import ChirpRoad, RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
 
 PNG = b"\x89PNG\r\n\x1a\n"
 DEADZONE = (StrutForce(Term("velocity_deadzone", {"knee": 0.03}), -700.0),)

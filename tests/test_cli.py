@@ -44,7 +44,7 @@ def _json(argv: list[str]) -> tuple[int, dict, str]:
 
 
 def _all_errors() -> list[type]:
-    for mod in ("nifo_core.model", "nifo_core.nifo", "nifo_core.loop", "nifo.io.loader", "nifo.io.bag",
+    for mod in ("nifo_core.predict.model", "nifo_core.nifo.identify", "nifo_core.loop.closing", "nifo.io.loader", "nifo.io.bag",
                 "nifo.fleet.cluster"):
         importlib.import_module(mod)
     found, todo = [], [NifoError]

@@ -8,12 +8,12 @@ import pytest
 
 from nifo.io.atomic import staged_dir, staged_file
 from nifo.io.modelfile import load_model_spec, write_model_spec
-from nifo_core.describing import Term
+from nifo_core.kinds.describing import Term
 from nifo_core.errors import (ConfigError, DataFileError, InputError, NifoError, NonFiniteError,
                               RecordTooShortError, SampleRateError, TimestampError)
-from nifo_core.record import Record
-from nifo_core.timebase import check_common_rate, sample_rate_from_stamps
-from nifo_core.vehicle import QuarterCar
+from nifo_core.signal.record import Record
+from nifo_core.signal.timebase import check_common_rate, sample_rate_from_stamps
+from nifo_core.simulate.vehicle import QuarterCar
 
 
 def test_error_message_is_one_line_naming_file_channel_and_fix():

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from nifo_core.describing import KINDS, Term, kind, make_term, play_operator
+from nifo_core.kinds.describing import KINDS, Term, kind, make_term, play_operator
 from nifo_core.errors import ConfigError
 
 

@@ -1,4 +1,4 @@
-"""What the data's levels cannot reveal (nifo_core.detection.undetermined_terms), on the bundled sample.
+"""What the data's levels cannot reveal (nifo_core.loop.detection.undetermined_terms), on the bundled sample.
 
 The sample's strut holds the paper's play (0.43 mm in series with 8 kN/m) beside a damper knee
 (1400 -> 700 N·s/m above 0.03 m/s). At 1 and 2.5 mm road RMS the play is 99.8 % a linear stiffness:
@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 from nifo.io.loader import load_record
-from nifo_core.describing import Term
-from nifo_core.detection import undetermined_terms
-from nifo_core.integrate import IntegrationBand
-from nifo_core.loop import close_loop
-from nifo_core.restoring import restoring_force
+from nifo_core.kinds.describing import Term
+from nifo_core.loop.detection import undetermined_terms
+from nifo_core.signal.integrate import IntegrationBand
+from nifo_core.loop.closing import close_loop
+from nifo_core.characterize.restoring import restoring_force
 
 SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample"
 MODEL = (Term("velocity_deadzone", {"knee": 0.0293}), Term("backlash", {"deadband": 0.000419}))

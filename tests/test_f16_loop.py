@@ -1,7 +1,7 @@
 """The main job, hands off, on real data: F-16 ground vibration test (Noël & Schoukens 2017; skipped without the data).
 
 Only the columns are given: the period, the transient, the bands and the blocks are read off the data
-(nifo.settings), the linear part and the terms are chosen by held-out prediction (nifo_core.loop). Asserts the
+(nifo.settings), the linear part and the terms are chosen by held-out prediction (nifo_core.loop.closing). Asserts the
 acceptance of the issue "Real data, hands off": from a linear model on levels 3/5/7 ``nifo loop`` adds a play and
 its held-out prediction improves; on level 1 alone (practically linear) it adds nothing; and ``nifo run`` on 3/5/7
 gives a final model that predicts the held-out level 1 better than the linear model of the same levels, on the

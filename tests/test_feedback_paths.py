@@ -1,4 +1,4 @@
-"""Feedback paths (``nifo_core.feedback_paths``, ``nifo identify --feedback-paths``): each term's force through its
+"""Feedback paths (``nifo_core.predict.feedback_paths``, ``nifo identify --feedback-paths``): each term's force through its
 own linear path on the linear part's poles.
 
 Asserted: a path equal to γ·Hz is the constant-coefficient model exactly (the two simulation kernels agree);
@@ -21,15 +21,15 @@ import pytest
 
 from nifo.cli import main
 from nifo.io.results import read_model, write_model
-from nifo_core.describing import make_term
+from nifo_core.kinds.describing import make_term
 from nifo_core.errors import ConfigError
-from nifo_core.feedback_paths import choose_paths, fit_paths, path_model
-from nifo_core.integrate import IntegrationBand
-from nifo_core.linear_part import LinearPart
-from nifo_core.model import IdentifiedModel, predict_body
-from nifo_core.record import Record
-from nifo_core.spectral import SpectralSettings
-from nifo_core.timesim import simulate_response
+from nifo_core.predict.feedback_paths import choose_paths, fit_paths, path_model
+from nifo_core.signal.integrate import IntegrationBand
+from nifo_core.predict.linear_part import LinearPart
+from nifo_core.predict.model import IdentifiedModel, predict_body
+from nifo_core.signal.record import Record
+from nifo_core.signal.spectral import SpectralSettings
+from nifo_core.predict.timesim import simulate_response
 
 FS = 200.0
 PERIOD = 2048
@@ -114,7 +114,7 @@ def test_paths_fitted_on_random_non_periodic_excitation_from_windowed_blocks_pre
     """Road-like data: band-limited noise, no period; the fit runs on Hann blocks of z integrated as NIFO does."""
     from scipy import signal
 
-    from nifo_core.prediction_error import band_nmse
+    from nifo_core.predict.prediction_error import band_nmse
 
     def rec(level, seed):
         rng = np.random.default_rng(seed)
@@ -175,7 +175,7 @@ def _quietly(argv) -> int:
 def test_f16_three_plays_through_feedback_paths_on_3_5_7_against_the_strong_linear_baseline(shared_data, tmp_path):
     """The expert recipe through the commands (three plays of set widths, --feedback-paths) on multisine levels
     3/5/7, predicting levels 1/3/5/7 and the four sine sweeps (never used to identify) against the linear model of
-    3/5/7 — whose residues now predict every identification record best (nifo_core.linear_part.RecordLines): on
+    3/5/7 — whose residues now predict every identification record best (nifo_core.predict.linear_part.RecordLines): on
     average better on both excitations, never worse than it by more than 1 % at a level. (Against the pooled-fit
     linear model of before it won at every level; against this one the hands-off loop's single narrow play does
     better: tests/test_f16_loop.py.)"""

@@ -1,6 +1,6 @@
 """nifo fleet on a real Dask LocalCluster (2 worker processes) with a simulated fleet of real bags.
 
-The fleet: 10 vehicles × 2 bags × 40 s (nifo_core.simulate, saved as .mcap
+The fleet: 10 vehicles × 2 bags × 40 s (nifo_core.simulate.quarter_car, saved as .mcap
 bags), every parameter of every vehicle varied ±10 %, v01 with a worn damper
 (C2 -30 %), v06 with the damper knee moved (0.03 → 0.06 m/s); plus a truncated
 bag in v02's folder and a missing bag of a vehicle v99. (The full 20 × 10
@@ -54,8 +54,8 @@ def fleet(tmp_path_factory, cluster) -> Path:
     # vmix: a nominal vehicle whose bags differ in length (30 s and 45 s): its integration band is set
     # by the shorter one, as in nifo identify, so the longer one is accumulated twice
     from nifo.fleet.simulated import NOMINAL_DEADZONE, NOMINAL_KNEE, _write_bag
-    from nifo_core.describing import Term
-    from nifo_core.simulate import RandomRoad, SimConfig, StrutForce
+    from nifo_core.kinds.describing import Term
+    from nifo_core.simulate.quarter_car import RandomRoad, SimConfig, StrutForce
 
     strut = (StrutForce(Term("velocity_deadzone", {"knee": NOMINAL_KNEE}), NOMINAL_DEADZONE),)
     (root / "vmix" / "FL").mkdir(parents=True)
@@ -283,8 +283,8 @@ def test_a_bag_too_short_to_integrate_fails_alone_in_its_groups_task(fleet, tmp_
     from nifo.fleet.runner import base_setups
     from nifo.fleet.simulated import NOMINAL_DEADZONE, NOMINAL_KNEE, _write_bag
     from nifo.fleet.tasks import compute_batch
-    from nifo_core.describing import Term
-    from nifo_core.simulate import RandomRoad, SimConfig, StrutForce
+    from nifo_core.kinds.describing import Term
+    from nifo_core.simulate.quarter_car import RandomRoad, SimConfig, StrutForce
 
     short = tmp_path / "short.mcap"
     strut = (StrutForce(Term("velocity_deadzone", {"knee": NOMINAL_KNEE}), NOMINAL_DEADZONE),)

@@ -19,14 +19,14 @@ from scipy.signal import butter, sosfiltfilt
 
 from nifo.cli import main as nifo_main
 from nifo.io.loader import iter_record_chunks, load_record, save_record
-from nifo_core.characterize import characterize
-from nifo_core.describing import make_term
+from nifo_core.characterize.automatic import characterize
+from nifo_core.kinds.describing import make_term
 from nifo_core.errors import ConfigError, DataFileError, InputError, RecordTooShortError, TimestampError
-from nifo_core.integrate import IntegrationBand
-from nifo_core.model import IdentifiedModel, predict_body
-from nifo_core.nifo import IllConditionedWarning, identify_nifo
-from nifo_core.record import Record, acceleration_from_displacement
-from nifo_core.spectral import SpectralSettings
+from nifo_core.signal.integrate import IntegrationBand
+from nifo_core.predict.model import IdentifiedModel, predict_body
+from nifo_core.nifo.identify import IllConditionedWarning, identify_nifo
+from nifo_core.signal.record import Record, acceleration_from_displacement
+from nifo_core.signal.spectral import SpectralSettings
 
 M, K = 2.0, (2 * np.pi * 20) ** 2 * 2.0          # 2 kg on 31.6 kN/m: 20 Hz
 D = 2 * 0.05 * np.sqrt(K * M)                      # 5 % damping
@@ -142,7 +142,7 @@ def test_moving_spindle_and_force_both_enter():
 
 
 def test_force_result_round_trips_through_json(fixed_rec):
-    from nifo_core.nifo import NifoResult
+    from nifo_core.nifo.identify import NifoResult
     res = identify_nifo(fixed_rec, [make_term("cubic")], settings=SETTINGS, analysis_band_hz=BAND,
                         on_ill_conditioned="ignore")
     back = NifoResult.from_dict(json.loads(json.dumps(res.to_dict())))
@@ -201,7 +201,7 @@ def test_loop_coefficients_are_named_after_their_columns_with_a_measured_force(f
 def test_a_model_predicts_a_record_at_a_quarter_of_its_identification_rate(fixed_rec):
     """The model is continuous-time: a record at another rate (a benchmark's test record often is) is predicted on
     the fine step the model was identified with, as well as at the identification rate."""
-    from nifo_core.model import fine_factor
+    from nifo_core.predict.model import fine_factor
 
     model = IdentifiedModel.from_nifo(identify_nifo(fixed_rec, [make_term("cubic")], settings=SETTINGS,
                                                     analysis_band_hz=BAND, on_ill_conditioned="ignore"))

@@ -19,7 +19,7 @@ import pytest
 
 from nifo.io.loader import load_record, save_record
 from nifo_core.errors import CorruptDataError
-from nifo_core.record import Record
+from nifo_core.signal.record import Record
 
 from fuzz_engine import chunk_spans, fuzz_bag, fuzz_metadata
 

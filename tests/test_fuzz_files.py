@@ -484,7 +484,7 @@ def test_tiny_integration_bands_are_refused_before_allocation_or_integrated(f_lo
     import time
     import tracemalloc
 
-    from nifo_core.integrate import IntegrationBand, integrate, integrator_taps
+    from nifo_core.signal.integrate import IntegrationBand, integrate, integrator_taps
 
     band = IntegrationBand(f_lo, min(200.0, fs / 2.5))
     a = np.sin(np.arange(n) * 0.01)
@@ -507,11 +507,11 @@ def _model_json(tmp: Path, kind: str) -> Path:
     from dataclasses import replace
 
     from nifo.io.results import write_model
-    from nifo_core.describing import make_term
-    from nifo_core.linear_part import LinearPart
-    from nifo_core.model import BodyModel, IdentifiedModel
+    from nifo_core.kinds.describing import make_term
+    from nifo_core.predict.linear_part import LinearPart
+    from nifo_core.predict.model import BodyModel, IdentifiedModel
 
-    from nifo_core.spectral import SpectralSettings
+    from nifo_core.signal.spectral import SpectralSettings
 
     m = IdentifiedModel.from_body(BodyModel(98.7, 4.5), [make_term({"velocity_deadzone": {"knee": 0.03}})], [-2.2],
                                   fs_hz=600.0, settings=SpectralSettings(block=64))   # 33 lines: a fast case
@@ -632,7 +632,7 @@ def test_nifo_model_must_be_the_integer_1(tmp_path, version):
 @pytest.fixture(scope="module")
 def short_record(tmp_path_factory) -> Path:
     from nifo.io.loader import save_record
-    from nifo_core.simulate import RandomRoad, SimConfig, preset, simulate
+    from nifo_core.simulate.quarter_car import RandomRoad, SimConfig, preset, simulate
 
     sim = simulate(SimConfig(strut=preset("paper_deadzone"), duration_s=30.0, road=RandomRoad(2.5e-3)), rng=7)
     return save_record(tmp_path_factory.mktemp("rec") / "r30.mcap", sim.record)

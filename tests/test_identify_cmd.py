@@ -9,17 +9,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nifo_core.integrate import IntegrationBand
-from nifo_core.spectral import SpectralSettings
+from nifo_core.signal.integrate import IntegrationBand
+from nifo_core.signal.spectral import SpectralSettings
 
 from nifo.cli import main
 from nifo.io.loader import load_record, save_record
 from nifo.io.ownership import write_marker
 from nifo.io.results import read_identify, read_model
-from nifo_core.describing import make_term
+from nifo_core.kinds.describing import make_term
 from nifo_core.errors import ConfigError, DataFileError, IllConditionedError, RecordTooShortError
-from nifo_core.nifo import identify_nifo
-from nifo_core.record import Record
+from nifo_core.nifo.identify import identify_nifo
+from nifo_core.signal.record import Record
 
 SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample"
 LOW, HIGH = SAMPLE / "road_1mm", SAMPLE / "road_2p5mm"

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from nifo_core.errors import ConfigError
-from nifo_core.integrate import (IntegrationBand, integrator_taps, StreamingIntegrator, default_band, integrate,
+from nifo_core.signal.integrate import (IntegrationBand, integrator_taps, StreamingIntegrator, default_band, integrate,
                                  integrator_response)
 
 FS = 600.0

@@ -15,7 +15,7 @@ from nifo.io.bag import (IMU, POINT_STAMPED, BagTopics, TopicData, _decode, read
                          write_bag, write_channels)
 from nifo.io.loader import load_record, save_record
 from nifo_core.errors import DataFileError, MissingChannelError
-from nifo_core.record import Record
+from nifo_core.signal.record import Record
 
 FS = 600.0
 

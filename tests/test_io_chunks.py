@@ -10,7 +10,7 @@ import pytest
 from nifo.io.bag import IMU, TopicData, write_channels
 from nifo.io.loader import iter_record_chunks, load_record, save_record
 from nifo_core.errors import TimestampError
-from nifo_core.record import Record
+from nifo_core.signal.record import Record
 
 SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample" / "road_1mm"
 

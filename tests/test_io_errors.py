@@ -19,7 +19,7 @@ from nifo.io.bag import IMU, BagTopics, TopicData, write_channels
 from nifo.io.loader import load_record, save_record
 from nifo_core.errors import (ConfigError, DataFileError, MissingChannelError, NifoError, NonFiniteError,
                               OutputError, RecordTooShortError, SampleRateError, TimestampError)
-from nifo_core.record import Record
+from nifo_core.signal.record import Record
 
 from conftest import REPO
 

@@ -13,7 +13,7 @@ import scipy.io
 from nifo.cli import main
 from nifo.io.loader import detect_format, load_record, load_records, parse_columns, save_record
 from nifo_core.errors import ConfigError, DataFileError, SampleRateError
-from nifo_core.record import Record
+from nifo_core.signal.record import Record
 
 from conftest import REPO
 

@@ -28,7 +28,7 @@ import pytest
 from nifo.io.atomic import INCOMPLETE
 from nifo.io.ownership import write_marker
 from nifo.io.loader import save_record
-from nifo_core.simulate import SimConfig, simulate
+from nifo_core.simulate.quarter_car import SimConfig, simulate
 
 from conftest import REPO
 
@@ -65,7 +65,7 @@ def _full(argv: list[str], cwd: Path) -> float:
 
 
 def _records(tmp: Path) -> list[Path]:
-    from nifo_core.simulate import RandomRoad, preset
+    from nifo_core.simulate.quarter_car import RandomRoad, preset
 
     paths = []
     for k, rms in enumerate((1.0e-3, 2.5e-3)):
@@ -142,7 +142,7 @@ def test_run_and_identify_killed_at_random_points_leave_old_new_or_marked_output
 
 _TERM_WHILE_READING = """
 import os, signal, sys
-import nifo.commands.identify as cmd
+import nifo.pipeline.identify as cmd   # the identify step, which nifo identify calls
 from nifo.cli import main
 
 real = cmd.accumulate

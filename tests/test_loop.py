@@ -1,4 +1,4 @@
-"""Closing the loop (nifo_core.loop, ``nifo loop``): residual → missing effect → add → error before and after.
+"""Closing the loop (nifo_core.loop.closing, ``nifo loop``): residual → missing effect → add → error before and after.
 
 The project's simulator at the paper's settings (fs 600 Hz, 300 s = 180 000
 points, random road) with 2 % sensor noise on every channel. Each hidden
@@ -19,11 +19,11 @@ import yaml
 from nifo.cli import main
 from nifo.io.loader import save_record
 from nifo.io.modelfile import load_model_spec
-from nifo_core.describing import Term
+from nifo_core.kinds.describing import Term
 from nifo_core.errors import ConfigError
-from nifo_core.loop import NOTHING_MISSING, LoopSettings, close_loop
-from nifo_core.record import Record
-from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
+from nifo_core.loop.closing import NOTHING_MISSING, LoopSettings, close_loop
+from nifo_core.signal.record import Record
+from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
 
 M2 = 300.0  # QuarterCar default sprung mass [kg]
 
@@ -268,8 +268,8 @@ def test_the_coulomb_detection_limit_separates_what_is_found_from_what_is_not():
 def test_a_play_and_a_knee_are_named_as_confounded_where_nearly_all_motion_is_beyond_both():
     # a 0.05 mm play at 2.5 mm road slides nearly all the time (≈ k·z ∓ k·b/2·sign ż) and ż is far beyond a
     # 0.03 m/s knee (≈ ż ∓ v0·sign ż): beyond z and ż both are sign(ż); a lower level separates them
-    from nifo_core.detection import confounded_pairs
-    from nifo_core.restoring import restoring_force
+    from nifo_core.loop.detection import confounded_pairs
+    from nifo_core.characterize.restoring import restoring_force
 
     cfg = SimConfig(strut=(_sf("velocity_deadzone", -700.0, knee=0.03),), road=RandomRoad(rms_m=0.0025),
                     duration_s=60.0, fs_hz=600.0, noise=SensorNoise(relative=0.02))

@@ -1,10 +1,10 @@
-"""Coverage of the loop's coefficient bounds (nifo_core.uncertainty) over 20 simulated seeds.
+"""Coverage of the loop's coefficient bounds (nifo_core.signal.uncertainty) over 20 simulated seeds.
 
 The equation-error fit of the loop (k, c, θ of the true term) on 60 s records
 with 2 % noise on both sensors; the 95 % bound must hold the truth in at least
 18 of 20 seeds. A Coulomb term's plain fit is biased (noise reaching tanh(ż/ε)
 through ż, paper §2.2, and the band-limited ż: -4.5 %, c +1.5 %); the loop
-removes the bias by simulating its fit (:mod:`nifo_core.bias_correction`) and
+removes the bias by simulating its fit (:mod:`nifo_core.signal.bias_correction`) and
 its bound holds the correction's uncertainty too.
 """
 
@@ -13,11 +13,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nifo_core.describing import Term
-from nifo_core.heldout import split_records
-from nifo_core.loop import LoopSettings, loop_band
-from nifo_core.loop_residual import _Evaluator
-from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
+from nifo_core.kinds.describing import Term
+from nifo_core.predict.heldout import split_records
+from nifo_core.loop.closing import LoopSettings, loop_band
+from nifo_core.loop.residual import _design, _Evaluator
+from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
+from nifo_core.signal.uncertainty import coefficient_bounds
 
 M2 = 300.0
 

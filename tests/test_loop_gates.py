@@ -5,9 +5,9 @@ Against simulated truth (2 % noise on both sensors); the figures are printed.
 
 from __future__ import annotations
 
-from nifo_core.describing import Term
+from nifo_core.kinds.describing import Term
 from nifo_core.loop import LoopSettings, close_loop
-from nifo_core.loop_gates import one_of_kind_alternatives
+from nifo_core.loop.gates import one_of_kind_alternatives
 from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
 
 M2 = 300.0

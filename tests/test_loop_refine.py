@@ -15,10 +15,10 @@ import pytest
 from nifo.cli import main
 from nifo.io.loader import save_record
 from nifo.io.results import read_model
-from nifo_core.describing import Term
+from nifo_core.kinds.describing import Term
 from nifo_core.errors import ConfigError
-from nifo_core.loop import LoopSettings, close_loop
-from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
+from nifo_core.loop.closing import LoopSettings, close_loop
+from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
 
 M2 = 300.0  # QuarterCar default sprung mass [kg]
 COULOMB_N, STOP_N_M, GAP_M = 30.0, 2e5, 0.008
@@ -200,7 +200,7 @@ def test_bump_stop_beside_a_declared_knee_gap_from_static_and_nothing_spurious(b
 @pytest.mark.slow
 def test_bump_stop_beside_a_declared_knee_refined_stiffness_within_15_percent(bump_beside_knee):
     # the plain output-error refinement holds 1.67e5 N/m (-16.5 %, the linear stiffness +12 %): driven by the noisy
-    # spindle signal it is biased; the loop removes that bias by simulating the refinement (nifo_core.refine_bias),
+    # spindle signal it is biased; the loop removes that bias by simulating the refinement (nifo_core.predict.refine_bias),
     # the knee's parameters, which these data do not determine, held
     _, res = bump_beside_knee
     print(f"\nrefined bump stop beside the knee: {res.refinement.refinement['message']}")

@@ -6,16 +6,16 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from nifo_core.describing import Term
+from nifo_core.kinds.describing import Term
 from nifo_core.errors import ConfigError
-from nifo_core.integrate import IntegrationBand
-from nifo_core.model import (BodyModel, IdentifiedModel, PredictionDivergedError, fit_body_model, predict_body,
+from nifo_core.signal.integrate import IntegrationBand
+from nifo_core.predict.model import (BodyModel, IdentifiedModel, PredictionDivergedError, fit_body_model, predict_body,
                              predict_transmissibility)
-from nifo_core.nifo import identify_nifo
-from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, preset, simulate
-from nifo_core.frf import white_noise_floor
-from nifo_core.spectral import SpectralSettings, cross_spectra
-from nifo_core.vehicle import QuarterCar
+from nifo_core.nifo.identify import identify_nifo
+from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, preset, simulate
+from nifo_core.signal.frf import white_noise_floor
+from nifo_core.signal.spectral import SpectralSettings, cross_spectra
+from nifo_core.simulate.vehicle import QuarterCar
 
 FS = 600.0
 DZ = Term("velocity_deadzone", {"knee": 0.03})

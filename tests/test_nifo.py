@@ -17,14 +17,14 @@ import json
 import numpy as np
 import pytest
 
-from nifo_core.describing import Term
+from nifo_core.kinds.describing import Term
 from nifo_core.errors import ConfigError, IllConditionedError, RecordTooShortError, SampleRateError
-from nifo_core.integrate import IntegrationBand
-from nifo_core.nifo import (IllConditionedWarning, NifoResult, StreamingNifo, identify_nifo, identify_two_step)
-from nifo_core.record import Record
-from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, preset, simulate
-from nifo_core.frf import white_noise_floor
-from nifo_core.spectral import SpectralSettings, cross_spectra
+from nifo_core.signal.integrate import IntegrationBand
+from nifo_core.nifo.identify import (IllConditionedWarning, NifoResult, StreamingNifo, identify_nifo, identify_two_step)
+from nifo_core.signal.record import Record
+from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, preset, simulate
+from nifo_core.signal.frf import white_noise_floor
+from nifo_core.signal.spectral import SpectralSettings, cross_spectra
 
 FS = 600.0
 DZ = Term("velocity_deadzone", {"knee": 0.03})
@@ -233,7 +233,7 @@ def test_merging_estimators_of_different_terms_is_refused():
 
 
 def test_static_fits_of_several_records_equal_each_records_own_static_fit_bit_for_bit(deadzone, backlash):
-    from nifo_core.nifo import nifo_from_spectra, static_fits
+    from nifo_core.nifo.identify import nifo_from_spectra, static_fits
 
     band, lines = IntegrationBand(0.5, 200.0), (2.0, 30.0)
     specs = []

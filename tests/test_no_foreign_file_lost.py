@@ -21,7 +21,7 @@ import pytest
 from nifo.io.loader import save_record
 from nifo.io.ownership import MARKER
 from nifo_core.errors import OutputError
-from nifo_core.simulate import RandomRoad, SimConfig, preset, simulate
+from nifo_core.simulate.quarter_car import RandomRoad, SimConfig, preset, simulate
 
 from fuzz_engine import cli
 

@@ -90,11 +90,11 @@ def test_result_messages_are_typed_with_a_data_stamped_header_and_survive_serial
 
     from rclpy.serialization import deserialize_message, serialize_message
 
-    from nifo_core.describing import make_term
-    from nifo_core.integrate import IntegrationBand
-    from nifo_core.nifo import StreamingNifo
-    from nifo_core.simulate import SimConfig, preset, simulate
-    from nifo_core.spectral import SpectralSettings
+    from nifo_core.kinds.describing import make_term
+    from nifo_core.signal.integrate import IntegrationBand
+    from nifo_core.nifo.identify import StreamingNifo
+    from nifo_core.simulate.quarter_car import SimConfig, preset, simulate
+    from nifo_core.signal.spectral import SpectralSettings
     from nifo_msgs.msg import Coefficients, LoopStatus, Transmissibility
     from nifo_nodes.results import StreamStats, coefficients_msg, status_msg, transmissibility_msg, write_result_file
 

@@ -42,8 +42,8 @@ def sample(tmp_path_factory):
     """A 40 s simulated record at 250 Hz (paper damper knee) saved as an MCAP bag, and its model file."""
     from nifo.io.loader import load_record, save_record
     from nifo.io.modelfile import write_model_spec
-    from nifo_core.describing import make_term
-    from nifo_core.simulate import SimConfig, preset, simulate
+    from nifo_core.kinds.describing import make_term
+    from nifo_core.simulate.quarter_car import SimConfig, preset, simulate
 
     d = tmp_path_factory.mktemp("nodes")
     sim = simulate(SimConfig(strut=preset("paper_deadzone"), duration_s=40.0, fs_hz=FS), rng=3)
@@ -55,10 +55,10 @@ def sample(tmp_path_factory):
 
 def batch_result(record_pieces):
     """The batch engine on one record or on pieces separated by stream gaps."""
-    from nifo_core.describing import make_term
-    from nifo_core.integrate import IntegrationBand
-    from nifo_core.nifo import StreamingNifo, identify_nifo
-    from nifo_core.spectral import SpectralSettings
+    from nifo_core.kinds.describing import make_term
+    from nifo_core.signal.integrate import IntegrationBand
+    from nifo_core.nifo.identify import StreamingNifo, identify_nifo
+    from nifo_core.signal.spectral import SpectralSettings
 
     kw = dict(settings=SpectralSettings(block=BLOCK, overlap=OVERLAP), band=IntegrationBand(*BAND))
     terms = [make_term(t) for t in TERMS]
@@ -221,7 +221,7 @@ def logs(d: Path) -> str:
 
 # ----------------------------------------------------------------------------- tests
 def test_replayed_bag_through_integrator_and_identifier_equals_the_batch_engine(sample, domain, tmp_path):
-    from nifo_core.integrate import IntegrationBand, integrate
+    from nifo_core.signal.integrate import IntegrationBand, integrate
 
     dom, env = domain
     rec = sample["record"]
@@ -388,7 +388,7 @@ def cpu_hog():
 def test_bundled_bag_replayed_reliably_with_a_cpu_hog_equals_nifo_identify(domain, tmp_path, cpu_hog):
     """run_pipeline.py --bag bags/sample/road_2p5mm --reliable: the final published estimate equals
     ``nifo identify`` on the same bag (rtol 1e-9), no sample lost, no gap, while a CPU hog runs."""
-    from nifo_core.nifo import NifoResult
+    from nifo_core.nifo.identify import NifoResult
 
     dom, env = domain
     bag, model = REPO / "bags" / "sample" / "road_2p5mm", CONFIG_DIR / "model.yaml"

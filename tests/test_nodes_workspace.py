@@ -105,7 +105,7 @@ def test_run_pipeline_replays_a_bag_through_the_nodes_into_a_live_rerun_recordin
     from rerun.chunk import RrdReader
 
     from nifo.io.loader import save_record
-    from nifo_core.simulate import SimConfig, simulate
+    from nifo_core.simulate.quarter_car import SimConfig, simulate
     from nifo_nodes.launcher import claim_domain_id
 
     save_record(tmp_path / "short.mcap", simulate(SimConfig(duration_s=6.0, fs_hz=200.0), rng=1).record)

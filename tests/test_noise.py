@@ -1,4 +1,4 @@
-"""Sensor noise per channel from the data (nifo_core.noise) against the simulator's known noise."""
+"""Sensor noise per channel from the data (nifo_core.signal.noise) against the simulator's known noise."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from nifo_core.describing import Term
-from nifo_core.noise import estimate_noise
+from nifo_core.kinds.describing import Term
+from nifo_core.signal.noise import estimate_noise
 from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
 
 

@@ -11,9 +11,9 @@ import pytest
 
 from nifo.cli import main
 from nifo.io.results import read_model, write_json, write_model
-from nifo_core.describing import make_term
+from nifo_core.kinds.describing import make_term
 from nifo_core.errors import DataFileError
-from nifo_core.model import BodyModel, IdentifiedModel, PredictionDivergedError
+from nifo_core.predict.model import BodyModel, IdentifiedModel, PredictionDivergedError
 
 SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample"
 LOW, HIGH = SAMPLE / "road_1mm", SAMPLE / "road_2p5mm"

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from nifo_core.describing import Term
-from nifo_core.integrate import IntegrationBand
-from nifo_core.linear_part import BodyModel, LinearPart, fit_rational, select_linear_part
-from nifo_core.model import IdentifiedModel, predict_body
-from nifo_core.nifo import identify_nifo
-from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, StrutForce, preset, simulate
-from nifo_core.spectral import SpectralSettings
+from nifo_core.kinds.describing import Term
+from nifo_core.signal.integrate import IntegrationBand
+from nifo_core.predict.linear_part import BodyModel, LinearPart, fit_rational, select_linear_part
+from nifo_core.predict.model import IdentifiedModel, predict_body
+from nifo_core.nifo.identify import identify_nifo
+from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, StrutForce, preset, simulate
+from nifo_core.signal.spectral import SpectralSettings
 
 FS = 600.0
 

@@ -1,4 +1,4 @@
-"""Prediction bounds from the refined model's parameter covariance (nifo_core.prediction_bounds).
+"""Prediction bounds from the refined model's parameter covariance (nifo_core.predict.prediction_bounds).
 
 The check against truth: on a cubic strut (in the model family) with 2 % noise on the body sensor,
 the refined model's prediction of another level, driven by the noise-free spindle signal, misses the
@@ -9,7 +9,7 @@ parameters divided by its mean), neither ≫ 1 (bounds too narrow) nor ≪ 1 (bo
 With the same noise on the spindle sensor too (the drive of every simulation) the output-error fit is
 biased (errors in variables: measured, the cubic refined to 1.53e8/1.76e8/1.54e8 for 2e8, the miss
 29-134× the bounds' variance, seeds 1-3). The refinement is then bias-corrected by simulating it with
-the estimated sensor noise (:mod:`nifo_core.refine_bias`), its bounds widened by the correction's
+the estimated sensor noise (:mod:`nifo_core.predict.refine_bias`), its bounds widened by the correction's
 uncertainty, and the same check holds.
 """
 
@@ -20,15 +20,15 @@ import json
 import numpy as np
 import pytest
 
-from nifo_core.describing import Term
-from nifo_core.model import IdentifiedModel, predict_body
-from nifo_core.nifo import identify_nifo
-from nifo_core.prediction_bounds import line_spread, prediction_spread
-from nifo_core.prediction_error import band_spectra
-from nifo_core.noise import estimate_noise
-from nifo_core.refine import parameter_space, refine_model
-from nifo_core.refine_bias import correct_refinement
-from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
+from nifo_core.kinds.describing import Term
+from nifo_core.predict.model import IdentifiedModel, predict_body
+from nifo_core.nifo.identify import identify_nifo
+from nifo_core.predict.prediction_bounds import line_spread, prediction_spread
+from nifo_core.predict.prediction_error import band_spectra
+from nifo_core.predict.refine import parameter_space, refine_model
+from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
+from nifo_core.signal.noise import estimate_noise
+from nifo_core.predict.refine_bias import correct_refinement
 
 FS = 600.0
 BAND = (2.0, 30.0)

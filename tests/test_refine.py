@@ -1,4 +1,4 @@
-"""Output-error refinement (nifo_core.refine) and the band-limited prediction metric it minimises.
+"""Output-error refinement (nifo_core.predict.refine) and the band-limited prediction metric it minimises.
 
 Every accuracy figure is printed beside the NIFO start and the linear model of the same run.
 """
@@ -10,14 +10,14 @@ import sys
 import numpy as np
 import pytest
 
-from nifo_core.describing import Term
+from nifo_core.kinds.describing import Term
 from nifo_core.errors import ConfigError, InputError
-from nifo_core.linear_part import BodyModel
-from nifo_core.model import IdentifiedModel, predict_body
-from nifo_core.nifo import identify_nifo
-from nifo_core.prediction_error import band_nmse
-from nifo_core.refine import model_nmse, refine_model
-from nifo_core.simulate import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
+from nifo_core.predict.linear_part import BodyModel
+from nifo_core.predict.model import IdentifiedModel, predict_body
+from nifo_core.nifo.identify import identify_nifo
+from nifo_core.predict.prediction_error import band_nmse
+from nifo_core.predict.refine import model_nmse, refine_model
+from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
 
 FS = 600.0
 
@@ -188,7 +188,7 @@ def test_a_rational_linear_part_misfitted_by_ten_percent_is_refined_jointly_with
     coefficient-only refinement does not; a linear model refines the same way and never ends worse."""
     from dataclasses import replace
 
-    from nifo_core.refine import parameter_space
+    from nifo_core.predict.refine import parameter_space
 
     strut = (StrutForce(Term("coulomb", {"eps": 0.005}), 30.0),)
     sim, _, _ = _identified(strut, 0.001, 40.0, noise=0.0)
@@ -231,7 +231,7 @@ def test_the_joint_refinement_nests_the_equally_refined_linear_model_and_keeps_i
     residues from NIFO's coefficient and from zero, the better kept. On the records it never does worse than the
     baseline (the zero start is the baseline itself), the poles stay, and on a held-out level it predicts a
     play the data hold better than the baseline does."""
-    from nifo_core.refine import refine_jointly
+    from nifo_core.predict.refine import refine_jointly
 
     strut = (StrutForce(Term("backlash", {"deadband": 0.00043}), 8e3),)
     sim, _, _ = _identified(strut, 0.0005, 40.0, noise=0.0)

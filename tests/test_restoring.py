@@ -1,4 +1,4 @@
-"""Restoring-force data, slicing and the automatic characterization (nifo_core.restoring / .characterize).
+"""Restoring-force data, slicing and the automatic characterization (nifo_core.characterize.restoring / .characterize).
 
 Analytic cases first (band-pass = derivative of the integrated velocity, a
 chirp's frequency, slices), then the simulator at the paper's settings with
@@ -11,15 +11,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nifo_core.characterize import (DEFAULT_KINDS, Thresholds, candidate_grid, characterize,
+from nifo_core.characterize.automatic import (DEFAULT_KINDS, Thresholds, candidate_grid, characterize,
                                     characterize_restoring)
-from nifo_core.describing import Term
+from nifo_core.kinds.describing import Term
 from nifo_core.errors import ConfigError, InputError
-from nifo_core.integrate import IntegrationBand, integrate
-from nifo_core.record import Record
-from nifo_core.restoring import (amplitude_slices, bandpass, bandpass_settle_samples, frequency_slices,
+from nifo_core.signal.integrate import IntegrationBand, integrate
+from nifo_core.signal.record import Record
+from nifo_core.characterize.restoring import (amplitude_slices, bandpass, bandpass_settle_samples, frequency_slices,
                                  restoring_force, suggest_band, track_frequency)
-from nifo_core.simulate import ChirpRoad, RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
+from nifo_core.simulate.quarter_car import ChirpRoad, RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
 
 M2 = 300.0  # QuarterCar default sprung mass [kg]
 
@@ -257,13 +257,13 @@ def test_characterize_refuses_bad_options(linear_sim):
 
 
 def test_default_kinds_are_all_in_the_library():
-    from nifo_core.describing import KINDS
+    from nifo_core.kinds.describing import KINDS
 
     assert set(DEFAULT_KINDS) <= set(KINDS)
 
 
 def test_body_stiffness_fits_a_rig_restraint_k3_from_the_body_displacement():
-    from nifo_core.vehicle import QuarterCar
+    from nifo_core.simulate.vehicle import QuarterCar
 
     sim = simulate(SimConfig(vehicle=QuarterCar(k3=10e3), road=RandomRoad(0.0025), duration_s=120.0,
                              noise=SensorNoise(relative=0.02)), rng=3)
@@ -277,7 +277,7 @@ def test_body_stiffness_fits_a_rig_restraint_k3_from_the_body_displacement():
 # bump stops are measured from the static position; quadratic damping is named
 # --------------------------------------------------------------------------------------------
 def test_mean_shift_solves_the_force_balance_of_the_mean():
-    from nifo_core.characterize_static import mean_shift
+    from nifo_core.characterize.static import mean_shift
 
     t = np.linspace(0.0, 20.0, 20_001)
     z = 0.006 * np.sin(2 * np.pi * 1.3 * t)           # zero-mean: measured from its mean

@@ -25,9 +25,9 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def _checkpoint(path: Path) -> Path:
-    from nifo_core.describing import make_term
-    from nifo_core.nifo import StreamingNifo
-    from nifo_core.spectral import SpectralSettings
+    from nifo_core.kinds.describing import make_term
+    from nifo_core.nifo.identify import StreamingNifo
+    from nifo_core.signal.spectral import SpectralSettings
     from nifo_nodes.identifier import save_checkpoint
     from nifo_nodes.results import StreamStats
 

@@ -26,8 +26,8 @@ FS = 250.0
 def test_result_bag_recorded_from_the_pipeline_decodes_with_mcap_ros2_support(tmp_path):
     from nifo.io.loader import save_record
     from nifo.io.modelfile import write_model_spec
-    from nifo_core.describing import make_term
-    from nifo_core.simulate import SimConfig, preset, simulate
+    from nifo_core.kinds.describing import make_term
+    from nifo_core.simulate.quarter_car import SimConfig, preset, simulate
     from nifo_nodes.launcher import claim_domain_id
 
     sim = simulate(SimConfig(strut=preset("paper_deadzone"), duration_s=30.0, fs_hz=FS), rng=5)

@@ -172,7 +172,7 @@ def test_the_main_job_gets_t21_within_2_percent_and_2_degrees_and_the_knee_withi
 
 @pytest.mark.slow
 def test_the_main_job_model_gets_the_play_the_knee_and_the_body_within_10_percent(sample_run):
-    """model.json — what the user takes away — holds the output-error refined model (nifo_core.refine):
+    """model.json — what the user takes away — holds the output-error refined model (nifo_core.predict.refine):
     NIFO's step-1 play coefficient is +20 % (noise through z); refined, every parameter is close."""
     from nifo.io.results import read_model
 

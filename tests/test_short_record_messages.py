@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from nifo_core.errors import RecordTooShortError
-from nifo_core.record import Record
-from nifo_core.restoring import restoring_force
+from nifo_core.signal.record import Record
+from nifo_core.characterize.restoring import restoring_force
 
 
 def test_a_record_too_short_to_integrate_is_named():

@@ -20,11 +20,11 @@ import numpy as np
 import pytest
 
 from nifo.io.loader import load_record
-from nifo_core.describing import make_term
-from nifo_core.integrate import IntegrationBand
-from nifo_core.model import IdentifiedModel, predict_body
-from nifo_core.nifo import identify_nifo
-from nifo_core.spectral import SpectralSettings
+from nifo_core.kinds.describing import make_term
+from nifo_core.signal.integrate import IntegrationBand
+from nifo_core.predict.model import IdentifiedModel, predict_body
+from nifo_core.nifo.identify import identify_nifo
+from nifo_core.signal.spectral import SpectralSettings
 
 PERIOD = 8192
 COLUMNS = {"body_disp": "ym", "force": "um@{name:_ym_=_um_}", "spindle_accel": "fixed"}

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from nifo_core.describing import Term
+from nifo_core.kinds.describing import Term
 from nifo_core.errors import ConfigError
-from nifo_core.simulate import (PRESETS, ChirpRoad, RandomRoad, SensorNoise, SimConfig, StrutForce, preset,
+from nifo_core.simulate.quarter_car import (PRESETS, ChirpRoad, RandomRoad, SensorNoise, SimConfig, StrutForce, preset,
                                 simulate)
-from nifo_core.vehicle import QuarterCar
+from nifo_core.simulate.vehicle import QuarterCar
 
 #: one of every kind and side, at levels that a 2.5 mm road exercises
 EVERY_FORM = (

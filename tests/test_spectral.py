@@ -6,9 +6,9 @@ from hypothesis import given, settings, strategies as st
 from scipy import signal
 
 from nifo_core.errors import ConfigError, InputError, RecordTooShortError
-from nifo_core.frf import (bound_factor, coherence, condition_number, h1, h2, mimo_fit, mimo_h1, multiple_coherence,
+from nifo_core.signal.frf import (bound_factor, coherence, condition_number, h1, h2, mimo_fit, mimo_h1, multiple_coherence,
                             partial_coherence, white_noise_floor)
-from nifo_core.spectral import CrossSpectralAccumulator, SpectralSettings, auto_spectrum, cross_spectra
+from nifo_core.signal.spectral import CrossSpectralAccumulator, SpectralSettings, auto_spectrum, cross_spectra
 
 FS = 600.0
 SMALL = SpectralSettings(block=256, overlap=0.5, window="hann")
@@ -250,7 +250,7 @@ def test_bound_factor_is_students_t_of_the_fits_degrees_of_freedom():
 
 
 def test_two_input_solve_in_closed_form_equals_the_eigendecomposition_on_full_singular_and_zero_lines():
-    from nifo_core import frf
+    from nifo_core.signal import frf
 
     rng = np.random.default_rng(0)
     x = rng.normal(size=(300, 2, 8)) + 1j * rng.normal(size=(300, 2, 8))

@@ -21,7 +21,7 @@ periods 2-… (first period dropped).
    and 3, rough from level 5.
 5. **No term lowers level 7's error** (``--grid``): the linear model of 3/5/7 plus one
    term at a grid of coefficients, its linear part kept as the realised one (the term adds
-   only its bounded remainder, as ``nifo_core.refine``'s linear start does); the ratio of
+   only its bounded remainder, as ``nifo_core.predict.refine``'s linear start does); the ratio of
    each level's NMSE to the linear model's. Four periods per level (one transient).
 
 Run: ``python tools/f16_linear_floor.py [--grid]`` (about 1 min; ``--grid`` about 5 min on one core).
@@ -43,10 +43,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import f16_predict as F  # noqa: E402
 
-from nifo_core.describing import Term  # noqa: E402
-from nifo_core.linear_part import absorbed_rates, fit_rational  # noqa: E402
-from nifo_core.model import IdentifiedModel, predict_body  # noqa: E402
-from nifo_core.nifo import identify_nifo  # noqa: E402
+from nifo_core.kinds.describing import Term  # noqa: E402
+from nifo_core.predict.linear_part import absorbed_rates, fit_rational  # noqa: E402
+from nifo_core.predict.model import IdentifiedModel, predict_body  # noqa: E402
+from nifo_core.nifo.identify import identify_nifo  # noqa: E402
 
 GRID = {"backlash": ("deadband", (1e-4, 1.4e-4, 3e-4), (-3000.0, 3000.0, 10000.0)),
         "clearance": ("gap", (2e-5, 1e-4), (-3000.0, 3000.0)),

@@ -48,12 +48,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from nifo.io.loader import load_record  # noqa: E402
-from nifo_core.describing import make_term  # noqa: E402
-from nifo_core.integrate import IntegrationBand, integrator_taps  # noqa: E402
-from nifo_core.nifo import identify_nifo  # noqa: E402
-from nifo_core.record import Record  # noqa: E402
-from nifo_core.frf import h1  # noqa: E402
-from nifo_core.spectral import SpectralSettings, cross_spectra  # noqa: E402
+from nifo_core.kinds.describing import make_term  # noqa: E402
+from nifo_core.signal.integrate import IntegrationBand, integrator_taps  # noqa: E402
+from nifo_core.nifo.identify import identify_nifo  # noqa: E402
+from nifo_core.signal.record import Record  # noqa: E402
+from nifo_core.signal.frf import h1  # noqa: E402
+from nifo_core.signal.spectral import SpectralSettings, cross_spectra  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "f16"
 PERIOD = 8192
@@ -130,11 +130,11 @@ def choose_gap(recs: dict[int, Record], mask: np.ndarray, band: IntegrationBand 
 
 
 def characterize_level(rec: Record, band: IntegrationBand = BAND) -> dict:
-    """Restoring-force characterization (METHOD.md §5, :func:`nifo_core.characterize.characterize`) of one level.
+    """Restoring-force characterization (docs/method.md §5, :func:`nifo_core.characterize.automatic.characterize`) of one level.
 
     Returns the suggested terms and the best clearance gap among the candidates.
     """
-    from nifo_core.characterize import characterize
+    from nifo_core.characterize.automatic import characterize
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -194,7 +194,7 @@ def study(data: Path = DATA) -> dict:
             if levels == (3, 5, 7) and g == gap:
                 curves["NIFO L3+L5+L7"] = rj.t21
                 best_joint = rj
-    # terms chosen by the restoring-force characterization of level 7 alone (nifo_core.characterize)
+    # terms chosen by the restoring-force characterization of level 7 alone (nifo_core.characterize.automatic)
     char = characterize_level(recs[7])
     for label, terms in (("characterization: " + ", ".join(t["kind"] for t in char["terms"]), char["terms"]),
                          ("characterization's best clearance", clearance(char["clearance_gap"]))):

@@ -9,14 +9,14 @@ nonlinearbenchmark.org (``../shared/data/f16``): ``FullMSine`` levels 1, 3, 5, 7
 
 For every identification set (3/5/7 → all; leave-one-out: three levels → the
 fourth) and every model form, the model is identified with NIFO
-(:func:`nifo_core.nifo.identify_nifo`: one block per period, boxcar,
+(:func:`nifo_core.nifo.identify.identify_nifo`: one block per period, boxcar,
 integration band 1.5-40 Hz, analysis band 2-15 Hz; the transient first
 period left out of the spectra) and made into an
-:class:`~nifo_core.model.IdentifiedModel` with the linear part the library
-selects (:func:`nifo_core.linear_part.select_linear_part`) or a rational model
+:class:`~nifo_core.predict.model.IdentifiedModel` with the linear part the library
+selects (:func:`nifo_core.predict.linear_part.select_linear_part`) or a rational model
 of fixed order; the linear baseline is the same with no nonlinear term
 (identified on the same levels, same linear-part choice). Every level is then
-predicted in the time domain (:func:`nifo_core.model.predict_body`) from its
+predicted in the time domain (:func:`nifo_core.predict.model.predict_body`) from its
 measured wing acceleration, from rest, over the whole record (the test also
 started from rest), and scored on
 
@@ -32,7 +32,7 @@ excitation, never used to identify or to choose anything — the check that a
 model did not just learn the one multisine realisation it was fitted on.
 
 ``--paths`` adds every form with backlash, clearance or saturation terms through its own **feedback paths** on
-the linear model's poles (:mod:`nifo_core.feedback_paths`, ``nifo identify --feedback-paths``): the interface
+the linear model's poles (:mod:`nifo_core.predict.feedback_paths`, ``nifo identify --feedback-paths``): the interface
 force reaching the payload through the payload's modes instead of through one constant coefficient.
 
 Run: ``python tools/f16_predict.py [--data DIR] [--out DIR] [--json FILE] [--quick] [--plays] [--paths] [--refine P]
@@ -57,14 +57,14 @@ sys.path.insert(0, str(ROOT))
 
 from nifo.io.loader import load_record  # noqa: E402
 from nifo.io.results import write_model  # noqa: E402
-from nifo_core.describing import make_term  # noqa: E402
+from nifo_core.kinds.describing import make_term  # noqa: E402
 from nifo_core.errors import NifoError  # noqa: E402
-from nifo_core.feedback_paths import PATH_KINDS  # noqa: E402
-from nifo_core.integrate import IntegrationBand  # noqa: E402
-from nifo_core.model import IdentifiedModel, predict_body  # noqa: E402
-from nifo_core.nifo import identify_nifo  # noqa: E402
-from nifo_core.prediction_error import band_nmse  # noqa: E402
-from nifo_core.spectral import SpectralSettings  # noqa: E402
+from nifo_core.predict.feedback_paths import PATH_KINDS  # noqa: E402
+from nifo_core.signal.integrate import IntegrationBand  # noqa: E402
+from nifo_core.predict.model import IdentifiedModel, predict_body  # noqa: E402
+from nifo_core.nifo.identify import identify_nifo  # noqa: E402
+from nifo_core.predict.prediction_error import band_nmse  # noqa: E402
+from nifo_core.signal.spectral import SpectralSettings  # noqa: E402
 
 DATA = Path(os.environ.get("NIFO_SHARED_DATA", ROOT.parent / "shared" / "data")) / "f16"
 LEVELS = (1, 3, 5, 7)
@@ -145,9 +145,9 @@ def predict_levels(model, full: dict, row: dict, sweeps: dict | None = None) -> 
 
 
 def refine(model, linear, full: dict, ids, periods: int, log=print):
-    """Output-error refinement (:func:`nifo_core.refine.refine_model`) on the first ``periods`` periods of the
+    """Output-error refinement (:func:`nifo_core.predict.refine.refine_model`) on the first ``periods`` periods of the
     identification levels, from rest, scored as the study scores (2-15 Hz, period average, first period dropped)."""
-    from nifo_core.refine import refine_model
+    from nifo_core.predict.refine import refine_model
 
     return refine_model(model, _first(full, ids, periods), linear=linear, **_SCORED)
 
@@ -164,16 +164,16 @@ def _first(full: dict, ids, periods: int) -> list:
 def joint_linear(linear, full: dict, ids, periods: int):
     """The linear model's rational residues refined alone by output error (its poles kept): the linear
     baseline of :func:`joint`, on the first ``periods`` periods of the identification levels (a Refinement)."""
-    from nifo_core.refine import refine_model
+    from nifo_core.predict.refine import refine_model
 
     return refine_model(linear, _first(full, ids, periods), linear_residues=True, max_iterations=40, **_SCORED)
 
 
 def joint(model, lin, full: dict, ids, periods: int, log=print):
     """The linear part identified jointly with the terms by output error (``--joint``):
-    :func:`nifo_core.refine.refine_jointly` on ``lin`` (:func:`joint_linear`) and the first ``periods``
+    :func:`nifo_core.predict.refine.refine_jointly` on ``lin`` (:func:`joint_linear`) and the first ``periods``
     periods of the identification levels, scored as the study scores. Returns the refined nonlinear model."""
-    from nifo_core.refine import refine_jointly
+    from nifo_core.predict.refine import refine_jointly
 
     t0 = time.perf_counter()
     nl = refine_jointly(model, lin, _first(full, ids, periods), **_SCORED)
@@ -184,9 +184,9 @@ def joint(model, lin, full: dict, ids, periods: int, log=print):
 
 def path_row(linear, spec, steady: dict, full: dict, ids, row: dict, sweeps: dict | None) -> dict:
     """The terms of ``spec`` through their own feedback paths on ``linear``'s poles (``--paths``,
-    :func:`nifo_core.feedback_paths.path_model`): fitted on the steady periods of the identification levels, the
+    :func:`nifo_core.predict.feedback_paths.path_model`): fitted on the steady periods of the identification levels, the
     ridge chosen on their prediction from rest (scored as the study scores); a row (source "paths")."""
-    from nifo_core.feedback_paths import path_model
+    from nifo_core.predict.feedback_paths import path_model
 
     t0 = time.perf_counter()
     prow = {**row, "source": "paths", "nmse": {}, "errors": {}, "sweep": {}}

@@ -33,7 +33,7 @@ from fuzz_engine import Tally, fuzz_bag, fuzz_metadata  # noqa: E402
 
 
 def _record(n: int, seed: int):
-    from nifo_core.record import Record
+    from nifo_core.signal.record import Record
 
     rng = np.random.default_rng(seed)
     return Record(600.0, rng.standard_normal(n), 0.1 * rng.standard_normal(n), 1e-3 * rng.standard_normal(n),

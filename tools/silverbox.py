@@ -29,7 +29,7 @@ Two metrics per predicted level:
 - the benchmark's output: NMSE of the displacement y on the period-averaged
   steady state (the transient periods and the model's first period dropped,
   mean removed: DC is neither excited nor identified), from the same model and
-  engine (:func:`nifo_core.model.predict_body`). Beside it the best linear
+  engine (:func:`nifo_core.predict.model.predict_body`). Beside it the best linear
   baseline there is: the non-parametric FRF measured at the identification
   level applied line by line (exact for periodic data).
 
@@ -57,8 +57,8 @@ sys.path.insert(0, str(ROOT))
 from nifo.cli import main as nifo  # noqa: E402
 from nifo.io.loader import load_record  # noqa: E402
 from nifo.io.results import read_model  # noqa: E402
-from nifo_core.model import predict_body  # noqa: E402
-from nifo_core.record import Record  # noqa: E402
+from nifo_core.predict.model import predict_body  # noqa: E402
+from nifo_core.signal.record import Record  # noqa: E402
 
 DATA = Path(os.environ.get("NIFO_SHARED_DATA", ROOT.parent / "shared" / "data")) / "silverbox_multilevel"
 LEVELS = (5, 20, 50, 100, 150)

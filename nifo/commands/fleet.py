@@ -98,7 +98,7 @@ def _check(args) -> None:
     check_output(args.out)   # refuse a file or a folder nifo did not write before any work
 
 
-def run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> dict:
     from nifo.fleet.cluster import FleetError, dashboard_line, fleet_client
     from nifo.fleet.manifest import load_fleet_input
     from nifo.fleet.runner import FleetSettings, run_fleet

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 
 from nifo_core.errors import NifoError
-from nifo_core.record import Record
+from nifo_core.signal.record import Record
 
 from nifo.io.loader import add_input_arguments, input_options, load_record
 from nifo.io.provenance import add_system_argument, system_of
@@ -68,7 +68,7 @@ def describe(rec: Record, *, block: int | None = None, units: str = "m/s²") -> 
     return lines
 
 
-def run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> dict:
     opts = input_options(args)
     first_code, files = 0, []
     for path in args.data:

@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import sys
+
+from nifo.io.bag_replay import replay_bag
+from nifo_core.errors import ConfigError
 
 HELP = "publish a recorded bag into the ROS 2 graph (live nodes see it as the vehicle)"
 DESCRIPTION = """\
@@ -35,17 +39,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "samples (subscribers must be reliable: integrator input_reliability:=reliable)")
 
 
-def run(args: argparse.Namespace) -> int:
-    import sys
-
-    try:
+def run(args: argparse.Namespace) -> dict:
+    try:  # rclpy is optional (nifo[ros]): imported here so the CLI starts without ROS
         import rclpy
         from rclpy.signals import SignalHandlerOptions
     except ImportError:
-        from nifo_core.errors import ConfigError
-
         raise ConfigError("rclpy is not installed", hint="pip install 'nifo[ros]' or source a ROS 2 setup") from None
-    from nifo_nodes.replay import replay_bag
 
     # Python's own SIGINT handling: Ctrl-C raises KeyboardInterrupt in the publishing loop
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)

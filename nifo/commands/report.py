@@ -27,7 +27,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="do not read the data again for the transmissibility-across-levels figure")
 
 
-def run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> dict:
     from nifo.io.atomic import check_output
     from nifo.viz.report_html import write_report
     from nifo.viz.results import read_results

@@ -2,8 +2,8 @@
 
 With no DATA, the bundled sample (``bags/sample/*``: a simulated quarter car
 at two road levels). Steps, each into its own subdirectory of ``--out``
-(default ``results/``), by calling the commands' own functions with the same
-options their command lines take:
+(default ``results/``), by the steps of :mod:`nifo.pipeline` (:func:`nifo.pipeline.job.run_job`), each
+with its own command line's defaults and this command's input and settings options:
 
 0. the settings, chosen once from the data where not given (the excitation's period and transient, the
    excited band, blocks, integration band: :mod:`nifo.settings`), printed with their reasons and passed to
@@ -23,15 +23,16 @@ options their command lines take:
 from __future__ import annotations
 
 import argparse
-import importlib
-import sys
-import time
 from pathlib import Path
 
-from nifo.io.loader import add_input_arguments, input_options
+from nifo.io.loader import add_input_arguments
 from nifo.io.provenance import add_system_argument
-from nifo.settings import add_settings_arguments, resolve
-from nifo_core.errors import InputError, NifoError
+from nifo.pipeline.job import loop_available, run_job
+from nifo.pipeline.options import RunOptions
+from nifo.settings import add_settings_arguments
+from nifo_core.errors import InputError
+
+__all__ = ["add_arguments", "run", "sample_data", "loop_available", "SAMPLE_DIR"]
 
 HELP = "the whole job on the bundled sample (or given data): characterize, identify, predict, loop, report"
 DESCRIPTION = __doc__.split("\n", 1)[1].strip() if __doc__ else HELP
@@ -62,217 +63,6 @@ def sample_data() -> list[Path]:
     return found
 
 
-def _command(name: str):
-    return importlib.import_module(f"nifo.commands.{name}")
-
-
-def _input_dests() -> list[str]:
-    """The attribute names :func:`add_input_arguments` and :func:`add_settings_arguments` define, and --system's."""
-    p = argparse.ArgumentParser(add_help=False)
-    add_input_arguments(p)
-    add_settings_arguments(p)
-    return [a.dest for a in p._actions] + ["system"]
-
-
-def _call(name: str, argv: list[str], given: argparse.Namespace | None = None) -> dict:
-    """Run one command's own ``run`` on its own parser (same defaults as its command line), with the input
-    options of ``given`` (``nifo run``'s own --columns, --topics, ...) passed through; its summary dict."""
-    mod = _command(name)
-    parser = argparse.ArgumentParser(prog=f"nifo {name}")
-    mod.add_arguments(parser)
-    args = parser.parse_args(argv)
-    if given is not None:
-        for dest in _input_dests():
-            if hasattr(args, dest) and hasattr(given, dest):
-                setattr(args, dest, getattr(given, dest))
-    out = mod.run(args)
-    return out if isinstance(out, dict) else {"exit_code": int(out or 0)}
-
-
-def _banner(step: int, total: int, text: str) -> None:
-    print(f"\n== [{step}/{total}] {text}", flush=True)
-
-
-def _levels(char_dir: Path, data: list[Path]) -> list[Path]:
-    """DATA ordered by excitation level (RMS of the relative displacement z from characterize.json)."""
-    import json
-
-    recs = json.loads((char_dir / "characterize.json").read_text()).get("records", [])
-    rms = {str(r.get("path")): float(r.get("z_rms_m") or 0.0) for r in recs}
-    return sorted(data, key=lambda p: rms.get(str(p), 0.0))
-
-
-def _two_step_model(ordered: list[Path], char_dir: Path,
-                    given: argparse.Namespace | None = None) -> tuple[Path, str] | None:
-    """The paper's two-step model (§3.3) when the levels call for it, else None.
-
-    The lowest and the highest level are characterized alone. The terms the
-    highest level suggests are identified on every level but the lowest (step 2);
-    the terms the lowest suggests on a different variable (a play in z where the
-    high level shows a damper knee in ż) are identified first on the lowest level,
-    where the high level's terms hardly act (step 1). Writes the model file
-    ``two_step_model.yaml`` beside characterize/ and returns it with one line
-    naming both steps.
-    """
-    import yaml
-
-    from nifo.io.modelfile import load_model_spec
-
-    base = char_dir.parent / "characterize_levels"
-    suggested = {}
-    for name, path in (("lowest", ordered[0]), ("highest", ordered[-1])):
-        _call("characterize", [str(path), "--out", str(base / name)], given)
-        suggested[name] = load_model_spec(base / name / "suggested_model.yaml").terms
-    high = list(suggested["highest"])
-    variables = {t.variable for t in high}
-    low = [t for t in suggested["lowest"] if t.variable not in variables and t.kind not in {h.kind for h in high}]
-    if not high or not low:
-        return None
-    doc = {"nifo_model": 1, "suggested_by": "nifo run (two-step from the levels)",
-           "steps": [{"name": f"{', '.join(t.kind for t in low)} on the lowest level",
-                      "nonlinearities": [t.to_dict() for t in low], "data": [str(ordered[0].resolve())]},
-                     {"name": f"{', '.join(t.kind for t in high)} on the higher level(s)",
-                      "nonlinearities": [t.to_dict() for t in high],
-                      "data": [str(p.resolve()) for p in ordered[1:]]}]}
-    path = base / "two_step_model.yaml"
-    path.write_text(yaml.safe_dump(doc, sort_keys=False))
-    text = (f"step 1: {' + '.join(t.label for t in low)} on {ordered[0].name} (the lowest level); step 2: "
-            f"{' + '.join(t.label for t in high)} on {', '.join(p.name for p in ordered[1:])}")
-    return path, text
-
-
-def loop_available() -> bool:
-    """Whether ``nifo loop`` is part of this build."""
-    try:
-        _command("loop")
-    except ModuleNotFoundError as err:
-        if err.name in ("nifo.commands.loop", "nifo_core.loop"):
-            return False
-        raise
-    return True
-
-
-def run(args: argparse.Namespace) -> int:
-    from nifo.io.atomic import staged_run
-
+def run(args: argparse.Namespace) -> dict:
     data = [Path(p) for p in args.data] or sample_data()
-    # all old or all new: the old --out is kept aside until the run succeeds (INCOMPLETE marks a killed run)
-    with staged_run(args.out) as out:
-        return _run(args, data, out)
-
-
-def _with_settings(args: argparse.Namespace, st) -> argparse.Namespace:
-    """``args`` with the settings chosen once from the data filled in where not given, so every step uses them."""
-    out = argparse.Namespace(**vars(args))
-    if out.block is None and out.window is None and out.overlap is None:
-        out.block, out.overlap, out.window = st.spectral.block, st.spectral.overlap, st.spectral.window
-    if out.band is None and st.band is not None:
-        out.band = [st.band.f_lo_hz, st.band.f_hi_hz]
-    if out.freq_range is None:
-        out.freq_range = list(st.analysis_band_hz)
-    if out.period_samples is None and st.period_samples:
-        out.period_samples = st.period_samples
-        if out.skip_periods is None and out.skip_seconds is None:
-            out.skip_periods = st.skip_periods
-    return out
-
-
-def _run(args: argparse.Namespace, data: list[Path], out: Path) -> dict:
-    t0 = time.monotonic()
-    dirs = {k: out / k for k in ("characterize", "identify", "predict", "loop", "report", "recording")}
-    do_loop = not args.no_loop and loop_available()
-    total = 5 + (1 if do_loop else 0) + (0 if args.no_recording else 1)
-    step, timings, notes, failed = 0, {}, [], None
-
-    def begin(text: str) -> float:
-        nonlocal step
-        step += 1
-        _banner(step, total, text)
-        return time.monotonic()
-
-    t = begin(f"settings from the data of {len(data)} record(s)")
-    st = resolve(data, args, opts=input_options(args))
-    print("\n".join("  " + line for line in st.describe()))
-    args = _with_settings(args, st)
-    timings["settings"] = time.monotonic() - t
-
-    t = begin(f"characterize {len(data)} record(s): restoring force, suggested model")
-    _call("characterize", [*map(str, data), "--out", str(dirs["characterize"])], args)
-    timings["characterize"] = time.monotonic() - t
-    model = dirs["characterize"] / "suggested_model.yaml"
-    ordered = _levels(dirs["characterize"], data)
-
-    two = _two_step_model(ordered, dirs["characterize"], args) if len(ordered) >= 2 else None
-    refine = [] if getattr(args, "no_refine", False) else ["--refine", "--refine-seconds", "60"]
-    if two is not None:
-        model, text = two
-        t = begin(f"identify (NIFO) in two steps: {text}")
-        print(text)
-        _call("identify", ["--model", str(model), "--out", str(dirs["identify"]), *refine], args)
-        notes.append(f"Two-step model chosen from the data: {text}")
-    else:
-        t = begin(f"identify (NIFO) on {', '.join(p.name for p in ordered)} with the suggested model")
-        _call("identify", [*map(str, ordered), "--model", str(model), "--out", str(dirs["identify"]), *refine], args)
-    timings["identify"] = time.monotonic() - t
-
-    results = [dirs["characterize"], dirs["identify"]]
-    final = dirs["identify"]
-    if do_loop:
-        t = begin("loop: from the linear model, what the data need; error before and after")
-        try:
-            _call("loop", [*map(str, ordered), "--out", str(dirs["loop"]),
-                           *([] if refine else ["--no-refine"])], args)
-            results.append(dirs["loop"])
-            if (dirs["loop"] / "model.json").is_file():
-                final = dirs["loop"]
-        except NifoError as err:   # the report still shows everything else; the exit code says it failed
-            print(f"nifo run: loop failed: {err}", file=sys.stderr)
-            notes.append(f"The loop step failed: {err}")
-            failed = err
-        timings["loop"] = time.monotonic() - t
-    elif not args.no_loop:
-        notes.append("nifo loop is not available in this build: the loop step was skipped.")
-        print("nifo run: nifo loop is not available in this build: skipped", file=sys.stderr)
-
-    if (final / "model.json").is_file():
-        t = begin(f"predict every record with the final model ({final.name}/model.json) and the linear model of "
-                  f"the same data")
-        _call("predict", [*map(str, ordered), "--model", str(final), "--out", str(dirs["predict"])], args)
-        timings["predict"] = time.monotonic() - t
-        results.append(dirs["predict"])
-    else:
-        why = (f"no model.json in {final.name}/ (no linear part could be fitted; see its warnings): the predict "
-               f"step was skipped")
-        notes.append(why[0].upper() + why[1:] + ".")
-        print(f"nifo run: {why}", file=sys.stderr)
-        total -= 1
-
-    from nifo.viz.results import read_results
-
-    read = read_results(results)
-    rrd = dirs["recording"] / "nifo.rrd"
-    t = begin("report: one self-contained HTML file")
-    from nifo.viz.report_html import write_report
-
-    report = write_report(read, dirs["report"] / "report.html", title="nifo run: " + ", ".join(p.name for p in data),
-                          notes=notes, recording=None if args.no_recording else str(rrd))
-    timings["report"] = time.monotonic() - t
-    if not args.no_recording:
-        t = begin("recording: Rerun .rrd with the live layout")
-        from nifo.viz.offline import save_recording
-
-        save_recording(read, rrd)
-        timings["recording"] = time.monotonic() - t
-
-    took = time.monotonic() - t0
-    print(f"\nnifo run finished in {took:.0f} s (" + ", ".join(f"{k} {v:.0f} s" for k, v in timings.items()) + ")")
-    print("results:")
-    for r in read:
-        print(f"  {r.kind:<13} {r.path}/")
-    print(f"  {'report':<13} {report}   <- open in a browser")
-    if not args.no_recording:
-        print(f"  {'recording':<13} {rrd}   <- rerun {rrd}")
-    return {"out": str(out), "took_s": took, "timings_s": timings, "notes": notes, "report": str(report),
-            "final_model": str(final / "model.json"), "settings": st.to_dict(),
-            "recording": None if args.no_recording else str(rrd), "results": {r.kind: str(r.path) for r in read},
-            "exit_code": 0 if failed is None else failed.exit_code}
+    return run_job(RunOptions.from_args(args, data=data))

@@ -15,9 +15,9 @@ import numpy as np
 
 from nifo.io.atomic import check_output, staged_file
 from nifo.progress import Progress
-from nifo_core.describing import make_term
+from nifo_core.kinds.describing import make_term
 from nifo_core.errors import ConfigError
-from nifo_core.simulate import (PRESETS, ChirpRoad, RandomRoad, SensorNoise, SimConfig, Simulation, StrutForce,
+from nifo_core.simulate.quarter_car import (PRESETS, ChirpRoad, RandomRoad, SensorNoise, SimConfig, Simulation, StrutForce,
                                 preset, simulate)
 
 HELP = "simulate a nonlinear quarter car and write the record and its truth"
@@ -129,7 +129,7 @@ def _summary(sim: Simulation, out: Path) -> str:
     ])
 
 
-def run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> dict:
     config = config_from_args(args)
     from nifo.io.loader import check_record_output, save_record  # imported late: the I/O stack is heavy
 

@@ -31,7 +31,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     rr.script_add_args(p)
 
 
-def run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> dict:
     import rerun as rr
 
     from nifo.io.atomic import check_output

@@ -1,10 +1,11 @@
 """Per-bag partials on disk, keyed by the bag's content and the settings (restart-safe).
 
-Key = SHA-256 of (the hash of the bag's bytes, :func:`content_hash`: every
-file of a rosbag2 folder by relative path, or the file) and (the JSON of
-everything that changes the partial: terms, spectral settings, integration
-band, tire patch, analysis band, chunk length, input options,
-:data:`CACHE_FORMAT`). Beside the partials, small JSON notes keep the bags'
+Key = SHA-256 (first 40 hex digits) of two hashes: the bag's content hash,
+:func:`content_hash` — XXH3-128 (``xxhash``, a required dependency) of every
+file of a rosbag2 folder by relative path, or of the file — and
+:func:`settings_hash`, the SHA-256 of the JSON of everything that changes the
+partial (terms, spectral settings, integration band, tire patch, analysis
+band, chunk length, input options, :data:`CACHE_FORMAT`). Beside the partials, small JSON notes keep the bags'
 rates, lengths and channels (one note per vehicle whose bags were all in one
 task, key: their content hashes and the input options; else one per bag), so
 a rerun fixes every group's set-up, and so finds the partials' keys, without
@@ -27,6 +28,7 @@ from pathlib import Path
 from typing import Mapping
 
 import numpy as np
+import xxhash
 
 __all__ = ["content_hash", "settings_hash", "cache_key", "load_partial", "store_partial", "load_note", "store_note",
            "CACHE_FORMAT"]
@@ -37,11 +39,7 @@ _CHUNK = 1 << 22
 
 
 def _hasher():
-    """XXH3-128 (xxhash, ~20 GB/s) when installed, else SHA-256 (~2 GB/s): (name, hash object)."""
-    try:
-        import xxhash
-    except ImportError:
-        return "sha256", hashlib.sha256()
+    """XXH3-128 (xxhash, ~20 GB/s): (name, hash object)."""
     return "xxh3-128", xxhash.xxh3_128()
 
 

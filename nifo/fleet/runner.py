@@ -32,10 +32,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from nifo.fleet.cache import settings_hash
 from nifo.fleet.manifest import BagEntry
 from nifo.fleet.tasks import (GroupSetup, batch_status, characterize_group, compute_batch, group_setup, loop_group,
                               merge_outcomes, solve_group)
+from nifo.io.modelfile import load_model_spec
 from nifo.progress import Progress
+from nifo.settings import resolve
 from nifo_core.errors import ConfigError
 from nifo_core.fleet import Estimate, HealthSettings, assess_health, batch_plan, reduction_plan
 
@@ -105,9 +108,6 @@ class FleetRun:
 def _model_cfgs(entries: list[BagEntry]) -> dict[Path, tuple]:
     """Per model file, its spec and the settings it gives merged with the defaults (one fleet, one set of settings:
     a vehicle's bags are compared on the same blocks and bands)."""
-    from nifo.io.modelfile import load_model_spec
-    from nifo.settings import resolve
-
     out = {}
     for model in dict.fromkeys(e.model for e in entries):
         spec = load_model_spec(model)
@@ -135,10 +135,14 @@ def base_setups(entries: list[BagEntry], *, opts: dict, chunk_samples: int) -> d
 
 def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSettings = FleetSettings(),
               quiet: bool = False) -> FleetRun:
-    """Run the fleet on ``client`` (module docstring); failed bags are recorded, never raised."""
+    """Run the fleet on ``client`` (module docstring); failed bags are recorded, never raised.
+
+    Long because the scheduler's state (which task holds which bag's partial, which group still waits for which
+    bag, each group's fixed set-up) is shared by the ``submit`` and ``group_ready`` closures and the completion
+    loop that drives them; splitting it further means turning that state into a class.
+    """
     from distributed import as_completed
 
-    from nifo.fleet.cache import settings_hash
 
     s = settings
     bases = base_setups(entries, opts=opts, chunk_samples=s.chunk_samples)
@@ -249,6 +253,16 @@ def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSet
                 waiting[g].discard(i)
                 if not waiting[g]:
                     group_ready(g)
+    groups = _collect(solves, loops, chars, members)
+    del solves, loops, chars, holder, status
+    _health(groups, s.health)
+    return FleetRun(bags=rows, groups=groups, settings=s,
+                    setups={g: st.cache_settings() for g, st in final_setup.items() if st is not None})
+
+
+def _collect(solves: dict, loops: dict, chars: dict, members: dict) -> dict:
+    """Every group's result in the manifest's order (not completion order), with its loop and characterization;
+    a group with no usable bag at all says so."""
     groups = {g: _result(f) for g, f in solves.items()}
     for g, f in loops.items():
         lr = _result(f)
@@ -257,14 +271,10 @@ def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSet
         cr = _result(f)
         groups[g]["characterization"] = cr if "text" in cr else {
             "ok": False, "text": f"characterization not run: {cr['reason']}", "suggested": []}
-    del solves, loops, chars, holder, status
-    for g in members:   # groups with no usable bag at all
+    for g in members:
         if g not in groups:
             groups[g] = {"ok": False, "reason": "no usable bag", "bags": []}
-    groups = {g: groups[g] for g in members}     # manifest order, not completion order
-    _health(groups, s.health)
-    return FleetRun(bags=rows, groups=groups, settings=s,
-                    setups={g: st.cache_settings() for g, st in final_setup.items() if st is not None})
+    return {g: groups[g] for g in members}
 
 
 def _result(fut) -> dict:

@@ -20,9 +20,11 @@ from typing import Sequence
 
 import numpy as np
 
-from nifo_core.describing import Term
-from nifo_core.simulate import RandomRoad, SimConfig, StrutForce, simulate
-from nifo_core.vehicle import QuarterCar
+from nifo.io.loader import save_record
+from nifo.io.modelfile import write_model_spec
+from nifo_core.kinds.describing import Term
+from nifo_core.simulate.quarter_car import RandomRoad, SimConfig, StrutForce, simulate
+from nifo_core.simulate.vehicle import QuarterCar
 
 __all__ = ["write_simulated_fleet", "NOMINAL_KNEE", "NOMINAL_DEADZONE"]
 
@@ -39,8 +41,6 @@ def _vehicle(rng: np.random.Generator, spread: float, *, worn_loss: float, knee_
 
 def _write_bag(job: dict) -> str:
     """Simulate one bag and write it with its truth (module-level: runs on a worker too)."""
-    from nifo.io.loader import save_record
-
     path = Path(job["path"])
     truth = path.with_name(path.name + ".truth.json")
     if path.exists() and truth.exists():     # written by an earlier, interrupted call (truth comes last)
@@ -64,8 +64,6 @@ def write_simulated_fleet(root: str | Path, *, n_vehicles: int = 20, bags_per_ve
     ``mapper(func, jobs)`` runs the bag simulations (default: the built-in ``map``, in this
     process; e.g. ``lambda f, xs: client.gather(client.map(f, xs))`` on a Dask cluster).
     """
-    from nifo.io.modelfile import write_model_spec
-
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)

@@ -25,10 +25,20 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from nifo_core.describing import Term
-from nifo_core.errors import NifoError
-from nifo_core.integrate import IntegrationBand
-from nifo_core.spectral import SpectralSettings
+from nifo.fleet.cache import (cache_key, content_hash, load_note, load_partial, settings_hash, store_note,
+                              store_partial)
+from nifo.io.loader import detect_format, iter_record_chunks, load_record
+from nifo.pipeline.identify import check_usable, summarize
+from nifo_core.characterize.automatic import characterize
+from nifo_core.kinds.describing import Term
+from nifo_core.errors import NifoError, RecordTooShortError
+from nifo_core.fleet import interval_halfwidth, standard_error
+from nifo_core.signal.integrate import IntegrationBand, default_band
+from nifo_core.predict.linear_part import BODY_FIT_LIMIT, nominal_linear_part
+from nifo_core.loop.closing import LoopSettings, close_loop
+from nifo_core.predict.model import IdentifiedModel
+from nifo_core.nifo.identify import StreamingNifo, nifo_from_spectra, static_fits
+from nifo_core.signal.spectral import SpectralSettings
 
 __all__ = ["GroupSetup", "coefficient_specs", "bag_setup", "group_setup", "bag_coefficients", "compute_batch",
            "batch_status", "pick", "merge_outcomes", "solve_group", "loop_group", "characterize_group"]
@@ -99,9 +109,6 @@ def _coefficients(res, *, body_first: bool = False) -> dict[str, float]:
     within the limit whatever the rational fit gives) at a hundredth of the cost
     (the rational fit tries every order up to 40 by vector fitting: ~0.4 s per bag).
     """
-    from nifo_core.linear_part import BODY_FIT_LIMIT
-    from nifo_core.model import IdentifiedModel
-
     names = [n for n, _, _ in coefficient_specs(res.terms)]
     body = None
     if body_first:
@@ -131,8 +138,6 @@ def bag_setup(base: GroupSetup, probe: dict) -> GroupSetup:
     group's shortest bag; equal whenever every bag is longer than 64 s, else the
     client recomputes the bags that differ).
     """
-    from nifo_core.integrate import default_band
-
     fs = probe["fs_hz"]
     band = base.band or default_band(fs, probe["n_samples"] / fs)
     tp = probe["has_tire_patch"] if base.with_tire_patch is None else base.with_tire_patch
@@ -140,9 +145,6 @@ def bag_setup(base: GroupSetup, probe: dict) -> GroupSetup:
 
 
 def _accumulate(chunks, path: str, setup: GroupSetup):
-    from nifo_core.errors import RecordTooShortError
-    from nifo_core.nifo import StreamingNifo
-
     one = None
     n = 0
     for chunk in chunks:
@@ -171,8 +173,6 @@ def _band_spectra(one, setup: GroupSetup):
 
 def _coefficients_alone(spec, setup: GroupSetup) -> dict[str, float]:
     """One bag's coefficients by the full NIFO solve of its band spectra (NaN where it cannot give them)."""
-    from nifo_core.nifo import nifo_from_spectra
-
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -189,13 +189,10 @@ def bag_coefficients(specs: list, setup: GroupSetup) -> list[dict[str, float]]:
     ``specs``: the bags' :func:`_band_spectra` (one set-up). The values are those of
     ``nifo identify`` on each bag alone (the static fit and the one-mass body use only
     the analysis band's lines): the static fits of all bags are solved as one batch
-    (:func:`nifo_core.nifo.static_fits`, 0.1 instead of ~1 ms per bag), then each
+    (:func:`nifo_core.nifo.identify.static_fits`, 0.1 instead of ~1 ms per bag), then each
     bag's body (:func:`nominal_linear_part`); a bag whose body is not physical or
     misfits T21 takes the full solve and the automatic choice of its linear part.
     """
-    from nifo_core.linear_part import BODY_FIT_LIMIT, nominal_linear_part
-    from nifo_core.nifo import static_fits
-
     if not specs:
         return []
     names = [n for n, _, _ in coefficient_specs(setup.terms)]
@@ -230,7 +227,6 @@ def group_setup(base: GroupSetup, probes: dict[int, dict], *, label: str) -> tup
     """
     from collections import Counter
 
-    from nifo_core.integrate import default_band
 
     if not probes:
         return None, {}
@@ -244,9 +240,6 @@ def group_setup(base: GroupSetup, probes: dict[int, dict], *, label: str) -> tup
 
 def _open(path: str, base: GroupSetup):
     """(chunk iterator, first chunk, probe: the bag's rate, length and channels) of an opened bag."""
-    from nifo.io.loader import iter_record_chunks
-    from nifo_core.errors import RecordTooShortError
-
     raw = iter_record_chunks(path, chunk_samples=base.chunk_samples, **base.opts)
     try:
         first = next(raw, None)
@@ -281,9 +274,6 @@ def _group_bags(group: tuple, base: GroupSetup, bags: list[tuple[int, str]], who
     that differ from the group's. A bag's partial is read from the cache when there
     (key: content hash and set-up), else accumulated and cached at once.
     """
-    from nifo.fleet.cache import cache_key, content_hash, load_note, settings_hash, store_note
-    from nifo.io.loader import detect_format
-
     found, failed, spent, digests = {}, {}, {}, {}
     opts_hash = settings_hash({"note": base.cache_settings()["opts"]})
     try:
@@ -357,9 +347,6 @@ def _partial(b: dict, setup: GroupSetup, cache_dir: str | None):
     """(StreamingNifo, status) of one opened or recalled bag with its set-up: from the cache, else accumulated."""
     from itertools import chain
 
-    from nifo.fleet.cache import cache_key, load_partial, settings_hash, store_partial
-    from nifo.io.loader import iter_record_chunks
-    from nifo_core.nifo import StreamingNifo
 
     setup_hash = settings_hash(setup.cache_settings())
     key = cache_key(b["hash"], setup_hash)
@@ -456,8 +443,6 @@ def pick(x: dict, part: tuple | None) -> dict:
 
 def merge_outcomes(*inputs: dict, part: tuple | None = None) -> dict:
     """Merge the usable partials of one group (``part`` of each batch given; failed bags are reported by status)."""
-    from nifo_core.nifo import StreamingNifo
-
     outcomes = [pick(x, part) for x in inputs]
     ok = [o for o in outcomes if o["ok"]]
     if not ok:
@@ -498,10 +483,6 @@ def solve_group(outcome: dict, *, freqs_hz: tuple[float, ...], plot_max_hz: floa
 
     Coefficients per body mass always; in SI too when the sprung mass ``m2_kg`` [kg] is given.
     """
-    from nifo.commands.identify import check_usable, summarize
-    from nifo_core.fleet import interval_halfwidth, standard_error
-    from nifo_core.nifo import StreamingNifo
-
     outcome = pick(outcome, part)
     if not outcome["ok"]:
         return {"ok": False, "reason": outcome["reason"], "bags": []}
@@ -546,9 +527,6 @@ def solve_group(outcome: dict, *, freqs_hz: tuple[float, ...], plot_max_hz: floa
 
 def loop_group(paths: list[str], setup: GroupSetup) -> dict:
     """``nifo loop``'s residual loop on a group's records (loaded on this worker): its verdict."""
-    from nifo.io.loader import load_record
-    from nifo_core.loop import LoopSettings, close_loop
-
     try:
         recs = [load_record(p, **setup.opts) for p in paths]
         band = setup.band if setup.band_from_model else None     # as nifo loop: else its own suggestion
@@ -562,9 +540,6 @@ def loop_group(paths: list[str], setup: GroupSetup) -> dict:
 
 def characterize_group(paths: list[str], setup: GroupSetup, m2_kg: float | None = None) -> dict:
     """``nifo characterize``'s restoring-force ranking on a group's records (loaded on this worker)."""
-    from nifo.io.loader import load_record
-    from nifo_core.characterize import characterize
-
     try:
         recs = [load_record(p, **setup.opts) for p in paths]
         band = setup.band if setup.band_from_model else None

@@ -1,4 +1,4 @@
-"""Per-channel time stamps and values in, one uniformly sampled :class:`~nifo_core.record.Record` out.
+"""Per-channel time stamps and values in, one uniformly sampled :class:`~nifo_core.signal.record.Record` out.
 
 Shared by every reader (bag, CSV, MAT): :func:`assemble_record` checks the
 stamps (increasing, no gaps), the common rate, the common sample instants and
@@ -16,8 +16,8 @@ import numpy as np
 
 from nifo_core.errors import (ConfigError, DataFileError, NifoError, NonFiniteError, RecordTooShortError,
                               SampleRateError, TimestampError)
-from nifo_core.record import Record, acceleration_from_displacement
-from nifo_core.timebase import check_common_rate, sample_rate_from_stamps
+from nifo_core.signal.record import Record, acceleration_from_displacement
+from nifo_core.signal.timebase import check_common_rate, sample_rate_from_stamps
 
 __all__ = ["assemble_record", "Assembly", "Skip", "READ_ROLES", "FIXED", "nominal_rate", "check_declared_rate",
            "check_rate_range", "check_values",
@@ -146,8 +146,8 @@ def assemble_record(channels: Mapping[str, tuple[np.ndarray | None, np.ndarray]]
     """Build a :class:`Record` from ``{channel: (stamp_ns or None, values)}``.
 
     With stamps: each channel's rate comes from its stamps
-    (:func:`~nifo_core.timebase.sample_rate_from_stamps`: increasing, no gaps),
-    the rates must agree (:func:`~nifo_core.timebase.check_common_rate`), and
+    (:func:`~nifo_core.signal.timebase.sample_rate_from_stamps`: increasing, no gaps),
+    the rates must agree (:func:`~nifo_core.signal.timebase.check_common_rate`), and
     the channels are trimmed to their common samples (stamps equal within a
     quarter period, else :class:`TimestampError`); ``meta["trimmed"]`` says how
     many samples were cut. The rate is snapped to its short decimal form when

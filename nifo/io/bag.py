@@ -1,4 +1,4 @@
-"""rosbag2 bags (MCAP storage) to and from :class:`~nifo_core.record.Record`.
+"""rosbag2 bags (MCAP storage) to and from :class:`~nifo_core.signal.record.Record`.
 
 Layout of the bags nifo writes (and expects by default)
 -------------------------------------------------------

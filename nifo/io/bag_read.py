@@ -1,4 +1,4 @@
-"""Reading rosbag2 bags (any storage rosbags reads) into a :class:`~nifo_core.record.Record`: :func:`read_bag`."""
+"""Reading rosbag2 bags (any storage rosbags reads) into a :class:`~nifo_core.signal.record.Record`: :func:`read_bag`."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from nifo_core.errors import ConfigError, DataFileError, NifoError
-from nifo_core.record import Record
+from nifo_core.signal.record import Record
 
 from .assemble import assemble_record
 from .bag_topics import BagTopics, _topic_table, resolve_topics

@@ -8,7 +8,7 @@ from collections.abc import Iterator, Mapping, Sequence
 import numpy as np
 
 from nifo_core.errors import ConfigError, DataFileError, NifoError, RecordTooShortError, TimestampError
-from nifo_core.record import Record
+from nifo_core.signal.record import Record
 
 from .assemble import check_rate_range, check_values, nominal_rate
 from .bag_read import _CHANNEL_OF_ROLE, _is_sqlite, _mcap_file, _open_checked, integrity_meta, read_bag
@@ -69,7 +69,7 @@ class _ChunkAssembler:
         self.aligned = True
 
     def ready(self, final: bool = False) -> "Iterator[Record]":
-        from nifo_core.timebase import sample_rate_from_stamps
+        from nifo_core.signal.timebase import sample_rate_from_stamps
 
 
         if not all(self.count.values()):

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from nifo_core.errors import ConfigError, DataFileError, NifoError
-from nifo_core.record import Record
+from nifo_core.signal.record import Record
 
 from .atomic import staged_file
 from .bag_topics import _DEFAULT_TOPICS, BagTopics

@@ -1,4 +1,4 @@
-"""One entry point from data files to :class:`~nifo_core.record.Record` and back.
+"""One entry point from data files to :class:`~nifo_core.signal.record.Record` and back.
 
 ``load_record(path)`` picks the reader from the path: a directory, ``*.mcap``
 or ``*.db3`` is a rosbag2 bag (:mod:`nifo.io.bag`), ``*.csv``/``*.tsv``/``*.txt``
@@ -20,7 +20,7 @@ Channel roles (``--columns ROLE=NAME``, CSV and MAT): ``spindle_accel``,
 ``body_accel`` [m/s²], ``tire_patch_disp`` [m], ``force`` [N] (on the body) and
 ``body_disp`` (a displacement recorded instead of ``body_accel``: it is
 differentiated twice, exactly for periodic data — see
-:func:`nifo_core.record.acceleration_from_displacement`). Two forms extend a
+:func:`nifo_core.signal.record.acceleration_from_displacement`). Two forms extend a
 NAME: ``NAME@FILE`` reads that channel from another file (CSV column or MAT
 key; FILE relative to the data file's directory, or absolute), e.g. the
 Silverbox's input and output::
@@ -55,7 +55,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 
 from nifo_core.errors import ConfigError, DataFileError
-from nifo_core.record import Record
+from nifo_core.signal.record import Record
 
 from .assemble import FIXED, READ_ROLES, Assembly, Skip, _check_declared_rate, assemble_record  # noqa: F401
 from .inputs import regular_input

@@ -1,4 +1,4 @@
-"""MATLAB ``.mat`` files (v4–v7; read with scipy) to and from :class:`~nifo_core.record.Record`.
+"""MATLAB ``.mat`` files (v4–v7; read with scipy) to and from :class:`~nifo_core.signal.record.Record`.
 
 Keys read by default: ``spindle_accel``, ``body_accel``, optional
 ``tire_patch_disp`` (vectors, SI units), and the sample rate as ``fs`` (or
@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from nifo_core.errors import ConfigError, DataFileError, MissingChannelError
-from nifo_core.record import Record
+from nifo_core.signal.record import Record
 
 from .assemble import READ_ROLES, Assembly, assemble_record, check_declared_rate, seconds_to_ns
 from .atomic import staged_file

@@ -3,7 +3,7 @@
 Format (``nifo_model: 1``)::
 
     nifo_model: 1
-    nonlinearities:               # describing functions; kinds in nifo_core/describing.py
+    nonlinearities:               # describing functions; kinds in nifo_core/kinds/describing.py
       - kind: velocity_deadzone
         params: {knee: 0.03}      # m/s
       - {kind: coulomb, params: {eps: 0.005}}
@@ -40,7 +40,7 @@ from typing import Annotated, Any, Literal, Mapping
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from nifo_core.describing import KINDS, Term, kind as _kind, make_term
+from nifo_core.kinds.describing import KINDS, Term, kind as _kind, make_term
 from nifo_core.errors import ConfigError, DataFileError, NifoError
 
 from .atomic import staged_file

@@ -87,7 +87,7 @@ def true_t21(path, freq_hz):
     from pathlib import Path
 
     from .truth import truth_for
-    from nifo_core.vehicle import QuarterCar
+    from nifo_core.simulate.vehicle import QuarterCar
 
     tp = truth_for(Path(path))
     if tp is None:
@@ -100,13 +100,13 @@ def true_t21(path, freq_hz):
 
 def true_strut_model(path):
     """The simulator's true strut (linear K2, C2 and its nonlinear terms), per unit sprung mass, as a
-    :class:`nifo_core.characterize.FittedModel`, from the truth file beside data ``path``; None without one."""
+    :class:`nifo_core.characterize.automatic.FittedModel`, from the truth file beside data ``path``; None without one."""
     import json
     from pathlib import Path
 
     from .truth import truth_for
-    from nifo_core.characterize import FittedModel
-    from nifo_core.describing import make_term
+    from nifo_core.characterize.automatic import FittedModel
+    from nifo_core.kinds.describing import make_term
 
     tp = truth_for(Path(path))
     if tp is None:

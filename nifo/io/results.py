@@ -39,9 +39,9 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from nifo_core import __version__
 from nifo_core.errors import ConfigError, DataFileError
-from nifo_core.model import IdentifiedModel
-from nifo_core.nifo import NifoResult
-from nifo_core.record import Record
+from nifo_core.predict.model import IdentifiedModel
+from nifo_core.nifo.identify import NifoResult
+from nifo_core.signal.record import Record
 
 from .atomic import staged_file
 from .modelfile import TermSpec, validation_error

@@ -1,4 +1,4 @@
-"""CSV tables to and from :class:`~nifo_core.record.Record`.
+"""CSV tables to and from :class:`~nifo_core.signal.record.Record`.
 
 Layout: one header row, then one row per sample::
 
@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from nifo_core.errors import ConfigError, DataFileError, MissingChannelError, NifoError
-from nifo_core.record import Record
+from nifo_core.signal.record import Record
 
 from .assemble import READ_ROLES, Assembly, assemble_record, seconds_to_ns
 from .atomic import staged_file

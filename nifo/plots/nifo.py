@@ -20,7 +20,7 @@ from typing import Sequence
 
 import numpy as np
 
-from nifo_core.nifo import NifoResult
+from nifo_core.nifo.identify import NifoResult
 
 from . import pyplot, save_figure
 
@@ -58,7 +58,7 @@ def plot_transmissibility(path: str | Path, curves: Sequence[Curve], *, band_hz:
 
     A curve whose style holds ``random_error`` (the normalized random error ε per line, same shape
     as its values) is drawn with its 95 % band shaded: |H|·(1 ∓ k·ε) and phase ± k·ε rad, k the
-    style's ``bound_k`` (the fit's Student-t factor, :meth:`~nifo_core.nifo.NifoResult.bound_factor`;
+    style's ``bound_k`` (the fit's Student-t factor, :meth:`~nifo_core.nifo.identify.NifoResult.bound_factor`;
     1.96 when not given: ε of many degrees of freedom).
     """
     plt = pyplot()

@@ -253,7 +253,7 @@ def plot_characteristics(panels: Sequence[CharacteristicPlot], path: str | Path,
 def term_label(kind: str, params: dict, *, units: str = SI) -> str:
     """``clearance(gap=0.135 mm)``: a describing function with its parameters in units (a parameter is in
     the unit of the variable the term acts on: z in mm, ż in m/s; z in UNIT·s² for other signal units)."""
-    from nifo_core.describing import make_term
+    from nifo_core.kinds.describing import make_term
 
     p = {k: v for k, v in params.items() if not (k == "offset" and v == 0)}
     if not p:

@@ -3,7 +3,7 @@
 :func:`log_results` reads result directories (:mod:`nifo.viz.results`) and,
 when the data named in their provenance are reachable, the data themselves:
 accelerations and restoring-force points at the samples' stamps, and the
-identification replayed through :class:`nifo_core.nifo.StreamingNifo` (the
+identification replayed through :class:`nifo_core.nifo.identify.StreamingNifo` (the
 engine the identifier node runs) so the estimate converges along the timeline
 exactly as it did live. :func:`save_recording` writes a ``.rrd``.
 """
@@ -31,7 +31,7 @@ def _stamps(t0_ns: int, start: int, n: int, fs_hz: float) -> np.ndarray:
 
 
 def _band(results: Sequence[ResultDir]):
-    from nifo_core.integrate import IntegrationBand
+    from nifo_core.signal.integrate import IntegrationBand
 
     for r in results:
         b = r.doc.get("band") if r.kind == "characterize" else (r.doc.get("result") or {}).get("band")
@@ -56,7 +56,7 @@ def _records(results: Sequence[ResultDir]) -> list[tuple[Path, object]]:
 
 
 def _log_data(records, band, *, recording, notes: list[str]) -> None:
-    from nifo_core.restoring import restoring_force
+    from nifo_core.characterize.restoring import restoring_force
 
     palette = [(31, 78, 121), (192, 57, 43), (46, 139, 87), (161, 92, 0), (120, 60, 160)]
     for k, (path, rec) in enumerate(records):
@@ -78,7 +78,7 @@ def _log_identify(r: ResultDir, records, *, recording) -> str:
     import warnings
 
     from nifo.io.results import read_identify
-    from nifo_core.nifo import StreamingNifo
+    from nifo_core.nifo.identify import StreamingNifo
 
     res, doc = read_identify(r.path)
     paths = [resolve_data(p, r) for p in data_paths(r)]

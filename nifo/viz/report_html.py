@@ -489,8 +489,8 @@ def levels_figure(results: Sequence[ResultDir], out_png: Path) -> Path | None:
     from nifo.io.provenance import true_t21
     from nifo.io.results import read_identify
     from nifo.plots.nifo import plot_transmissibility
-    from nifo_core.frf import h1
-    from nifo_core.spectral import cross_spectra
+    from nifo_core.signal.frf import h1
+    from nifo_core.signal.spectral import cross_spectra
 
     ident = next((r for r in results if r.kind == "identify"), None)
     if ident is None:

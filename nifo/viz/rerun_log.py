@@ -201,7 +201,7 @@ def log_convergence(stamp_ns: int, *, n_avg: int, cond_median: float, recording=
 
 
 def log_nifo_result(stamp_ns: int, result, *, recording=None) -> None:
-    """A :class:`nifo_core.nifo.NifoResult` (final or intermediate): transmissibility, coherence,
+    """A :class:`nifo_core.nifo.identify.NifoResult` (final or intermediate): transmissibility, coherence,
     coefficients and convergence at ``stamp_ns`` — what the identifier node publishes."""
     curves = {"h1": result.t21_h1}
     if len(result.terms):

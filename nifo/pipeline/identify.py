@@ -1,0 +1,469 @@
+"""The identify step (``nifo identify``, ``nifo run``): NIFO on the records, refined by output error on request.
+
+Its parts: stream records into NIFO accumulators and merge them, check what is usable, summarise, write.
+
+Shared by ``nifo identify``, ``nifo run``, the fleet's tasks (:mod:`nifo.fleet.tasks`) and the benchmarks, so a
+group of bags in the fleet and the same files given to ``nifo identify`` give the same coefficients.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from nifo.io.atomic import check_output, staged_dir
+from nifo.io.loader import input_options, iter_record_chunks, load_records
+from nifo.io.modelfile import load_model_spec
+from nifo.io.provenance import input_provenance, system_of, true_t21
+from nifo.io.results import IDENTIFY_JSON, MODEL_JSON, data_entry, identify_document, write_json, write_model
+from nifo.pipeline.options import CHUNK_SAMPLES, IdentifyOptions
+from nifo.pipeline.refine import fit_feedback_paths, refine
+from nifo.progress import Progress
+from nifo.settings import loader_options, resolve
+from nifo_core.errors import (ConfigError, IllConditionedError, InputError, NifoError, RecordTooShortError,
+                              SampleRateError)
+from nifo_core.signal.frf import h1
+from nifo_core.signal.integrate import default_band
+from nifo_core.predict.linear_part import RecordLines
+from nifo_core.predict.model import IdentifiedModel
+from nifo_core.nifo.identify import IllConditionedWarning, StreamingNifo, identify_two_step
+from nifo_core.settings import AnalysisSettings
+from nifo_core.signal.spectral import cross_spectra
+
+__all__ = ["CHUNK_SAMPLES", "accumulate", "check_usable", "summarize", "format_summary", "write_figures", "run_identify"]
+
+
+# ---------------------------------------------------------------------------------------------
+# single step: streamed and merged
+# ---------------------------------------------------------------------------------------------
+def accumulate(paths: list[Path], terms, cfg: AnalysisSettings, *, opts: dict, chunk_samples: int = CHUNK_SAMPLES,
+               quiet: bool = False):
+    """Stream every file into its own StreamingNifo and merge them.
+
+    Returns (merged StreamingNifo, [data provenance entries], [(name, freq, plain H1) per file], each file's
+    :class:`~nifo_core.predict.linear_part.RecordLines` (None for records driven by a measured force)).
+    ``opts``: the loaders' input options with the settings' period and transient
+    (:func:`nifo.settings.loader_options`). The integration band, when the settings have none, is
+    ``default_band(fs, shortest duration)`` as in :func:`identify_nifo`, so the answer equals it on the same records.
+    """
+    iters, firsts = [], []
+    for p in paths:
+        gen = iter_record_chunks(p, chunk_samples=chunk_samples, **opts)
+        try:
+            first_chunk = next(gen)
+        except StopIteration:
+            raise RecordTooShortError("the file holds no samples", source=str(p)) from None
+        iters.append(gen)
+        firsts.append(first_chunk)
+    rates = sorted({c.fs_hz for c in firsts})
+    if len(rates) > 1:
+        names = ", ".join(f"{p.name} {c.fs_hz:g} Hz" for p, c in zip(paths, firsts))
+        raise SampleRateError(f"the files have different sample rates ({names})", hint="resample to one rate first")
+    fs = rates[0]
+    totals = [int(c.meta.get("chunk", {}).get("total_samples", c.n)) for c in firsts]
+    has_force = all(c.has_force for c in firsts)   # a measured force on the body: one more input
+    fixed_sp = {c.spindle_fixed for c in firsts}
+    if len(fixed_sp) > 1:
+        raise ConfigError("some files have a fixed spindle and some a measured one",
+                          hint="identify files of one kind together")
+    spindle_fixed = fixed_sp.pop()
+    has_tp = all(c.has_tire_patch for c in firsts) and not has_force
+    try:
+        band = (cfg.band or default_band(fs, min(totals) / fs)).validate(fs, n_samples=min(totals))
+    except NifoError as err:   # name the record that is too short
+        raise err.with_context(source=str(paths[int(np.argmin(totals))])) from None
+
+    def fresh() -> StreamingNifo:
+        return StreamingNifo(fs, terms, settings=cfg.spectral, band=band, with_tire_patch=has_tp,
+                             analysis_band_hz=cfg.analysis_band_hz, on_ill_conditioned="warn",
+                             cond_limit=cfg.cond_limit, with_force=has_force, spindle_fixed=spindle_fixed)
+
+    total, data, per_file, lines = None, [], [], []
+    # progress only for long work (a minute of data streams in well under a second)
+    with Progress(float(sum(totals)), "identify", enabled=not quiet and sum(totals) / fs > 600) as bar:
+        for p, first, gen in zip(paths, firsts, iters):
+            one = fresh()
+            n = 0
+            meta = dict(first.meta)
+            for chunk in _chain(first, gen):
+                one.push(chunk.spindle_accel, chunk.body_accel, chunk.tire_patch_disp if has_tp else None,
+                         chunk.force if has_force else None)
+                n += chunk.n
+                bar.advance(chunk.n)
+            if one.n_avg == 0:
+                raise RecordTooShortError(
+                    f"{n} samples ({n / fs:.1f} s) is too short for NIFO (block={one.settings.block} plus "
+                    f"{one.delay_samples} integrator edge samples at each end for f_lo={band.f_lo_hz:g} Hz), "
+                    f"which needs {one.min_samples}", source=str(p), hint="record longer, or choose a smaller --block")
+            meta.pop("chunk", None)
+            data.append(data_entry(p, fs_hz=fs, n_samples=n, meta=meta))
+            spec = one.spectra()
+            per_file.append((p.name, spec.freq_hz, h1(spec, 0, 1)))
+            lines.append(None if (has_force or spindle_fixed) else RecordLines.from_spectra(
+                spec.freq_hz, spec.G[:, 0, 0], spec.G[:, 0, 1], spec.G[:, 1, 1], cfg.analysis_band_hz))
+            total = one if total is None else total.merge(one)
+    return total, data, per_file, (None if any(x is None for x in lines) else lines)
+
+
+def _chain(first, gen):
+    yield first
+    yield from gen
+
+
+# ---------------------------------------------------------------------------------------------
+# checks and summary
+# ---------------------------------------------------------------------------------------------
+def _ill_fraction(res, cond_limit: float) -> float:
+    c = res.cond[res.in_band]
+    return float(np.mean(~(c <= cond_limit))) if c.size else 1.0
+
+
+def check_usable(res, cond_limit: float, *, periodic: bool = False) -> None:
+    """Refuse (IllConditionedError) only when nothing usable is left.
+
+    ``periodic``: one period of a periodic excitation per block — every block is the same period, so the per-line
+    G_UU of several inputs is singular by construction and only the pooled fit determines the terms (refused only
+    when that is not finite)."""
+    m = res.in_band
+    st = res.static
+    free = [i for i, f in enumerate(res.fixed) if not f]
+    if not np.all(np.isfinite(st.c_over_m2)):
+        raise IllConditionedError(f"the pooled coefficients c/M2 are not finite ({st.c_over_m2.tolist()}): the "
+                                  "declared describing functions are linearly dependent on the data",
+                                  hint="drop a duplicated or redundant term, or identify them in two steps")
+    ok_static = np.isfinite(st.t21[m]) & (np.abs(st.t21[m]) > 0)
+    if ok_static.mean() < 0.5:
+        raise IllConditionedError(f"the pooled T21 is undefined on {1 - ok_static.mean():.0%} of the analysis band",
+                                  hint="check the data (coherence) and the analysis band")
+    if free and not periodic and not np.any(res.cond[m] <= cond_limit):
+        worst = res.cond[m]
+        raise IllConditionedError(
+            f"G_UU is ill-conditioned on every line of the analysis band {res.analysis_band_hz[0]:g}-"
+            f"{res.analysis_band_hz[1]:g} Hz (median scaled cond {np.nanmedian(worst):.3g} > {cond_limit:.3g}): "
+            "the declared terms cannot be told apart in these data",
+            hint="drop a term, identify correlated terms in two steps (steps: in the model file), "
+                 "or use data with more amplitude range")
+
+
+def _unit(term) -> str:
+    u = term.spec.coef_unit
+    return f"({u})/kg" if u else "1/kg"
+
+
+def summarize(res, cond_limit: float) -> tuple[dict, list[str]]:
+    """The printed numbers (also stored in identify.json) and plain-language warnings."""
+    m = res.in_band
+    st = res.static
+    lo, hi = res.analysis_band_hz
+    warn: list[str] = []
+    terms = []
+    for i, t in enumerate(res.terms):
+        free_c = res.c_over_m2[i][m]
+        re_mean = float(np.nanmean(free_c.real)) if not res.fixed[i] else None
+        im_mean = float(np.nanmean(free_c.imag)) if not res.fixed[i] else None
+        re_spread = float(np.nanstd(free_c.real)) if not res.fixed[i] else None
+        terms.append({"term": t.to_dict(), "label": t.label, "c_over_m2": float(st.c_over_m2[i]), "unit": _unit(t),
+                      "fixed": bool(res.fixed[i]), "per_line_mean_re": re_mean, "per_line_mean_im": im_mean,
+                      "per_line_std_re": re_spread})
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d_h1 = np.abs(st.t21[m] / res.t21_h1[m] - 1)
+        d_free = np.abs(res.t21[m] / st.t21[m] - 1)
+    frac = _ill_fraction(res, cond_limit)
+    summary = {
+        "analysis_band_hz": [lo, hi], "integration_band_hz": [res.band.f_lo_hz, res.band.f_hi_hz],
+        "n_avg": int(res.n_avg), "n_samples": int(res.n_samples), "duration_used_s": res.n_samples / res.fs_hz,
+        "terms": terms,
+        "t21_static_vs_h1_rel_diff": {"median": float(np.nanmedian(d_h1)), "max": float(np.nanmax(d_h1))},
+        "t21_free_vs_static_rel_diff": {"median": float(np.nanmedian(d_free)), "max": float(np.nanmax(d_free))},
+        "coherence_h1_median": float(np.nanmedian(res.coherence_h1[m])),
+        "cond_median": float(np.nanmedian(res.cond[m])), "cond_max": float(np.nanmax(res.cond[m])),
+        "ill_conditioned_fraction": frac, "cond_limit": cond_limit,
+    }
+    if st.one_mass is not None:   # a measured force: the body mass and the coefficients in physical units
+        m2, k2, c2, misfit = (float(v) for v in st.one_mass)
+        summary["force"] = {"spindle_fixed": bool(res.spindle_fixed), "m2_kg": m2, "k2_n_per_m": k2,
+                            "c2_n_s_per_m": c2, "natural_frequency_hz": float(np.sqrt(k2 / m2) / (2 * np.pi)),
+                            "damping_ratio": float(c2 / (2 * np.sqrt(k2 * m2))), "one_mass_misfit": misfit,
+                            "c": [float(v) for v in st.c]}
+    if frac > 0.1 and any(not f for f in res.fixed):
+        warn.append(f"The per-line (paper Eq. 9) estimate is ill-conditioned on {frac:.0%} of the {lo:g}-{hi:g} Hz "
+                    f"lines (median scaled cond {summary['cond_median']:.3g}, limit {cond_limit:.3g}): its T21 and "
+                    f"μ_i/K2 are sensitive to noise there. The pooled (constant c/M2) T21, the main result, pools all "
+                    f"lines and is much less affected. To improve the per-line estimate, identify correlated terms "
+                    f"in two steps (steps: in the model file), drop a term, or record more data.")
+    elif frac > 0:
+        warn.append(f"{frac:.0%} of the {lo:g}-{hi:g} Hz lines have a scaled cond(G_UU) above {cond_limit:.3g}; "
+                    "per-line coefficients there are noise-sensitive.")
+    for tm in terms:
+        if tm["fixed"] or tm["per_line_mean_re"] is None:
+            continue
+        pooled, re_m, im_m = tm["c_over_m2"], tm["per_line_mean_re"], tm["per_line_mean_im"]
+        if abs(im_m) > 0.5 * max(abs(re_m), 1e-300):
+            warn.append(f"{tm['label']}: the per-line c/M2 has a large imaginary part (band mean {re_m:.3g} "
+                        f"{im_m:+.3g}j): the term may not act as declared (static), a missing effect is absorbed, or "
+                        "(a flexible body with a rational linear part) its force reaches the body through a path of its "
+                        "own: --feedback-paths.")
+        if np.sign(re_m) != np.sign(pooled) and pooled != 0:
+            warn.append(f"{tm['label']}: pooled c/M2 {pooled:.3g} and per-line band mean {re_m:.3g} disagree in sign; "
+                        "treat this coefficient as not identified.")
+    if summary["coherence_h1_median"] < 0.8:
+        warn.append(f"The ordinary coherence spindle→body is low (median {summary['coherence_h1_median']:.2f} in "
+                    f"{lo:g}-{hi:g} Hz): noise or unmeasured inputs; average more data.")
+    return summary, warn
+
+
+def format_summary(summary: dict, warn: list[str], *, out: Path, files: int, model_written: bool) -> str:
+    lo, hi = summary["analysis_band_hz"]
+    lines = [f"identified on {files} file(s), {summary['duration_used_s']:.1f} s used, {summary['n_avg']} spectral "
+             f"averages; integration band {summary['integration_band_hz'][0]:g}-"
+             f"{summary['integration_band_hz'][1]:g} Hz, analysis band {lo:g}-{hi:g} Hz"]
+    if summary["terms"]:
+        lines.append("pooled coefficients c/M2 (constant over the band; per-line band mean Re/Im beside):")
+        for tm in summary["terms"]:
+            extra = " (held fixed from step 1)" if tm["fixed"] else (
+                f"   per line: {tm['per_line_mean_re']:.4g} {tm['per_line_mean_im']:+.3g}j")
+            lines.append(f"  {tm['label']:<40} {tm['c_over_m2']:>11.4g} {tm['unit']}{extra}")
+    else:
+        lines.append("no nonlinear terms declared: T21 is the plain H1")
+    d, df = summary["t21_static_vs_h1_rel_diff"], summary["t21_free_vs_static_rel_diff"]
+    lines.append(f"nominal T21 vs plain H1 at this level: median {100 * d['median']:.1f} %, max {100 * d['max']:.1f} % "
+                 f"apart; per-line vs pooled T21: median {100 * df['median']:.1f} %")
+    if "force" in summary:
+        fo = summary["force"]
+        lines.append(f"measured force{' (spindle fixed)' if fo['spindle_fixed'] else ''}: one-mass body M2 = "
+                     f"{fo['m2_kg']:.4g} kg, K2 = {fo['k2_n_per_m']:.4g} N/m, C2 = {fo['c2_n_s_per_m']:.4g} N·s/m "
+                     f"({fo['natural_frequency_hz']:.4g} Hz, damping {100 * fo['damping_ratio']:.3g} %; misfit "
+                     f"{100 * fo['one_mass_misfit']:.2g} %); coefficients c = "
+                     + ", ".join(f"{c:.4g}" for c in fo["c"]) + " (unit of c)")
+    lines.append(f"coherence (plain H1) median {summary['coherence_h1_median']:.3f}; scaled cond(G_UU) median "
+                 f"{summary['cond_median']:.3g}, max {summary['cond_max']:.3g}")
+    if "linear_part" in summary:
+        lines.append(f"linear part of model.json: {summary['linear_part']['reason']}")
+    lines += [f"WARNING: {w}" for w in warn]
+    lines.append(f"wrote {out}/identify.json" + (", model.json" if model_written else "") + " and figures")
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------------------------
+# figures
+# ---------------------------------------------------------------------------------------------
+def write_figures(out: Path, res, per_file, cond_limit: float, *, paths=(), system: dict | None = None) -> list[str]:
+    from nifo.plots.nifo import plot_coefficients, plot_conditioning, plot_tire, plot_transmissibility
+
+    f = res.freq_hz
+    curves = [(f"measured H1 {name}", fq, h, {"lw": 0.9, "alpha": 0.8}) for name, fq, h in per_file]
+    truth = next((t for t in (true_t21(p, f) for p in paths) if t is not None), None)
+    if truth is not None:   # simulated data: the truth file beside it gives the true nominal linear T21
+        curves.append(("true nominal linear T21 (simulator)", f, truth, {"color": "k", "lw": 0.9, "ls": ":"}))
+    sides = ("spindle → body" if (system or {}).get("vehicle", True) else "input → output")
+    if res.terms:
+        curves.append(("NIFO nominal T21, per line (Eq. 9)", f, res.t21, {"color": "C0", "lw": 0.8, "ls": ":",
+                                                                          "random_error": res.random_error[0],
+                                                                          "bound_k": res.bound_factor()}))
+        curves.append(("NIFO nominal T21, pooled (recommended), 95 % band", f, res.static.t21,
+                       {"color": "C3", "lw": 1.6, "ls": "--", "random_error": res.static.random_error,
+                        "bound_k": res.bound_factor(static=True)}))
+    plot_transmissibility(out / "transmissibility.png", curves, band_hz=res.analysis_band_hz,
+                          title=f"{sides} transmissibility: measured and NIFO nominal linear (cf. Fig. 9b/12b)")
+    names = ["transmissibility.png"]
+    if res.terms:
+        plot_coefficients(out / "coefficients.png", res,
+                          title=r"coefficient functions $\mu_i(\omega)/K_2$ (cf. paper Fig. 10/13)")
+        names.append("coefficients.png")
+    plot_conditioning(out / "conditioning.png", res, cond_limit=cond_limit)
+    names.append("conditioning.png")
+    if res.input_measured is not None:
+        plot_tire(out / "tire.png", res)
+        names.append("tire.png")
+    return names
+
+
+# ---------------------------------------------------------------------------------------------
+# run
+# ---------------------------------------------------------------------------------------------
+def _step_paths(args, spec) -> list[list[Path]]:
+    """Each step's data files (command line --step-data or the model file's), checked."""
+    if len(spec.steps) != 2:
+        raise ConfigError(f"the model file has {len(spec.steps)} steps; two-step identification takes exactly 2",
+                          source=str(args.model), hint="merge steps or split the model file")
+    if args.data:
+        raise ConfigError("DATA on the command line is for single-step models; this model file has steps",
+                          source=str(args.model), hint="give each step's data with --step-data PATH... (once per "
+                                                       "step) or under data: in the model file")
+    if args.step_data is not None and len(args.step_data) != 2:
+        raise ConfigError(f"--step-data given {len(args.step_data)} time(s) for 2 steps", channel="--step-data",
+                          hint="repeat --step-data once per step, in order")
+    paths = [list(args.step_data[i]) if args.step_data else list(s.data) for i, s in enumerate(spec.steps)]
+    for s, ps in zip(spec.steps, paths):
+        if not ps:
+            raise ConfigError(f"step {s.name!r} has no data", source=str(args.model),
+                              hint="list data: under the step or pass --step-data")
+    return paths
+
+
+def _two_step(args, spec, cfg, opts):
+    paths = _step_paths(args, spec)
+    recs = [load_records(ps, **opts) for ps in paths]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = identify_two_step(recs[0], spec.steps[0].terms, recs[1], spec.steps[1].terms,
+                                settings=cfg.spectral, band=cfg.band, analysis_band_hz=cfg.analysis_band_hz,
+                                cond_limit=cfg.cond_limit, on_ill_conditioned="warn")
+    per_file = []
+    for r in recs[1]:
+        sp = cross_spectra(np.stack([r.spindle_accel, r.body_accel]), r.fs_hz, cfg.spectral)
+        per_file.append((r.source, sp.freq_hz, h1(sp, 0, 1)))
+    data = {"steps": [{"name": s.name, "terms": [t.to_dict() for t in s.terms],
+                       "data": [data_entry(p, r) for p, r in zip(ps, rs)]}
+                      for s, ps, rs in zip(spec.steps, paths, recs)]}
+    return res, data, per_file, caught
+
+
+def run_identify(args: IdentifyOptions) -> dict:
+    """``nifo identify`` (module docstring): writes identify.json, model.json and the figures into ``args.out``,
+    prints the summary; the command's summary dict."""
+    check_output(args.out)   # refuse a file or a foreign directory before any work
+    if getattr(args, "feedback_paths", False) and (getattr(args, "refine", False)
+                                                   or getattr(args, "refine_linear", False)):
+        raise ConfigError("--feedback-paths and --refine/--refine-linear are two different fits of the terms",
+                          hint="give one of them")
+
+    spec = load_model_spec(args.model)
+    if args.chunk_samples < 2:
+        raise ConfigError(f"--chunk-samples {args.chunk_samples!r} must be at least 2", channel="--chunk-samples")
+    if not spec.two_step and not args.data:
+        raise InputError("no data files given", hint="nifo identify DATA... --model MODEL.yaml --out DIR")
+    all_paths = [p for ps in _step_paths(args, spec) for p in ps] if spec.two_step else list(args.data)
+    cfg = resolve(all_paths, args, file_settings=spec.settings, opts=input_options(args))
+    opts = loader_options(input_options(args), cfg)
+    if not getattr(args, "quiet", False):
+        print("settings:\n  " + "\n  ".join(cfg.describe()))
+    record_lines = None
+    if spec.two_step:
+        res, data, per_file, caught = _two_step(args, spec, cfg, opts)
+        files = sum(len(s["data"]) for s in data["steps"])
+    else:
+        terms = spec.terms
+        acc, data, per_file, record_lines = accumulate(list(args.data), terms, cfg, opts=opts,
+                                                       chunk_samples=args.chunk_samples,
+                                                       quiet=getattr(args, "quiet", False))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            res = acc.result()
+        res = replace(res, provenance={**dict(res.provenance), "sources": [d["name"] for d in data]})
+        files = len(data)
+    try:
+        check_usable(res, cfg.cond_limit,
+                     periodic=bool(cfg.period_samples) and cfg.spectral.block == cfg.period_samples)
+    except IllConditionedError as err:   # name the data it was identified on
+        raise err.with_context(source=", ".join(str(d["path"]) for d in _entries(data))) from None
+    summary, warn = summarize(res, cfg.cond_limit)
+    # the core's own warnings are covered by the plain sentences above; keep any other ones verbatim
+    warn += [str(w.message) for w in caught if not issubclass(w.category, IllConditionedWarning)
+             and not issubclass(w.category, (DeprecationWarning, RuntimeWarning))]
+    model = linear = None
+    try:   # the linear part: the one-mass body where it fits, a stable rational model otherwise (says why)
+        model = IdentifiedModel.from_nifo(res, source="static")
+        linear = IdentifiedModel.from_nifo(res, source="h1", records=record_lines)
+        summary["linear_part"] = {"kind": model.linear.kind, "order": model.linear.order,
+                                  "fit_rms": model.linear.fit_rms, "reason": model.linear.reason}
+    except ConfigError as err:
+        warn.append(f"no model.json: no linear part could be fitted to T21 ({err.message}); "
+                    "identify.json holds the non-parametric result")
+        model = None
+    refinement = paths = None
+    refining = getattr(args, "refine", False) or getattr(args, "refine_linear", False)
+    if (refining or getattr(args, "feedback_paths", False)) and model is not None:
+        flag = "--feedback-paths" if getattr(args, "feedback_paths", False) else "--refine"
+        if not model.terms:
+            warn.append(f"{flag}: the model has no nonlinear term, nothing to fit")
+        elif flag == "--feedback-paths":
+            try:
+                paths = fit_feedback_paths(args, linear, model.terms, opts, [d["path"] for d in _entries(data)], cfg)
+            except ConfigError as err:     # not determined by these data: say so, keep the constant coefficients
+                warn.append(f"--feedback-paths: {err.message}" + (f" ({err.hint})" if err.hint else "")
+                            + "; model.json holds the constant-coefficient model")
+                summary["feedback_paths"] = {"error": err.message}
+            else:
+                model = paths.model
+                summary["feedback_paths"] = paths.to_dict()
+                summary["linear_part"] = {"kind": model.linear.kind, "order": model.linear.order,
+                                          "fit_rms": model.linear.fit_rms, "reason": model.linear.reason}
+        else:
+            refinement, linear_refinement, check = refine(args, model, linear, opts,
+                                                          [d["path"] for d in _entries(data)])
+            summary["refinement"] = {**refinement.to_dict(), "held_out": check.to_dict()}
+            if check.kept:
+                model = refinement.model
+                if linear_refinement is not None:  # the linear baseline of the joint procedure, refined the same way
+                    linear = linear_refinement.model
+            if linear_refinement is not None:
+                summary["refinement"]["linear"] = linear_refinement.to_dict()
+    prov = {"data": data, "model_file": str(args.model), "settings": _settings_doc(cfg, res)}
+    settings_doc = _settings_doc(cfg, res)
+    model_file = {"path": str(args.model), "steps": [{"name": s.name, "terms": [t.to_dict() for t in s.terms]}
+                                                    for s in spec.steps]}
+    with staged_dir(args.out) as tmp:
+        figures = [] if args.no_plots else write_figures(tmp, res, per_file, cfg.cond_limit,
+                                                         paths=[d["path"] for d in _entries(data)],
+                                                         system=system_of(args))
+        doc = identify_document(res, data=data, summary=summary, warnings=warn, settings=settings_doc,
+                                model_file=model_file, figures=figures)
+        doc.update(input=input_provenance(args), system=system_of(args), noise=_noise_doc(data, opts))
+        write_json(tmp / IDENTIFY_JSON, doc, atomic=False)
+        if model is not None:
+            model = replace(model, provenance={**dict(model.provenance), **prov})
+            linear = replace(linear, provenance={**dict(linear.provenance), **prov})
+            write_model(tmp / MODEL_JSON, model, linear=linear, atomic=False)
+    print(format_summary(summary, warn, out=args.out, files=files, model_written=model is not None))
+    _print_fits(paths, refinement, summary, check if refinement is not None else None)
+    return {"out": str(args.out), "model_written": model is not None, "figures": figures, "warnings": warn,
+            "summary": summary}
+
+
+def _print_fits(paths, refinement, summary: dict, check) -> None:
+    """What --feedback-paths or --refine did, after the summary."""
+    if paths is not None:
+        print(paths.message)
+        for g in paths.grid:
+            print(f"  ridge {g['ridge']:g}: " + (f"held-out prediction NMSE {g['held_out_nmse_percent']:.4g} %"
+                                                 if g["regimes_stable"] else
+                                                 "not eligible: a regime of the terms (stuck/active) is unstable"))
+    if refinement is not None:
+        if "linear" in summary["refinement"]:
+            print("linear baseline: " + summary["refinement"]["linear"]["message"])
+        print(refinement.message)
+        for prm in refinement.parameters:
+            hw = prm.get("half_width_95")
+            print(f"  {prm['name']}: {prm['before']:.5g} → {prm['after']:.5g}"
+                  + ("" if hw is None else f" ± {hw:.2g}") + f" {prm['unit']}")
+        print(check.message)
+
+
+def _noise_doc(data, opts) -> list[dict]:
+    """Each record's sensor noise per channel (:mod:`nifo_core.signal.noise`): what may bias the fit (errors in
+    variables), read off its spectra. A file that cannot be read again gives its reason."""
+    from nifo.io.loader import load_record
+    from nifo_core.signal.noise import estimate_noise
+
+    out = []
+    for d in _entries(data):
+        try:
+            out.append(estimate_noise(load_record(d["path"], **opts)).to_dict())
+        except NifoError as err:
+            out.append({"source": d.get("name"), "available": False, "unavailable": err.message, "channels": []})
+    return out
+
+
+def _entries(data) -> list[dict]:
+    """Data provenance entries of a single- or two-step identification."""
+    return data if isinstance(data, list) else [e for s in data["steps"] for e in s["data"]]
+
+
+def _settings_doc(cfg: AnalysisSettings, res) -> dict:
+    return {**cfg.to_dict(), "spectral": res.settings.to_dict(),
+            "integration_band_hz": [res.band.f_lo_hz, res.band.f_hi_hz], "analysis_band_hz": list(res.analysis_band_hz),
+            "fs_hz": res.fs_hz}

@@ -1,0 +1,365 @@
+"""Automatic characterization: which describing function explains the restoring force (docs/method.md §5).
+
+Equation error of the body equation (paper Eq. 2) per unit sprung mass::
+
+    y = -ẍ2 = a·z + b·ż [+ k3·x2] + Σ θ_i·g_i(z, ż) + e,    a = K2/M2, b = C2/M2, θ_i = c_i/M2
+
+For every kind of the describing-function library (:mod:`nifo_core.kinds.describing`,
+the one place the forms live) over a grid of its parameters scaled to the
+observed motion, the candidate g is evaluated on the measured z, ż and then
+band-passed with the integrator's band (docs/method.md §5 step 3). Candidates are
+scored by the error reduction ratio (Billings) — the fraction of the variance
+the linear fit leaves that the candidate explains:
+
+    ERR = (g⊥ᵀ r)² / (g⊥ᵀ g⊥ · rᵀ r),   g⊥ = g orthogonalised against [z, ż],  r = linear residual
+
+vectorised over the grid (one QR of the linear regressors, then one dot
+product per grid point on a row subsample), refined around each kind's best
+grid point and refitted at full length. A forward orthogonal selection (FROLS)
+builds the suggested model one term at a time; kinds that explain the same
+thing as a chosen term are listed as its alternatives, not suggested beside it.
+
+One filter for every column. ``y``, ``z``, ``ż`` (and ``x2``) are band-passed
+once more with the same filter that band-limits each g, so every column of the
+regression carries the same final band shape. This matters for the negative
+control: with 2 % accelerometer noise, z holds integrated noise that peaks in
+the integrator's low transition band; if g saw the filter one more time than
+y and z, a static g(z) weighted that noise differently from z and "explained"
+10-20 % of a linear strut's residual (small-gap clearance, tiny backlash).
+With the same final filter, a static g of jointly Gaussian data is
+uncorrelated with the linear residual (Bussgang), as it should be.
+
+A candidate counts as *present* only if all of (:class:`Thresholds`):
+
+- ERR ≥ 2 % of what the linear fit leaves (for later terms: of what the terms
+  chosen before leave),
+- cross-validated ERR ≥ 1 % (fitted on alternate blocks, scored on the others),
+- F-test p < 0.001 with effective degrees of freedom for coloured residuals
+  (N_eff = N·mean(S)²/mean(S²) from the residual spectrum S), Bonferroni-corrected
+  for the grid points searched,
+- coefficient stable across data groups (records, or quarters of one record):
+  information-weighted relative spread ≤ 0.5,
+- explains at least 0.001 % of the total variance of -ẍ2 (ΔR² ≥ 1e-5: on
+  noise-free data the linear residual is rounding, and any ERR means nothing),
+- ``coulomb`` only with c > 0 (friction that feeds energy in is an artefact).
+
+``backlash`` with c < 0 is physical: a·z + c·play(z) with c = -a is a spring in
+series with dry friction (Jenkins element, stick-slip; its force saturates at
+|c|·deadband/2, paper §3.3 after Ferri), the loops with flat tops of paper Fig. 7b.
+
+Exact equivalences once z and ż are in the fit: ``saturation(limit=x) =
+z - clearance(gap=x)`` and ``velocity_saturation(limit=x) = ż -
+velocity_deadzone(knee=x)`` explain the data identically; the
+clearance/deadzone form is reported (its linear part is then the small-motion
+behaviour, docs/method.md §3) and the other is named as its equivalent.
+``asymmetric_damping`` rebound and compression differ by a linear term: the
+side with the positive (added-damping) coefficient is reported.
+"""
+
+
+from dataclasses import replace
+from typing import Callable, Sequence
+
+import numpy as np
+
+from .data import GridSearch, RegressionData, candidate_grid
+from .result import (DEFAULT_KINDS, POSITIVE_KINDS, Candidate, Characterization, FittedModel,
+                                  RecordSummary, Thresholds)
+from .score import lstsq, score_candidate
+from .static import static_bump_stops
+from ..kinds.describing import Term, kind as lookup_kind
+from ..errors import ConfigError, InputError
+from ..signal.integrate import IntegrationBand
+from ..signal.record import Record
+from .restoring import RestoringForce, instantaneous_frequency, restoring_force, suggest_band
+
+__all__ = ["Thresholds", "Candidate", "FittedModel", "Characterization", "RecordSummary", "characterize",
+           "characterize_restoring", "rank_beyond", "DEFAULT_KINDS", "POSITIVE_KINDS", "candidate_grid"]
+
+#: kinds re-scored at full length per selection step (the best ones on the subsample)
+_FULL_PER_STEP = 3
+
+
+# Long (over 100 lines): the ranking, the greedy model search and the suggested model share one set of
+# band-limited columns and grids. Left whole here while the noise branch (issue 28) edits its body; to split after
+# the merge.
+def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None = None,
+                           kinds: Sequence[str] = DEFAULT_KINDS, thresholds: Thresholds = Thresholds(),
+                           grid_points: int = 24, max_terms: int = 3, n_groups: int = 4,
+                           body_stiffness: bool = False, masks: Sequence[np.ndarray | None] | None = None,
+                           progress: Callable[[float], None] | None = None) -> Characterization:
+    """Characterize restoring-force data (the work behind :func:`characterize`; same parameters).
+
+    ``rfs`` must share one integration band. ``masks`` (one per ``rf``, or
+    None) select the samples to fit, e.g. a frequency window of a sweep; the
+    candidates are still evaluated and band-passed over the whole record.
+    ``n_groups``: parts of a single record (consecutive) for the
+    coefficient-stability check; several records are one group each.
+    """
+    if not rfs:
+        raise InputError("no restoring-force data to characterize")
+    bands = {(rf.band.f_lo_hz, rf.band.f_hi_hz) for rf in rfs}
+    if len(bands) > 1:
+        raise ConfigError(f"records were integrated in different bands {sorted(bands)}",
+                          hint="characterize records integrated with one band")
+    if m2_kg is not None and not (np.isfinite(m2_kg) and m2_kg > 0):
+        raise ConfigError(f"m2_kg={m2_kg!r} must be a positive mass [kg]")
+    if max_terms < 1:
+        raise ConfigError(f"max_terms={max_terms} must be at least 1")
+    if masks is not None and len(masks) != len(rfs):
+        raise InputError(f"{len(masks)} masks for {len(rfs)} records")
+    kinds = tuple(dict.fromkeys(lookup_kind(k).name for k in kinds))
+    data = RegressionData(rfs, n_groups=n_groups, body_stiffness=body_stiffness, masks=masks)
+    search = GridSearch(data, kinds, grid_points, progress)
+    n_grid = {k: len(search.grids[k]) for k in kinds}
+
+    def score(j: int, base: list[np.ndarray], names: tuple[str, ...]) -> Candidate:
+        t = search.terms[j]
+        return score_candidate(data, base, t, thresholds=thresholds, n_grid=n_grid[t.kind], m2=m2_kg, names=names)
+
+    # --- each kind's best on its own, refitted at full length: the ranked table ------------
+    none = np.empty((data.rows.size, 0))
+    e1, s1 = search.err(none, search.r0)
+    best1 = {}
+    for k in kinds:  # a kind with only unphysical signs keeps its best, to show why it fails
+        j = search.best_of(k, e1, s1)
+        best1[k] = j if j is not None else search.best_of(k, e1, np.ones_like(s1))
+    table = {k: score(best1[k], [], ()) for k in kinds}
+    # --- forward selection: each step re-scores the best few kinds at full length ----------
+    chosen: list[Candidate] = []
+    chosen_j: list[int] = []
+    base: list[np.ndarray] = []
+    extra, r = none, search.r0
+    for _ in range(max_terms):
+        e, sg = search.err(extra, r)
+        js = {k: search.best_of(k, e, sg) for k in kinds if k not in {c.kind for c in chosen}}
+        js = {k: j for k, j in js.items() if j is not None and e[j] > 0}
+        top = sorted(js, key=lambda k: -e[js[k]])[:_FULL_PER_STEP]
+        if not chosen:  # step 1 is the ranked table itself
+            scored = [(table[k], best1[k]) for k in sorted(kinds, key=lambda k: -table[k].err)[:_FULL_PER_STEP]]
+        else:
+            names = tuple(c.term.label for c in chosen)
+            scored = [(score(js[k], base, names), js[k]) for k in top]
+        scored = [(c, j) for c, j in scored if c.present]
+        if not scored:
+            break
+        cand, j = max(scored, key=lambda cj: cj[0].err)
+        chosen.append(replace(cand, status="suggested"))
+        chosen_j.append(j)
+        base.append(data.regressor(search.terms[j]))
+        v = search.unit(j, extra)
+        extra = np.column_stack([extra, v])
+        r = r - v * (v @ r)
+    # --- bump stops: the gap from the static position, which sits elsewhere in every record ----
+    static_terms, static_off = static_bump_stops(data, [c.term for c in chosen])
+    base = []
+    for i, (t, o) in enumerate(zip(static_terms, static_off)):
+        if o is not None:
+            new = score_candidate(data, base, t, thresholds=thresholds, n_grid=n_grid[t.kind], m2=m2_kg,
+                                  names=tuple(c.term.label for c in chosen[:i]), offsets=o)
+            chosen[i] = replace(new, status="suggested")
+        base.append(data.regressor(t, offsets=o))
+    # --- what the suggestion explains of the other kinds ----------------------------------------
+    out = []
+    chosen_kinds = [c.kind for c in chosen]
+    names = tuple(c.term.label for c in chosen)
+    for k in sorted(kinds, key=lambda k: -table[k].err):
+        c = table[k]
+        mine = [ch for ch in chosen if ch.kind == k]
+        if mine:  # its statistics given the terms chosen before it
+            out.append(mine[0])
+            continue
+        if not c.present:
+            out.append(replace(c, status="weak"))
+            continue
+        by = None
+        ex, rr = none, search.r0
+        for cj, jj in zip(chosen, chosen_j):  # the first suggested term after which it adds < min_err
+            v = search.unit(jj, ex)
+            ex = np.column_stack([ex, v])
+            rr = rr - v * (v @ rr)
+            e, sg = search.err(ex, rr)
+            j = search.best_of(k, e, sg)
+            if j is None or e[j] < thresholds.min_err:
+                by = cj
+                break
+        if by is not None:
+            status = "alternative" if c.err >= 0.5 * table[by.kind].err else "redundant"
+            out.append(replace(c, status=status, alternative_to=by.term.label))
+        else:  # still adds something given the suggestion: say why it was not taken
+            e, sg = search.err(extra, r)
+            cond = score(search.best_of(k, e, sg) if search.best_of(k, e, sg) is not None else best1[k], base, names)
+            why = cond.failed or (f"the suggestion holds max_terms={max_terms} terms",)
+            out.append(replace(c, status="unselected", failed=tuple(f"given the suggestion: {w}" for w in why)))
+    out = sorted(out, key=lambda c: (c.status != "suggested",
+                                     chosen_kinds.index(c.kind) if c.status == "suggested" else 0))
+    model = _joint(data, [c.term for c in chosen], [c.offsets or None for c in chosen])
+    lin = _linear(data, m2_kg, body_stiffness)
+    notes = []
+    if not chosen:
+        notes.append("no nonlinear candidate met the thresholds: no form of the library explains what the "
+                     "linear fit leaves")
+    for c in chosen:
+        if c.offsets:
+            where = ", ".join(f"{1e3 * -o:+.2f} mm ({rf.source or f'record {i}'})"
+                              for i, (o, rf) in enumerate(zip(c.offsets, rfs)))
+            notes.append(f"{c.term.label}: gap from the static position; the mean position sat {where} from it "
+                         f"(rebound positive), found from the balance of the mean force")
+    if lin["r2"] < 0.9:
+        notes.append(f"the linear fit explains only {100 * lin['r2']:.0f} % of the force: the rest is noise or "
+                     f"dynamics outside the one-mass equation of the output side (another mode, a second load "
+                     f"path), which no nonlinearity of the element models")
+    if rfs[0].band.f_lo_hz > 1.0:
+        notes.append(f"the integration band starts at {rfs[0].band.f_lo_hz:g} Hz: motion below it is only partly "
+                     f"in z, ż: the lowest mode of interest must lie above it")
+    return Characterization(candidates=tuple(out), suggested=tuple(chosen), band=rfs[0].band,
+                            thresholds=thresholds, records=tuple(_summary(rf, data, i) for i, rf in enumerate(rfs)),
+                            linear=lin, model=model, m2_kg=m2_kg,
+                            z_range_m=data.zmax, zdot_range_m_s=data.vmax, notes=tuple(notes))
+
+
+def rank_beyond(rfs: Sequence[RestoringForce], declared: Sequence[Term], *, m2_kg: float | None = None,
+                kinds: Sequence[str] = DEFAULT_KINDS, thresholds: Thresholds = Thresholds(),
+                grid_points: int = 24, n_groups: int = 4,
+                progress: Callable[[float], None] | None = None,
+                offsets: Sequence[Sequence[float] | None] | None = None) -> tuple[Candidate, ...]:
+    """Each kind's best candidate on top of a linear strut AND the ``declared`` terms, ranked by ERR.
+
+    What a model holding ``declared`` still lacks (the tracing step of the
+    loop, docs/method.md §5): the same grids, band-limiting and QR-orthogonalised
+    scoring as :func:`characterize_restoring`, with the declared terms' regressors
+    (coefficients refitted) in the base. ERR is then the fraction of what the
+    linear + declared fit leaves that the candidate explains; every statistic of
+    :class:`Candidate` is given the declared terms (``conditional_on``).
+    A candidate identical to a declared term is not listed. ``offsets``: per declared term, None or
+    one ``offset`` [m] per record (a bump stop from the static position, :mod:`.characterize_static`).
+    """
+    if not rfs:
+        raise InputError("no restoring-force data to rank candidates on")
+    kinds = tuple(dict.fromkeys(lookup_kind(k).name for k in kinds))
+    declared = tuple(declared)
+    data = RegressionData(rfs, n_groups=n_groups, body_stiffness=False)
+    search = GridSearch(data, kinds, grid_points, progress)
+    base = [data.regressor(t, offsets=o) for t, o in zip(declared, offsets or [None] * len(declared))]
+    extra, r = np.empty((data.rows.size, 0)), search.r0
+    for b in base:  # orthonormal basis of the declared columns beyond the linear ones (subsample rows)
+        v = b[data.rows] - search.q @ (search.q.T @ b[data.rows])
+        if extra.shape[1]:
+            v = v - extra @ (extra.T @ v)
+        nv = float(np.linalg.norm(v))
+        if nv > 1e-9 * max(float(np.linalg.norm(b[data.rows])), 1e-300):
+            v = v / nv
+            extra = np.column_stack([extra, v])
+            r = r - v * (v @ r)
+    e, sg = search.err(extra, r)
+    n_grid = {k: len(search.grids[k]) for k in kinds}
+    names = tuple(t.label for t in declared)
+    out = []
+    for k in kinds:
+        ok = np.array([t not in declared for t in search.terms])
+        j = search.best_of(k, np.where(ok, e, -1.0), sg)
+        if j is None:  # only the unphysical sign: keep its best, to show why it fails
+            j = search.best_of(k, np.where(ok, e, -1.0), np.ones_like(sg))
+        if j is None or not ok[j]:
+            continue
+        out.append(score_candidate(data, base, search.terms[j], thresholds=thresholds, n_grid=n_grid[k], m2=m2_kg,
+                          names=names))
+    return tuple(sorted(out, key=lambda c: -c.err))
+
+
+def _joint(data: RegressionData, terms: list[Term], offsets: list) -> "FittedModel":
+    lin = data.x[:, data.lin]
+    a = np.column_stack([lin, *[data.regressor(t, offsets=o) for t, o in zip(terms, offsets)]]) if terms else lin
+    c = lstsq(a, data.y)
+    res = data.y - a @ c
+    tss = float(data.y @ data.y)
+    return FittedModel(k_per_kg=float(c[0]), c_per_kg=float(c[1]),
+                       terms=tuple((t, float(th)) for t, th in zip(terms, c[len(data.lin):])),
+                       r2=1.0 - float(res @ res) / tss if tss > 0 else 0.0)
+
+
+def _linear(data: RegressionData, m2: float | None, body_stiffness: bool) -> dict:
+    c = lstsq(data.x, data.y)
+    r = data.y - data.x @ c
+    tss = float(data.y @ data.y)
+    out = {"k_per_kg": float(c[0]), "c_per_kg": float(c[1]), "r2": 1.0 - float(r @ r) / tss if tss > 0 else 0.0}
+    if body_stiffness:
+        out["k3_per_kg"] = float(c[2])
+    if data.forced and c[-1] < 0:                 # -ẍ2 = ... - F/M2
+        out["m2_from_force_kg"] = -1.0 / float(c[-1])
+    if m2 is not None:
+        out.update(k2_n_per_m=float(c[0]) * m2, c2_n_s_per_m=float(c[1]) * m2)
+        if body_stiffness:
+            out["k3_n_per_m"] = float(c[2]) * m2
+    return out
+
+
+def _summary(rf: RestoringForce, data: RegressionData, i: int) -> RecordSummary:
+    m = data.rec == i
+    x, y = data.x[m][:, data.lin], data.y[m]
+    coef = lstsq(x, y)
+    res = y - x @ coef
+    return RecordSummary(source=rf.source, fs_hz=rf.fs_hz, duration_s=(rf.n + 2 * rf.start) / rf.fs_hz,
+                         seconds_used=float(m.sum()) / rf.fs_hz,
+                         z_rms_m=float(np.std(x[:, 0])), z_peak_m=float(np.max(np.abs(x[:, 0]))),
+                         zdot_rms_m_s=float(np.std(x[:, 1])), zdot_peak_m_s=float(np.max(np.abs(x[:, 1]))),
+                         k_per_kg=float(coef[0]), c_per_kg=float(coef[1]),
+                         linear_r2=1.0 - float(res @ res) / float(y @ y))
+
+
+def characterize(records: Record | Sequence[Record], *, band: IntegrationBand | None = None,
+                 m2_kg: float | None = None, kinds: Sequence[str] = DEFAULT_KINDS,
+                 thresholds: Thresholds = Thresholds(), grid_points: int = 24, max_terms: int = 3,
+                 freq_window_hz: tuple[float, float] | None = None, body_stiffness: bool = False,
+                 progress: Callable[[float], None] | None = None) -> Characterization:
+    """Rank describing functions by how much of the restoring force they explain beyond linear.
+
+    Parameters
+    ----------
+    records : Record or sequence of Record
+        One record, or several at different excitation levels (same vehicle).
+    band : IntegrationBand, optional
+        Integration band for z, ż and the band-pass of every column; default
+        :func:`~nifo_core.characterize.restoring.suggest_band` of the first record.
+    m2_kg : float, optional
+        Sprung mass [kg]: coefficients are then also given in N/m, N·s/m, N, ...
+    kinds : sequence of str
+        Kinds of :mod:`nifo_core.kinds.describing` to try (default :data:`DEFAULT_KINDS`).
+    thresholds : Thresholds
+        When a candidate counts as present.
+    grid_points : int
+        Grid points per parameter (then refined around each kind's best).
+    max_terms : int
+        Most terms in the suggested model.
+    freq_window_hz : (float, float), optional
+        Fit only the samples whose instantaneous frequency (tracked on the
+        spindle signal, :func:`~nifo_core.characterize.restoring.track_frequency`) lies in
+        this window: sweeps of multi-mode structures, where one linear k, c
+        holds only near one mode.
+    body_stiffness : bool
+        Also fit K3·x2 (a rig restraint from body to ground), x2 integrated from
+        ẍ2 alone. Off by default: x2 is a low-passed copy of the very signal
+        being explained (y = -ẍ2), so the fit can lean on it; use it only when
+        K3 ≠ 0 is known.
+    progress : callable, optional
+        Called with the fraction of the grid evaluated.
+
+    Returns
+    -------
+    Characterization
+    """
+    recs = [records] if isinstance(records, Record) else list(records)
+    if not recs:
+        raise InputError("no records to characterize")
+    if band is None:
+        band = suggest_band(recs[0]).band
+    rfs = [restoring_force(r, band=band, body_displacement=body_stiffness) for r in recs]
+    masks = None
+    if freq_window_hz is not None:
+        lo, hi = (float(v) for v in freq_window_hz)
+        if not 0 < lo < hi:
+            raise ConfigError(f"frequency window {lo:g}-{hi:g} Hz must satisfy 0 < lo < hi")
+        masks = [(f >= lo) & (f <= hi) for f in (instantaneous_frequency(rf.spindle_accel, rf.fs_hz) for rf in rfs)]
+    return characterize_restoring(rfs, m2_kg=m2_kg, kinds=kinds, thresholds=thresholds,
+                                  grid_points=grid_points, max_terms=max_terms, body_stiffness=body_stiffness,
+                                  masks=masks, progress=progress)

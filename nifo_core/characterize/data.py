@@ -1,0 +1,247 @@
+"""The characterization's regression data and grid search (:mod:`nifo_core.characterize.automatic`, docs/method.md §5).
+
+:class:`RegressionData` band-passes every column once more with the one
+filter (the module docstring of :mod:`nifo_core.characterize.automatic` says why);
+:func:`candidate_grid` spans each kind's parameters over the observed motion;
+:class:`GridSearch` scores every grid column by its error reduction ratio on
+a row subsample (one QR of the linear columns).
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Sequence
+
+import numpy as np
+
+from .result import POSITIVE_KINDS
+from ..kinds.describing import Term, kind as lookup_kind
+from ..errors import ConfigError, InputError
+from .restoring import RestoringForce, bandpass, bandpass_settle_samples
+
+__all__ = ["RegressionData", "GridSearch", "candidate_grid", "refine_grid"]
+
+#: rows used for the grid search (after band-passing at full length)
+_SEARCH_ROWS = 40_000
+
+
+class RegressionData:
+    """The regression's rows: every column band-passed once more with the one filter."""
+
+    def __init__(self, rfs: Sequence[RestoringForce], *, n_groups: int, body_stiffness: bool,
+                 masks: Sequence[np.ndarray | None] | None = None) -> None:
+        self.rfs = list(rfs)
+        self.keep: list[np.ndarray] = []
+        ys, xs, groups, folds, recs = [], [], [], [], []
+        masks = list(masks) if masks is not None else [None] * len(self.rfs)
+        for i, (rf, mask) in enumerate(zip(self.rfs, masks)):
+            s = bandpass_settle_samples(rf.fs_hz, rf.band)
+            need = int(4 * rf.fs_hz / rf.band.f_lo_hz)
+            if rf.n - 2 * s < need:
+                raise InputError(f"{rf.n / rf.fs_hz:.1f} s of restoring-force data is too short to characterize "
+                                 f"(the band-pass settles over {s / rf.fs_hz:.1f} s at each end)",
+                                 source=rf.source or f"record {i}",
+                                 hint="record longer or raise the band's lower edge")
+            ok = np.zeros(rf.n, bool)
+            ok[s:rf.n - s] = True
+            if mask is not None:
+                ok &= np.asarray(mask, bool)
+            k = np.nonzero(ok)[0]
+            if k.size < max(64, int(2 * rf.fs_hz / rf.band.f_lo_hz)):
+                raise InputError(f"only {k.size} samples ({k.size / rf.fs_hz:.1f} s) are selected for characterizing",
+                                 source=rf.source or f"record {i}",
+                                 hint="widen the frequency window or record longer")
+            self.keep.append(k)
+            n = k.size
+            cols = [rf.z, rf.zdot]
+            if body_stiffness:
+                if rf.x2 is None:
+                    raise ConfigError("body_stiffness needs x2: make the data with "
+                                      "restoring_force(..., body_displacement=True)")
+                cols.append(rf.x2)
+            if rf.applied is not None:   # measured force on the body: coefficient -1/M2
+                cols.append(rf.applied)
+            both = bandpass(np.vstack([rf.force, *cols]), rf.fs_hz, rf.band)[:, k]
+            ys.append(both[0])
+            xs.append(both[1:].T)
+            recs.append(np.full(n, i))
+            # cross-validation folds: alternate blocks of 1/16 of the rows (≥ 2 periods of f_lo)
+            blk = max(n // 16, int(2 * rf.fs_hz / rf.band.f_lo_hz))
+            folds.append((np.arange(n) // blk) % 2)
+            groups.append(np.full(n, i) if len(self.rfs) > 1
+                          else np.minimum(np.arange(n) * n_groups // n, n_groups - 1))
+        self.y = np.concatenate(ys)
+        forced = {rf.applied is not None for rf in self.rfs}
+        if len(forced) > 1:
+            raise InputError("some records have a measured force and some not",
+                             hint="characterize records of one kind together")
+        self.forced = forced.pop()
+        #: the linear columns of every fit: z, ż (and the measured force)
+        self.lin = [0, 1] + ([len(xs[0][0]) - 1] if self.forced else [])
+        self.x = np.concatenate(xs)
+        self.group = np.concatenate(groups)
+        self.fold = np.concatenate(folds)
+        self.rec = np.concatenate(recs)
+        z, v = self.x[:, 0], self.x[:, 1]
+        self.rows = np.arange(0, z.size, max(1, int(np.ceil(z.size / _SEARCH_ROWS))))
+        self.zmax = float(np.quantile(np.abs(z), 0.995))
+        self.vmax = float(np.quantile(np.abs(v), 0.995))
+        self.zneg = float(np.quantile(-z, 0.998))
+        self.zpos = float(np.quantile(z, 0.998))
+        self._cache: dict = {}
+
+    def regressor(self, term: Term, *, offsets: Sequence[float] | None = None) -> np.ndarray:
+        """g(z, ż) band-passed per record like every other column; kept rows, stacked.
+
+        ``offsets``: one ``offset`` [m] per record replacing the term's own (a bump stop measured
+        from the static position, which sits elsewhere in each record: :mod:`.characterize_static`).
+        """
+        if offsets is not None and len(offsets) != len(self.rfs):
+            raise ConfigError(f"{len(offsets)} offsets for {len(self.rfs)} records")
+        key = (term.kind, tuple(sorted(term.params.items())), None if offsets is None else tuple(offsets))
+        hit = self._cache.get(key)
+        if hit is not None:
+            return hit
+        parts = []
+        for i, (rf, k) in enumerate(zip(self.rfs, self.keep)):
+            t = term if offsets is None else Term(term.kind, {**term.params, "offset": float(offsets[i])})
+            parts.append(bandpass(t.evaluate(rf.z, rf.zdot), rf.fs_hz, rf.band)[k])
+        out = np.concatenate(parts)
+        if len(self._cache) < 48:
+            self._cache[key] = out
+        return out
+
+
+# --------------------------------------------------------------------------------------------
+# candidate grids
+# --------------------------------------------------------------------------------------------
+def candidate_grid(kind_name: str, *, z_range: float, zdot_range: float, z_neg: float | None = None,
+                   z_pos: float | None = None, points: int = 24) -> list[Term]:
+    """Terms of one kind over a parameter grid scaled to the observed motion.
+
+    ``z_range``/``zdot_range`` are robust peaks of |z| [m] and |ż| [m/s];
+    ``z_neg``/``z_pos`` the peaks in compression/rebound (bump stops; the
+    threshold is measured from the mean position, static offsets being lost).
+    Scale parameters get geometric grids (equal relative steps):
+
+    ========================  ==================================
+    clearance ``gap``          3-90 % of the |z| peak
+    bump_stop ``gap``          0-92 % of the peak on each side
+    backlash ``deadband``      1-70 % of the |z| peak
+    velocity_deadzone ``knee`` 2-90 % of the |ż| peak
+    coulomb ``eps``            0.1-30 % of the |ż| peak
+    ========================  ==================================
+    """
+    k = lookup_kind(kind_name)
+    name = k.name
+    zr, vr = float(z_range), float(zdot_range)
+    if not (zr > 0 and vr > 0):
+        raise InputError(f"motion range z={zr:g} m, ż={vr:g} m/s must be positive to build a grid",
+                         hint="the record holds no relative motion in the band")
+    if points < 2:
+        raise ConfigError(f"grid points={points} must be at least 2")
+
+    def geo(lo, hi):
+        return np.geomspace(lo, hi, points)
+
+    if name in ("cubic_stiffness", "quadratic_stiffness", "quadratic_damping"):
+        return [Term(name)]
+    if name == "asymmetric_damping":
+        return [Term(name, {"side": "rebound"})]
+    if name in ("clearance", "saturation"):
+        key = "gap" if name == "clearance" else "limit"
+        return [Term(name, {key: g}) for g in geo(0.03, 0.9) * zr]
+    if name == "bump_stop":
+        out = []
+        for side, peak in (("compression", z_neg or zr), ("rebound", z_pos or zr)):
+            out += [Term(name, {"gap": g, "side": side}) for g in np.linspace(0.0, 0.92, points) * peak]
+        return out
+    if name == "backlash":
+        return [Term(name, {"deadband": d}) for d in geo(0.01, 0.7) * zr]
+    if name in ("velocity_deadzone", "velocity_saturation"):
+        key = "knee" if name == "velocity_deadzone" else "limit"
+        return [Term(name, {key: g}) for g in geo(0.02, 0.9) * vr]
+    if name == "coulomb":
+        return [Term(name, {"eps": e}) for e in geo(0.001, 0.3) * vr]
+    raise ConfigError(f"no parameter grid for kind {name!r}")  # pragma: no cover - every kind has one
+
+
+def refine_grid(term: Term, grid: list[Term], points: int = 7) -> list[Term]:
+    """Terms between the grid neighbours of ``term`` (same kind and side), on its varying parameter."""
+    same = [t for t in grid if t.params.get("side") == term.params.get("side")]
+    varying = [p for p in term.params if p != "side" and len({t.params[p] for t in same}) > 1]
+    if not varying:
+        return []
+    kp = varying[0]
+    vals = np.array(sorted(float(t.params[kp]) for t in same))
+    v = float(term.params[kp])
+    i = int(np.argmin(np.abs(vals - v)))
+    lo, hi = vals[max(i - 1, 0)], vals[min(i + 1, vals.size - 1)]
+    new = np.linspace(lo, hi, points + 2)[1:-1]
+    return [Term(term.kind, {**term.params, kp: float(x)}) for x in new
+            if not np.isclose(x, v) and (x > 0 or term.kind == "bump_stop")]
+
+
+
+# --------------------------------------------------------------------------------------------
+# the search
+# --------------------------------------------------------------------------------------------
+class GridSearch:
+    """Grid columns on the row subsample, orthogonalised against the linear columns (one QR)."""
+
+    def __init__(self, data: RegressionData, kinds: Sequence[str], grid_points: int,
+                 progress: Callable[[float], None] | None) -> None:
+        self.data = data
+        rows = data.rows
+        self.q, _ = np.linalg.qr(data.x[rows])
+        ys = data.y[rows]
+        self.r0 = ys - self.q @ (self.q.T @ ys)
+        self.grids = {k: candidate_grid(k, z_range=data.zmax, zdot_range=data.vmax, z_neg=data.zneg,
+                                        z_pos=data.zpos, points=grid_points) for k in kinds}
+        self.terms: list[Term] = []
+        self.cols: list[np.ndarray] = []
+        self._total = sum(len(g) for g in self.grids.values()) + 7 * len(kinds)
+        self._progress = progress
+        for k in kinds:
+            self._add(self.grids[k])
+        self._refresh()
+        err, th = self.err(np.empty((rows.size, 0)), self.r0)
+        for k in kinds:  # refine each kind's best
+            j = self.best_of(k, err, th)
+            if j is not None:
+                self._add(refine_grid(self.terms[j], self.grids[k]))
+        self._refresh()
+
+    def _add(self, terms: list[Term]) -> None:
+        for t in terms:
+            self.terms.append(t)
+            self.cols.append(self.data.regressor(t)[self.data.rows])
+            if self._progress:
+                self._progress(min(len(self.terms) / self._total, 1.0))
+
+    def _refresh(self) -> None:
+        g = np.column_stack(self.cols)
+        self.norm2 = np.einsum("ij,ij->j", g, g)
+        self.gp = g - self.q @ (self.q.T @ g)
+        self.kind_of = np.array([t.kind for t in self.terms])
+
+    def err(self, extra: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """ERR of every column given further orthonormal basis vectors ``extra`` and residual ``r``; and sign of θ."""
+        g = self.gp - extra @ (extra.T @ self.gp) if extra.shape[1] else self.gp
+        d = np.einsum("ij,ij->j", g, g)
+        num = g.T @ r
+        ok = d > 1e-9 * self.norm2  # not (numerically) in the span of the linear columns
+        e = np.where(ok, num ** 2 / np.maximum(d, 1e-300) / max(float(r @ r), 1e-300), 0.0)
+        return e, np.sign(num)
+
+    def best_of(self, kind_name: str, err: np.ndarray, sign: np.ndarray) -> int | None:
+        ok = self.kind_of == kind_name
+        if kind_name in POSITIVE_KINDS:
+            ok &= sign > 0
+        idx = np.nonzero(ok)[0]
+        return int(idx[np.argmax(err[idx])]) if idx.size else None
+
+    def unit(self, j: int, extra: np.ndarray) -> np.ndarray:
+        g = self.gp[:, j]
+        if extra.shape[1]:
+            g = g - extra @ (extra.T @ g)
+        return g / np.linalg.norm(g)

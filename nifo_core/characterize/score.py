@@ -1,0 +1,168 @@
+"""Scoring one candidate at full length: ERR, cross-validated ERR, F-test, coefficient stability
+(the thresholds of :mod:`nifo_core.characterize.automatic`), and its reported form."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+from scipy import stats
+
+from .data import RegressionData
+from .result import POSITIVE_KINDS, Candidate, Thresholds
+from ..kinds.describing import Term
+from ..signal.uncertainty import effective_samples
+
+__all__ = ["score_candidate", "lstsq"]
+
+_EQUIVALENT = {"clearance": ("saturation", "gap", "limit"),
+               "velocity_deadzone": ("velocity_saturation", "knee", "limit")}
+
+
+
+# --------------------------------------------------------------------------------------------
+# statistics
+# --------------------------------------------------------------------------------------------
+def _n_eff(res: np.ndarray, rec: np.ndarray, fs: Sequence[float]) -> float:
+    """Effective sample count of coloured residuals: Σ_records n·mean(S)²/mean(S²) (the one spectral engine)."""
+    total = 0.0
+    for i, f in enumerate(fs):
+        r = res[rec == i]
+        total += effective_samples(r, f, block=int(min(4096, max(64, r.size // 8))))
+    return total
+
+
+def _half_width(a0: np.ndarray, g: np.ndarray, res: np.ndarray, data: RegressionData, *, level: float = 0.95,
+                block_s: float = 2.0) -> float:
+    """Half-width of the ``level`` bound of the last coefficient θ of the fit [a0, g] with residual ``res``.
+
+    Batch means (a heteroscedasticity- and autocorrelation-consistent sandwich): with g⊥ = g
+    orthogonalised against ``a0``, θ - θ_true = Σ g⊥·e / Σ g⊥², so over blocks b of ``block_s``
+    (≥ 2 periods of the band's lower edge; the residual's correlation is far shorter)
+
+        Var θ ≈ Σ_b (Σ_{i∈b} g⊥_i·e_i)² / (Σ g⊥²)²,   t quantile with (blocks - 1) degrees of freedom.
+
+    The N_eff count of the F-test (N·mean(S)²/mean(S²)) treats the residual as if g⊥ were white;
+    g⊥ is band-limited too, and that bound came out 5.6× too wide (20-seed check, quadratic damping).
+    """
+    q0, _ = np.linalg.qr(a0)
+    gp = g - q0 @ (q0.T @ g)
+    info = float(gp @ gp)
+    if not info > 0:
+        return float("nan")
+    scores, covered = [], 0
+    for i, rf in enumerate(data.rfs):
+        m = data.rec == i
+        blk = max(int(block_s * rf.fs_hz), int(2 * rf.fs_hz / rf.band.f_lo_hz))
+        u = gp[m] * res[m]
+        nb = u.size // blk
+        if nb >= 1:
+            scores.append(u[: nb * blk].reshape(nb, blk).sum(axis=1))
+            covered += nb * blk
+    sc = np.concatenate(scores) if scores else np.empty(0)
+    if sc.size < 4:
+        return float("nan")
+    var = float(sc @ sc) * (gp.size / covered) / info ** 2   # rows past the last whole block: same density
+    return float(stats.t.ppf(0.5 + level / 2, sc.size - 1)) * float(np.sqrt(var))
+
+
+def lstsq(a: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return np.linalg.lstsq(a, y, rcond=None)[0]
+
+
+def _cv_rss(a: np.ndarray, y: np.ndarray, fold: np.ndarray) -> float:
+    rss = 0.0
+    for f in (0, 1):
+        tr, te = fold == f, fold != f
+        e = y[te] - a[te] @ lstsq(a[tr], y[tr])
+        rss += float(e @ e)
+    return rss
+
+
+def score_candidate(data: RegressionData, base: list[np.ndarray], term: Term, *, thresholds: Thresholds, n_grid: int,
+           m2: float | None, names: tuple[str, ...], offsets: Sequence[float] | None = None) -> Candidate:
+    """Full-length fit of ``term`` on top of the linear columns and the ``base`` regressors."""
+    y = data.y
+    a0 = np.column_stack([data.x, *base]) if base else data.x
+    a1 = np.column_stack([a0, data.regressor(term, offsets=offsets)])
+    c1 = lstsq(a1, y)
+    r0 = y - a0 @ lstsq(a0, y)
+    r1 = y - a1 @ c1
+    rss0, rss1, tss = float(r0 @ r0), float(r1 @ r1), float(y @ y)
+    err = max(0.0, 1.0 - rss1 / rss0) if rss0 > 0 else 0.0
+    neff = _n_eff(r1, data.rec, [rf.fs_hz for rf in data.rfs])
+    dof = max(neff - a1.shape[1], 1.0)
+    fstat = max(rss0 - rss1, 0.0) / max(rss1 / dof, 1e-300)
+    p = float(min(1.0, stats.f.sf(fstat, 1, dof) * max(n_grid, 1)))  # Bonferroni over the grid
+    cv0 = _cv_rss(a0, y, data.fold)
+    err_cv = 1.0 - _cv_rss(a1, y, data.fold) / cv0 if cv0 > 0 else 0.0
+    theta = float(c1[-1])
+    half = _half_width(a0, a1[:, -1], r1, data)
+    gth, w = [], []
+    for gi in np.unique(data.group):
+        am, ym = a1[data.group == gi], y[data.group == gi]
+        q, rr = np.linalg.qr(am[:, :-1])
+        gp = am[:, -1] - q @ (q.T @ am[:, -1])
+        info = float(gp @ gp)
+        if info <= 1e-12 * float(am[:, -1] @ am[:, -1]) or info == 0:
+            continue  # the term is not exercised in this group
+        gth.append(float(gp @ (ym - q @ (q.T @ ym)) / info))
+        w.append(info)
+    gth_a, w_a = np.array(gth), np.array(w)
+    if w_a.size:  # groups where the term is barely exercised (motion within a play, say) say nothing
+        big = w_a >= 1e-3 * w_a.max()
+        gth_a, w_a = gth_a[big], w_a[big]
+    if w_a.size >= 2 and theta != 0:
+        spread = float(np.sqrt(np.sum(w_a * (gth_a - theta) ** 2) / np.sum(w_a)) / abs(theta))
+    else:
+        spread = float("nan")
+    failed = []
+    if err < thresholds.min_err:
+        failed.append(f"ERR {err:.3f} < {thresholds.min_err:g}")
+    if err_cv < thresholds.min_err_cv:
+        failed.append(f"cross-validated ERR {err_cv:.3f} < {thresholds.min_err_cv:g}")
+    if not p < thresholds.alpha:
+        failed.append(f"p {p:.2g} ≥ {thresholds.alpha:g}")
+    if not np.isfinite(spread):
+        failed.append("coefficient stability unknown: the term acts in only one data group")
+    elif spread > thresholds.max_spread:
+        failed.append(f"coefficient spread {spread:.2f} > {thresholds.max_spread:g}")
+    elif np.any((np.sign(gth_a) != np.sign(theta)) & (w_a >= 0.1 * w_a.max())):
+        failed.append("the coefficient changes sign across the data groups: " + ", ".join(f"{g:.3g}" for g in gth_a))
+    dr2 = max(rss0 - rss1, 0.0) / tss if tss > 0 else 0.0
+    if dr2 < thresholds.min_delta_r2:
+        failed.append(f"ΔR² {dr2:.1e} < {thresholds.min_delta_r2:g}")
+    if term.kind in POSITIVE_KINDS and theta <= 0:
+        failed.append(f"coefficient {theta:.3g} has the unphysical sign")
+    term, sign, equiv = _canonical(term, theta)
+    return Candidate(term=term, theta=sign * theta, coefficient=None if m2 is None else sign * theta * m2,
+                     theta_half_width=half,
+                     err=err, delta_r2=dr2, err_cv=float(err_cv),
+                     p_value=p, n_eff=float(neff), spread=spread, group_theta=tuple(sign * gth_a),
+                     present=not failed, conditional_on=names, equivalent=equiv, failed=tuple(failed),
+                     relative_param=_relative(term, data), offsets=() if offsets is None else tuple(offsets))
+
+
+def _relative(term: Term, data: RegressionData) -> float | None:
+    kp = term.spec.key_param
+    if kp is None:
+        return None
+    v = float(term.params[kp])
+    if term.spec.variable == "zdot":
+        return v / data.vmax
+    if term.kind == "bump_stop":
+        peak = data.zneg if term.params["side"] == "compression" else data.zpos
+        return v / peak if peak > 0 else None
+    return v / data.zmax
+
+
+def _canonical(term: Term, theta: float) -> tuple[Term, float, str | None]:
+    """(reported term, sign to apply to θ, equivalent form)."""
+    if term.kind == "asymmetric_damping" and theta < 0:
+        # c·max(ż,0) = c·ż - c·min(ż,0): the other side with -c, plus a linear term
+        other = "compression" if term.params["side"] == "rebound" else "rebound"
+        return Term("asymmetric_damping", {"side": other}), -1.0, None
+    if term.kind in _EQUIVALENT:
+        name, kp, kq = _EQUIVALENT[term.kind]
+        return term, 1.0, f"{name}({kq}={float(term.params[kp]):.4g}) with the opposite coefficient"
+    return term, 1.0, None

@@ -1,0 +1,135 @@
+"""Where the static position lies in each record: bump stops measured from it (docs/method.md §5).
+
+z and ż are band-limited integrals of accelerations: their mean is lost, so z is
+measured from each record's *mean* position. A one-sided force (a bump stop)
+pushes the mean away from it, the more the harder the excitation. A gap
+measured from the mean is therefore the true gap from the static position plus
+that shift, and it differs from level to level (a stop 8 mm from static at 7 mm
+road RMS reads 9.9 mm from the mean; at 5 mm RMS 8.5 mm).
+
+The static position is recovered from the mean of the body equation (paper
+Eq. 2 averaged over the record): the body does not accelerate on average and
+ż has zero mean, so with m the mean position measured from static (z_static = z + m)
+
+    0 = k·m + Σ θ_i·mean g_i(z + m, ż)
+
+a scalar root per record (a stiffening stop makes the right side monotone in m).
+The gap s from the static position is then fitted with, on each record, the
+regressor g(z + m_i; s) — the term with ``offset = -m_i`` — and m_i recomputed
+from the refitted k, θ.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+from scipy import optimize
+
+from .data import RegressionData
+from ..kinds.describing import Term
+
+__all__ = ["mean_shift", "static_bump_stops"]
+
+#: kinds whose threshold is measured from the static position (one-sided: they move the mean)
+STATIC_KINDS = frozenset({"bump_stop"})
+
+
+def mean_shift(z: np.ndarray, zdot: np.ndarray, k_per_kg: float, terms: Sequence[tuple[Term, float]]) -> float:
+    """Mean position m [m] of a record measured from the static position (module docstring).
+
+    Parameters
+    ----------
+    z, zdot : ndarray
+        Relative displacement [m] (zero-mean: measured from the record's mean) and velocity [m/s].
+    k_per_kg : float
+        Linear stiffness per unit sprung mass K2/M2 [1/s²].
+    terms : sequence of (Term, θ)
+        The nonlinear terms with their coefficients per unit sprung mass; a bump stop's own
+        ``offset`` is ignored (it is what m replaces).
+
+    Returns
+    -------
+    float
+        m such that k·m + Σ θ·mean g(z + m, ż) = 0; 0.0 when no root lies within the motion's range.
+    """
+    z, zdot = np.asarray(z, float), np.asarray(zdot, float)
+    terms = [(Term(t.kind, {**t.params, "offset": 0.0}) if t.kind in STATIC_KINDS else t, th) for t, th in terms]
+
+    def balance(m: float) -> float:
+        zs = z + m
+        return k_per_kg * m + sum(th * float(np.mean(t.evaluate(zs if t.spec.variable == "z" else z, zdot)))
+                                  for t, th in terms)
+
+    a = 2.0 * float(np.max(np.abs(z))) if z.size else 0.0
+    if not (a > 0 and np.isfinite(k_per_kg)):
+        return 0.0
+    lo, hi = balance(-a), balance(a)
+    if not (np.isfinite(lo) and np.isfinite(hi)) or lo * hi > 0:
+        return 0.0
+    return float(optimize.brentq(balance, -a, a, xtol=1e-9 * a))
+
+
+def _fit(data: RegressionData, terms: list[Term], offsets: list[list[float] | None]) -> tuple[np.ndarray, float]:
+    a = np.column_stack([data.x[:, data.lin], *[data.regressor(t, offsets=o) for t, o in zip(terms, offsets)]])
+    c = np.linalg.lstsq(a, data.y, rcond=None)[0]
+    r = data.y - a @ c
+    return c, float(r @ r)
+
+
+def _offsets(data: RegressionData, terms: list[Term], c: np.ndarray, j: int, gap: float) -> list[float]:
+    """offset = -m per record for term ``j`` at static gap ``gap``, given the fit ``c``."""
+    nl = len(data.lin)
+    pairs = [(Term(t.kind, {**t.params, "gap": gap}) if i == j else t, float(c[nl + i])) for i, t in enumerate(terms)]
+    return [-mean_shift(rf.z, rf.zdot, float(c[0]), pairs) for rf in data.rfs]
+
+
+def static_bump_stops(data: RegressionData, terms: Sequence[Term], *,
+                      points: int = 25) -> tuple[list[Term], list[tuple[float, ...] | None]]:
+    """Each bump stop of ``terms`` with its gap from the static position and per-record offsets.
+
+    Parameters
+    ----------
+    data : RegressionData
+    terms : sequence of Term
+        The suggested terms; bump stops among them carry the gap from the mean position.
+    points : int
+        Static gaps tried between 30 % and 105 % of the gap from the mean.
+
+    Returns
+    -------
+    terms : list of Term
+        The terms, bump stops with ``gap`` from the static position and ``offset`` = -m of the
+        record with the largest motion (the one a single-record model is identified on).
+    offsets : list
+        Per term: the offset -m_i [m] of every record (bump stops), else None.
+    """
+    terms = list(terms)
+    offsets: list[list[float] | None] = [None] * len(terms)
+    for j, t in enumerate(terms):
+        if t.kind not in STATIC_KINDS:
+            continue
+        g_mean = float(t.params["gap"])
+        c, _ = _fit(data, terms, offsets)
+        best = (np.inf, g_mean, [0.0] * len(data.rfs))
+
+        def trial(s: float, c0: np.ndarray) -> tuple[float, float, list[float]]:
+            cc, off = c0, None
+            for _ in range(3):  # m depends on k and θ, which depend on the offsets: a few fixed-point steps
+                off = _offsets(data, terms, cc, j, s)
+                trial_terms = terms[:j] + [Term(t.kind, {**t.params, "gap": s})] + terms[j + 1:]
+                cc, rss = _fit(data, trial_terms, offsets[:j] + [off] + offsets[j + 1:])
+            return rss, s, off
+
+        grid = np.linspace(0.3, 1.05, points) * g_mean
+        for s in grid:
+            best = min(best, trial(float(s), c), key=lambda b: b[0])
+        step = grid[1] - grid[0]
+        for s in np.linspace(best[1] - step, best[1] + step, 9):
+            if s > 0:
+                best = min(best, trial(float(s), c), key=lambda b: b[0])
+        _, s, off = best
+        main = int(np.argmax([float(np.std(rf.z)) for rf in data.rfs]))
+        terms[j] = Term(t.kind, {**t.params, "gap": float(s), "offset": float(off[main])})
+        offsets[j] = off
+    return terms, [None if o is None else tuple(float(v) for v in o) for o in offsets]

@@ -1,0 +1,16 @@
+"""The nonlinearity kinds: the registry of every per-kind fact, and their compiled forms.
+
+Modules:
+
+- :mod:`nifo_core.kinds.describing`  the describing-function library and the kind registry ``KINDS`` (docs/method.md §2)
+- :mod:`nifo_core.kinds.strut_forces`  the kinds' forces one sample at a time in numba, for the simulator and the prediction engine
+
+Layer: it imports the bottom, beside :mod:`nifo_core.signal` (``.importlinter``). The names below are its front
+door; the modules' private (``_``) names stay inside the package.
+"""
+
+from .describing import Kind, Term, KINDS, ALIASES, kind, make_term, evaluate_terms, play_operator, path_slopes, CODES
+from .strut_forces import PLAY, kind_code, strut_arrays, g_one, strut_force, lipschitz
+
+__all__ = ["Kind", "Term", "KINDS", "ALIASES", "kind", "make_term", "evaluate_terms", "play_operator", "path_slopes",
+           "CODES", "PLAY", "kind_code", "strut_arrays", "g_one", "strut_force", "lipschitz"]

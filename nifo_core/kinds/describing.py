@@ -1,0 +1,303 @@
+"""The describing-function library: static and hysteretic strut nonlinearities.
+
+Each *kind* is a basis function g(z, ż; params) of the relative displacement
+z = x2 - x1 [m] and velocity ż [m/s] (docs/method.md §2, paper Fig. 1). A strut
+nonlinearity is ``c · g`` with a coefficient c added to the linear strut force
+(body equation ``M2·ẍ2 = -K2·z - C2·ż - K3·x2 - Σ c_i·g_i``). The forms are kept
+*whole* (their linear part is not removed, docs/method.md §3), and every one is
+zero at zero motion, so the nominal linear system is what remains when all
+coefficients vanish.
+
+==========================  ========  ===============================  =======================================
+kind                        variable  parameters                       g
+==========================  ========  ===============================  =======================================
+``cubic_stiffness``         z         —                                z³
+``quadratic_stiffness``     z         —                                z² (even: stiffer on one side)
+``clearance``               z         ``gap`` [m]                      sign(z)·max(|z| - gap, 0)
+``saturation``              z         ``limit`` [m]                    clip(z, -limit, limit)
+``bump_stop``               z         ``gap`` [m], ``side``, ``offset``  compression: min(z - offset + gap, 0)
+                                                                        rebound: max(z - offset - gap, 0)
+``backlash``                z         ``deadband`` [m]                 play operator of total width deadband
+``velocity_deadzone``       ż         ``knee`` [m/s]                   sign(ż)·max(|ż| - knee, 0)
+``velocity_saturation``     ż         ``limit`` [m/s]                  clip(ż, -limit, limit)
+``coulomb``                 ż         ``eps`` [m/s]                    tanh(ż/eps)
+``quadratic_damping``       ż         —                                ż·|ż|
+``asymmetric_damping``      ż         ``side``                         rebound: max(ż, 0); compression: min(ż, 0)
+==========================  ========  ===============================  =======================================
+
+Aliases: ``deadzone``/``piecewise_linear_stiffness`` → ``clearance``,
+``piecewise_linear_damping``/``knee`` → ``velocity_deadzone``, ``friction`` →
+``coulomb``, ``play`` → ``backlash``, ``cubic`` → ``cubic_stiffness``.
+
+Physical meaning of the coefficient c (units N per unit of g), e.g. a
+digressive damper blowing off above 0.03 m/s from C2 = 1400 to 700 N·s/m is
+``velocity_deadzone(knee=0.03)`` with c = -700 N·s/m; 100 N of strut friction
+is ``coulomb`` with c = 100 N; a bump stop of 50 kN/m is ``bump_stop`` with
+c = 50e3 N/m.
+
+The kind registry: :data:`KINDS` holds every fact the rest of the core needs about a kind — its variable,
+parameters and g; ``hysteretic`` (it carries a state from sample to sample: the play); ``absorb`` (the slopes
+(α, β) of the linear part α·z + β·ż its g leaves to the model's linear part, its remainder being bounded);
+``path_slopes`` (for a kind with a bounded remainder that a feedback path may carry: its slope of z at large and
+at small amplitude); ``compiled`` (its numba code and parameters for :mod:`nifo_core.kinds.strut_forces`); and
+``lipschitz`` (global Lipschitz constants of g, for the fixed point's contraction bound). Adding a kind touches
+this file (and the numba ``g_one`` of :mod:`nifo_core.kinds.strut_forces`, for its compiled form).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Callable, Literal, Mapping
+
+import numba
+import numpy as np
+
+from ..errors import ConfigError
+
+__all__ = ["Kind", "Term", "KINDS", "ALIASES", "kind", "make_term", "evaluate_terms", "play_operator", "path_slopes",
+           "CODES"]
+
+Variable = Literal["z", "zdot"]
+
+
+@numba.njit(cache=True)
+def _play(z, deadband, y0):  # pragma: no cover - compiled
+    y = np.empty_like(z)
+    h = 0.5 * deadband
+    prev = y0
+    for i in range(z.size):
+        zi = z[i]
+        if prev < zi - h:
+            prev = zi - h
+        elif prev > zi + h:
+            prev = zi + h
+        y[i] = prev
+    return y
+
+
+def play_operator(z: np.ndarray, deadband: float, *, y0: float | None = None) -> np.ndarray:
+    """Backlash (play) operator of total width ``deadband`` (paper Fig. 7b, 9a).
+
+    The output stays put while z moves inside a window of width ``deadband``
+    around it and follows z at the window's edge otherwise. It starts at
+    ``y0`` (default: z[0]) and is centred so that it is zero-mean for a
+    symmetric motion: y - z ∈ [-deadband/2, deadband/2].
+    """
+    z = np.ascontiguousarray(z, dtype=np.float64)
+    if z.size == 0:
+        return z.copy()
+    return _play(z, float(deadband), float(z[0] if y0 is None else y0))
+
+
+def _sym_deadzone(x, w):
+    return np.sign(x) * np.maximum(np.abs(x) - w, 0.0)
+
+
+def _bump(z, gap, side, offset):
+    s = str(side)
+    if s == "compression":
+        return np.minimum(z - offset + gap, 0.0)
+    if s == "rebound":
+        return np.maximum(z - offset - gap, 0.0)
+    raise ConfigError(f"bump_stop side={side!r} must be 'compression' or 'rebound'")
+
+
+def _asym(zd, side):
+    s = str(side)
+    if s == "rebound":
+        return np.maximum(zd, 0.0)
+    if s == "compression":
+        return np.minimum(zd, 0.0)
+    raise ConfigError(f"asymmetric_damping side={side!r} must be 'rebound' or 'compression'")
+
+
+@dataclass(frozen=True)
+class Kind:
+    """One form of the library: its variable, named parameters (with units and defaults) and g."""
+
+    name: str
+    variable: Variable
+    params: Mapping[str, tuple[object, str]]  # name -> (default, unit/choices)
+    func: Callable[..., np.ndarray]
+    description: str
+    key_param: str | None = None
+    hysteretic: bool = False
+    coef_unit: str = ""
+    #: (α, β): g = α·z + β·ż + a bounded remainder, the linear part the model's linear part absorbs
+    absorb: tuple[float, float] = (0.0, 0.0)
+    #: (slope at large amplitude, slope at small amplitude) of z for a kind a feedback path may carry; None: not
+    path_slopes: tuple[float, float] | None = None
+    #: params -> (numba code, p0, p1) for :func:`nifo_core.kinds.strut_forces.g_one`
+    compiled: Callable[[Mapping[str, object]], tuple[int, float, float]] | None = None
+    #: params -> global Lipschitz constants (L_z, L_ż) of g (inf: none); None: 1 in its variable
+    lipschitz: Callable[[Mapping[str, object]], tuple[float, float]] | None = None
+
+    def check(self, params: Mapping[str, object]) -> dict:
+        unknown = set(params) - set(self.params)
+        if unknown:
+            raise ConfigError(f"{self.name} has no parameter(s) {sorted(unknown)}; it takes {list(self.params) or 'none'}")
+        out = {k: params.get(k, d) for k, (d, _) in self.params.items()}
+        for k, v in out.items():
+            if v is None:
+                raise ConfigError(f"{self.name} needs parameter {k!r} [{self.params[k][1]}]",
+                                  hint=f"e.g. {self.name}: {{{k}: ...}} in the model file")
+            if isinstance(self.params[k][0], (float, int)) or self.params[k][0] is None and k != "side":
+                try:
+                    fv = float(v)
+                except (TypeError, ValueError):
+                    raise ConfigError(f"{self.name}.{k}={v!r} is not a number") from None
+                if not np.isfinite(fv) or (k != "offset" and fv < 0) or (k in ("eps", "deadband", "limit") and fv == 0):
+                    raise ConfigError(f"{self.name}.{k}={v!r} must be finite and positive")
+                out[k] = fv
+        return out
+
+
+#: numba codes of the compiled forms (:mod:`nifo_core.kinds.strut_forces`), one per kind and side
+CODES: Mapping[str, int] = MappingProxyType({name: i for i, name in enumerate(
+    ("cubic", "clearance", "saturation", "bump_compression", "bump_rebound", "play", "velocity_deadzone",
+     "velocity_saturation", "coulomb", "quadratic_damping", "asymmetric_rebound", "asymmetric_compression",
+     "quadratic_stiffness"))})
+
+
+def _code(name: str, p0: str | None = None, scale: float = 1.0):
+    return lambda p: (CODES[name], scale * float(p[p0]) if p0 else 0.0, 0.0)
+
+
+def _kinds() -> dict[str, Kind]:
+    inf = float("inf")
+    ks = [
+        Kind("cubic_stiffness", "z", {}, lambda z, zd: z**3,
+             "hardening (c>0) or softening (c<0) cubic spring", None, coef_unit="N/m³",
+             compiled=_code("cubic"), lipschitz=lambda p: (inf, 0.0)),
+        Kind("quadratic_stiffness", "z", {}, lambda z, zd: z**2,
+             "asymmetric (even) quadratic spring: stiffer on one side than the other, e.g. a cubic centred off the "
+             "static position", None, coef_unit="N/m²", compiled=_code("quadratic_stiffness"),
+             lipschitz=lambda p: (inf, 0.0)),
+        Kind("clearance", "z", {"gap": (None, "m")}, lambda z, zd, gap: _sym_deadzone(z, gap),
+             "stiffness change beyond ±gap (clearance, piecewise-linear stiffness)", "gap", coef_unit="N/m",
+             absorb=(1.0, 0.0), path_slopes=(1.0, 0.0), compiled=_code("clearance", "gap")),
+        Kind("saturation", "z", {"limit": (None, "m")}, lambda z, zd, limit: np.clip(z, -limit, limit),
+             "stiffness that saturates beyond ±limit", "limit", coef_unit="N/m",
+             path_slopes=(0.0, 1.0), compiled=_code("saturation", "limit")),
+        Kind("bump_stop", "z", {"gap": (None, "m"), "side": ("compression", "compression|rebound"), "offset": (0.0, "m")},
+             lambda z, zd, gap, side, offset: _bump(z, gap, side, offset),
+             "one-sided contact stiffness beyond gap (compression: z < offset-gap)", "gap", coef_unit="N/m",
+             compiled=lambda p: (CODES["bump_compression" if p["side"] == "compression" else "bump_rebound"],
+                                 p["gap"], p["offset"])),
+        Kind("backlash", "z", {"deadband": (None, "m")}, lambda z, zd, deadband: play_operator(z, deadband),
+             "hysteretic stiffness through a play of total width deadband (paper Fig. 9a)", "deadband",
+             hysteretic=True, coef_unit="N/m", absorb=(1.0, 0.0), path_slopes=(1.0, 0.0),
+             compiled=lambda p: (CODES["play"], 0.5 * float(p.get("deadband", 0.0)), 0.0)),
+        Kind("velocity_deadzone", "zdot", {"knee": (None, "m/s")}, lambda z, zd, knee: _sym_deadzone(zd, knee),
+             "damping change beyond ±knee (digressive/progressive damper, paper Fig. 12a)", "knee", coef_unit="N·s/m",
+             absorb=(0.0, 1.0), compiled=_code("velocity_deadzone", "knee")),
+        Kind("velocity_saturation", "zdot", {"limit": (None, "m/s")}, lambda z, zd, limit: np.clip(zd, -limit, limit),
+             "damping force that saturates beyond ±limit", "limit", coef_unit="N·s/m",
+             compiled=_code("velocity_saturation", "limit")),
+        Kind("coulomb", "zdot", {"eps": (0.005, "m/s")}, lambda z, zd, eps: np.tanh(zd / eps),
+             "dry friction, smoothed over ±eps", None, coef_unit="N", compiled=_code("coulomb", "eps"),
+             lipschitz=lambda p: (0.0, 1.0 / float(p.get("eps", 0.005)))),
+        Kind("quadratic_damping", "zdot", {}, lambda z, zd: zd * np.abs(zd),
+             "velocity-squared (orifice) damping", None, coef_unit="N·s²/m²", compiled=_code("quadratic_damping"),
+             lipschitz=lambda p: (0.0, inf)),
+        Kind("asymmetric_damping", "zdot", {"side": ("rebound", "rebound|compression")},
+             lambda z, zd, side: _asym(zd, side), "extra damping on one side (rebound ≠ compression)", None,
+             coef_unit="N·s/m",
+             compiled=lambda p: (CODES["asymmetric_rebound" if p["side"] == "rebound" else "asymmetric_compression"],
+                                 0.0, 0.0)),
+    ]
+    return {k.name: k for k in ks}
+
+
+KINDS: Mapping[str, Kind] = MappingProxyType(_kinds())
+ALIASES: Mapping[str, str] = MappingProxyType({
+    "deadzone": "clearance", "piecewise_linear_stiffness": "clearance", "piecewise_linear": "clearance",
+    "piecewise_linear_damping": "velocity_deadzone", "knee": "velocity_deadzone", "deadzone_velocity": "velocity_deadzone",
+    "friction": "coulomb", "play": "backlash", "cubic": "cubic_stiffness", "hysteresis": "backlash",
+})
+
+
+def kind(name: str) -> Kind:
+    """Look a kind up by name or alias; raise :class:`ConfigError` listing the kinds otherwise."""
+    key = ALIASES.get(name, name)
+    try:
+        return KINDS[key]
+    except KeyError:
+        raise ConfigError(f"unknown nonlinearity kind {name!r}",
+                          hint=f"use one of {', '.join(KINDS)}") from None
+
+
+def path_slopes(terms) -> np.ndarray:
+    """The large-amplitude slopes α_i of terms a feedback path may carry (``Kind.path_slopes``);
+    :class:`ConfigError` for a kind without a bounded remainder, or no terms."""
+    paths = {n: KINDS[n].path_slopes[0] for n in sorted(KINDS) if KINDS[n].path_slopes is not None}
+    bad = [t.kind for t in terms if t.kind not in paths]
+    if bad or not terms:
+        raise ConfigError(f"feedback paths need terms with a bounded remainder ({', '.join(paths)}); "
+                          f"got {', '.join(bad) or 'no terms'}", hint="declare backlash, clearance or saturation terms")
+    return np.array([paths[t.kind] for t in terms])
+
+
+@dataclass(frozen=True)
+class Term:
+    """A describing function: a kind with its parameters fixed. ``g = term.evaluate(z, zdot)``."""
+
+    kind: str
+    params: Mapping[str, object] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        k = kind(self.kind)
+        object.__setattr__(self, "kind", k.name)
+        object.__setattr__(self, "params", MappingProxyType(k.check(dict(self.params))))
+
+    @property
+    def spec(self) -> Kind:
+        return KINDS[self.kind]
+
+    @property
+    def variable(self) -> Variable:
+        return self.spec.variable
+
+    @property
+    def label(self) -> str:
+        p = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in self.params.items())
+        return f"{self.kind}({p})" if p else self.kind
+
+    def evaluate(self, z: np.ndarray, zdot: np.ndarray) -> np.ndarray:
+        """g(z, ż) sample by sample (hysteretic kinds run through the samples in order)."""
+        z = np.asarray(z, dtype=float)
+        zdot = np.asarray(zdot, dtype=float)
+        return np.asarray(self.spec.func(z, zdot, **self.params), dtype=float)
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "params": dict(self.params)}
+
+
+def make_term(spec: Mapping | str) -> Term:
+    """A :class:`Term` from ``"coulomb"`` or ``{"kind": "clearance", "params": {"gap": 4e-4}}``
+    or the short form ``{"clearance": {"gap": 4e-4}}``."""
+    if isinstance(spec, str):
+        return Term(spec)
+    if isinstance(spec, Term):
+        return spec
+    if not isinstance(spec, Mapping):
+        raise ConfigError(f"a nonlinearity must be a name or a mapping, got {spec!r}")
+    if "kind" in spec:
+        extra = set(spec) - {"kind", "params", "coefficient", "name", "note"}
+        if extra:
+            raise ConfigError(f"nonlinearity {spec.get('kind')!r} has unknown field(s) {sorted(extra)}",
+                              hint="use kind: and params:")
+        return Term(str(spec["kind"]), dict(spec.get("params") or {}))
+    if len(spec) == 1:
+        (name, params), = spec.items()
+        return Term(str(name), dict(params or {}))
+    raise ConfigError(f"cannot read nonlinearity {dict(spec)!r}", hint="write {kind: NAME, params: {...}}")
+
+
+def evaluate_terms(terms: list[Term], z: np.ndarray, zdot: np.ndarray) -> np.ndarray:
+    """All describing functions at once: array of shape (len(terms), n)."""
+    out = np.empty((len(terms), np.size(z)))
+    for i, t in enumerate(terms):
+        out[i] = t.evaluate(z, zdot)
+    return out

@@ -1,0 +1,109 @@
+"""Compiled strut forces by kind code: the one numba evaluation of the describing functions.
+
+:mod:`nifo_core.kinds.describing` defines each kind in numpy (for whole signals);
+the two time-stepping codes — the simulator (:mod:`nifo_core.simulate.quarter_car`) and the
+prediction engine (:mod:`nifo_core.predict.timesim`) — need the same functions one
+sample at a time inside numba loops. They are written here once, term by term
+as ``describing.py`` computes them (same rounding), with each term reduced to
+``(code, p0, p1)``; the backlash play state ``y`` is carried by the caller
+and committed once per step (as :func:`describing.play_operator` does per sample).
+
+``tests/test_describing.py`` / ``tests/test_simulate.py`` check the two
+definitions agree.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numba
+import numpy as np
+
+from .describing import CODES, Term
+from ..errors import ConfigError
+
+__all__ = ["PLAY", "kind_code", "strut_arrays", "g_one", "strut_force", "lipschitz"]
+
+# kind codes, from the kind registry (numba reads these module globals as constants)
+_CUBIC, _CLEAR, _SAT, _BUMP_C, _BUMP_R, _PLAY, _VDZ, _VSAT, _COUL, _QUAD, _ASYM_R, _ASYM_C, _QSTIFF = (
+    CODES["cubic"], CODES["clearance"], CODES["saturation"], CODES["bump_compression"], CODES["bump_rebound"],
+    CODES["play"], CODES["velocity_deadzone"], CODES["velocity_saturation"], CODES["coulomb"],
+    CODES["quadratic_damping"], CODES["asymmetric_rebound"], CODES["asymmetric_compression"],
+    CODES["quadratic_stiffness"])
+#: code of the hysteretic backlash (play operator), whose state the caller keeps
+PLAY = _PLAY
+
+
+def kind_code(t: Term) -> tuple[int, float, float]:
+    """(code, p0, p1) of a term for the compiled force evaluation (``Kind.compiled`` of the registry)."""
+    compiled = t.spec.compiled
+    if compiled is None:  # pragma: no cover - every kind of the registry has one
+        raise ConfigError(f"no compiled code for nonlinearity kind {t.kind!r}")
+    code, p0, p1 = compiled(t.params)
+    return code, float(p0), float(p1)
+
+
+def strut_arrays(terms: Sequence[Term], coefficients: Sequence[float]):
+    """``(codes, coef, p0, p1)`` arrays of terms with their coefficients, for :func:`strut_force`."""
+    rows = [kind_code(t) for t in terms]
+    codes = np.array([r[0] for r in rows], dtype=np.int64)
+    p0 = np.array([r[1] for r in rows], dtype=np.float64)
+    p1 = np.array([r[2] for r in rows], dtype=np.float64)
+    coef = np.asarray(coefficients, dtype=np.float64).reshape(codes.size)
+    return codes, coef, p0, p1
+
+
+def lipschitz(t: Term) -> tuple[float, float]:
+    """Global Lipschitz constants (L_z, L_ż) of g, or inf where g has none (cubic, quadratic).
+
+    |g(z, ż) - g(z', ż')| ≤ L_z·|z - z'| + L_ż·|ż - ż'| for every pair of
+    points (the play operator: in the sup norm along a path, constant 1). ``Kind.lipschitz`` of the registry;
+    1 in the kind's variable where it has none.
+    """
+    if t.spec.lipschitz is not None:
+        return t.spec.lipschitz(t.params)
+    return (1.0, 0.0) if t.variable == "z" else (0.0, 1.0)
+
+
+@numba.njit(cache=True)
+def g_one(code, p0, p1, z, zd, y):  # pragma: no cover - compiled
+    """One basis function, written as describing.py computes it (same rounding)."""
+    if code == _CUBIC:
+        return z**3
+    if code == _QSTIFF:
+        return z**2
+    if code == _CLEAR or code == _VDZ:
+        x = z if code == _CLEAR else zd
+        return np.sign(x) * max(abs(x) - p0, 0.0)
+    if code == _SAT or code == _VSAT:
+        x = z if code == _SAT else zd
+        return min(max(x, -p0), p0)
+    if code == _BUMP_C:
+        return min(z - p1 + p0, 0.0)
+    if code == _BUMP_R:
+        return max(z - p1 - p0, 0.0)
+    if code == _PLAY:
+        if y < z - p0:
+            return z - p0
+        if y > z + p0:
+            return z + p0
+        return y
+    if code == _COUL:
+        return np.tanh(zd / p0)
+    if code == _QUAD:
+        return zd * abs(zd)
+    if code == _ASYM_R:
+        return max(zd, 0.0)
+    return min(zd, 0.0)  # _ASYM_C
+
+
+@numba.njit(cache=True)
+def strut_force(z, zd, codes, coef, p0, p1, play, commit):  # pragma: no cover - compiled
+    """N = Σ c_i·g_i(z, ż) (paper Eq. 1-2); commits the play states when ``commit``."""
+    n1 = 0.0
+    for i in range(codes.size):
+        g = g_one(codes[i], p0[i], p1[i], z, zd, play[i])
+        if commit and codes[i] == _PLAY:
+            play[i] = g
+        n1 += coef[i] * g
+    return n1

@@ -1,0 +1,598 @@
+"""Closing the loop: residual → the effect the model lacks → add it → error before and after (docs/method.md §5).
+
+Given records and a *declared* model (describing functions, :mod:`nifo_core.kinds.describing`),
+:func:`close_loop` repeats, for at most ``max_rounds`` rounds:
+
+1. **Residual that can show what is missing.** Each record is split in time:
+   the first ``fit_fraction`` fits, the rest is held out. Two residuals:
+
+   - equation error in force-balance form (paper Eq. 2 per unit sprung mass)::
+
+         e = -ẍ2 - k·z - c·ż - Σ_declared θ_i·g_i           θ_i = c_i/M2
+
+     every column band-passed with the one integrator-matched filter
+     (:func:`nifo_core.characterize.restoring.bandpass`, g *after* the nonlinear map), the
+     coefficients fitted on the fit part and the error scored on the held-out part;
+   - prediction error on the held-out part: the declared model is identified by
+     NIFO (:func:`nifo_core.nifo.identify.identify_nifo`, static fit) on the fit part and
+     the body acceleration predicted from the measured spindle acceleration of
+     the held-out part (:func:`nifo_core.predict.model.predict_transmissibility`).
+
+   The displacement-form NIFO residual / multiple coherence is *not* used: a
+   describing function of z = x2 - x1 carries the output into the regressors,
+   and the fit absorbs whatever is missing (docs/method.md §3).
+
+2. **Tracing.** Every kind of the library, over parameter grids scaled to the
+   motion, is scored by the fraction of the linear + declared equation error it
+   explains (:func:`nifo_core.characterize.automatic.rank_beyond`: band-limited after the
+   map, orthogonalised against z, ż and the declared terms, error reduction
+   ratio, refined and refitted at full length).
+
+3. **Acceptance.** The best candidates are tried in rank order; one is added
+   only if all hold:
+
+   - *significant*: F-test with an effective number of degrees of freedom,
+     N_eff = N·mean(S)²/mean(S²) from the residual spectrum S, Bonferroni over
+     the grid, p < ``thresholds.alpha``. An F-test rather than a per-line
+     partial coherence because the residual is coloured (band-passed, a
+     body-mode peak): N counts samples, not independent information, and the
+     effect is static, so its evidence pools over the whole band; per-line
+     partial coherence against its 95 % level 1 - 0.05^(1/(n_d - q - 1)) is
+     reported as evidence, not used as the gate (it splits the same evidence
+     over ~300 lines of 60 averages each);
+   - it explains ≥ ``thresholds.min_err`` of the remaining residual, and does
+     so on alternate held-in/held-out blocks too (cross-validated ERR);
+   - its coefficient is *stable*: across the records (amplitude levels) when
+     several are given, else across quarters of the record (weighted relative
+     spread ≤ ``thresholds.max_spread``);
+   - the *held-out* equation error falls by at least ``min_heldout_gain``
+     (relative) with the coefficients fitted on the fit part only, and the
+     held-out prediction error does not rise;
+   - *tire check*: the body equation holds no tire force (paper Eq. 2: tire
+     nonlinearities such as lift-off act on M1 only and cannot appear in the
+     spindle→body path), so a tire effect can reach the body-equation residual
+     only through processing (the spindle's impacts smeared by integration and
+     band-passing). The candidate's coefficient is refitted without the
+     samples around the spindle's impacts (|ẍ1| above its ``tire_quantile``
+     quantile, ± ``tire_guard_s``); a strut effect acts along the whole
+     strut motion and keeps its coefficient (shift ≤ ``max_tire_shift``),
+     an artefact of tire events does not.
+
+4. **Add and refit**: the accepted term joins the model, everything is refitted
+   (equation error and NIFO), and the next round traces what is left. The loop
+   stops when no candidate passes ("Nothing significant is missing.") or after
+   ``max_rounds``.
+
+   A bump stop is measured from the static position (:mod:`nifo_core.characterize.static`): the
+   ranking reads its gap from each record's mean position, which the one-sided force pushes away
+   from the stop, the more the harder the excitation; before its checks the candidate is re-fitted
+   with its gap from the static position and one offset -m_i per record (m_i from the balance of
+   the mean force), and the loop's columns and later rankings use those offsets.
+
+5. **Report** before and after each addition: NMSE (%) on held-out data
+   (Worden & Tomlinson: 100·Σ(y - ŷ)²/(N·σ_y²); < 5 % good, < 1 % excellent),
+   per-band residual 10·log10(G_ee/G_yy) in 2-5, 5-10, 10-20, 20-30 Hz (one
+   spectral engine, :mod:`nifo_core.signal.spectral`), the transmissibility
+   prediction error at each level, and the added effect with its evidence.
+
+6. **Refine** (``settings.refine``): the final model, an equation-error fit, is refined by output
+   error (:func:`nifo_core.predict.refine.refine_model`: every fit part simulated from its measured input,
+   its first ``refine_seconds``; the coefficients, gaps/knees and the body's k, c that minimise the
+   band-limited prediction error), its bias from the noisy spindle drive removed by simulating it
+   (:mod:`nifo_core.predict.refine_bias`, with ``noise_correction``; :mod:`nifo_core.loop.refine`) and
+   scored on the held-out parts like every model of the loop. The refined model becomes the loop's
+   model when its held-out prediction NMSE is not worse; the report gives both fits' parameters and
+   both NMSEs. A final step: the acceptance of terms (step 3) does not use it. Measured
+   (tests/test_loop_refine.py, 2 % noise): a bump stop 2e5 N/m beyond 8 mm, 1.56e5 at first
+   addition → 1.81e5 refined, gap 8.07 mm from static; beside a declared damper knee 1.67e5
+   refined plainly, 1.89e5 with the refinement's bias removed.
+
+References: Billings (error reduction ratio, forward orthogonal regression);
+Bendat & Piersol (conditioned/partial coherence); Worden & Tomlinson (NMSE);
+Haroon & Adams (paper Eq. 2, 7-9).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from ..characterize.automatic import rank_beyond
+from ..kinds.describing import Term, make_term
+from .detection import confounded_pairs, detection_limits, undetermined_terms
+from ..errors import ConfigError, InputError, NifoError, RecordTooShortError
+from ..signal.integrate import IntegrationBand
+from ..characterize.data import RegressionData
+from ..characterize.score import score_candidate
+from ..predict.feedback_paths import PATH_KINDS
+from ..predict.heldout import HeldOut, split_records
+from .residual import _design, _Evaluator, _evidence, _g, _retune, _static_candidate, _tire_check
+from ..predict.model_fit import RATIONAL_MARGIN, Fitted, LinearChoice, choose_linear_form, fit_model
+from ..settings import AnalysisSettings
+from .results import (NOTHING_MISSING, RESIDUAL_BANDS_HZ, Errors, Evidence, LoopRefinement, LoopResult,
+                      LoopSettings, Round, Trial, _nothing_text, _round_text, before_after_text,
+                      unconfirmed_text)
+from .gates import heldout_failures, one_of_kind_alternatives, one_of_kind_failures, prediction_failures
+from .refine import refine_final
+from ..signal.record import Record
+from ..characterize.restoring import suggest_band
+
+__all__ = ["LoopSettings", "Errors", "Trial", "Evidence", "Round", "LoopRefinement", "LoopResult", "close_loop",
+           "RESIDUAL_BANDS_HZ", "NOTHING_MISSING"]
+
+
+#: a record must span this many periods of the integration band's lower edge: the integrator takes 16
+#: (its edges are dropped), and the held-out third must keep ≈ 4 periods once its band-pass has settled
+LOOP_PERIODS_PER_RECORD = 48.0
+
+
+def loop_band(records: Sequence[Record], band: IntegrationBand | None = None) -> tuple[IntegrationBand, str | None]:
+    """The integration band for the loop on these records, and what was adapted (None: nothing).
+
+    Default: :func:`~nifo_core.characterize.restoring.suggest_band` of the first record. Its lower edge is raised
+    where the shortest record spans fewer than ``LOOP_PERIODS_PER_RECORD`` periods of it (30 s → 1.6 Hz,
+    60 s → 0.8 Hz): every column of the equation error is band-limited alike, so a higher edge costs
+    the loop only the motion below it, while a too-low one leaves no held-out part.
+    """
+    fs = float(records[0].fs_hz)
+    band = (band or suggest_band(records[0]).band).validate(fs)
+    shortest = min(r.duration_s for r in records)
+    need = LOOP_PERIODS_PER_RECORD / shortest if shortest > 0 else float("inf")
+    if band.f_lo_hz >= need:
+        return band, None
+    new = IntegrationBand(round(float(np.ceil(need * 100) / 100), 2), band.f_hi_hz)
+    if new.f_lo_hz >= new.f_hi_hz:
+        raise RecordTooShortError(f"a {shortest:.1f} s record is too short for the loop",
+                                  hint=f"record at least {LOOP_PERIODS_PER_RECORD / band.f_lo_hz:.0f} s")
+    new.validate(fs)
+    return new, (f"integration band's lower edge raised {band.f_lo_hz:g} → {new.f_lo_hz:g} Hz: the shortest record "
+                 f"({shortest:.0f} s) must span {LOOP_PERIODS_PER_RECORD:g} periods of it to keep a held-out part "
+                 f"after the integrator's edges (records of {LOOP_PERIODS_PER_RECORD / band.f_lo_hz:.0f} s keep "
+                 f"{band.f_lo_hz:g} Hz)")
+
+
+class _Predictor:
+    """The model class ``nifo identify`` writes, fitted on the fit parts for any term set and scored held out.
+
+    The linear part's form (one-mass body or rational) is chosen once, by which linear model predicts the
+    held-out parts better (:func:`~nifo_core.predict.model_fit.choose_linear_form`). On a one-mass body every term set
+    is the force-balance equation-error fit itself (k, c, the terms' coefficients and a measured force's 1/M2:
+    the loop's own estimator of that structure; NIFO's where that body is not physical); on a rational part
+    :func:`~nifo_core.predict.model_fit.fit_model` (feedback paths). Each term set is fitted once.
+    """
+
+    def __init__(self, held: HeldOut, data: AnalysisSettings, settings: LoopSettings, ev: _Evaluator) -> None:
+        self.held, self.data, self.settings, self.ev = held, data, settings, ev
+        self.off = settings.prediction == "none"
+        self._cache: dict = {}
+        self.choice = None
+        self._form: str | None = None      # the form in use when it changed after the linear choice
+        self.switched = ""
+        if not self.off:
+            try:
+                self.choice = choose_linear_form(held, data)
+            except NifoError as err:   # NIFO cannot run on these fit parts: the equation error's own body, if any
+                lin = self._equation([])
+                if lin is None:
+                    raise
+                self.choice = LinearChoice("body", lin, {"nifo": {"error": err.message}},
+                                           f"one-mass body from the force-balance equation error ({err.message})")
+        if self.choice is not None and self.choice.form == "body":
+            lin = self._equation([])
+            if lin is not None:
+                self.choice = replace(self.choice, linear=lin)
+
+    @property
+    def linear(self) -> Fitted | None:
+        return None if self.choice is None else self.choice.linear
+
+    @property
+    def flexible(self) -> bool:
+        """A rational linear part: a multi-mode structure, the terms' forces through their own paths."""
+        return self.choice is not None and self.form == "rational"
+
+    @property
+    def form(self) -> str:
+        return self._form or self.choice.form
+
+    def reconsider(self, terms: Sequence[Term]) -> bool:
+        """Once terms are in, the one-mass body again (True when the form changes): a linear model of a strongly
+        nonlinear quarter car predicts poorly in either form, and the black box's extra poles stand in for what the
+        terms now model — the choice made on the linear model alone is biased towards it. The body is taken when
+        its equation-error fit with the terms is physical and the rational model does not predict the held-out
+        parts clearly better (:data:`~nifo_core.predict.model_fit.RATIONAL_MARGIN`), as for the linear choice."""
+        if self.off or not self.flexible or not terms:
+            return False
+        body, flex = self._equation(terms), self.fit(terms)
+        if body is None or body.score is None or flex.score is None or flex.score <= RATIONAL_MARGIN * body.score:
+            return False
+        self._form, self._cache = "body", {}
+        self.switched = (f"one-mass body from round {len(terms)} on: with {', '.join(t.label for t in terms)} its "
+                         f"equation-error fit is physical and predicts the held-out parts at {body.score:.4g} % "
+                         f"against {flex.score:.4g} % for the rational model (the rational form was chosen on the "
+                         f"linear model alone)")
+        return True
+
+    def _equation(self, terms: Sequence[Term]) -> Fitted | None:
+        model = self.ev.equation_model(terms, self.data.spectral, self.data.analysis_band_hz)
+        if model is None:
+            return None
+        return Fitted(model, "constant" if terms else "linear", self.held.score(model),
+                      "one-mass body and constant coefficients: the force-balance equation-error fit")
+
+    def fit(self, terms: Sequence[Term]) -> Fitted:
+        key = tuple(t.label for t in terms)
+        if key not in self._cache:
+            got = self._equation(terms) if self.form == "body" else None
+            self._cache[key] = got or fit_model(self.held, terms, self.data, linear=self.linear,
+                                                structure=self.settings.structure)
+        return self._cache[key]
+
+
+def _errors(ev: _Evaluator, pred: _Predictor, terms: Sequence[Term]) -> Errors:
+    """Both residuals of ``terms``: the equation error (:class:`_Evaluator`) and the held-out prediction of the
+    model class ``nifo identify`` writes (:class:`_Predictor`), each labelled."""
+    eq = ev.equation(terms)
+    notes: list[str] = []
+    pred_nmse, per, trans, bands, unavailable, fitted = None, (), (), None, None, None
+    if pred.off:
+        unavailable = "prediction switched off (prediction='none')"
+    else:
+        try:
+            fitted = pred.fit(terms)
+        except (NifoError, np.linalg.LinAlgError) as err:
+            unavailable = str(err)
+        else:
+            if fitted.scores.unavailable is not None:
+                unavailable = fitted.scores.unavailable
+            else:
+                pred_nmse, per = fitted.score, fitted.scores.per_record
+                bands, trans = ev.band_numbers(fitted.scores.predictions)
+        if unavailable is not None:
+            notes.append(f"no held-out prediction for this model ({unavailable}); equation error only")
+    return Errors(terms=tuple(terms), theta_per_kg=eq["theta_per_kg"], k_per_kg=eq["k_per_kg"],
+                  c_per_kg=eq["c_per_kg"], equation_nmse_pct=eq["equation_nmse_pct"],
+                  equation_nmse_fit_pct=eq["equation_nmse_fit_pct"], prediction_nmse_pct=pred_nmse,
+                  prediction_nmse_per_record_pct=tuple(per),
+                  band_residual_db=bands if bands else eq["equation_band_residual_db"],
+                  residual_of="prediction" if bands else "equation",
+                  equation_band_residual_db=eq["equation_band_residual_db"],
+                  transmissibility_error_pct=tuple(trans), prediction_unavailable=unavailable, notes=tuple(notes),
+                  structure="" if fitted is None else fitted.structure,
+                  model_note="" if fitted is None else fitted.note, fitted=fitted)
+
+
+#: a term whose describing function the linear columns z, ż explain to this R² on the fit parts acts linearly there
+#: (a play wider than the motion is stuck: its force a constant; a slipping play of 0.4 mm in 5 mm of motion: 0.998)
+LINEAR_R2 = 0.9999
+
+
+def acts_linearly(ev: _Evaluator, term: Term) -> float:
+    """R² of the term's band-passed describing function on the fit parts regressed on z and ż (1: it never leaves
+    one regime — a play wider than the motion, a clearance never reached — and only adds a linear term)."""
+    g = np.concatenate([_g(p, term, ev.static) for p in ev.fit_parts])
+    x = np.column_stack([np.concatenate([p.z for p in ev.fit_parts]), np.concatenate([p.zdot for p in ev.fit_parts])])
+    tss = float(g @ g)
+    if not tss > 0:
+        return 1.0
+    r = g - x @ np.linalg.lstsq(x, g, rcond=None)[0]
+    return float(1 - (r @ r) / tss)
+
+
+def _path_grid(ev: _Evaluator, kinds: Sequence[str], points: int) -> list[Term]:
+    """Terms of the kinds that can act through feedback paths over widths spanning the relative motion.
+
+    Geometric from twice the smallest record's RMS of z (narrower: the term acts on noise) to twice the
+    largest record's 99th percentile of |z| (wider: it never leaves its small-amplitude regime); a play's
+    width is its total deadband, a clearance's and a saturation's their half-width.
+    """
+    rms = [float(np.std(p.z)) for p in ev.fit_parts]
+    peak = [float(np.quantile(np.abs(p.z), 0.99)) for p in ev.fit_parts]
+    lo, hi = min(rms), 2 * max(peak)
+    out = []
+    for kind in kinds:
+        if kind not in PATH_KINDS or not hi > lo > 0:
+            continue
+        key = {"backlash": "deadband", "clearance": "gap", "saturation": "limit"}[kind]
+        scale = 1.0 if kind == "backlash" else 0.5
+        out += [Term(kind, {key: float(w)}) for w in np.geomspace(scale * lo, scale * hi, points)]
+    return out
+
+
+def linear_twin(ev: _Evaluator) -> Term:
+    """A term whose remainder is z itself (a saturation far beyond the motion): through a feedback path it adds only
+    linear flexibility — what a candidate must beat to count as a nonlinearity."""
+    peak = max(float(np.max(np.abs(p.z))) for p in ev.fit_parts)
+    return Term("saturation", {"limit": 100.0 * peak})
+
+
+def _grid_candidates(ev: _Evaluator, pred: _Predictor, terms: Sequence[Term], s: LoopSettings,
+                     m2_kg: float | None) -> list:
+    """Plays over a grid of widths for a flexible body (a discrete Iwan model: patches of a joint that slip one
+    after another), with their equation-error statistics. Clearances and saturations come from the ranking."""
+    grid = _path_grid(ev, ["backlash"] if "backlash" in s.kinds else [], int(s.path_widths))
+    if not grid or pred.linear is None:
+        return []
+    chosen = [t for t in grid if all(t.label != u.label for u in terms)]
+    if ev.regression is None:
+        ev.regression = RegressionData(ev.fit_rfs, n_groups=4, body_stiffness=False)
+    data = ev.regression
+    base = [data.regressor(t, offsets=ev.static.get(t.label)) for t in terms]
+    return [score_candidate(data, base, t, thresholds=s.thresholds, n_grid=int(s.path_widths), m2=m2_kg,
+                            names=tuple(t.label for t in terms)) for t in chosen]
+
+
+def _round_candidates(ev, pred, terms, ranked, s, m2_kg) -> list:
+    """What a round tries: on a one-mass body the significant ranked candidates in rank order; on a flexible body
+    (rational linear part, where the one-mass equation error is mis-specified and only the held-out prediction
+    judges) plays over a grid of widths and the best ranked candidates of the other kinds."""
+    if not pred.flexible:
+        return [c for c in ranked if c.present][: s.top_tried]
+    others = [c for c in ranked if c.kind != "backlash"][: s.top_tried]
+    seen = {c.term.label for c in others}
+    return [c for c in _grid_candidates(ev, pred, terms, s, m2_kg) if c.term.label not in seen] + others
+
+
+def _data_settings(recs: Sequence[Record], band: IntegrationBand | None, s: LoopSettings) -> AnalysisSettings:
+    """Without explicit data settings: the loop's spectral settings and analysis band, its integration band."""
+    fs = float(recs[0].fs_hz)
+    return AnalysisSettings(spectral=s.spectral, band=band, analysis_band_hz=s.analysis_band_hz, cond_limit=1e4)
+
+
+# Long (over 100 lines): each round's fit, residual, ranking, acceptance tests and refit share the round's
+# state. Left whole here while the noise branch (issue 28) edits its body; to split after
+# the merge.
+def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Mapping | str] = (), *,
+               m2_kg: float | None = None, band: IntegrationBand | None = None,
+               settings: LoopSettings = LoopSettings(), data: AnalysisSettings | None = None,
+               progress: Callable[[float, str], None] | None = None) -> LoopResult:
+    """Find what the declared model lacks, add it, refit, repeat; report errors before and after.
+
+    Parameters
+    ----------
+    records : Record or sequence of Record
+        One record, or several at different excitation levels (same vehicle, same rate), each whole from its
+        first sample (a transient start is left out by ``data``'s ``skip_periods``/``skip_seconds``).
+    declared : sequence of Term (or model-file entries)
+        The declared strut nonlinearities besides the linear strut (empty: linear).
+    m2_kg : float, optional
+        Sprung mass [kg]: coefficients also in N, N/m, N·s/m...
+    band : IntegrationBand, optional
+        Integration band; default ``data.band``, else :func:`~nifo_core.characterize.restoring.suggest_band` of the first record.
+    settings : LoopSettings
+    data : AnalysisSettings, optional
+        The spectral settings, bands, period and transient (:mod:`nifo_core.settings`); default: the
+        loop settings' spectral settings and analysis band, no period, no transient.
+    progress : callable, optional
+        ``progress(fraction, what)`` as the work advances.
+
+    Returns
+    -------
+    LoopResult
+    """
+    recs = [records] if isinstance(records, Record) else list(records)
+    if not recs:
+        raise InputError("no records to run the loop on")
+    if m2_kg is not None and not (np.isfinite(m2_kg) and m2_kg > 0):
+        raise ConfigError(f"m2_kg={m2_kg!r} must be a positive mass [kg]")
+    rates = sorted({r.fs_hz for r in recs})
+    if len(rates) > 1:
+        raise InputError(f"records have different sample rates {rates} Hz", hint="resample to one rate first")
+    terms = [make_term(t) for t in declared]
+    s = settings
+    data = data or _data_settings(recs, band, s)
+    fs = float(recs[0].fs_hz)
+    skip = data.skip_samples(fs)
+    band, band_note = loop_band([r.slice(min(skip, r.n - 1), r.n) for r in recs], band or data.band)
+    data = replace(data, band=band)
+    if data.period_samples is None:
+        s = replace(s, spectral=data.spectral, analysis_band_hz=data.analysis_band_hz)
+    held = split_records(recs, skip_samples=skip, period_samples=data.period_samples, fit_fraction=s.fit_fraction,
+                         band_hz=data.analysis_band_hz)
+    adapted = None
+    if data.period_samples is None:     # NIFO on the fit parts: blocks short enough for their length
+        shortest = min(k - sk for k, sk in zip(held.split, held.skip))
+        block = data.spectral.block
+        while block > 256 and 2 * block > shortest:
+            block //= 2
+        if block != data.spectral.block:
+            adapted = (f"spectral block {data.spectral.block} → {block} samples for the models fitted on the fit "
+                       f"parts and the per-band residual: the shortest fit part is {shortest / fs:.1f} s")
+            data = replace(data, spectral=replace(data.spectral, block=block))
+    say = progress or (lambda f, w: None)
+    say(0.0, "restoring force and the declared model")
+    ev = _Evaluator(held, band, s, spectral=data.spectral if data.period_samples is None else None)
+    say(0.02, "the linear part: one-mass body or rational, by held-out prediction")
+    pred = _Predictor(held, data, s, ev)
+    floor = held.noise_floor()
+    retuned: list[str] = []
+    if s.retune and terms and not pred.flexible:   # re-tuning by the one-mass equation error: a one-mass body only
+        terms, retuned = _retune(ev, terms, s)
+    current = _errors(ev, pred, terms)
+    initial = current
+    rounds: list[Round] = []
+    verdict = ""
+    total = s.max_rounds + 1
+    for i in range(1, s.max_rounds + 1):
+        base = (i - 1) / total
+        tuned: list[str] = []
+        if s.retune and i > 1 and not pred.flexible:
+            say(base, f"round {i}: re-tuning the model's parameters")
+            terms, tuned = _retune(ev, terms, s)
+            current = _errors(ev, pred, terms)
+        say(base, f"round {i}: tracing the residual")
+        ranked = rank_beyond(ev.fit_rfs, terms, m2_kg=m2_kg, kinds=s.kinds, thresholds=s.thresholds,
+                             grid_points=s.grid_points, offsets=[ev.static.get(t.label) for t in terms],
+                             progress=lambda f, b=base: say(b + 0.5 * f / total, f"round {i}: tracing"))
+        trials: list[Trial] = []
+        added = None
+        cands = _round_candidates(ev, pred, terms, ranked, s, m2_kg)
+        twin = None
+        if pred.flexible and cands and all(t.kind in PATH_KINDS for t in terms):
+            say(base + 0.5 / total, f"round {i}: the linear twin (one more linear path)")
+            twin = _errors(ev, pred, [*terms, linear_twin(ev)])
+        for j, c in enumerate(cands):
+            say(base + (0.5 + 0.45 * j / max(len(cands), 1)) / total, f"round {i}: checking {c.term.label}")
+            c = _static_candidate(ev, terms, c, s, m2_kg)  # a bump stop: its gap from the static position
+            failed = []
+            r2 = acts_linearly(ev, c.term)
+            if r2 >= LINEAR_R2:
+                failed.append(f"it acts linearly on these data (z and ż explain {100 * r2:.2f} % of it: it never "
+                              f"leaves one regime)")
+            shift, frac = _tire_check(ev, terms, c.term, s)
+            if not shift <= s.max_tire_shift and not pred.flexible:   # impacts: a vehicle's tire, a one-mass body
+                failed.append(f"impact check: the coefficient moves {100 * shift:.0f} % without the samples near "
+                              f"the input side's impacts (> {100 * s.max_tire_shift:.0f} %): an artefact of impacts "
+                              f"(tire events on a vehicle), not an effect of the nonlinear element")
+            after = _errors(ev, pred, [*terms, c.term])
+            gain = 1 - after.equation_nmse_pct / current.equation_nmse_pct if current.equation_nmse_pct > 0 else 0.0
+            if pred.flexible:
+                eq_failed, pred_failed = [], prediction_failures(current, after, s, twin, floor)
+            else:
+                eq_failed, pred_failed = heldout_failures(current, after, s)
+            failed += eq_failed + pred_failed
+            if not failed and not pred.flexible:   # one term of a kind already present must not do as well
+                alts = [(k, a, _errors(ev, pred, [*terms[:k], a, *terms[k + 1:]]))
+                        for k, a in one_of_kind_alternatives(terms, c.term, [r.term for r in ranked], ev.static)]
+                failed += one_of_kind_failures(terms, c.term, after, alts, s)
+            t = Trial(candidate=c, tire_shift=shift, tire_excluded_fraction=frac, heldout_gain=gain, after=after,
+                      accepted=not failed, failed=tuple(failed),
+                      unconfirmed=bool(pred_failed) and len(failed) == len(pred_failed) and not pred.flexible)
+            trials.append(t)
+            if t.accepted and not pred.flexible:
+                added = t
+                break
+        if pred.flexible:      # every candidate judged on the one metric: the best that passes
+            ok = [t for t in trials if t.accepted]
+            added = min(ok, key=lambda t: t.after.prediction_nmse_pct) if ok else None
+        pre = "".join(f"(Re-tuned first: {n}.) " for n in tuned)
+        if added is None:
+            text = pre + _nothing_text(i, ranked, trials)
+            rounds.append(Round(i, tuple(terms), ranked, tuple(trials), current, None, None, text))
+            unconfirmed = [t for t in trials if t.unconfirmed]
+            if unconfirmed:
+                verdict = unconfirmed_text(unconfirmed, current)
+            else:
+                verdict = NOTHING_MISSING if i > 1 else f"The declared model lacks nothing the library can name. " \
+                                                         f"{NOTHING_MISSING}"
+            break
+        added = _with_corrected_coefficient(ev, terms, added, m2_kg)
+        evid = _evidence(ev, terms, added.candidate.term, s)
+        text = pre + _round_text(i, added, current, evid, m2_kg, len(recs), ranked)
+        rounds.append(Round(i, tuple(terms), ranked, tuple(trials), current, added, evid, text))
+        terms = [*terms, added.candidate.term]
+        current = added.after
+        if pred.reconsider(terms):
+            current = _errors(ev, pred, terms)
+    else:
+        verdict = (f"Stopped after the limit of {s.max_rounds} round(s); more may be missing: run again with more "
+                   f"rounds.")
+    say(0.95, "rounds done")
+    n_added = sum(1 for r in rounds if r.added)
+    if n_added:
+        verdict = (f"Added {n_added} effect(s): " + ", ".join(r.added.candidate.term.label for r in rounds if r.added)
+                   + f"; {before_after_text(initial, current)}. "
+                   + verdict)
+    notes = [f"declared {n} (the declared form is kept; the data set its parameter)" for n in retuned]
+    notes += ([band_note] if band_note else []) + ([adapted] if adapted else []) + ev.notes
+    if pred.choice is not None:
+        notes.append(pred.choice.reason)
+    if pred.switched:
+        notes.append(pred.switched)
+    if band.f_lo_hz > 1.0:
+        notes.append(f"the integration band starts at {band.f_lo_hz:g} Hz: motion below it is only partly in z, ż")
+    limits, confounded = (), ()
+    last = rounds[-1] if rounds else None
+    if last is not None and last.added is None:  # its ranking is on the final model's residual
+        say(0.97, "detection limits and confounding")
+        seen = {t.kind for t in terms} | {t.candidate.kind for t in last.trials}  # modelled, or seen and refused
+        others = [c for c in last.ranked if c.kind not in seen]
+        limits = detection_limits(ev.fit_rfs, terms, others, m2_kg=m2_kg, thresholds=s.thresholds,
+                                  n_grid=s.grid_points)
+        confounded = confounded_pairs(ev.fit_rfs, terms, [c.term for c in last.ranked] + list(terms))
+        if confounded and verdict.endswith(NOTHING_MISSING):
+            verdict = (verdict[: -len(NOTHING_MISSING)] + "Nothing these data can separate is missing, but "
+                       + "; ".join(c.text() for c in confounded) + ".")
+    bounds = ev.bounds(terms)
+    bias_note = _bias_note(ev, terms)
+    if bias_note:
+        notes.append(bias_note)
+    n = ev.n_lin
+    undetermined = undetermined_terms(ev.fit_rfs, terms, bounds.half_width[n:n + len(terms)] /
+                                      np.maximum(np.abs(bounds.theta[n:n + len(terms)]), 1e-300)) if terms else ()
+    if undetermined and verdict.endswith(NOTHING_MISSING):  # not the same as "nothing is missing": say so
+        verdict = (verdict[: -len(NOTHING_MISSING)] + "Nothing these data can separate is missing, but "
+                   + "; ".join(u.text() for u in undetermined) + ".")
+    model = linear = unavailable = refinement = None
+    if current.fitted is not None and current.prediction_unavailable is None:
+        model, linear = current.fitted.model, pred.linear.model
+    else:
+        unavailable = f"no predictive model: {current.prediction_unavailable}"
+    if model is not None and terms and s.refine and current.structure == "constant":
+        say(0.98, "output-error refinement")
+        refinement, model = refine_final(ev, pred.held, model, linear, m2_kg, say, current)
+    final_score = current.prediction_nmse_pct
+    if refinement is not None and refinement.kept and refinement.heldout_after_pct is not None:
+        final_score = refinement.heldout_after_pct
+    floor_note = _floors(final_score, pred, terms)
+    if floor_note:
+        verdict = floor_note + " " + verdict.replace(NOTHING_MISSING, "").replace(
+            "The declared model lacks nothing the library can name. ", "").strip()
+    say(1.0, "done")
+    return LoopResult(declared=tuple(make_term(t) for t in declared), terms=tuple(terms), rounds=tuple(rounds),
+                      initial=initial, final=current, verdict=verdict, band=band, m2_kg=m2_kg, settings=s,
+                      sources=tuple(r.source for r in recs),
+                      fit_seconds=tuple(a.duration_s for a in ev.fit_recs),
+                      test_seconds=tuple(b.duration_s for b in ev.test_recs), notes=tuple(notes), model=model,
+                      linear_model=linear, model_unavailable=unavailable, detection_limits=limits,
+                      confounded=confounded, bounds=bounds, undetermined=undetermined, refinement=refinement,
+                      linear_heldout_pct=None if pred.linear is None else pred.linear.score, noise=ev.noise,
+                      bias_corrected=ev.corrected(terms) is not None,
+                      final_heldout_pct=final_score)
+
+
+def _with_corrected_coefficient(ev: _Evaluator, terms: Sequence[Term], trial: Trial,
+                                m2_kg: float | None) -> Trial:
+    """The added term's coefficient from the loop's joint fit beside the model's terms (each re-estimated), with
+    the fit's bias removed (:meth:`_Evaluator.corrected`): the ranking's coefficient is conditional on the
+    others held and on the noisy, band-limited ż."""
+    b = ev.bounds([*terms, trial.candidate.term])
+    th, hw = float(b.theta[-1]), float(b.half_width[-1])
+    c = trial.candidate
+    return replace(trial, candidate=replace(c, theta=th, theta_half_width=hw,
+                                            coefficient=None if m2_kg is None else th * m2_kg))
+
+
+def _bias_note(ev: _Evaluator, terms: Sequence[Term]) -> str:
+    """What the bias correction moved, or why the coefficients may be biased."""
+    noise = "; ".join(e.text() for e in ev.noise)
+    cor = ev.corrected(terms)
+    if cor is None:
+        why = ("switched off" if not ev.corrects else "the model cannot be simulated, or its terms share their shape "
+               "so that the correction does not converge")
+        return (f"the equation-error coefficients are not bias-corrected ({why}): noise on ż and the band-limited "
+                f"z, ż may bias them (a friction or a stiffness low); {noise}")
+    names = ["k", "c", *[t.label for t in terms]]
+    moved = ", ".join(f"{n} {100 * (a / b - 1):+.1f} %" for n, a, b in zip(names, cor.theta, cor.theta_fit) if b != 0)
+    return (f"coefficients corrected for the fit's bias (noise on both sensors and the band-limited z, ż; simulated "
+            f"with the estimated noise, nifo_core.signal.bias_correction): against the plain fit {moved}; {noise}")
+
+
+def _floors(final: float | None, pred: _Predictor, terms: Sequence[Term]) -> str:
+    """The verdict when the final model predicts no better than a floor: the linear model of the same data, or
+    predicting nothing (100 %). Empty when it beats both."""
+    if pred.off or pred.linear is None:
+        return ""
+    lin = pred.linear.score
+    what = ("the model with " + ", ".join(t.label for t in terms)) if terms else "the linear model"
+    if final is None or not np.isfinite(final) or final >= 100.0:
+        return (f"The model class cannot predict these data: {what} predicts the held-out parts at "
+                + ("no computable error" if final is None or not np.isfinite(final) else f"{final:.3g} %")
+                + " — no better than predicting nothing (100 %). Check the channels, the band and the linear "
+                  f"part ({pred.choice.reason}).")
+    if terms and final >= lin:
+        return (f"The model class does not predict these data better than a linear model: {what} predicts the "
+                f"held-out parts at {final:.3g} %, the linear model of the same data at {lin:.3g} %.")
+    return ""

@@ -1,0 +1,134 @@
+"""The loop's acceptance gates: what a candidate must do on held-out data to be added (:mod:`nifo_core.loop` step 3).
+
+Each gate returns the reasons a candidate fails (empty: it passes), in words a report can print.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from ..kinds.describing import Term
+from .results import Errors, LoopSettings
+
+__all__ = ["heldout_failures", "prediction_failures", "one_of_kind_alternatives", "one_of_kind_failures"]
+
+
+def heldout_failures(current: Errors, after: Errors, s: LoopSettings) -> tuple[list[str], list[str]]:
+    """Why a candidate does not improve the model on held-out data: (equation side, prediction side).
+
+    Equation side: it must lower the held-out equation error by ``min_heldout_gain`` (relative) and
+    raise no band of it by more than ``max_band_rise_db``. Prediction side: it must lower the held-out
+    prediction NMSE whenever the current model has one (a model that cannot be predicted any more
+    fails) and raise no band of the prediction error by more than ``max_band_rise_db``. A significance
+    test alone trusts a mis-specified model (F-16 level 1: a multi-mode structure read as one mass
+    takes a play that lowers the error at 2-15 Hz while the 20-30 Hz residual grows by 22 dB).
+    """
+    eq, pred = [], []
+    e0, e1 = current.equation_nmse_pct, after.equation_nmse_pct
+    gain = 1 - e1 / e0 if e0 > 0 else 0.0
+    if not gain >= s.min_heldout_gain:
+        eq.append(f"held-out equation error {e0:.3g} % → {e1:.3g} % does not fall by {100 * s.min_heldout_gain:g} %")
+    eq += _worse_bands("equation error", current.equation_band_residual_db, after.equation_band_residual_db, s)
+    p0, p1 = current.prediction_nmse_pct, after.prediction_nmse_pct
+    if p0 is not None and p1 is None:
+        pred.append(f"the model with it cannot be predicted ({after.prediction_unavailable})")
+    elif p0 is not None:
+        if not p1 < p0:
+            pred.append(f"held-out prediction NMSE does not fall ({p0:.3g} % → {p1:.3g} %)")
+        pred += _worse_bands("prediction error", current.band_residual_db, after.band_residual_db, s)
+    return eq, pred
+
+
+def _worse_bands(what: str, b0, b1, s: LoopSettings) -> list[str]:
+    worse = [f"{k} Hz {b0[k]:+.1f} → {b1[k]:+.1f} dB" for k in b0
+             if k in b1 and np.isfinite(b0[k]) and np.isfinite(b1[k]) and b1[k] > b0[k] + s.max_band_rise_db]
+    return [f"the held-out {what} grows by more than {s.max_band_rise_db:g} dB in " + ", ".join(worse)] if worse else []
+
+
+def prediction_failures(current: Errors, after: Errors, s: LoopSettings, twin: Errors | None = None,
+                         floor: Sequence[float] = ()) -> list[str]:
+    """Why a candidate does not improve the held-out prediction enough (a rational linear part: the only gate).
+
+    It must lower the held-out prediction NMSE by ``min_prediction_gain`` (relative) and by more than the noise
+    floor (``floor``: per record, what a perfect model would still show, :meth:`HeldOut.noise_floor`), beat its
+    linear twin (the same model with one more *linear* path: else what it adds is flexibility) by as much, and make
+    no record's held-out prediction worse by more than ``max_record_rise`` (relative), the record's noise floor or a
+    quarter of the mean gain (a term that trades one level for another is not an effect of the structure).
+    """
+    p0, p1 = current.prediction_nmse_pct, after.prediction_nmse_pct
+    if p1 is None:
+        return [f"the model with it cannot be predicted ({after.prediction_unavailable})"]
+    if p0 is None:
+        return []
+    nf = float(np.mean(floor)) if len(floor) else 0.0
+    out = []
+    need = max(s.min_prediction_gain * p0, nf)
+    if not p1 <= p0 - need:
+        why = (f"does not fall by {100 * s.min_prediction_gain:g} %" if need > nf else
+               f"does not fall by more than the noise floor of the held-out parts ({nf:.2g} %)")
+        out.append(f"held-out prediction NMSE {p0:.3g} % → {p1:.3g} % {why}")
+    elif twin is not None and twin.prediction_nmse_pct is not None and \
+            not p1 <= twin.prediction_nmse_pct - max(s.min_prediction_gain * twin.prediction_nmse_pct, nf):
+        out.append(f"it predicts the held-out parts no better than the same model with one more linear path "
+                   f"({p1:.3g} % against {twin.prediction_nmse_pct:.3g} %): what it adds is flexibility, not a "
+                   f"nonlinearity")
+    gain = max(p0 - p1, 0.0)
+    floors = list(floor) + [0.0] * (len(current.prediction_nmse_per_record_pct) - len(floor))
+    worse = [(src, a, b) for src, a, b, f in zip(_names(current), current.prediction_nmse_per_record_pct,
+                                                 after.prediction_nmse_per_record_pct, floors)
+             if b - a > max(s.max_record_rise * a, f, 0.25 * gain)]
+    if worse:
+        out.append("it makes the held-out prediction of " + ", ".join(f"{n} worse ({a:.3g} % → {b:.3g} %)"
+                                                                      for n, a, b in worse))
+    return out
+
+
+def _names(e: Errors) -> list[str]:
+    names = [n for n, _ in e.transmissibility_error_pct]
+    return names + [f"record {i + 1}" for i in range(len(names), len(e.prediction_nmse_per_record_pct))]
+
+
+def one_of_kind_alternatives(terms: Sequence[Term], candidate: Term, ranked: Sequence[Term],
+                             static: Mapping) -> list[tuple[int, Term]]:
+    """The one-term alternatives to adding ``candidate`` beside ``terms``: (index of a term of the model, the
+    term of its kind that would replace it).
+
+    A second term of a kind already present (the candidate in place of the present one), and the present
+    kinds' own best candidates in the ranking (``ranked``: a term re-placed — a knee at another velocity —
+    that the candidate may only stand in for: a friction absorbing a mis-placed knee's sign(ż) part). A
+    bump stop measured from the static position (``static``) has its gap fitted with its offsets: none.
+    """
+    present = {t.kind: k for k, t in enumerate(terms) if t.label not in static}
+    out = []
+    if candidate.kind in present:
+        out.append((present[candidate.kind], candidate))
+    for r in ranked:
+        k = present.get(r.kind)
+        if k is not None and r.kind != candidate.kind and r.label != terms[k].label:
+            out.append((k, r))
+    return out
+
+
+def one_of_kind_failures(terms: Sequence[Term], candidate: Term, after: Errors,
+                         alternatives: Sequence[tuple[int, Term, Errors]], s: LoopSettings) -> list[str]:
+    """Why ``candidate`` is not added when one term of a kind already present does as well.
+
+    ``after``: the model with the candidate added; ``alternatives``: (index, replacing term, its errors) from
+    :func:`one_of_kind_alternatives`. The candidate must predict the held-out parts better than each
+    alternative by ``min_prediction_gain`` (relative): the held-out evidence that one term of that kind
+    cannot give what it adds.
+    """
+    p1 = after.prediction_nmse_pct
+    if p1 is None:
+        return []
+    for k, alt, e in alternatives:
+        p = e.prediction_nmse_pct
+        if p is not None and not p1 <= p * (1 - s.min_prediction_gain):
+            what = (f"a second {alt.kind} without held-out evidence for two" if alt.kind == candidate.kind else
+                    f"it only stands in for {terms[k].label} re-placed")
+            return [f"{what}: one {alt.kind}, {alt.label} in place of {terms[k].label}, predicts the held-out parts "
+                    f"as well ({p:.3g} % against {p1:.3g} % with {candidate.label} added; it must be "
+                    f"{100 * s.min_prediction_gain:g} % better) — re-tune {terms[k].label} rather than add a term"]
+    return []

@@ -1,0 +1,45 @@
+"""The identified model and its prediction (docs/method.md §4): linear part, time simulation, refinement.
+
+Modules:
+
+- :mod:`nifo_core.predict.linear_part`  the linear part: a one-mass body or a stable rational fit of T21
+- :mod:`nifo_core.predict.timesim`  the prediction engine: the model simulated in time
+- :mod:`nifo_core.predict.fixed_point`  the frequency-domain fast path, where it provably converges
+- :mod:`nifo_core.predict.model`  ``IdentifiedModel`` and ``predict_body``
+- :mod:`nifo_core.predict.feedback_paths`  terms with a bounded remainder through their own feedback paths
+- :mod:`nifo_core.predict.prediction_error`  band NMSE of a prediction
+- :mod:`nifo_core.predict.refine`  output-error refinement of a model's coefficients
+- :mod:`nifo_core.predict.refine_bias`  the refinement's bias from sensor noise removed (errors in variables)
+- :mod:`nifo_core.predict.heldout`  held-out parts and their scores
+- :mod:`nifo_core.predict.prediction_bounds`  prediction bounds from the parameters' covariance
+- :mod:`nifo_core.predict.model_fit`  the model classes the loop and identify fit
+
+Layer: it imports :mod:`nifo_core.nifo`, :mod:`nifo_core.simulate`, :mod:`nifo_core.settings` and below
+(``.importlinter``). The names below are its front door; the modules' private (``_``) names stay inside the package.
+"""
+
+from .linear_part import (BodyModel, LinearPart, RecordLines, absorbed_rates, fit_body_model, fit_rational,
+                          nominal_linear_part, pole_residue_response, select_linear_part)
+from .timesim import TimeResponse, discretise, simulate_response
+from .fixed_point import contraction_bound, fixed_point_solve
+from .model import (IdentifiedModel, Prediction, PredictedTransmissibility, PredictionDivergedError, predict_body,
+                    predict_transmissibility, record_inputs)
+from .feedback_paths import (PATH_KINDS, SMALL_SLOPE, JointFit, PathFit, PathResult, check_terms, choose_paths,
+                             equivalent_gammas, fit_joint, fit_paths, path_model, path_remainders, regimes_stable)
+from .prediction_error import band_spectra, band_nmse
+from .refine import Refinement, refine_model, refine_jointly, model_nmse, parameter_space, start_up_samples
+from .heldout import HeldOut, split_records, Scores
+from .prediction_bounds import PredictionSpread, prediction_spread, line_spread, half_width, Z95
+from .model_fit import (Fitted, JointPathResult, LinearChoice, choose_linear_form, fit_linear, fit_model,
+                        joint_paths, path_eligible)
+
+__all__ = ["BodyModel", "LinearPart", "RecordLines", "absorbed_rates", "fit_body_model", "fit_rational",
+           "nominal_linear_part", "pole_residue_response", "select_linear_part", "TimeResponse", "discretise",
+           "simulate_response", "contraction_bound", "fixed_point_solve", "IdentifiedModel", "Prediction",
+           "PredictedTransmissibility", "PredictionDivergedError", "predict_body", "predict_transmissibility",
+           "record_inputs", "PATH_KINDS", "SMALL_SLOPE", "JointFit", "PathFit", "PathResult", "check_terms",
+           "choose_paths", "equivalent_gammas", "fit_joint", "fit_paths", "path_model", "path_remainders",
+           "regimes_stable", "band_spectra", "band_nmse", "Refinement", "refine_model", "refine_jointly",
+           "model_nmse", "parameter_space", "start_up_samples", "HeldOut", "split_records", "Scores",
+           "PredictionSpread", "prediction_spread", "line_spread", "half_width", "Z95", "Fitted", "JointPathResult",
+           "LinearChoice", "choose_linear_form", "fit_linear", "fit_model", "joint_paths", "path_eligible"]

@@ -1,0 +1,372 @@
+"""Time-domain simulation of an identified model: the prediction engine (docs/method.md §4).
+
+The model (:mod:`nifo_core.predict.linear_part`) is a linear part Hz = Z/U with the
+nonlinear strut force fed back into its input::
+
+    ẋ = A·x + b·u,   z = c·x,   ż = c·A·x   (c·b = 0),
+    u = v + n,       v = ẍ1 [+ k3·x1] [- F/M2] (external, measured),
+    n = Σ γ_i·g_i(z, ż) - a·z - b·ż     ((a, b): the strut terms' linear part the linear part absorbed)
+
+How it runs, and why it cannot diverge numerically for a stable linear part:
+
+1. v is interpolated band-limited to ``fs·oversample`` (zero-phase polyphase
+   FIR, the simulator's anti-aliasing taps) and taken piecewise linear between
+   the fine samples (first-order hold).
+2. The linear part is discretised EXACTLY for that input (matrix exponential of
+   the FOH-augmented system): x_{k+1} = Φ·x_k + Γ0·u_k + Γ1·u_{k+1}. Its
+   poles are e^{p·h}: inside the unit circle for every step h when Hz is stable.
+3. The feedback is implicit: n_{k+1} solves the scalar equation
+   n = N(z* + α·n, ż* + β·n) with α = c·Γ1, β = c·A·Γ1 (fixed-point iteration,
+   bisection on a bracket when it does not contract), so stiff and non-smooth
+   forces (friction, bump stops) are taken at the end of the step, like an
+   implicit integrator. The play state of a backlash is committed once per step.
+4. Body acceleration ẍ2 = ẍ1 + z̈ at the fine rate is anti-aliased and
+   decimated back to ``fs`` (as the simulator records); z, ż are the exact
+   states at the record's instants.
+
+With feedback paths (``LinearPart.paths``, :mod:`nifo_core.predict.feedback_paths`) the
+linear part has two inputs sharing its poles, ``ẋ = A·x + b·v + Σ e_i·n_i``,
+n_i = g_i(z) - α_i·z each term's bounded remainder through its own path; the
+step is the same (exact FOH for both inputs, the n_i implicit by fixed point).
+
+A state that leaves every bound (|z| above ``z_limit``, or not finite) means
+the identified model itself is unstable at this level: reported, never hidden.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Sequence
+
+import numba
+import numpy as np
+import scipy.linalg
+from scipy import signal
+
+from ..kinds.describing import Term, path_slopes
+from ..errors import ConfigError
+from .linear_part import LinearPart
+from ..simulate.quarter_car import _antialias_taps
+from ..kinds.strut_forces import g_one, strut_arrays, strut_force
+
+__all__ = ["TimeResponse", "discretise", "simulate_response"]
+
+
+@dataclass(frozen=True, eq=False)
+class TimeResponse:
+    """Response of a model to an external input, at the input's rate.
+
+    Attributes
+    ----------
+    z, zdot : ndarray
+        Relative displacement [m] and velocity [m/s] (exact states at the samples).
+    zddot : ndarray
+        Relative acceleration body_accel - ẍ1 [m/s²].
+    body_accel : ndarray
+        ẍ1 + z̈ [m/s²] (anti-aliased at the fine rate, decimated).
+    force : ndarray
+        Feedback per unit body mass n = Σ γ_i·g_i - a·z - b·ż [m/s²] at the samples
+        ((a, b) = ``linear.absorbed``).
+    diverged_at : int
+        Sample where the state left its bounds, -1 when it did not.
+    oversample : int
+    """
+
+    z: np.ndarray
+    zdot: np.ndarray
+    zddot: np.ndarray
+    body_accel: np.ndarray
+    force: np.ndarray
+    diverged_at: int
+    oversample: int
+
+
+@lru_cache(maxsize=32)
+def _discretise_cached(key: bytes, n: int, h: float):
+    abc = np.frombuffer(key, dtype=np.float64)
+    a = abc[: n * n].reshape(n, n)
+    b = abc[n * n: n * n + n]
+    m = np.zeros((n + 2, n + 2))
+    m[:n, :n] = a * h
+    m[:n, n] = b * h
+    m[n, n + 1] = 1.0
+    e = scipy.linalg.expm(m)
+    phi, p1, p2 = e[:n, :n], e[:n, n], e[:n, n + 1]
+    return phi, p1 - p2, p2
+
+
+def discretise(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Exact first-order-hold discretisation: x_{k+1} = Φ·x_k + Γ0·u_k + Γ1·u_{k+1} for step ``h`` [s]."""
+    a = np.ascontiguousarray(a, float)
+    b = np.ascontiguousarray(b, float)
+    return _discretise_cached(np.concatenate([a.ravel(), b]).tobytes(), a.shape[0], float(h))
+
+
+@numba.njit(cache=True)
+def _fb(z, zd, codes, coef, p0, p1, play, commit, la, lb):  # pragma: no cover - compiled
+    """Feedback n = Σ γ_i·g_i(z, ż) - a·z - b·ż (the absorbed linear part taken out)."""
+    return strut_force(z, zd, codes, coef, p0, p1, play, commit) - la * z - lb * zd
+
+
+@numba.njit(cache=True)
+def _solve(z0, zd0, alpha, beta, guess, codes, coef, p0, p1, play, la, lb, atol):  # pragma: no cover - compiled
+    """n = N(z0 + α·n, ż0 + β·n): fixed point, then bisection on a bracket. Returns (n, ok).
+
+    Converged when the change is below 1e-13 relative or ``atol`` [m/s²] (rounding of the input's scale).
+    """
+    n = guess
+    for _ in range(40):
+        nn = _fb(z0 + alpha * n, zd0 + beta * n, codes, coef, p0, p1, play, False, la, lb)
+        if abs(nn - n) <= 1e-13 * max(abs(nn), abs(n)) + atol:
+            return nn, True
+        n = nn
+    # not contracting: bracket a sign change of f(n) = n - N(n) around the guess and bisect; each half of the
+    # bracket on its own (a force that is not monotone in z, e.g. an even quadratic spring, can give f the same
+    # sign at both ends of a symmetric bracket with its root, the one next to the guess, inside)
+    fg = guess - _fb(z0 + alpha * guess, zd0 + beta * guess, codes, coef, p0, p1, play, False, la, lb)
+    if fg == 0.0:
+        return guess, True
+    d = max(abs(guess), 1e-6)
+    lo, hi = guess - d, guess + d
+    flo = lo - _fb(z0 + alpha * lo, zd0 + beta * lo, codes, coef, p0, p1, play, False, la, lb)
+    fhi = hi - _fb(z0 + alpha * hi, zd0 + beta * hi, codes, coef, p0, p1, play, False, la, lb)
+    k = 0
+    while flo * fg > 0 and fhi * fg > 0 and k < 200:
+        d *= 2.0
+        lo, hi = guess - d, guess + d
+        flo = lo - _fb(z0 + alpha * lo, zd0 + beta * lo, codes, coef, p0, p1, play, False, la, lb)
+        fhi = hi - _fb(z0 + alpha * hi, zd0 + beta * hi, codes, coef, p0, p1, play, False, la, lb)
+        k += 1
+    if not (np.isfinite(flo) and np.isfinite(fhi) and np.isfinite(fg)):
+        return guess, False
+    if flo * fg <= 0:
+        hi = guess
+    elif fhi * fg <= 0:
+        lo, flo = guess, fg
+    else:
+        return guess, False
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        fm = mid - _fb(z0 + alpha * mid, zd0 + beta * mid, codes, coef, p0, p1, play, False, la, lb)
+        if (fm > 0) == (flo > 0):
+            lo, flo = mid, fm
+        else:
+            hi = mid
+        if hi - lo <= 1e-14 * max(abs(lo), abs(hi)) + atol:
+            break
+    return 0.5 * (lo + hi), True
+
+
+@numba.njit(cache=True)
+def _run(phi, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, la, lb, z_limit, atol,
+         out_z, out_zd, out_zdd, out_n):  # pragma: no cover - compiled
+    """March the FOH-discretised linear part with the implicit strut feedback; returns the failing step or -1."""
+    ns = phi.shape[0]
+    nt = codes.size
+    x = np.zeros(ns)
+    xs = np.zeros(ns)
+    play = np.zeros(nt)
+    alpha = 0.0
+    beta = 0.0
+    for i in range(ns):
+        alpha += cz[i] * g1[i]
+        beta += cd[i] * g1[i]
+    active = nt > 0 or la != 0.0 or lb != 0.0
+    nk = _fb(0.0, 0.0, codes, coef, p0, p1, play, True, la, lb) if active else 0.0
+    nprev = nk
+    out_z[0], out_zd[0], out_zdd[0], out_n[0] = 0.0, 0.0, dd * (v[0] + nk), nk
+    for j in range(v.size - 1):
+        uk = v[j] + nk
+        un = v[j + 1]
+        z0 = 0.0
+        zd0 = 0.0
+        for i in range(ns):
+            acc = g0[i] * uk + g1[i] * un
+            for l in range(ns):
+                acc += phi[i, l] * x[l]
+            xs[i] = acc
+            z0 += cz[i] * acc
+            zd0 += cd[i] * acc
+        n = 0.0
+        if active:
+            n, ok = _solve(z0, zd0, alpha, beta, 2.0 * nk - nprev, codes, coef, p0, p1, play, la, lb, atol)
+            nprev = nk
+            if not ok:
+                return j + 1
+        zdd = dd * (un + n)
+        for i in range(ns):
+            x[i] = xs[i] + g1[i] * n
+            zdd += ca[i] * x[i]
+        z = z0 + alpha * n
+        zd = zd0 + beta * n
+        if nt:
+            strut_force(z, zd, codes, coef, p0, p1, play, True)   # commit the play states
+        nk = n
+        out_z[j + 1], out_zd[j + 1], out_zdd[j + 1], out_n[j + 1] = z, zd, zdd, n
+        if not (abs(z) <= z_limit):
+            return j + 1
+    return -1
+
+
+@numba.njit(cache=True)
+def _run_paths(phi, g0b, g1b, g0e, g1e, cz, cd, ca, ddb, dde, v, codes, p0, p1, alpha, z_limit,
+               out_z, out_zd, out_zdd, out_n):  # pragma: no cover - compiled
+    """March the two-input linear part (measured input v, each term's remainder through its path)."""
+    ns, m = phi.shape[0], codes.size
+    x = np.zeros(ns)
+    xs = np.zeros(ns)
+    play = np.zeros(m)
+    n = np.zeros(m)
+    nn = np.zeros(m)
+    az = np.zeros(m)      # z_{k+1} = z0 + Σ az_i·n_i
+    ad = np.zeros(m)
+    zmax = 0.0
+    for i in range(m):
+        for l in range(ns):
+            az[i] += cz[l] * g1e[l, i]
+            ad[i] += cd[l] * g1e[l, i]
+    for j in range(v.size - 1):
+        z0 = 0.0
+        zd0 = 0.0
+        for l in range(ns):
+            acc = g0b[l] * v[j] + g1b[l] * v[j + 1]
+            for i in range(m):
+                acc += g0e[l, i] * n[i]
+            for k in range(ns):
+                acc += phi[l, k] * x[k]
+            xs[l] = acc
+            z0 += cz[l] * acc
+            zd0 += cd[l] * acc
+        for i in range(m):
+            nn[i] = n[i]
+        ok = False
+        for _ in range(100):        # contraction: |az_i| ~ h², the remainders 1-Lipschitz in z
+            z = z0
+            for i in range(m):
+                z += az[i] * nn[i]
+            change = 0.0
+            for i in range(m):
+                new = g_one(codes[i], p0[i], p1[i], z, 0.0, play[i]) - alpha[i] * z
+                change = max(change, abs(new - nn[i]))
+                nn[i] = new
+            if change <= 1e-13 * (abs(z) + zmax) or change == 0.0:
+                ok = True
+                break
+        if not ok:
+            return j + 1
+        z = z0
+        zd = zd0
+        zdd = ddb * v[j + 1]
+        for i in range(m):
+            z += az[i] * nn[i]
+            zd += ad[i] * nn[i]
+            zdd += dde[i] * nn[i]
+        for i in range(m):
+            play[i] = g_one(codes[i], p0[i], p1[i], z, 0.0, play[i])
+            n[i] = play[i] - alpha[i] * z
+        for l in range(ns):
+            val = xs[l]
+            for i in range(m):
+                val += g1e[l, i] * n[i]
+            x[l] = val
+            zdd += ca[l] * val
+        tot = 0.0
+        for i in range(m):
+            tot += n[i]
+        out_z[j + 1], out_zd[j + 1], out_zdd[j + 1], out_n[j + 1] = z, zd, zdd, tot
+        zmax = max(zmax, abs(z))
+        if not (abs(z) <= z_limit):
+            return j + 1
+    return -1
+
+
+def _simulate_paths(linear: LinearPart, terms, v: np.ndarray, h: float, z_limit: float):
+    alpha = path_slopes(terms)
+    if len(terms) != linear.paths.shape[0]:
+        raise ConfigError(f"{len(terms)} terms but {linear.paths.shape[0]} feedback paths")
+    a, b, e, c = linear.path_state_space()
+    phi, g0b, g1b = discretise(a, b, h)
+    g0e, g1e = np.zeros_like(e), np.zeros_like(e)
+    for i in range(e.shape[1]):
+        _, g0e[:, i], g1e[:, i] = discretise(a, e[:, i], h)
+    cd = c @ a
+    ca = cd @ a
+    codes, _, p0, p1 = strut_arrays(list(terms), [1.0] * len(terms))
+    nf = v.size
+    z, zd, zdd, nn = (np.zeros(nf) for _ in range(4))
+    zdd[0] = float(cd @ b) * v[0]
+    fail = _run_paths(np.ascontiguousarray(phi), g0b, g1b, g0e, g1e, c, cd, ca, float(cd @ b), e.T @ cd, v,
+                      codes, p0, p1, alpha, float(z_limit), z, zd, zdd, nn)
+    return z, zd, zdd, nn, fail
+
+
+def _up(x: np.ndarray, q: int) -> np.ndarray:
+    return x.copy() if q == 1 else signal.resample_poly(x, q, 1, window=_antialias_taps(q))
+
+
+def _down(x: np.ndarray, q: int) -> np.ndarray:
+    return x.copy() if q == 1 else signal.resample_poly(x, 1, q, window=_antialias_taps(q))
+
+
+def simulate_response(linear: LinearPart, terms: Sequence[Term], gammas: Sequence[float], external: np.ndarray,
+                      fs_hz: float, *, spindle_accel: np.ndarray | None = None, oversample: int = 8,
+                      z_limit: float = np.inf) -> TimeResponse:
+    """Simulate the model for a measured external input (module docstring).
+
+    Parameters
+    ----------
+    linear : LinearPart
+        Stable linear part Hz = Z/U.
+    terms, gammas : sequences
+        Describing functions and their coefficients per unit body mass γ_i = c_i/M2
+        (not used with feedback paths: the paths carry them).
+    external : ndarray, shape (n,)
+        v = ẍ1 [+ k3·x1] [- F/M2] [m/s²] at ``fs_hz``.
+    fs_hz : float
+        Sample rate [Hz].
+    spindle_accel : ndarray, optional
+        ẍ1 [m/s²] for the body acceleration ẍ2 = ẍ1 + z̈ (zero when None: a fixed spindle).
+    oversample : int
+        Fine steps per sample.
+    z_limit : float
+        Bound of |z| [m] beyond which the response counts as diverged.
+
+    Returns
+    -------
+    TimeResponse
+    """
+    q = int(oversample)
+    if q < 1:
+        raise ConfigError(f"oversample={oversample!r} must be a whole number ≥ 1")
+    if not linear.stable:
+        raise ConfigError(f"the linear part is not stable (poles {np.round(linear.all_poles(), 4).tolist()} 1/s)",
+                          hint="refit it (select_linear_part flips unstable poles)")
+    h = 1.0 / (fs_hz * q)
+    v = _up(np.asarray(external, float), q)
+    if linear.paths is not None:     # each term through its own path; ``gammas`` are in the paths
+        z, zd, zdd, nn, fail = _simulate_paths(linear, terms, v, h, z_limit)
+    else:
+        a, b, c = linear.state_space()
+        phi, g0, g1 = discretise(a, b, h)
+        cd = c @ a
+        ca = cd @ a
+        dd = float(cd @ b)
+        codes, coef, p0, p1 = strut_arrays(list(terms), list(gammas))
+        nf = v.size
+        z, zd, zdd, nn = (np.zeros(nf) for _ in range(4))
+        la, lb = linear.absorbed
+        atol = 1e-13 * float(np.max(np.abs(v))) if v.size else 0.0
+        fail = _run(np.ascontiguousarray(phi), g0, g1, c, cd, ca, dd, v, codes, coef, p0, p1, la, lb,
+                    float(z_limit), atol, z, zd, zdd, nn)
+    ext = np.asarray(external, float)
+    n = ext.size
+    if spindle_accel is None:
+        a2 = _down(zdd, q)[:n]
+        a1 = 0.0
+    else:
+        a1 = np.asarray(spindle_accel, float)
+        a1f = v if np.array_equal(a1, ext) else _up(a1, q)      # the input's interpolation, once
+        a2 = _down(a1f + zdd, q)[:n]
+    return TimeResponse(z=z[::q][:n], zdot=zd[::q][:n], zddot=a2 - a1, body_accel=a2, force=nn[::q][:n],
+                        diverged_at=-1 if fail < 0 else int(fail // q), oversample=q)
