@@ -1,18 +1,6 @@
 """``nifo characterize DATA... --out DIR``: restoring-force plots and an automatic characterization.
 
-Reads each DATA file (several files = several excitation levels), integrates
-ẍ2 - ẍ1 in one band, ranks the describing functions of the library by how much
-of the restoring force they explain beyond a linear strut
-(:mod:`nifo_core.characterize.automatic`) and writes, atomically, to DIR:
-
-- ``characterize.json``   ranked candidates with parameters, scores and confidence,
-                          the suggested model, the band and a per-file summary;
-- ``suggested_model.yaml`` a model file ``nifo identify`` accepts;
-- ``restoring_frequency*.png`` frequency slices of sweeps (paper Fig. 3);
-- ``restoring_amplitude.png`` amplitude slices: one row per file, or amplitude bins
-                          of one random record (paper Fig. 4);
-- ``characteristic.png``  the nonlinear part of the force against z or ż, per term;
-- ``ranking.png``         every kind's score against the threshold.
+The command line of the step in :mod:`nifo.pipeline.characterize` (what it does is written there).
 """
 
 from __future__ import annotations

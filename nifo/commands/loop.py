@@ -1,24 +1,6 @@
 """``nifo loop DATA... --model MODEL.yaml --out DIR``: trace the residual to the effect the model lacks, add it.
 
-Fits the declared model on the first part of each record, forms the residual
-that can show what is missing (force-balance equation error, and the
-prediction error on the held-out part), ranks every describing function of
-the library by how much of it it explains, adds the best one that is
-significant, stable, lowers the held-out error and is not a tire artefact, and
-repeats (:mod:`nifo_core.loop.closing`). Writes, atomically, to DIR:
-
-- ``loop.json``          declared model, ranked candidates of each round, effects added
-                         (kind and parameters as in the library), errors before/after, verdict;
-- ``model.json``         the loop's final model with its linear counterpart: ``nifo predict --model
-                         DIR/model.json`` takes it directly. The equation-error fit on the fit parts,
-                         refined by output error (:mod:`nifo_core.predict.refine`, ``--no-refine``: not) when the
-                         refined model's held-out prediction NMSE is not worse; loop.json's
-                         ``refinement`` holds both fits' parameters and held-out NMSE and says which was
-                         written. Absent, with the reason in loop.json and on screen, when no predictive
-                         model could be made (e.g. a non-physical one-mass fit);
-- ``refined_model.yaml`` the declared model plus the added effects (``nifo identify`` reads it);
-- ``loop_errors.png``    held-out NMSE and per-band residual before and after each round;
-- ``loop_roundN.png``    the residual against the added effect's variable, before and after.
+The command line of the step in :mod:`nifo.pipeline.loop` (what it does is written there).
 """
 
 from __future__ import annotations

@@ -1,26 +1,11 @@
 """``nifo run [DATA...] [--out DIR]``: the whole job — characterize, identify, predict, loop, report, recording.
 
-With no DATA, the bundled sample (``bags/sample/*``: a simulated quarter car
-at two road levels). Steps, each into its own subdirectory of ``--out``
-(default ``results/``), by the steps of :mod:`nifo.pipeline` (:func:`nifo.pipeline.job.run_job`), each
-with its own command line's defaults and this command's input and settings options:
-
-0. the settings, chosen once from the data where not given (the excitation's period and transient, the
-   excited band, blocks, integration band: :mod:`nifo.settings`), printed with their reasons and passed to
-   every step;
-1. ``characterize/``  restoring-force plots and the suggested model (all DATA as levels);
-2. ``identify/``      NIFO with the suggested model on every level (several levels that call for it: the
-   paper's two-step model), then the output-error refinement of its coefficients, kept when it predicts a
-   held-out part no worse (``nifo identify --refine``; ``--no-refine``: NIFO's equation-error values);
-3. ``loop/``          from the linear model, what the data need: terms added while the held-out prediction
-   improves, with the model class ``nifo identify`` writes (``nifo loop``): the run's final model,
-   ``loop/model.json``;
-4. ``predict/``       the final model and the linear model of the same data on every record;
-5. ``report/report.html``  the self-contained HTML report of all of the above;
-6. ``recording/nifo.rrd``  the Rerun recording (``rerun results/recording/nifo.rrd``).
+The command line of the step in :mod:`nifo.pipeline.job` (what it does is written there).
 """
 
 from __future__ import annotations
+
+import nifo.pipeline.job as _step
 
 import argparse
 from pathlib import Path
@@ -35,7 +20,7 @@ from nifo_core.errors import InputError
 __all__ = ["add_arguments", "run", "sample_data", "loop_available", "SAMPLE_DIR"]
 
 HELP = "the whole job on the bundled sample (or given data): characterize, identify, predict, loop, report"
-DESCRIPTION = __doc__.split("\n", 1)[1].strip() if __doc__ else HELP
+DESCRIPTION = _step.__doc__.split("\n", 1)[1].strip() if _step.__doc__ else HELP
 
 #: the bundled sample, relative to the checkout
 SAMPLE_DIR = Path(__file__).resolve().parents[2] / "bags" / "sample"

@@ -1,4 +1,4 @@
-"""The characterize step (``nifo characterize``, ``nifo run``): ``nifo characterize DATA... --out DIR``: restoring-force plots and an automatic characterization.
+"""The characterize step (``nifo characterize``, ``nifo run``): restoring-force plots and an automatic characterization.
 
 Reads each DATA file (several files = several excitation levels), integrates
 ẍ2 - ẍ1 in one band, ranks the describing functions of the library by how much

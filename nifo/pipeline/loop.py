@@ -1,4 +1,4 @@
-"""The loop step (``nifo loop``, ``nifo run``): ``nifo loop DATA... --model MODEL.yaml --out DIR``: trace the residual to the effect the model lacks, add it.
+"""The loop step (``nifo loop``, ``nifo run``): trace the residual to the effect the model lacks, add it.
 
 Fits the declared model on the first part of each record, forms the residual
 that can show what is missing (force-balance equation error, and the

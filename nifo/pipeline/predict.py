@@ -1,4 +1,4 @@
-"""The predict step (``nifo predict``, ``nifo run``): ``nifo predict``: apply an identified model to other data (docs/method.md §4, paper §3.3 validation).
+"""The predict step (``nifo predict``, ``nifo run``): apply an identified model to other data (docs/method.md §4, paper §3.3 validation).
 
 For each record the measured spindle acceleration (and a measured force on
 the body, for a model identified with one) drives the model
@@ -15,14 +15,16 @@ compared with the measured one:
   period average after the first, transient period of the prediction (the
   multisine benchmarks' convention);
 - the transmissibility error |T_pred/T_meas - 1|, median and max over the
-  lines of ``--freq-range`` (default 2-30 Hz), where T is the H1 from the
+  lines of ``--freq-range`` (default: the model's analysis band), where T is the H1 from the
   measured spindle signal to the predicted or the measured body signal, on
   the same spectral settings.
 
 The same is done with the linear model stored beside it in model.json (the
-plain H1 at the identification level, i.e. the equivalent linearisation a
-linear identification would give), so the gain from the nonlinear terms is
-explicit. A record that cannot be predicted (unreadable, or a model whose
+linear model identified on the same records with the same settings), so the
+gain from the nonlinear terms is explicit; the RMS error is given in the
+output's unit, and every record's signals (measured, model, linear) are written
+as ``<record>_signals.parquet/.csv``. A record at another sample rate than the
+model's is predicted at its own rate (the model is continuous-time). A record that cannot be predicted (unreadable, or a model whose
 response grows without bound at that level) is named with the reason; every
 other record is still predicted and written, and the command then exits
 non-zero. MODEL may be a model.json or a directory holding one (from
