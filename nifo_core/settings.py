@@ -115,6 +115,9 @@ class GivenSettings:
         if self.band_hz is not None and self.band_hz[0] <= 0:
             raise ConfigError(f"integration band {self.band_hz[0]:g}-{self.band_hz[1]:g} Hz needs LO > 0",
                               channel="--band", hint="e.g. --band 0.5 200")
+        spectral = {k: getattr(self, k) for k in ("block", "overlap", "window") if getattr(self, k) is not None}
+        if spectral:    # the spectral engine's own rules, checked here once for every caller
+            replace(SpectralSettings(), **spectral)
 
     def items(self) -> dict:
         return {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None}

@@ -205,21 +205,43 @@ class IdentifierNode(Node):
     # ------------------------------------------------------------------ set-up
     @staticmethod
     def _problems(p: dict) -> str:
-        bad = []
-        if p.get("block", 0) < 0 or p.get("block", 0) in range(1, 8):
-            bad.append(f"block={p['block']} must be 0 (model file / default) or >= 8")
-        if "overlap" in p and not (p["overlap"] == -1.0 or 0 <= p["overlap"] < 1):
+        """What is wrong with (some of) the node's parameters: its own (periods) here, the analysis settings by
+        the one settings object (:class:`~nifo_core.settings.GivenSettings`, as for the command line and a
+        model file)."""
+        from nifo_core.settings import GivenSettings
+
+        bad = [f"{k}={p[k]} must be > 0" for k in ("publish_period_s", "checkpoint_period_s") if k in p
+               and not p[k] > 0]
+        if "overlap" in p and p["overlap"] < 0 and p["overlap"] != -1.0:
             bad.append(f"overlap={p['overlap']} must be -1 (default) or in [0, 1)")
-        for k in ("publish_period_s", "checkpoint_period_s"):
-            if k in p and not p[k] > 0:
-                bad.append(f"{k}={p[k]} must be > 0")
-        if "cond_limit" in p and not p["cond_limit"] > 1:
-            bad.append(f"cond_limit={p['cond_limit']} must be > 1")
-        if "analysis_band_hz" in p:
-            ab = list(p["analysis_band_hz"])
-            if len(ab) != 2 or not 0 <= ab[0] < ab[1]:
-                bad.append(f"analysis_band_hz={ab} must be [lo, hi] with 0 <= lo < hi")
+        elif "block" in p and p["block"] < 0:
+            bad.append(f"block={p['block']} must be 0 (model file / default) or >= 8")
+        else:
+            try:
+                GivenSettings(**IdentifierNode._given_fields(p))
+            except ConfigError as err:
+                bad.append(err.message)
         return "; ".join(bad)
+
+    @staticmethod
+    def _given_fields(p: dict) -> dict:
+        """The node's parameters as settings given (0 / -1 / empty: not given — the model file's or the
+        default)."""
+        out: dict = {}
+        if int(p.get("block", 0)):
+            out["block"] = int(p["block"])
+        if float(p.get("overlap", -1.0)) >= 0:
+            out["overlap"] = float(p["overlap"])
+        if str(p.get("window", "")):
+            out["window"] = str(p["window"])
+        lo, hi = float(p.get("f_lo_hz", 0.0)), float(p.get("f_hi_hz", 0.0))
+        if lo > 0 and hi > 0:
+            out["band_hz"] = (lo, hi)
+        if "analysis_band_hz" in p:
+            out["analysis_band_hz"] = tuple(float(x) for x in p["analysis_band_hz"])
+        if "cond_limit" in p:
+            out["cond_limit"] = float(p["cond_limit"])
+        return out
 
     def _model(self, p: dict):
         """The terms, and the settings merged once (node parameters > model file > defaults:
@@ -239,10 +261,7 @@ class IdentifierNode(Node):
         if not terms:
             self.get_logger().warning("no nonlinearities given (model_file): estimating the linear T21 only")
         lo, hi = float(p["f_lo_hz"]), float(p["f_hi_hz"])
-        node = GivenSettings(block=int(p["block"]) or None, overlap=float(p["overlap"]) if p["overlap"] >= 0 else None,
-                             window=str(p["window"]) or None, band_hz=(lo, hi) if lo > 0 and hi > 0 else None,
-                             analysis_band_hz=tuple(float(x) for x in p["analysis_band_hz"]),
-                             cond_limit=float(p["cond_limit"]))
+        node = GivenSettings(**self._given_fields(p))
         self._given, _ = merge_given(node, given_from_file(ms))
         self._band_edges = (lo, hi)
         return tuple(terms), resolve_settings(self._given, fs_hz=None).spectral

@@ -1,4 +1,4 @@
-"""The output-error refinement's bias from noise on the spindle sensor, removed by simulating the fit (METHOD.md §9).
+"""The output-error refinement's bias from noise on the spindle sensor, removed by simulating the fit (docs/method.md §9).
 
 The refinement (:mod:`nifo_core.predict.refine`) simulates the body from the *measured* spindle acceleration.
 Noise on that sensor is then part of the drive: it reaches the simulated x1 and z = x2 - x1, and the

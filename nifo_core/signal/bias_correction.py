@@ -1,4 +1,4 @@
-"""Removing the bias of a fit by simulating it: what the fit does to data whose truth is known (METHOD.md §9).
+"""Removing the bias of a fit by simulating it: what the fit does to data whose truth is known (docs/method.md §9).
 
 The loop's equation-error fit (and characterize's) is biased in two ways that a random-error bound
 does not hold: noise on both accelerometers reaches the regressors (z, ż integrated from ẍ2 - ẍ1 and

@@ -1,4 +1,4 @@
-"""Sensor noise on each accelerometer, estimated from the data, and noise of the same level to add (METHOD.md §9).
+"""Sensor noise on each accelerometer, estimated from the data, and noise of the same level to add (docs/method.md §9).
 
 Both accelerometers are noisy. Least squares on regressors built from them — z, ż
 integrated from ẍ2 - ẍ1, any g(z, ż) — is biased (errors in variables: the noise
