@@ -4,8 +4,9 @@ hidden cubic spring, 2 % noise on both sensors (ISO 8608 road spectrum).
 Measured (issue 25): the linear model alone predicts better with a rational linear part than with a one-mass body
 (44 % against 127 % held out) — a strongly nonlinear quarter car is poorly predicted by any linear model — and the
 loop used to keep that choice, drop the one-mass body's significance gates and add terms the strut does not have
-(a Coulomb friction in place of the knee, then an even spring at p = 0.1). Once the cubic is in, the one-mass body
-predicts as well (3.1 % against 3.1 %): the loop takes it back and names exactly the two effects.
+(here, with the body never taken back: the cubic, a Coulomb friction in place of the knee and a 48 mm play). Once
+the cubic is in, the one-mass body predicts as well (3.1 % against 3.1 %): the loop takes it back and names exactly
+the two effects.
 """
 
 from __future__ import annotations
