@@ -241,12 +241,22 @@ def _identify(r: ResultDir, system: Mapping) -> tuple[dict, list]:
         lines = lines + [{"text": f"feedback paths (model.json): ridge {_num(fp.get('ridge'))}"}]
     return {"terms": rows, "t21_bounds": _t21_bounds(r.doc), "refinement": refinement, "paths": paths}, [{"key": "pooled coefficients", "lines": lines or [{"text": "none (linear)"}]},
                              {"key": "coherence, median",
-                              "lines": [{"text": _num(s.get("coherence_h1_median"), ".3f")}]}, _noise_key(r.doc)]
+                              "lines": [{"text": _num(s.get("coherence_h1_median"), ".3f")}]}, _noise_key(r.doc, system)]
 
 
-def _noise_key(doc: Mapping) -> dict:
-    """The sensor noise per record and channel (identify.json / loop.json ``noise``)."""
-    lines = [{"text": e.get("text") or f"{e.get('source')}: {e.get('unavailable')}"} for e in doc.get("noise") or []]
+def _noise_key(doc: Mapping, system: Mapping) -> dict:
+    """The sensor noise per record and channel (identify.json / loop.json ``noise``), in the system's words."""
+    words, units = system_words(system), system.get("units", "m/s²")
+    lines = []
+    for e in doc.get("noise") or []:
+        if not e.get("available", bool(e.get("channels"))):
+            lines.append({"text": f"{e.get('source')}: no estimate ({e.get('unavailable')})"})
+            continue
+        parts = [f"{words['input'] if c.get('channel', '').startswith('spindle') else words['output']} "
+                 f"{_num(c.get('percent_of_rms'), '.2g')} % of its RMS ({_num(c.get('std'), '.3g')} {units}, floor "
+                 f"at {_num((c.get('octave_hz') or [0, 0])[0], '.3g')}-{_num((c.get('octave_hz') or [0, 0])[1], '.3g')}"
+                 f" Hz)" for c in e.get("channels") or []]
+        lines.append({"text": f"{e.get('source')}: " + ", ".join(parts)})
     return {"key": "sensor noise", "lines": lines or [{"text": "not estimated"}]}
 
 
@@ -359,7 +369,7 @@ def _errors_rows(before: Mapping, after: Mapping) -> list[list[str]]:
     return rows
 
 
-def _loop(r: ResultDir, words: Mapping) -> tuple[dict, list]:
+def _loop(r: ResultDir, words: Mapping, system: Mapping) -> tuple[dict, list]:
     d = r.doc
     rounds = [x for x in (d.get("rounds") or []) if isinstance(x, Mapping)]
     rows = []
@@ -394,7 +404,7 @@ def _loop(r: ResultDir, words: Mapping) -> tuple[dict, list]:
     if fin is not None:
         lines.append({"text": f"held-out {_num(fin, '.3g')} %",
                       "small": "" if lin is None else f"(linear model of the same data {_num(lin, '.3g')} %)"})
-    return view, [{"key": "loop (final model)", "lines": lines}, _noise_key(r.doc)]
+    return view, [{"key": "loop (final model)", "lines": lines}, _noise_key(r.doc, system)]
 
 
 # ------------------------------------------------------------------------------------ provenance
@@ -546,7 +556,7 @@ def build_report(results: Sequence[ResultDir], *, title: str = "nifo report", no
         elif r.kind == "predict":
             view, g = _predict(r)
         else:
-            view, g = _loop(r, words)
+            view, g = _loop(r, words, system)
         glance += g
         sections.append({**view, "kind": r.kind, "anchor": f"{r.kind}-{len(sections) + 1}",
                          "title": _SECTION_TITLES[r.kind], "path": str(r.path), "doc": r.doc,

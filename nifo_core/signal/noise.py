@@ -116,7 +116,10 @@ class NoiseEstimate:
     def text(self) -> str:
         if not self.available:
             return f"{self.source}: no noise estimate ({self.unavailable})"
-        parts = [f"{c.channel.split('_')[0]} {100 * c.relative:.2g} % of its RMS ({c.std:.3g} m/s², "
+        # the channels by their symbols (ẍ1 input side — a vehicle's spindle —, ẍ2 output side): the core does not
+        # know whether the data are a vehicle's
+        parts = [f"{'ẍ1' if c.channel.startswith('spindle') else 'ẍ2'} {100 * c.relative:.2g} % of its RMS "
+                 f"({c.std:.3g} m/s², "
                  f"floor at {c.octave_hz[0]:.3g}-{c.octave_hz[1]:.3g} Hz)" for c in self.channels]
         return f"{self.source}: sensor noise " + ", ".join(parts)
 
