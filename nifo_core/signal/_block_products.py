@@ -1,17 +1,19 @@
 """The block-product sums of the spectral engine, ``S[f, a, b] += Σ_k conj(X_a,k(f))·X_b,k(f)``, in numba.
 
-Why hand-written (issue 29; ``benchmarks/bench_spectral.py``, paper Table 2
-settings, 4 channels × 59 blocks × 3073 lines, CPU time best of 31 interleaved
-rounds on the shared 2-core machine, all relative to the bare batched rfft
-of the same blocks measured in the same run):
+Why hand-written (issue 29; measured on the shared 2-core machine under load,
+paper Table 2 settings, 59 blocks × 3073 lines, CPU time best of 15-41
+interleaved rounds, each relative to the bare batched rfft of the same blocks
+in the same run; 4 channels, 8 in brackets):
 
 - ``np.einsum('akf,bkf->fab', X.conj(), X, optimize=True)`` (the engine until
-  issue 29): 0.8-0.9× the rfft on its own, which put the engine at 2.0-2.3×;
-- one batched ``np.matmul`` of (F, C, K) by (F, K, C): one zgemm call per line,
-  2-4× the rfft;
-- numpy, upper triangle only, one ``multiply`` + ``sum`` per pair: 0.8× the rfft;
-- this kernel: 0.2-0.3× the rfft for 4 channels (0.45× for 8), which puts the
-  engine at 1.1× (2 channels), 1.3× (4) and 1.45× (8) the rfft.
+  issue 29): 0.76× (0.77×) the rfft on its own, which put the engine at 2.0-2.3×;
+- one batched ``np.matmul`` of (F, C, K) by (F, K, C) (one small product per
+  line), with the transposed copy it needs: 0.72× (0.82×);
+- numpy over the upper triangle only, one ``multiply`` into a reused buffer and
+  one ``sum`` per pair: 0.93× (1.01×);
+- this kernel: 0.15-0.25× (0.32-0.45×), which puts the whole engine at
+  1.15-1.4× the rfft for 4 channels, 1.1-1.6× for 2 and 1.4-1.65× for 8
+  (``benchmarks/bench_spectral.py``).
 
 It computes only the upper triangle a ≤ b and mirrors it (the matrix is
 Hermitian), walks the lines in chunks that stay in cache so every block of

@@ -13,8 +13,8 @@ derives from one :class:`CrossSpectra` made by one segment-FFT path (docs/method
    triangle only and mirrored (:mod:`._block_products`, in numba: why is
    measured there), and the block count.
 
-On 4 channels of the paper's record this costs ~1.3× the bare batched rfft of
-the same blocks (``benchmarks/bench_spectral.py``).
+On 4 channels of the paper's record this costs 1.15-1.4× the bare batched rfft
+of the same blocks (``benchmarks/bench_spectral.py``).
 
 Because sums (not means) are kept, accumulators of separate records merge
 exactly, a stream pushed in any chunk sizes gives the batch answer, and the
