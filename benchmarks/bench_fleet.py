@@ -22,9 +22,9 @@ Everything is measured in this run, on this machine, against a baseline measured
 
 4. start-up and scaling (``--scaling-only``: this part alone): in fresh processes, as ``nifo fleet``
    runs, an embedded cluster of 1 and of 2 workers from its start until every worker is warm:
-   before (workers spawned, each importing the task path), now (forked from the fork server
-   ``nifo fleet`` starts first, :func:`nifo.fleet.cluster.start_worker_server`) and what-if (the
-   fork server started at the CLI's start), least of ``--rounds`` each, after one run with an
+   before (workers spawned, each importing the task path), forked from the fork server
+   (:func:`nifo.fleet.cluster.start_worker_server`) started by the command's run(), and now (the
+   fork server started at the ``nifo`` CLI's start, before its own imports), least of ``--rounds`` each, after one run with an
    empty numba cache (the first run on a machine); then the fleet on warm workers (1 and 2
    processes, 1 process of 2 threads: processes vs threads). The model, Amdahl's with a start-up
    that grows with the workers::
@@ -276,8 +276,8 @@ def memory_run(base, entries, cache: Path) -> dict:
 #: the fleet the projection is for: 480 bags of 48 vehicles, ~12 h of data, 2.3 GB (measured on a 16-core machine)
 FULL = {"bags": 480, "groups": 48, "bytes": 2.3e9}
 ARGS = None
-#: start-up variants: before (spawned workers), now (fork server started by nifo fleet's run, as it is), and
-#: what-if the nifo CLI started the fork server before its own imports (not done: nifo/cli.py is not the fleet's)
+#: start-up variants: before (spawned workers), the fork server started by the command's run() (first version), and
+#: now: the nifo CLI starts the fork server before its own imports (nifo/cli.py)
 MODES = ("spawn", "forkserver", "forkserver-at-start")
 
 
@@ -316,14 +316,15 @@ def _spawn_client(n: int):
 def startup_child(mode: str, n: int, root: str) -> dict:
     """In a fresh process, as ``nifo fleet`` runs: its imports, (fork server), manifest, then the cluster until warm.
 
-    ``mode`` "forkserver": what ``nifo fleet`` does now (:func:`nifo.fleet.cluster.start_worker_server` first, then
-    the client's imports and the manifest, then :func:`~nifo.fleet.cluster.fleet_client`); "spawn": before (workers
-    are fresh interpreters that import the task path themselves). Wall and CPU seconds of each step.
+    ``mode`` "forkserver-at-start": what ``nifo fleet`` does now (:func:`nifo.fleet.cluster.start_worker_server`
+    before the CLI imports the command, then the manifest, then :func:`~nifo.fleet.cluster.fleet_client`);
+    "forkserver": the server started after the command's import; "spawn": before (workers are fresh
+    interpreters that import the task path themselves). Wall and CPU seconds of each step.
     """
     from nifo.fleet.cluster import fleet_client, start_worker_server
 
     c_fs = time.process_time()
-    if mode == "forkserver-at-start":      # what-if: the nifo CLI started the fork server before any import
+    if mode == "forkserver-at-start":      # now: the nifo CLI starts the fork server before any import
         start_worker_server()
     import nifo.commands.fleet  # noqa: F401 - what the nifo CLI has imported when the command runs
 
@@ -470,8 +471,8 @@ def scaling(args, root: Path, entries, verdicts: list) -> None:
     ab = {}
     for mode in MODES:
         a, b = ab[mode] = fixed_part(st[mode, 1], st[mode, 2])
-        name = {"spawn": "before (spawn)", "forkserver": "now (fork server)",
-                "forkserver-at-start": "what-if (fork server at CLI start)"}[mode]
+        name = {"spawn": "before (spawn)", "forkserver": "fork server from the command's run()",
+                "forkserver-at-start": "now (fork server at the CLI's start)"}[mode]
         print(f"{name}: fixed(n) = a + b·n, a = {a:.2f} s once, b = {b:.2f} s per worker; a worker's own CPU to be "
               f"warm {st[mode, 1]['worker_cpu_s']:.2f} s (wall, this load: {st[mode, 1]['wall_s']:.2f} s for 1, "
               f"{st[mode, 2]['wall_s']:.2f} s for 2)")
@@ -479,8 +480,8 @@ def scaling(args, root: Path, entries, verdicts: list) -> None:
             cells = "; ".join(f"{k} workers T {project(a, b, w, s, k)[0]:.1f} s, efficiency "
                               f"{100 * project(a, b, w, s, k)[1]:.0f} %" for k in (16, 100))
             print(f"    projected, {label}: T(1) {project(a, b, w, s, 1)[0]:.1f} s; {cells}")
-    a, b = ab["forkserver"]
-    per_worker = b + st["forkserver", 1]["worker_cpu_s"]
+    a, b = ab["forkserver-at-start"]
+    per_worker = b + st["forkserver-at-start", 1]["worker_cpu_s"]
     verdicts.append(("start-up per worker after the first run (client's share b + the worker's own)",
                      f"{per_worker:.2f} s (before: {ab['spawn'][1] + st['spawn', 1]['worker_cpu_s']:.2f} s)",
                      "<= 1 s", per_worker <= 1.0, load()))
