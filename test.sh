@@ -10,5 +10,5 @@ source "$here/tools/bootstrap.sh"
 nifo_need_chromium
 nifo_bootstrap "$here" "test"
 cd "$here"
-[ "$#" -eq 0 ] && set -- -n auto --dist loadfile
+[ "$#" -eq 0 ] && set -- -n auto --dist loadfile --no-loadscope-reorder   # files in tests/durations.json order
 exec "$here/.venv/bin/python" -m pytest "$@"
