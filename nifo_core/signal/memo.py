@@ -31,13 +31,17 @@ class ArrayMemo:
         Pure: its result depends on the values of ``x`` and ``args`` only, and it does not change ``x``.
     size : int
         Results kept (least recently used dropped first).
+    max_bytes : int
+        At most this many bytes of results kept (a result larger than it is returned, not kept): an hour
+        at 600 Hz interpolated 4× is 69 MB.
     """
 
-    def __init__(self, fn: Callable[..., np.ndarray], *, size: int = 8):
+    def __init__(self, fn: Callable[..., np.ndarray], *, size: int = 8, max_bytes: int = 2 ** 28):
         if size < 1:
             raise ValueError(f"{size=} must be at least 1")
         self._fn = fn
         self._size = int(size)
+        self._max_bytes = int(max_bytes)
         self._kept: OrderedDict[tuple, np.ndarray] = OrderedDict()
         self._lock = threading.Lock()
 
@@ -51,9 +55,11 @@ class ArrayMemo:
                 return got
         out = np.asarray(self._fn(x, *args))
         out.flags.writeable = False
+        if out.nbytes > self._max_bytes:
+            return out
         with self._lock:
             self._kept[key] = out
-            while len(self._kept) > self._size:
+            while len(self._kept) > self._size or sum(v.nbytes for v in self._kept.values()) > self._max_bytes:
                 self._kept.popitem(last=False)
         return out
 
