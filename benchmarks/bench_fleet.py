@@ -1,4 +1,4 @@
-"""``nifo fleet`` on a simulated fleet: speed-up, per-bag overhead, scheduler memory, flags, equality.
+"""``nifo fleet`` on a simulated fleet: speed-up, overhead, scheduler memory, flags, equality, start-up, scaling.
 
 Everything is measured in this run, on this machine, against a baseline measured in the same run:
 
@@ -20,11 +20,35 @@ Everything is measured in this run, on this machine, against a baseline measured
    the scheduler process's RSS (psutil, via ``run_on_scheduler``) after warm-up
    and after the run, and its peak RSS during the run (VmHWM, reset after warm-up), are printed.
 
+4. start-up and scaling (``--scaling-only``: this part alone): in fresh processes, as ``nifo fleet``
+   runs, an embedded cluster of 1 and of 2 workers from its start until every worker is warm:
+   before (workers spawned, each importing the task path), forked from the fork server
+   (:func:`nifo.fleet.cluster.start_worker_server`) started by the command's run(), and now (the
+   fork server started at the ``nifo`` CLI's start, before its own imports), least of ``--rounds`` each, after one run with an
+   empty numba cache (the first run on a machine); then the fleet on warm workers (1 and 2
+   processes, 1 process of 2 threads: processes vs threads). The model, Amdahl's with a start-up
+   that grows with the workers::
+
+       T(n) = a + b·n + W/n + S,     efficiency E(n) = T(1) / (n·T(n))
+
+   a, once per run: the longer of the client's cluster start and what the fork server still
+   has to import when the cluster starts (its CPU minus the client's between the two: they
+   run concurrently), plus one worker's own start-up (workers start in parallel); b, per worker: the client's CPU (nannies, scheduler:
+   one event loop) for 2 workers minus for 1; W: the workers' CPU for the whole fleet (the
+   larger of 1 and 2 workers); S: the wall time of the 1-worker run with no task running
+   (before the first, after the last). CPU seconds, not wall, wherever possible: on a shared
+   2-core machine only they compare between runs; the model is that of an idle machine with
+   a core per worker. For the 480-bag fleet (2.3 GB, 48 groups: :data:`FULL`) W's bag part
+   (the bags' share of the tasks' time) scales with the bytes, its group part and S with the
+   groups. Not in the model: the last task's tail (granularity) and the file system.
+
 Prints speed-up 1 → 2 workers (target ≥ 1.8×), the per-bag overhead of the
 1-worker fleet against the serial baseline (target ≤ 5 %) with where it goes,
 scheduler memory growth from N to 10·N bags (target: flat, ≤ 5 MB), the
-flagged vehicles (target: exactly the planted ones) and the largest relative
-difference of a coefficient from the baseline (target ≤ 1e-9), each with the
+flagged vehicles (target: exactly the planted ones), the largest relative
+difference of a coefficient from the baseline (target ≤ 1e-9), the start-up per
+worker after the first run (b + a worker's own CPU to be warm, target ≤ 1 s) and
+the projected efficiency at 16 workers on the 480-bag fleet (target ≥ 75 %), each with the
 load average (the speed-up needs two idle cores). BLAS/OpenMP run one thread
 per process here as in Dask's workers (set below), so the baseline uses one
 core like one worker.
@@ -37,7 +61,10 @@ Usage::
 
     PYTHONPATH=. .venv/bin/python benchmarks/bench_fleet.py   # ~2.5 min idle, 2 cores, once the fleet exists
 
-Options: ``--quick`` (10 × 3 bags of 60 s: a smoke run, no verdict on flags),
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_fleet.py --quick --scaling-only   # part 4, ~6 min
+
+Options: ``--quick`` (10 × 3 bags of 60 s: a smoke run, no verdict on flags), ``--full`` (48 × 10
+bags of 60-120 s, the 480-bag fleet itself, made once), ``--scaling-only``, ``--no-scaling``,
 ``--vehicles N`` (first N vehicles only), ``--memory-bags N`` (default 200: N and
 10·N), ``--no-memory``. Exits 1 when a target is missed.
 """
@@ -52,6 +79,7 @@ for _v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):   # be
 import argparse  # noqa: E402
 import json  # noqa: E402
 import shutil  # noqa: E402
+import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
@@ -69,7 +97,7 @@ def load() -> str:
     return f"load {a:.2f} {b:.2f} {c:.2f} on {os.cpu_count()} cores"
 
 
-def make_fleet(root: Path, quick: bool) -> Path:
+def make_fleet(root: Path, quick: bool, full: bool = False) -> Path:
     from nifo.fleet.cluster import fleet_client
     from nifo.fleet.simulated import write_simulated_fleet
 
@@ -77,7 +105,8 @@ def make_fleet(root: Path, quick: bool) -> Path:
     if manifest.is_file():
         return manifest
     shape = dict(n_vehicles=10, bags_per_vehicle=3, duration_s=60.0, worn=(3,), knee_moved=(7,)) if quick else \
-        dict(n_vehicles=20, bags_per_vehicle=10, duration_s=(60.0, 120.0), worn=(3, 11), knee_moved=(7,))
+        dict(n_vehicles=48 if full else 20, bags_per_vehicle=10, duration_s=(60.0, 120.0), worn=(3, 11),
+             knee_moved=(7,))
     t0 = time.perf_counter()
     print(f"simulating the fleet once into {root} ...", flush=True)
     with fleet_client(dashboard_address=None) as client:
@@ -243,6 +272,224 @@ def memory_run(base, entries, cache: Path) -> dict:
     return {"before": rss0, "after": rss1, "peak": peak, "seconds": t, "n": len(entries)}
 
 
+# --- 4. start-up per worker, per-bag work, projected efficiency --------------------------------
+#: the fleet the projection is for: 480 bags of 48 vehicles, ~12 h of data, 2.3 GB (measured on a 16-core machine)
+FULL = {"bags": 480, "groups": 48, "bytes": 2.3e9}
+ARGS = None
+#: start-up variants: before (spawned workers), the fork server started by the command's run() (first version), and
+#: now: the nifo CLI starts the fork server before its own imports (nifo/cli.py)
+MODES = ("spawn", "forkserver", "forkserver-at-start")
+
+
+def _ready() -> dict:
+    """On a worker: be warm (import :mod:`nifo.fleet.preload`, a no-op where it is in already); its CPU time so far."""
+    import importlib
+    import resource
+
+    importlib.import_module("nifo.fleet.preload")
+    from nifo.fleet.preload import WARM, kernel_stats
+
+    r = resource.getrusage(resource.RUSAGE_SELF)     # a forked worker's count starts at its fork
+    return {"cpu_s": r.ru_utime + r.ru_stime, "server_cpu_s": WARM["process_cpu_s"], "kernels": kernel_stats(),
+            "omp": os.environ.get("OMP_NUM_THREADS")}
+
+
+def _spawn_client(n: int):
+    """Before: the embedded cluster as it was, workers spawned as fresh interpreters (Dask's default)."""
+    import contextlib
+    import logging
+
+    import dask
+    from distributed import Client, LocalCluster
+
+    from nifo.fleet.cluster import CLUSTER_CONFIG
+
+    @contextlib.contextmanager
+    def cm():
+        with dask.config.set({**CLUSTER_CONFIG, "distributed.worker.multiprocessing-method": "spawn"}), \
+                LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                             silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+            yield client
+    return cm()
+
+
+def startup_child(mode: str, n: int, root: str) -> dict:
+    """In a fresh process, as ``nifo fleet`` runs: its imports, (fork server), manifest, then the cluster until warm.
+
+    ``mode`` "forkserver-at-start": what ``nifo fleet`` does now (:func:`nifo.fleet.cluster.start_worker_server`
+    before the CLI imports the command, then the manifest, then :func:`~nifo.fleet.cluster.fleet_client`);
+    "forkserver": the server started after the command's import; "spawn": before (workers are fresh
+    interpreters that import the task path themselves). Wall and CPU seconds of each step.
+    """
+    from nifo.fleet.cluster import fleet_client, start_worker_server
+
+    c_fs = time.process_time()
+    if mode == "forkserver-at-start":      # now: the nifo CLI starts the fork server before any import
+        start_worker_server()
+    import nifo.commands.fleet  # noqa: F401 - what the nifo CLI has imported when the command runs
+
+    if mode == "forkserver":
+        c_fs = time.process_time()
+        start_worker_server()
+    from nifo.fleet.manifest import load_fleet_input
+    from nifo.fleet.runner import base_setups
+
+    entries = load_fleet_input(Path(root) / "manifest.csv", default_model=Path(root) / "model.yaml")
+    base_setups(entries, opts=OPTS, chunk_samples=2 ** 18)
+    t0, c0 = time.perf_counter(), time.process_time()
+    cm = _spawn_client(n) if mode == "spawn" else fleet_client(workers=n, dashboard_address=None)
+    with cm as client:
+        ready = list(client.run(_ready).values())
+        t1, c1 = time.perf_counter(), time.process_time()
+    return {"mode": mode, "n": n, "wall_s": t1 - t0, "client_cpu_s": c1 - c0, "between_cpu_s": c0 - c_fs,
+            "worker_cpu_s": max(r["cpu_s"] for r in ready), "server_cpu_s": ready[0]["server_cpu_s"],
+            "omp": ready[0]["omp"], "kernels": ready[0]["kernels"]}
+
+
+def run_child(mode: str, n: int, root: Path, numba_dir: Path) -> dict:
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(numba_dir)}    # this benchmark's own numba cache: first run = empty
+    out = subprocess.run([sys.executable, __file__, "--startup-child", mode, str(n), str(root)], env=env,
+                         capture_output=True, text=True, check=False)
+    if out.returncode != 0:
+        raise SystemExit(f"start-up child ({mode}, {n}) failed:\n{out.stderr[-3000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def fixed_part(one: dict, two: dict) -> tuple[float, float]:
+    """(a, b) of fixed(n) = a + b·n [s of CPU] from the start-up of 1 and of 2 workers (section 4 of the docstring)."""
+    b = max(two["client_cpu_s"] - one["client_cpu_s"], 0.0)       # the client's (nannies', scheduler's) per worker
+    late = max(one["server_cpu_s"] - one["between_cpu_s"], 0.0) if one["mode"] != "spawn" else 0.0
+    return max(one["client_cpu_s"] - b, late) + one["worker_cpu_s"], b     # the client and the server concurrently
+
+
+def project(a: float, b: float, work_s: float, serial_s: float, n: int) -> tuple[float, float]:
+    """(T(n) [s], efficiency T(1)/(n·T(n))) of the model T(n) = a + b·n + W/n + S."""
+    def t(k):
+        return a + b * k + work_s / k + serial_s
+    return t(n), t(1) / (n * t(n))
+
+
+def _startup(args, root: Path) -> dict:
+    """Start-up of 1 and 2 workers, before (spawn) and now (fork server), fresh processes, least CPU of --rounds."""
+    numba_dir = Path(tempfile.mkdtemp(prefix="nifo_bench_numba_"))
+    try:
+        first = run_child("forkserver", 2, root, numba_dir)     # the first run on a machine: empty numba cache
+        kernels = ", ".join(f"{name}: {v['cache_misses']} compiled" for name, v in first["kernels"].items())
+        print(f"first run on a machine (empty numba cache): fork server {first['server_cpu_s']:.2f} s CPU, kernels "
+              f"{kernels}; 2 workers warm {first['wall_s']:.2f} s after the cluster's start", flush=True)
+        st: dict = {}
+        for r in range(args.rounds):
+            for mode in MODES:
+                for n in (1, 2):
+                    c = run_child(mode, n, root, numba_dir)
+                    cur = st.setdefault((mode, n), dict(c))
+                    for k in ("wall_s", "client_cpu_s", "worker_cpu_s", "server_cpu_s"):
+                        cur[k] = min(cur[k], c[k])
+                    print(f"  round {r + 1}, {mode:19s} {n} worker(s): every worker warm {c['wall_s']:.2f} s after "
+                          f"the cluster's start; CPU: client {c['client_cpu_s']:.2f} s, a worker "
+                          f"{c['worker_cpu_s']:.2f} s ({load()})", flush=True)
+    finally:
+        shutil.rmtree(numba_dir, ignore_errors=True)
+    later = ", ".join(f"{name}: {v['cache_hits']} loaded from the cache, {v['cache_misses']} compiled"
+                      for name, v in st["forkserver", 2]["kernels"].items())
+    print(f"later runs: kernels {later}; OMP_NUM_THREADS on a worker {st['forkserver', 2]['omp']}")
+    return st
+
+
+def _work(entries) -> dict:
+    """Run time and CPU of the fleet on warm workers: 1 and 2 processes, 1 process of 2 threads; best of --rounds."""
+    import contextlib
+    import logging
+
+    import psutil
+    from distributed import Client, LocalCluster, get_task_stream
+
+    from nifo.fleet.cluster import fleet_client
+
+    tmp = Path(tempfile.mkdtemp(prefix="nifo_bench_fleet_"))
+    best: dict = {}
+    with contextlib.ExitStack() as stack:
+        clients = {w: stack.enter_context(fleet_client(workers=w, dashboard_address=None)) for w in (1, 2)}
+        th = stack.enter_context(LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                                              dashboard_address=None, silence_logs=logging.ERROR))
+        clients["threads"] = stack.enter_context(Client(th))
+        for c in clients.values():
+            warm_up(c, entries)
+        try:
+            for r in range(ARGS.rounds):
+                for w, c in clients.items():
+                    p0, t0 = sum(psutil.Process().cpu_times()[:2]), time.time()
+                    with get_task_stream(c) as ts:
+                        res, t, (client_cpu, worker_cpu) = timed_fleet(c, entries, tmp / f"w{w}")
+                    t1 = time.time()
+                    spans = [ss for task in ts.data for ss in task["startstops"] if ss["action"] == "compute"]
+                    idle = (min(ss["start"] for ss in spans) - t0) + (t1 - max(ss["stop"] for ss in spans))
+                    bags_share = sum(b["seconds"] for b in res.bags) / sum(ss["stop"] - ss["start"] for ss in spans)
+                    if w == "threads":          # one process: client, scheduler and the threaded worker
+                        client_cpu, worker_cpu = sum(psutil.Process().cpu_times()[:2]) - p0, 0.0
+                    cur = best.setdefault(w, {"res": res, "wall": t, "client_cpu": client_cpu,
+                                              "worker_cpu": worker_cpu, "idle": idle, "bags_share": bags_share})
+                    for k, v in (("wall", t), ("client_cpu", client_cpu), ("worker_cpu", worker_cpu),
+                                 ("idle", idle)):
+                        cur[k] = min(cur[k], v)
+                print(f"  round {r + 1}, fleet on warm workers (wall, best so far): 1 process {best[1]['wall']:.2f} s, "
+                      f"2 processes {best[2]['wall']:.2f} s, 1 process of 2 threads {best['threads']['wall']:.2f} s "
+                      f"({load()})", flush=True)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+    return best
+
+
+def scaling(args, root: Path, entries, verdicts: list) -> None:
+    """Part 4: start-up per worker (before/now), per-bag work on 1 and 2 workers, the projection to 16 and 100."""
+    global ARGS
+    ARGS = args
+    st = _startup(args, root)
+    best = _work(entries)
+    n_bags, n_groups = len(entries), len({e.group for e in entries})
+    size = sum(os.path.getsize(e.path) for e in entries)
+    w1, w2 = best[1]["worker_cpu"], best[2]["worker_cpu"]
+    work = max(w1, w2)                    # the workers' CPU for the whole fleet (the larger: 2 workers share caches)
+    serial = best[1]["idle"]              # before the first task and after the last one: nothing runs on a worker
+    in_bags = min(best[1]["bags_share"], 1.0) * work     # the bags' share of the tasks' time (the rest: groups)
+    th = best["threads"]
+    print(f"fleet {n_bags} bags, {n_groups} groups, {size / 1e9:.2f} GB. Wall (under this load): 1 worker "
+          f"{best[1]['wall']:.2f} s, 2 workers {best[2]['wall']:.2f} s ({best[1]['wall'] / best[2]['wall']:.2f}x), "
+          f"1 process of 2 threads {th['wall']:.2f} s ({best[1]['wall'] / th['wall']:.2f}x). CPU: workers "
+          f"{w1:.2f} s on 1, {w2:.2f} s on 2 ({100 * (w2 / w1 - 1):+.1f} %); client and scheduler "
+          f"{best[1]['client_cpu']:.2f} s (in parallel with the workers; its share per bag "
+          f"{1e3 * best[1]['client_cpu'] / n_bags:.0f} ms: it would keep up with up to "
+          f"{work / max(best[1]['client_cpu'], 1e-9):.0f} workers); "
+          f"threads: the one process {th['client_cpu']:.2f} s, {th['client_cpu'] / th['wall']:.2f} cores busy of 2")
+    # the 480-bag fleet: bag work scales with the bytes read, group work and the client's with the groups
+    w480 = in_bags * FULL["bytes"] / size + (work - in_bags) * FULL["groups"] / n_groups
+    s480 = serial * FULL["groups"] / n_groups
+    print(f"model (CPU seconds): W = {work:.2f} s ({1e3 * in_bags / n_bags:.0f} ms per bag inside bag tasks, "
+          f"{(work - in_bags) / n_groups:.2f} s per group), S = {serial:.2f} s (wall: no task running, 1 worker); "
+          f"480-bag fleet: W = {w480:.1f} s, "
+          f"S = {s480:.1f} s")
+    ab = {}
+    for mode in MODES:
+        a, b = ab[mode] = fixed_part(st[mode, 1], st[mode, 2])
+        name = {"spawn": "before (spawn)", "forkserver": "fork server from the command's run()",
+                "forkserver-at-start": "now (fork server at the CLI's start)"}[mode]
+        print(f"{name}: fixed(n) = a + b·n, a = {a:.2f} s once, b = {b:.2f} s per worker; a worker's own CPU to be "
+              f"warm {st[mode, 1]['worker_cpu_s']:.2f} s (wall, this load: {st[mode, 1]['wall_s']:.2f} s for 1, "
+              f"{st[mode, 2]['wall_s']:.2f} s for 2)")
+        for label, w, s in ((f"this fleet ({n_bags} bags)", work, serial), ("480-bag fleet", w480, s480)):
+            cells = "; ".join(f"{k} workers T {project(a, b, w, s, k)[0]:.1f} s, efficiency "
+                              f"{100 * project(a, b, w, s, k)[1]:.0f} %" for k in (16, 100))
+            print(f"    projected, {label}: T(1) {project(a, b, w, s, 1)[0]:.1f} s; {cells}")
+    a, b = ab["forkserver-at-start"]
+    per_worker = b + st["forkserver-at-start", 1]["worker_cpu_s"]
+    verdicts.append(("start-up per worker after the first run (client's share b + the worker's own)",
+                     f"{per_worker:.2f} s (before: {ab['spawn'][1] + st['spawn', 1]['worker_cpu_s']:.2f} s)",
+                     "<= 1 s", per_worker <= 1.0, load()))
+    e16 = project(a, b, w480, s480, 16)[1]
+    verdicts.append(("projected efficiency at 16 workers, 480-bag fleet", f"{100 * e16:.0f} % (before: "
+                     f"{100 * project(*ab['spawn'], w480, s480, 16)[1]:.0f} %)", ">= 75 %", e16 >= 0.75, ""))
+
+
 # --- main ---------------------------------------------------------------------------------------
 def main() -> int:
     """The benchmark as a script: make the fleet, run it, print and check every figure. Long because it is the
@@ -256,12 +503,19 @@ def main() -> int:
     ap.add_argument("--no-memory", action="store_true", help="skip the scheduler-memory part")
     ap.add_argument("--rounds", type=int, default=2, metavar="K",
                     help="rounds of (serial, 1 worker, 2 workers), interleaved; the best of each counts (default 2)")
+    ap.add_argument("--full", action="store_true",
+                    help="the full-size fleet: 48 vehicles x 10 bags of 60-120 s (~480 bags, made once, ~15 min)")
+    ap.add_argument("--scaling-only", action="store_true", help="only part 4: start-up, per-bag work, projection")
+    ap.add_argument("--no-scaling", action="store_true", help="skip part 4")
+    if sys.argv[1:2] == ["--startup-child"]:          # part 4's fresh process (run_child)
+        print(json.dumps(startup_child(sys.argv[2], int(sys.argv[3]), sys.argv[4])))
+        return 0
     args = ap.parse_args()
     from nifo.fleet.manifest import load_fleet_input
 
     t_start = time.perf_counter()
-    root = args.cache.with_name(args.cache.name + "_quick") if args.quick else args.cache
-    manifest = make_fleet(root, args.quick)
+    root = args.cache.with_name(args.cache.name + ("_quick" if args.quick else "_full" if args.full else ""))
+    manifest = make_fleet(root, args.quick, args.full)
     entries = load_fleet_input(manifest, default_model=root / "model.yaml")
     truth = json.loads((root / "fleet_truth.json").read_text())
     if args.vehicles:
@@ -277,6 +531,9 @@ def main() -> int:
             while f.read(1 << 24):
                 pass
 
+    if args.scaling_only:
+        scaling(args, root, entries, verdicts)
+        return _verdicts(verdicts, t_start)
     # 1./2. serial baseline and the fleet on 1 and 2 workers, interleaved, best of --rounds each
     import contextlib
 
@@ -366,9 +623,15 @@ def main() -> int:
                          f"{b['after'] - a['after']:+.1f} / {b['peak'] - a['peak']:+.1f} MB", "flat (<= 5 MB)",
                          growth <= 5.0, load()))
 
+    if not args.no_scaling:
+        scaling(args, root, entries, verdicts)
+    return _verdicts(verdicts, t_start)
+
+
+def _verdicts(verdicts: list, t_start: float) -> int:
     print(f"\nVERDICTS (whole benchmark {time.perf_counter() - t_start:.0f} s)")
     for name, value, target, ok, ld in verdicts:
-        print(f"  {'PASS' if ok else 'MISS'}  {name}: {value} (target {target})" + (f"  [{ld}]" if ld else ""))
+        print(f"  {'PASS' if ok else 'FAIL'}  {name}: {value} (target {target})" + (f"  [{ld}]" if ld else ""))
     ok = all(v[3] for v in verdicts)
     print("all targets met" if ok else "TARGET MISSED (a speed-up needs 2 idle cores: check the load averages)")
     return 0 if ok else 1

@@ -16,3 +16,24 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"real data not found at {SHARED_DATA} (set NIFO_SHARED_DATA)")
     return SHARED_DATA
+
+
+#: measured seconds per test file (`--durations=0` of a whole run on 2 cores, summed per file; refresh with
+#: ``python tests/durations.py LOG``). Used only to hand the longest files out first: ``./test.sh`` runs the files on
+#: every core (pytest-xdist, ``--dist loadfile``: a file's module fixtures are built once), and a long file taken
+#: last would leave the other cores idle while it runs.
+_DURATIONS = Path(__file__).with_name("durations.json")
+
+
+def pytest_collection_modifyitems(config, items):
+    if not _DURATIONS.is_file():
+        return
+    import json
+
+    seconds = json.loads(_DURATIONS.read_text())
+    typical = sorted(seconds.values())[len(seconds) // 2] if seconds else 0.0
+    rank = {}
+    for it in items:
+        f = it.nodeid.split("::")[0].rsplit("/", 1)[-1]
+        rank.setdefault(it.nodeid.split("::")[0], -seconds.get(f, typical))
+    items.sort(key=lambda it: rank[it.nodeid.split("::")[0]])   # stable: a file's tests keep their order

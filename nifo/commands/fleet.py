@@ -99,7 +99,10 @@ def _check(args) -> None:
 
 
 def run(args: argparse.Namespace) -> dict:
-    from nifo.fleet.cluster import FleetError, dashboard_line, fleet_client
+    from nifo.fleet.cluster import FleetError, dashboard_line, fleet_client, start_worker_server
+
+    if not args.scheduler:
+        start_worker_server()      # the workers' fork server imports and warms while this process reads the manifest
     from nifo.fleet.manifest import load_fleet_input
     from nifo.fleet.runner import FleetSettings, run_fleet
     from nifo_core.fleet import HealthSettings

@@ -16,16 +16,20 @@ Models*, ch. 5 for the measurement-error case):
    (:mod:`nifo_core.signal.noise`) is added to both channels, one draw and its negative (antithetic).
 3. θ_syn = the same fit on them; the bias b = θ_syn - θ; the corrected θ ← θ₀ - b.
    Repeated :data:`ITERATIONS` times (θ from the previous step: the fixed point is the θ whose
-   synthetic fit reproduces θ₀). Where the steps do not contract (:data:`MAX_CONTRACTION`) or the
-   correction exceeds half a coefficient (:data:`MAX_RELATIVE_BIAS`: terms that share their shape —
+   synthetic fit reproduces θ₀), then the rest of the way to the fixed point extrapolated from the
+   last two steps (geometric tail, Aitken: step × q/(1 - q), q their ratio per coefficient). Measured on
+   a bump stop (2e5 N/m, 4 mm gap, 2.5 mm road, 2 % noise on both sensors), whose steps shrink only
+   by q ≈ 0.4-0.5: θ₀ 1.28e5, two steps 1.78e5, with the tail 1.91e5, five steps and their tail 1.95e5.
+   Where the steps do not contract (:data:`MAX_CONTRACTION`) or the first steps' correction exceeds
+   half a coefficient (:data:`MAX_RELATIVE_BIAS`: terms that share their shape —
    a friction beside a damper knee — make the bias map ill-conditioned: measured, a knee's
    coefficient moved by -130 %) there is no correction (None): the caller says the fit may be biased.
 
 Uncertainty (:meth:`Correction.extra_sd`): the draws' scatter (the correction's Monte-Carlo error) and
 the noise level's own error (:data:`NOISE_LEVEL_RTOL`, measured: estimates 0.7-1.3 × the truth on
 simulated records) times the part of the bias the noise makes (b minus the bias of a noise-free
-synthetic fit). The random error of θ₀ carries over, times 1/(1 - r) with r the iteration's
-contraction (the bias's sensitivity to θ).
+synthetic fit), and :data:`TAIL_RTOL` of the extrapolated tail. The random error of θ₀ carries over,
+times 1/(1 - r) with r the iteration's contraction (the bias's sensitivity to θ).
 What it cannot remove is bias from a model outside the family (an effect the model lacks).
 """
 
@@ -52,6 +56,9 @@ MAX_RELATIVE_BIAS = 0.5
 CONVERGED_RTOL = 0.01
 #: relative error of an estimated noise variance (measured on simulated records: 0.7-1.3 × the truth)
 NOISE_LEVEL_RTOL = 0.3
+#: relative error of the extrapolated tail (measured on a bump stop: it fell 20-30 % short of the tail that
+#: three more iterations give)
+TAIL_RTOL = 0.5
 
 
 @dataclass(frozen=True)
@@ -70,6 +77,8 @@ class Correction:
         Standard deviation of the correction from its noise draws.
     gain : float
         Factor on θ₀'s random error carried into θ: 1/(1 - r), r the iteration's contraction.
+    tail : ndarray or None
+        The extrapolated rest of the way to the fixed point (included in ``theta``).
     """
 
     theta: np.ndarray
@@ -77,6 +86,7 @@ class Correction:
     noise_bias: np.ndarray
     draw_sd: np.ndarray
     gain: float = 1.0
+    tail: np.ndarray | None = None
 
     @property
     def bias(self) -> np.ndarray:
@@ -85,7 +95,8 @@ class Correction:
 
     def extra_sd(self) -> np.ndarray:
         """Standard deviation the correction adds beyond θ₀'s random error."""
-        return np.sqrt(self.draw_sd ** 2 + (NOISE_LEVEL_RTOL * self.noise_bias) ** 2)
+        tail = 0.0 if self.tail is None else TAIL_RTOL * self.tail
+        return np.sqrt(self.draw_sd ** 2 + (NOISE_LEVEL_RTOL * self.noise_bias) ** 2 + tail ** 2)
 
 
 def _noisy(rec: Record, body: np.ndarray, est: NoiseEstimate, draw: np.ndarray | None) -> Record:
@@ -133,11 +144,14 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
         theta = theta + steps[-1]
     if np.any(np.abs(theta - t0) > MAX_RELATIVE_BIAS * size):
         return None
-    gain = 1.0
+    gain, tail = 1.0, None
     if len(steps) > 1:
         if np.any(np.abs(steps[-1]) > MAX_CONTRACTION * np.abs(steps[-2]) + CONVERGED_RTOL * size):
             return None     # the fixed point contracts slowly: the bias map is ill-conditioned (confounded terms)
         with np.errstate(divide="ignore", invalid="ignore"):
-            r = np.where(np.abs(steps[-2]) > 0, np.abs(steps[-1]) / np.abs(steps[-2]), 0.0)
-        gain = float(1.0 / (1.0 - min(float(np.max(r)), MAX_CONTRACTION)))
-    return Correction(theta, t0, noise_bias, draw_sd, gain)
+            q = np.where(np.abs(steps[-2]) > 0, steps[-1] / steps[-2], 0.0)
+        q = np.clip(q, -MAX_CONTRACTION, MAX_CONTRACTION)
+        gain = float(1.0 / (1.0 - float(np.max(np.abs(q)))))
+        tail = free * steps[-1] * q / (1.0 - q)      # the geometric rest of the way to the fixed point
+        theta = theta + tail
+    return Correction(theta, t0, noise_bias, draw_sd, gain, tail)
