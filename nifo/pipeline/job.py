@@ -150,11 +150,11 @@ def _run(args: RunOptions, data: list[Path], out: Path) -> dict:
 
     t = begin(f"characterize {len(data)} record(s): restoring force, suggested model")
     run_characterize(CharacterizeOptions(data=[*map(str, data)], out=dirs["characterize"]).taking(args))
-    timings["characterize"] = time.monotonic() - t
     model = dirs["characterize"] / "suggested_model.yaml"
     ordered = _levels(dirs["characterize"], data)
 
     two = _two_step_model(ordered, dirs["characterize"], args) if len(ordered) >= 2 else None
+    timings["characterize"] = time.monotonic() - t     # with the lowest and highest level alone
     # identify's output-error refinement on the first 60 s of each record, unless --no-refine
     refine = {} if args.no_refine else {"refine": True, "refine_seconds": 60.0}
     if two is not None:

@@ -46,6 +46,7 @@ from ..kinds.describing import Term, make_term
 from ..errors import ConfigError, IllConditionedError, InputError
 from .fixed_point import contraction_bound, fixed_point_solve
 from ..signal.integrate import IntegrationBand, integrate
+from ..signal.memo import ArrayMemo
 from .linear_part import BodyModel, LinearPart, absorbed_rates, fit_body_model, nominal_linear_part, select_linear_part
 from ..nifo.identify import NifoResult
 from ..nifo.result import _cplx, _ro, _uncplx  # one home for the JSON forms of complex arrays
@@ -457,7 +458,15 @@ def _linear_peak(linear: LinearPart, v: np.ndarray, fs_hz: float) -> float:
     f = np.fft.rfftfreq(nfft, 1.0 / fs_hz)
     hz = linear.hz_realised(f)
     hz[f == 0] = 0
-    return float(np.max(np.abs(scipy.fft.irfft(hz * scipy.fft.rfft(v, nfft), nfft))))
+    return float(np.max(np.abs(scipy.fft.irfft(hz * _SPECTRUM(v, nfft), nfft))))
+
+
+def _spectrum(v: np.ndarray, nfft: int) -> np.ndarray:
+    return scipy.fft.rfft(v, nfft)
+
+
+#: the drive's spectrum for :func:`_linear_peak`: the same in every simulation of a record
+_SPECTRUM = ArrayMemo(_spectrum, size=8)
 
 
 def _static_frame(terms) -> list[Term]:

@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ConfigError, InputError
+from ..signal.memo import ArrayMemo
 
 __all__ = ["band_spectra", "band_nmse"]
 
@@ -29,6 +30,9 @@ __all__ = ["band_spectra", "band_nmse"]
 def band_spectra(y: np.ndarray, yhat: np.ndarray, fs_hz: float, *, band_hz: tuple[float, float],
                  period_samples: int | None = None, skip_samples: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """(Y, Ŷ) on the lines of ``band_hz`` after ``skip_samples`` (period-averaged when ``period_samples``).
+
+    Y (the measured signal's, the same at every evaluation of a refinement) is computed once per signal and
+    kept (:class:`~nifo_core.signal.memo.ArrayMemo`): it is read-only.
 
     Raises
     ------
@@ -41,24 +45,32 @@ def band_spectra(y: np.ndarray, yhat: np.ndarray, fs_hz: float, *, band_hz: tupl
     yhat = np.asarray(yhat, float).ravel()
     if y.shape != yhat.shape:
         raise InputError(f"measured ({y.size}) and predicted ({yhat.size}) signals differ in length")
-    skip = max(int(skip_samples), 0)
-    y, yhat = y[skip:], yhat[skip:]
-    if period_samples:
-        p = int(period_samples)
-        k = y.size // p
+    how = (float(fs_hz), float(band_hz[0]), float(band_hz[1]), int(period_samples) if period_samples else None,
+           max(int(skip_samples), 0))
+    return _MEASURED(y, *how), _lines(yhat, *how)
+
+
+def _lines(x: np.ndarray, fs_hz: float, lo_hz: float, hi_hz: float, period: int | None, skip: int) -> np.ndarray:
+    """The DFT of ``x`` after ``skip`` samples (period-averaged when ``period``) on the lines of lo-hi Hz."""
+    x = x[skip:]
+    if period:
+        k = x.size // period
         if k < 1:
-            raise InputError(f"{y.size} samples after the first {skip} hold no whole period of {p} samples",
+            raise InputError(f"{x.size} samples after the first {skip} hold no whole period of {period} samples",
                              hint="skip fewer samples or give the right --period-samples")
-        y = y[:k * p].reshape(k, p).mean(axis=0)
-        yhat = yhat[:k * p].reshape(k, p).mean(axis=0)
-    if y.size < 2:
+        x = x[:k * period].reshape(k, period).mean(axis=0)
+    if x.size < 2:
         raise InputError(f"nothing is left to score after the first {skip} samples")
-    f = np.fft.rfftfreq(y.size, 1.0 / fs_hz)
-    m = (f >= band_hz[0]) & (f <= band_hz[1])
+    f = np.fft.rfftfreq(x.size, 1.0 / fs_hz)
+    m = (f >= lo_hz) & (f <= hi_hz)
     if not m.any():
-        raise ConfigError(f"the band {band_hz[0]:g}-{band_hz[1]:g} Hz holds no spectral line "
+        raise ConfigError(f"the band {lo_hz:g}-{hi_hz:g} Hz holds no spectral line "
                           f"(line spacing {f[1]:.3g} Hz)")
-    return np.fft.rfft(y)[m], np.fft.rfft(yhat)[m]
+    return np.fft.rfft(x)[m]
+
+
+#: the measured signal's band lines: the same at every evaluation of a refinement
+_MEASURED = ArrayMemo(_lines, size=16)
 
 
 def band_nmse(y: np.ndarray, yhat: np.ndarray, fs_hz: float, *, band_hz: tuple[float, float],

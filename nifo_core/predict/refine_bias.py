@@ -10,7 +10,10 @@ body sensor alone is output noise and leaves the fit consistent.
 The remedy is the loop's (:mod:`nifo_core.signal.bias_correction`): synthetic records whose truth is the
 refined model — the measured spindle signal drives it, the estimated noise of each sensor
 (:mod:`nifo_core.signal.noise`) is added to both channels, an antithetic pair — refitted by the same output
-error from that truth; the bias (mean refit − truth) subtracted, twice. On noise-free records of its own
+error from that truth; the bias (mean refit − truth) subtracted, twice. Each refit starts at the synthetic
+truth and moves by the bias alone, so the Jacobian there (forward differences, as the refinement's) serves
+all its steps: a simplified Gauss-Newton (chord) iteration, one simulation per step instead of 1 + len(θ);
+its first step is the full one's, and it converges to the same point to first order in the bias. On noise-free records of its own
 model the output-error fit returns the model exactly, so the whole bias counts as the noise's
 (``noise_only``): its uncertainty is 30 % of it (the noise level's error) plus the draws' scatter,
 added to the refinement's covariance (inflated by the iteration's contraction). A correction that does
@@ -38,6 +41,8 @@ __all__ = ["REFIT_EVALUATIONS", "correct_refinement"]
 
 #: function evaluations of each synthetic refit (started from the synthetic truth: a few Gauss-Newton steps)
 REFIT_EVALUATIONS = 8
+#: relative step of the refit's forward-difference Jacobian, as in the refinement
+DIFF_STEP = 1e-3
 #: relative error a diverged synthetic simulation counts as (per record), as in the refinement
 _DIVERGED = 10.0
 
@@ -90,7 +95,12 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
             return None
 
     def fit(recs: Sequence[Record]) -> np.ndarray:
+        last: dict[bytes, np.ndarray] = {}
+
         def residual(x: np.ndarray) -> np.ndarray:
+            key = np.asarray(x, float).tobytes()
+            if key in last:          # θ0: the Jacobian's base point, then least_squares' first evaluation
+                return last[key].copy()
             model, parts = to_model(x), []
             for rec, skip in zip(recs, skips):
                 try:
@@ -100,9 +110,14 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
                     n = parts[-1].size if parts else 1
                     parts.append(np.full(n, np.sqrt(_DIVERGED / n), complex))
             r = np.concatenate(parts)
-            return np.concatenate([r.real, r.imag])
-        sol = scipy.optimize.least_squares(residual, truth["x"], method="trf", diff_step=1e-3,
-                                           max_nfev=max_evaluations)
+            last.clear()
+            last[key] = np.concatenate([r.real, r.imag])
+            return last[key].copy()
+        # the refit starts at the synthetic truth and moves by the bias alone (a fraction of a half-width): the
+        # Jacobian there serves every step (simplified Gauss-Newton), one simulation per step instead of 1 + len(θ)
+        x0 = np.asarray(truth["x"], float)
+        jac0 = _forward_jacobian(residual, x0)
+        sol = scipy.optimize.least_squares(residual, x0, jac=lambda x: jac0, method="trf", max_nfev=max_evaluations)
         return sol.x
 
     # a parameter the data do not determine (95 % half-width beyond half its value, or a log factor beyond ±0.5)
@@ -117,6 +132,19 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
         return _noted(refinement, "not bias-corrected (the correction does not converge or would move a parameter "
                                   "by more than half): the refined values may be biased by the spindle sensor's noise")
     return _moved(refinement, cor, cov, noise, hold)
+
+
+def _forward_jacobian(fun, x0: np.ndarray, rel_step: float = DIFF_STEP) -> np.ndarray:
+    """Forward differences of ``fun`` at ``x0``, the steps of least_squares' ``'2-point'`` with
+    ``diff_step=rel_step`` (h_j = rel_step·sign(x_j)·max(1, |x_j|)): its first step unchanged."""
+    f0 = fun(x0)
+    h = rel_step * np.where(x0 >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(x0))
+    jac = np.empty((f0.size, x0.size))
+    for j in range(x0.size):
+        x = x0.copy()
+        x[j] += h[j]
+        jac[:, j] = (fun(x) - f0) / (x[j] - x0[j])
+    return jac
 
 
 def _moved(refinement: Refinement, cor: Correction, cov: np.ndarray, noise: Sequence[NoiseEstimate],

@@ -49,6 +49,7 @@ from ..errors import ConfigError
 from .linear_part import LinearPart
 from ..simulate.quarter_car import _antialias_taps
 from ..kinds.strut_forces import g_one, strut_arrays, strut_force
+from ..signal.memo import ArrayMemo
 
 __all__ = ["TimeResponse", "discretise", "simulate_response"]
 
@@ -309,6 +310,16 @@ def _down(x: np.ndarray, q: int) -> np.ndarray:
     return x.copy() if q == 1 else signal.resample_poly(x, 1, q, window=_antialias_taps(q))
 
 
+def _down_up(x: np.ndarray, q: int) -> np.ndarray:
+    return _down(_up(x, q), q)
+
+
+#: the measured input at the fine rate, and the spindle signal there decimated back: the same for every
+#: simulation of a record (the refinement's and the bias correction's dozens), computed once per record
+_UP = ArrayMemo(_up, size=8)
+_DOWN_UP = ArrayMemo(_down_up, size=8)
+
+
 def simulate_response(linear: LinearPart, terms: Sequence[Term], gammas: Sequence[float], external: np.ndarray,
                       fs_hz: float, *, spindle_accel: np.ndarray | None = None, oversample: int = 8,
                       z_limit: float = np.inf) -> TimeResponse:
@@ -343,7 +354,7 @@ def simulate_response(linear: LinearPart, terms: Sequence[Term], gammas: Sequenc
         raise ConfigError(f"the linear part is not stable (poles {np.round(linear.all_poles(), 4).tolist()} 1/s)",
                           hint="refit it (select_linear_part flips unstable poles)")
     h = 1.0 / (fs_hz * q)
-    v = _up(np.asarray(external, float), q)
+    v = _UP(np.asarray(external, float), q)
     if linear.paths is not None:     # each term through its own path; ``gammas`` are in the paths
         z, zd, zdd, nn, fail = _simulate_paths(linear, terms, v, h, z_limit)
     else:
@@ -364,9 +375,8 @@ def simulate_response(linear: LinearPart, terms: Sequence[Term], gammas: Sequenc
     if spindle_accel is None:
         a2 = _down(zdd, q)[:n]
         a1 = 0.0
-    else:
+    else:           # ẍ2 = ẍ1 + z̈ at the fine rate, decimated: the decimation is linear, ẍ1's part is the record's
         a1 = np.asarray(spindle_accel, float)
-        a1f = v if np.array_equal(a1, ext) else _up(a1, q)      # the input's interpolation, once
-        a2 = _down(a1f + zdd, q)[:n]
+        a2 = (_DOWN_UP(a1, q) + _down(zdd, q))[:n]
     return TimeResponse(z=z[::q][:n], zdot=zd[::q][:n], zddot=a2 - a1, body_accel=a2, force=nn[::q][:n],
                         diverged_at=-1 if fail < 0 else int(fail // q), oversample=q)
