@@ -37,7 +37,7 @@ Paper Table 2 defaults: block 6144, 52 % overlap, flattop window, fs 600 Hz,
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Literal, Mapping, Sequence, get_args
 
 import numpy as np
