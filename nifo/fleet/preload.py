@@ -4,8 +4,8 @@ Importing it is its whole job (side effects on import are the point here): it
 imports what a bag task needs, including what the task path imports lazily
 (the bag readers, rosbags' type store, the MCAP decoders: ~0.3 s on a first
 bag, measured with ``sys.modules`` before and after a first
-:func:`nifo.fleet.tasks.compute_batch`), and loads the one numba kernel a bag
-task may call (the play operator of a backlash term) from numba's on-disk
+:func:`nifo.fleet.tasks.compute_batch`), and loads the numba kernels a bag
+task may call (the spectral engine's block products, the play operator of a backlash term) from numba's on-disk
 cache (``cache=True``: the first run on a machine compiles it and writes the
 cache beside the source, or in the user's cache folder when the package is
 read-only; later runs load it in ~10 ms). What it did is kept in :data:`WARM`.
@@ -16,7 +16,7 @@ Who imports it:
   one process imports and warms once, every worker is forked from it warm
   (measured: ~0.05 s of CPU per worker instead of ~2-4 s);
 - ``dask worker --preload nifo.fleet.preload`` on an external cluster, and the
-  worker plugin :class:`nifo.fleet.cluster.WarmWorker` that ``nifo fleet``
+  worker plugin :class:`nifo.fleet.worker_plugin.WarmWorker` that ``nifo fleet``
   registers on any cluster (a no-op where the module is in already): the import
   then happens once per worker, before its first bag, not inside it.
 
@@ -46,9 +46,14 @@ def _kernels():
     import numpy as np
 
     from nifo_core.kinds import describing
+    from nifo_core.signal import _block_products
+
+    def products():     # every bag's cross-spectra: the same argument types as CrossSpectralAccumulator.push
+        _block_products.accumulate_block_products(np.zeros((2, 1, 3), complex), np.zeros((3, 2, 2), complex))
 
     return {"nifo_core.kinds.describing._play": (describing._play,
-                                                 lambda: describing.play_operator(np.zeros(4), 0.1))}
+                                                 lambda: describing.play_operator(np.zeros(4), 0.1)),
+            "nifo_core.signal._block_products._accumulate": (_block_products._accumulate, products)}
 
 
 def kernel_stats() -> dict[str, dict]:
