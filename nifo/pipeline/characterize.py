@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from nifo.io.atomic import check_output, staged_dir
+from nifo.plots.writer import figure_batch
 from nifo.io.loader import input_options, load_record
 from nifo.io.modelfile import write_model_spec
 from nifo.io.provenance import input_provenance, system_of, true_strut_model
@@ -65,7 +66,7 @@ def run_characterize(args: CharacterizeOptions) -> dict:
 
         char = characterize_restoring(rfs, m2_kg=args.m2, kinds=kinds, thresholds=thresholds, grid_points=args.grid,
                                       max_terms=args.max_terms, masks=masks, progress=step)
-    with staged_dir(args.out) as tmp:
+    with staged_dir(args.out) as tmp, figure_batch():   # figures rendered by helpers, all written before the commit
         figures = _figures(tmp, args, rfs, tracks, masks, char)
         doc = _document(args, records, rfs, tracks, char, figures, band_source=_band_source(settings))
         doc["settings"] = settings.to_dict()

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from nifo.io.atomic import check_output, staged_dir
+from nifo.plots.writer import figure_batch
 from nifo.io.loader import input_options, iter_record_chunks, load_records
 from nifo.io.modelfile import load_model_spec
 from nifo.io.provenance import input_provenance, system_of, true_t21
@@ -406,7 +407,7 @@ def run_identify(args: IdentifyOptions) -> dict:
     settings_doc = _settings_doc(cfg, res)
     model_file = {"path": str(args.model), "steps": [{"name": s.name, "terms": [t.to_dict() for t in s.terms]}
                                                     for s in spec.steps]}
-    with staged_dir(args.out) as tmp:
+    with staged_dir(args.out) as tmp, figure_batch():   # figures rendered by helpers, all written before the commit
         figures = [] if args.no_plots else write_figures(tmp, res, per_file, cfg.cond_limit,
                                                          paths=[d["path"] for d in _entries(data)],
                                                          system=system_of(args))

@@ -33,6 +33,7 @@ import yaml
 
 from nifo.io.atomic import staged_run
 from nifo.io.loader import input_options
+from nifo.plots.writer import start_helpers
 from nifo.io.modelfile import load_model_spec
 from nifo.pipeline.characterize import run_characterize
 from nifo.pipeline.identify import run_identify
@@ -106,6 +107,7 @@ def loop_available() -> bool:
 def run_job(args: RunOptions) -> dict:
     """The whole job on ``args.data`` into ``args.out`` (module docstring); a summary of what was written."""
     data = [Path(p) for p in args.data]
+    start_helpers()      # the figure helpers import matplotlib while the settings are chosen
     # all old or all new: the old --out is kept aside until the run succeeds (INCOMPLETE marks a killed run)
     with staged_run(args.out) as out:
         return _run(args, data, out)

@@ -27,6 +27,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from nifo.io.atomic import check_output, staged_dir
+from nifo.plots.writer import figure_batch
 from nifo.io.loader import input_options, load_record
 from nifo.io.modelfile import load_model_spec, write_model_spec
 from nifo.io.provenance import input_provenance, system_of
@@ -72,7 +73,7 @@ def run_loop(args: LoopOptions) -> dict:
     doc["data"] = [str(p) for p in args.data]
     doc["model_file"] = None if args.model is None else str(args.model)
     doc.update(input=input_provenance(args), system=system_of(args), settings_chosen=data.to_dict())
-    with staged_dir(args.out) as tmp:
+    with staged_dir(args.out) as tmp, figure_batch():   # figures rendered by helpers, all written before the commit
         figures = _figures(tmp, doc, args.m2, units=doc["system"]["units"])
         doc["figures"] = figures
         write_json(tmp / "loop.json", doc, atomic=False, indent=2)

@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from nifo.io.atomic import check_output, staged_dir
+from nifo.plots.writer import figure_batch
 from nifo.io.loader import input_options, load_record
 from nifo.io.provenance import input_provenance, system_of
 from nifo.io.results import PREDICT_JSON, read_model, write_json
@@ -305,7 +306,7 @@ def run_predict(args: PredictOptions) -> dict:
     if spectral:    # the transmissibilities on other blocks than the model's
         model = replace(model, settings=replace(model.settings, **{k: getattr(args, k) for k in spectral}))
     results, failed, figures, tables = [], [], [], []
-    with staged_dir(args.out) as tmp:
+    with staged_dir(args.out) as tmp, figure_batch():   # figures rendered by helpers, all written before the commit
         for p in args.data:   # every record it can do is written; the others are named at the end
             path = Path(p)
             try:

@@ -28,17 +28,17 @@ VECTOR_SUFFIXES = (".svg",)
 
 
 def save_figure(fig, path: str | Path, *, dpi: int = 130) -> Path:
-    """Write ``fig`` as PNG at ``path`` and as SVG beside it (same stem), close it; the PNG's path."""
-    import matplotlib
+    """Write ``fig`` as PNG at ``path`` and as SVG beside it (same stem), close it; the PNG's path.
 
-    plt = pyplot()
+    Inside :func:`nifo.plots.writer.figure_batch` the files are rendered by helper processes and are complete
+    when the batch ends; elsewhere, here and now."""
+    from nifo.plots.writer import submit_figure, write_files
+
     p = Path(path)
+    if submit_figure(fig, p, dpi):
+        return p
     try:
-        fig.savefig(p, dpi=dpi, bbox_inches="tight")
-        # text stays text in the SVG (editable, searchable); dense point clouds are rasterized inside
-        with matplotlib.rc_context({"svg.fonttype": "none"}):
-            for suffix in VECTOR_SUFFIXES:
-                fig.savefig(p.with_suffix(suffix), dpi=dpi, bbox_inches="tight", metadata={"Date": None})
+        write_files(fig, p, dpi)
     finally:
-        plt.close(fig)
+        pyplot().close(fig)
     return p

@@ -1,0 +1,220 @@
+"""Figures rendered by helper processes while the step goes on (issue 29: the main job's figures).
+
+Why a process pool and not the main process: rendering, not drawing the
+figure, is what figures cost. Measured on the 23 figures of ``nifo run`` on the
+bundled sample (2 idle cores, matplotlib 3.11): PNG 11.0 s + SVG 8.9 s of
+rendering, building them a fraction of that, pickling a finished figure 0.27 s
+for all 23. Rendering is text layout and tick placement spread over thousands
+of small calls (no hot spot to remove; one tight bounding box for both formats
+instead of two saved 5 %). So a figure is pickled as soon as it is built and
+its two files are rendered in helper processes, PNG and SVG as separate tasks,
+while the step builds the next figure or computes; the step waits for them
+before its output is committed (:func:`figure_batch` inside
+:func:`nifo.io.atomic.staged_dir`), so an output never lacks a figure it lists.
+
+Outside a batch, in a daemonic process (a Dask worker cannot have children),
+with ``NIFO_FIGURE_WORKERS=0`` or where the pool cannot start, figures are
+written in the calling process as before. A helper that dies takes no figure
+with it: the figure is rendered in the calling process instead. Helpers ignore
+Ctrl-C (the step's own process handles it) and exit when the process that
+started them is gone.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import multiprocessing
+import os
+import pickle
+import signal
+import threading
+import time
+from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
+from typing import Iterator
+
+__all__ = ["figure_batch", "submit_figure", "write_files", "figure_workers", "start_helpers"]
+
+#: environment variable: helper processes for figures (0: write them in the calling process)
+WORKERS_ENV = "NIFO_FIGURE_WORKERS"
+
+_batch: contextvars.ContextVar[list | None] = contextvars.ContextVar("nifo_figure_batch", default=None)
+_pool: ProcessPoolExecutor | None = None
+_pool_failed = False
+_lock = threading.Lock()
+
+
+def figure_workers() -> int:
+    """Helper processes figures use: ``NIFO_FIGURE_WORKERS`` if set, else one per core up to 2 (0: none)."""
+    raw = os.environ.get(WORKERS_ENV, "").strip()
+    if raw:
+        try:
+            return max(0, int(raw))
+        except ValueError:
+            return 0
+    if multiprocessing.current_process().daemon:
+        return 0
+    return min(2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+
+
+def write_files(fig, path: str | Path, dpi: int) -> None:
+    """The PNG at ``path`` and the vector files beside it (:data:`nifo.plots.VECTOR_SUFFIXES`), then close."""
+    for p in _targets(path):
+        _render(fig, p, dpi)
+
+
+def _targets(path: str | Path) -> list[Path]:
+    from nifo.plots import VECTOR_SUFFIXES
+
+    p = Path(path)
+    return [p, *(p.with_suffix(s) for s in VECTOR_SUFFIXES)]
+
+
+def _render(fig, path: Path, dpi: int) -> None:
+    """One file of ``fig``: PNG, or vector with text kept as text (editable, searchable)."""
+    import matplotlib
+
+    if path.suffix == ".png":
+        fig.savefig(path, dpi=dpi, bbox_inches="tight")
+        return
+    with matplotlib.rc_context({"svg.fonttype": "none"}):
+        fig.savefig(path, dpi=dpi, bbox_inches="tight", metadata={"Date": None})
+
+
+def _render_pickled(blob: bytes, path: str, dpi: int) -> None:
+    """In a helper: one file of the pickled figure."""
+    fig = pickle.loads(blob)
+    try:
+        _render(fig, Path(path), dpi)
+    finally:
+        from nifo.plots import pyplot
+
+        pyplot().close(fig)
+
+
+def _watch_parent(parent: int) -> None:
+    while os.getppid() == parent:
+        time.sleep(0.5)
+    os._exit(0)
+
+
+def _die_with_parent() -> None:
+    """Linux: the kernel kills this helper the moment its parent dies (prctl PR_SET_PDEATHSIG), so a killed step
+    leaves no helper writing into its output; elsewhere the watcher thread does, within half a second."""
+    import ctypes
+    import ctypes.util
+
+    with contextlib.suppress(OSError, AttributeError, TypeError):
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        libc.prctl(1, signal.SIGKILL, 0, 0, 0)       # PR_SET_PDEATHSIG = 1
+
+
+def _helper_init(parent: int) -> None:
+    """A helper: Ctrl-C is the step's to handle; gone with its parent; matplotlib on Agg, imported now."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _die_with_parent()
+    if os.getppid() != parent:       # the parent died before the line above
+        os._exit(0)
+    threading.Thread(target=_watch_parent, args=(parent,), daemon=True).start()
+    from nifo.plots import pyplot
+
+    pyplot()
+
+
+def _warm() -> None:
+    """Nothing: makes a helper start (and import matplotlib) before the first figure needs it."""
+
+
+def _get_pool() -> ProcessPoolExecutor | None:
+    global _pool, _pool_failed
+    with _lock:
+        if _pool is None and not _pool_failed:
+            n = figure_workers()
+            if n < 1:
+                _pool_failed = True
+                return None
+            try:
+                _pool = ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("spawn"),
+                                            initializer=_helper_init, initargs=(os.getpid(),))
+                for _ in range(n):
+                    _pool.submit(_warm)
+            except (OSError, RuntimeError, AssertionError):
+                _pool, _pool_failed = None, True
+        return _pool
+
+
+@contextlib.contextmanager
+def figure_batch() -> Iterator[None]:
+    """Figures saved inside render in helper processes; on leaving, wait for all of them.
+
+    A rendering error is raised here (the first one, as raised). When the block
+    raises, figures not yet started are cancelled and running ones waited for,
+    so nothing is written into the step's output after it is cleaned up.
+    """
+    pending: list = []
+    token = _batch.set(pending)
+    try:
+        yield
+    except BaseException:
+        for fut, *_ in pending:
+            fut.cancel()
+        for fut, *_ in pending:
+            with contextlib.suppress(BaseException):
+                fut.exception()
+        raise
+    else:
+        first = None
+        for fut, blob, path, dpi in pending:
+            try:
+                fut.result()
+            except BrokenProcessPool:
+                _reset_pool()
+                _render_pickled(blob, str(path), dpi)   # the helper died: render here
+            except BaseException as err:     # noqa: BLE001 — the figure's own error, raised below as it was
+                first = first or err
+        if first is not None:
+            raise first
+    finally:
+        _batch.reset(token)
+
+
+def _reset_pool() -> None:
+    global _pool
+    with _lock:
+        if _pool is not None:
+            _pool.shutdown(wait=False, cancel_futures=True)
+        _pool = None
+
+
+def submit_figure(fig, path: str | Path, dpi: int) -> bool:
+    """Hand ``fig`` to the helpers when a :func:`figure_batch` is open (closing it here); False: write it yourself."""
+    pending = _batch.get()
+    if pending is None:
+        return False
+    pool = _get_pool()
+    if pool is None:
+        return False
+    blob = pickle.dumps(fig, protocol=pickle.HIGHEST_PROTOCOL)
+    for p in _targets(path):
+        try:
+            fut = pool.submit(_render_pickled, blob, str(p), dpi)
+        except (BrokenProcessPool, RuntimeError):
+            _reset_pool()
+            fut = Future()
+            try:
+                _render_pickled(blob, str(p), dpi)
+                fut.set_result(None)
+            except BaseException as err:     # noqa: BLE001 — handed to the batch like a helper's error
+                fut.set_exception(err)
+        pending.append((fut, blob, p, dpi))
+    from nifo.plots import pyplot
+
+    pyplot().close(fig)
+    return True
+
+
+def start_helpers() -> None:
+    """Start the helpers now (they import matplotlib in the background) rather than at the first figure."""
+    _get_pool()

@@ -1,0 +1,118 @@
+"""Figures rendered by helper processes (nifo.plots.writer): the same files, all written before the batch ends,
+nothing written after it fails, no figure lost with a helper, no helper left behind by a killed step."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from nifo.plots import pyplot, save_figure
+from nifo.plots import writer
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _figure(n: int = 200):
+    import numpy as np
+
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(4, 3))
+    x = np.linspace(1, 100, n)
+    ax.loglog(x, 1 / (1 + (x / 10) ** 2), label="$|T_{21}|$")
+    ax.set_xlabel("frequency [Hz]")
+    ax.legend()
+    return fig
+
+
+def _helpers() -> list[int]:
+    pool = writer._get_pool()
+    assert pool is not None, "no helper pool on this machine"
+    return [p.pid for p in pool._processes.values()]
+
+
+@pytest.fixture(autouse=True)
+def _two_helpers(monkeypatch):
+    monkeypatch.setenv(writer.WORKERS_ENV, "2")
+    writer._reset_pool()
+    monkeypatch.setattr(writer, "_pool_failed", False)
+    yield
+    writer._reset_pool()
+
+
+def test_batch_writes_the_same_files_as_the_calling_process_in_a_helper(tmp_path):
+    writer.write_files(_figure(), tmp_path / "direct.png", 130)
+    with writer.figure_batch():
+        assert save_figure(_figure(), tmp_path / "helper.png") == tmp_path / "helper.png"
+        assert writer._batch.get() and len(writer._batch.get()) == 2       # PNG and SVG, each a task
+        helpers = _helpers()
+    assert helpers and os.getpid() not in helpers
+    assert (tmp_path / "helper.png").read_bytes() == (tmp_path / "direct.png").read_bytes()
+    assert (tmp_path / "helper.svg").stat().st_size > 1000 and (tmp_path / "helper.svg").read_text().startswith("<?xml")
+
+
+def test_outside_a_batch_the_figure_is_written_at_once(tmp_path):
+    save_figure(_figure(), tmp_path / "now.png")
+    assert (tmp_path / "now.png").is_file() and (tmp_path / "now.svg").is_file()
+
+
+def test_a_failing_block_leaves_nothing_written_after_it(tmp_path):
+    out = tmp_path / "staged"
+    out.mkdir()
+    with pytest.raises(KeyboardInterrupt):
+        with writer.figure_batch():
+            for k in range(6):
+                save_figure(_figure(4000), out / f"f{k}.png")
+            raise KeyboardInterrupt
+    before = sorted(os.listdir(out))
+    time.sleep(1.5)
+    assert sorted(os.listdir(out)) == before    # cancelled or finished when the batch ended, none later
+
+
+def test_a_rendering_error_is_raised_as_it_was_when_the_batch_ends(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        with writer.figure_batch():
+            save_figure(_figure(), tmp_path / "no such folder" / "f.png")
+
+
+def test_no_figure_is_lost_with_a_helper(tmp_path):
+    with writer.figure_batch():
+        for pid in _helpers():
+            os.kill(pid, signal.SIGKILL)
+        time.sleep(0.3)
+        for k in range(3):
+            save_figure(_figure(), tmp_path / f"f{k}.png")
+    for k in range(3):
+        assert (tmp_path / f"f{k}.png").stat().st_size > 1000 and (tmp_path / f"f{k}.svg").is_file()
+
+
+def test_helpers_die_with_a_killed_step(tmp_path):
+    code = ("import os, signal, sys\n"
+            "from nifo.plots import writer\n"
+            "pool = writer._get_pool(); pool.submit(writer._warm).result()\n"
+            "print(' '.join(str(p.pid) for p in pool._processes.values()), flush=True)\n"
+            "os.kill(os.getpid(), signal.SIGKILL)\n")
+    p = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120,
+                       env={**os.environ, "PYTHONPATH": str(ROOT), writer.WORKERS_ENV: "2"})
+    assert p.returncode == -signal.SIGKILL, p.stderr
+    pids = [int(v) for v in p.stdout.split()]
+    assert pids
+    deadline = time.monotonic() + 5
+    alive = pids
+    while alive and time.monotonic() < deadline:
+        time.sleep(0.1)
+        alive = [pid for pid in pids if _running(pid)]
+    assert not alive, f"helpers {alive} outlived the killed step"
+
+
+def _running(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
