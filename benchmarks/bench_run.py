@@ -20,7 +20,10 @@ of identify's refined model and of the final model, the held-out and per-record 
 printed: parameters and coefficients to 3 significant digits (relative difference ≤ 5e-4), NMSE to 2
 (≤ 5e-3); the largest relative difference of each group is printed.
 
-    PYTHONPATH=. python benchmarks/bench_run.py [--keep DIR] [--baseline FILE] [--record-baseline FILE]
+``--serial`` also times the run on one core (no simulation threads, no figure helpers) in the same run and
+checks that both give the same key numbers to the last digit.
+
+    PYTHONPATH=. python benchmarks/bench_run.py [--serial] [--keep DIR] [--baseline FILE] [--record-baseline FILE]
 """
 
 from __future__ import annotations
@@ -48,9 +51,13 @@ def _cpu_children() -> float:
     return ru.ru_utime + ru.ru_stime
 
 
-def _nifo(*args: str) -> tuple[float, float, str]:
+#: the environment of a run on one core: no simulation threads, no figure helpers (``--serial``)
+SERIAL_ENV = {"NIFO_THREADS": "1", "NIFO_FIGURE_WORKERS": "0"}
+
+
+def _nifo(*args: str, env_extra: dict | None = None) -> tuple[float, float, str]:
     """Run ``python -m nifo ARGS`` in this checkout; (wall seconds, CPU seconds, stdout+stderr). Exits on failure."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""), **(env_extra or {})}
     t0, c0 = time.perf_counter(), _cpu_children()
     done = subprocess.run([sys.executable, "-m", "nifo", *args], cwd=ROOT, env=env, capture_output=True, text=True)
     took, cpu = time.perf_counter() - t0, _cpu_children() - c0
@@ -146,6 +153,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--baseline", type=Path, default=BASELINE, help=f"key numbers to compare with ({BASELINE.name})")
     ap.add_argument("--record-baseline", type=Path, help="write this run's key numbers here (on main, before a change)")
     ap.add_argument("--from-dir", type=Path, help="take the key numbers of an existing run directory; no timing")
+    ap.add_argument("--serial", action="store_true",
+                    help="also time the run on one core (NIFO_THREADS=1, NIFO_FIGURE_WORKERS=0) in the same run: the "
+                         "gain of the threads and figure helpers, and the same numbers to the last digit")
     args = ap.parse_args(argv)
     if args.from_dir:
         keys = key_numbers(args.from_dir)
@@ -166,12 +176,22 @@ def main(argv: list[str] | None = None) -> int:
         t_id, c_id, _ = _nifo("identify", *ident, "--out", str(Path(tmp) / "identify_plain"))
         steps = re.search(r"nifo run finished in .*", text)
         keys = key_numbers(out)
+        if args.serial:
+            serial_out = Path(tmp) / "results_serial"
+            t_ser, c_ser, text_ser = _nifo("run", *_sample(), "--out", str(serial_out), env_extra=SERIAL_ENV)
+            steps_ser = re.search(r"nifo run finished in .*", text_ser)
+            identical = key_numbers(serial_out) == keys
     load = os.getloadavg()[0]
     print(f"load average {load:.1f} on {os.cpu_count()} cores (other jobs slow the wall clock; CPU time is what "
           f"an idle machine's wall clock would be, give or take the threads)")
     print(f"plain nifo identify ({'two-step model' if model.is_file() else 'suggested model'}, no refinement): "
           f"wall {t_id:.1f} s, CPU {c_id:.1f} s")
     print(f"nifo run: wall {t_run:.1f} s, CPU {c_run:.1f} s" + (f"   [{steps.group(0)}]" if steps else ""))
+    if args.serial:
+        print(f"nifo run on one core (NIFO_THREADS=1, no figure helpers): wall {t_ser:.1f} s, CPU {c_ser:.1f} s"
+              + (f"   [{steps_ser.group(0)}]" if steps_ser else ""))
+        print(f"  wall: this run is {t_ser / t_run:.2f}x faster than on one core; key numbers "
+              f"{'identical to the last digit' if identical else 'DIFFERENT'}")
     ok_time = True
     for what, r, t in (("wall", t_run / t_id, t_run), ("CPU", c_run / c_id, c_run)):
         ok = r <= MAX_RATIO and t <= MAX_RUN_S
@@ -188,7 +208,7 @@ def main(argv: list[str] | None = None) -> int:
     same, lines = compare(keys, json.loads(args.baseline.read_text()))
     print(f"same model and figures as the baseline ({args.baseline.name}): {'YES' if same else 'NO'}")
     print("\n".join("  " + ln for ln in lines))
-    return 0 if ok_time and same else 1
+    return 0 if ok_time and same and (not args.serial or identical) else 1
 
 
 if __name__ == "__main__":

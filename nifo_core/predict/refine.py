@@ -55,7 +55,7 @@ refinement with the estimated noise (the loop does so; ``refine_model`` itself d
 
 Minimised by :func:`scipy.optimize.least_squares` (trust-region reflective,
 finite-difference Jacobian: one simulation per parameter and record per
-iteration). The refinement never makes the model worse on the records it is
+iteration, the parameters' simulations side by side on threads, :mod:`nifo_core.signal.parallel`). The refinement never makes the model worse on the records it is
 given; whether it predicts *other* levels better is measured, not assumed
 (``tools/f16_predict.py``, ``tests/test_refine.py``).
 """
@@ -63,6 +63,7 @@ given; whether it predicts *other* levels better is measured, not assumed
 from __future__ import annotations
 
 import functools
+import threading
 from dataclasses import dataclass, field, replace
 from typing import Callable, Mapping, Sequence
 
@@ -74,6 +75,7 @@ from ..errors import ConfigError, IllConditionedError, InputError
 from .linear_part import BodyModel, absorbed_rates
 from .model import IdentifiedModel, PredictionDivergedError, predict_body, record_inputs
 from .prediction_error import band_spectra
+from ..signal.parallel import thread_map
 from ..signal.record import Record
 
 __all__ = ["Refinement", "refine_model", "refine_jointly", "model_nmse", "parameter_space", "start_up_samples",
@@ -385,11 +387,12 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
     penalty = [np.sqrt(_DIVERGED / p.size) * p for p in penalty]
     sizes = np.cumsum([p.size for p in penalty])[:-1]
     diverged: dict[bytes, set] = {}     # per evaluated θ: the records whose simulation diverged
+    lock = threading.Lock()             # evaluations run side by side for the Jacobian's columns
 
     def evaluate(name: str, sp: _Space, x: np.ndarray) -> np.ndarray:
-        """Residual vector (real, imaginary) of every record at θ = x; a diverged record gets its penalty."""
+        """Residual vector (real, imaginary) of every record at θ = x; a diverged record gets its penalty.
+        Safe on several threads at once (the Jacobian's columns)."""
         nonlocal n_eval
-        n_eval += 1
         m = sp.model(x)
         parts, bad = [], set()
         for k, (rec, skip, pen) in enumerate(zip(records, skips, penalty)):
@@ -398,11 +401,13 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
             except PredictionDivergedError:
                 bad.add(k)
                 parts.append(pen.astype(complex))
-        diverged[np.asarray(x, float).tobytes()] = bad
         r = np.concatenate(parts)
         out = np.concatenate([r.real, r.imag])
-        if progress is not None:
-            progress(name, n_eval, float(np.sum(out ** 2)))
+        with lock:
+            n_eval += 1
+            diverged[np.asarray(x, float).tobytes()] = bad
+            if progress is not None:
+                progress(name, n_eval, float(np.sum(out ** 2)))
         return out
 
     def per_record(x: np.ndarray, out: np.ndarray) -> list[float]:
@@ -418,9 +423,10 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
         if not np.all(np.isfinite(before[name])):
             return None
         lo, hi = sp.bounds()
+        # the Jacobian's columns (one simulation of every record per parameter) side by side on threads
         sol = scipy.optimize.least_squares(lambda x: evaluate(name, sp, x), x0, bounds=(lo, hi), method="trf",
-                                           diff_step=1e-3, x_scale=1.0, max_nfev=max_iterations,
-                                           f_scale=1.0)
+                                           diff_step=1e-3, x_scale=1.0, max_nfev=max_iterations, f_scale=1.0,
+                                           workers=thread_map)
         if sol.cost <= 0.5 * float(np.sum(r0 ** 2)):
             return sol.x, sp, sol, per_record(sol.x, sol.fun)
         return x0, sp, sol, before[name]

@@ -34,6 +34,7 @@ from ..errors import NifoError
 from .model import PredictionDivergedError, predict_body, record_inputs
 from ..signal.noise import NoiseEstimate
 from .prediction_bounds import Z95
+from ..signal.parallel import forward_jacobian
 from ..signal.record import Record
 from .refine import Refinement, moved_refinement, parameter_space, prediction_residual
 
@@ -95,12 +96,7 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
             return None
 
     def fit(recs: Sequence[Record]) -> np.ndarray:
-        last: dict[bytes, np.ndarray] = {}
-
-        def residual(x: np.ndarray) -> np.ndarray:
-            key = np.asarray(x, float).tobytes()
-            if key in last:          # θ0: the Jacobian's base point, then least_squares' first evaluation
-                return last[key].copy()
+        def residual(x: np.ndarray) -> np.ndarray:     # pure: the Jacobian's columns run side by side
             model, parts = to_model(x), []
             for rec, skip in zip(recs, skips):
                 try:
@@ -110,14 +106,17 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
                     n = parts[-1].size if parts else 1
                     parts.append(np.full(n, np.sqrt(_DIVERGED / n), complex))
             r = np.concatenate(parts)
-            last.clear()
-            last[key] = np.concatenate([r.real, r.imag])
-            return last[key].copy()
+            return np.concatenate([r.real, r.imag])
         # the refit starts at the synthetic truth and moves by the bias alone (a fraction of a half-width): the
         # Jacobian there serves every step (simplified Gauss-Newton), one simulation per step instead of 1 + len(θ)
         x0 = np.asarray(truth["x"], float)
-        jac0 = _forward_jacobian(residual, x0)
-        sol = scipy.optimize.least_squares(residual, x0, jac=lambda x: jac0, method="trf", max_nfev=max_evaluations)
+        f0 = residual(x0)
+        jac0 = _forward_jacobian(residual, x0, f0)
+        key = x0.tobytes()
+
+        def fun(x: np.ndarray) -> np.ndarray:      # θ0: least_squares' first evaluation is the Jacobian's base
+            return f0.copy() if np.asarray(x, float).tobytes() == key else residual(x)
+        sol = scipy.optimize.least_squares(fun, x0, jac=lambda x: jac0, method="trf", max_nfev=max_evaluations)
         return sol.x
 
     # a parameter the data do not determine (95 % half-width beyond half its value, or a log factor beyond ±0.5)
@@ -127,24 +126,18 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
         return _noted(refinement, "not bias-corrected (no parameter is determined to within half its value): the "
                                   "refined values may be biased by the spindle sensor's noise")
     cor = simulated_correction(fit, simulate, records, noise, x_star, seed=seed, scale=np.ones_like(x_star),
-                               noise_only=True, hold=hold)
+                               noise_only=True, hold=hold, side_by_side=True)
     if cor is None:
         return _noted(refinement, "not bias-corrected (the correction does not converge or would move a parameter "
                                   "by more than half): the refined values may be biased by the spindle sensor's noise")
     return _moved(refinement, cor, cov, noise, hold)
 
 
-def _forward_jacobian(fun, x0: np.ndarray, rel_step: float = DIFF_STEP) -> np.ndarray:
-    """Forward differences of ``fun`` at ``x0``, the steps of least_squares' ``'2-point'`` with
-    ``diff_step=rel_step`` (h_j = rel_step·sign(x_j)·max(1, |x_j|)): its first step unchanged."""
-    f0 = fun(x0)
+def _forward_jacobian(fun, x0: np.ndarray, f0: np.ndarray, rel_step: float = DIFF_STEP) -> np.ndarray:
+    """Forward differences of ``fun`` at ``x0`` (``f0 = fun(x0)``), steps h_j = rel_step·sign(x_j)·max(1, |x_j|),
+    the columns side by side on threads (:func:`nifo_core.signal.parallel.forward_jacobian`)."""
     h = rel_step * np.where(x0 >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(x0))
-    jac = np.empty((f0.size, x0.size))
-    for j in range(x0.size):
-        x = x0.copy()
-        x[j] += h[j]
-        jac[:, j] = (fun(x) - f0) / (x[j] - x0[j])
-    return jac
+    return forward_jacobian(fun, x0, f0, h)
 
 
 def _moved(refinement: Refinement, cor: Correction, cov: np.ndarray, noise: Sequence[NoiseEstimate],

@@ -159,7 +159,7 @@ def _solve(z0, zd0, alpha, beta, guess, codes, coef, p0, p1, play, la, lb, atol)
     return 0.5 * (lo + hi), True
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)   # nogil: simulations side by side (nifo_core.signal.parallel)
 def _run(phi, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, la, lb, z_limit, atol,
          out_z, out_zd, out_zdd, out_n):  # pragma: no cover - compiled
     """March the FOH-discretised linear part with the implicit strut feedback; returns the failing step or -1."""
@@ -210,7 +210,7 @@ def _run(phi, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, la, lb, z_limit, a
     return -1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _run_paths(phi, g0b, g1b, g0e, g1e, cz, cd, ca, ddb, dde, v, codes, p0, p1, alpha, z_limit,
                out_z, out_zd, out_zdd, out_n):  # pragma: no cover - compiled
     """March the two-input linear part (measured input v, each term's remainder through its path)."""

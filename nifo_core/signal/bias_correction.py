@@ -41,6 +41,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .noise import NoiseEstimate, noise_draw
+from .parallel import thread_map
 from .record import Record
 
 __all__ = ["ITERATIONS", "NOISE_LEVEL_RTOL", "Correction", "simulated_correction"]
@@ -112,7 +113,8 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
                          simulate: Callable[[np.ndarray, Record], np.ndarray | None],
                          records: Sequence[Record], noise: Sequence[NoiseEstimate], theta0: np.ndarray, *,
                          seed: int = 0, iterations: int = ITERATIONS, scale: np.ndarray | None = None,
-                         noise_only: bool = False, hold: np.ndarray | None = None) -> Correction | None:
+                         noise_only: bool = False, hold: np.ndarray | None = None,
+                         side_by_side: bool = False) -> Correction | None:
     """``theta0`` (the fit ``fit`` on ``records``) with the fit's bias removed (module docstring).
 
     ``simulate(θ, record)`` is the body acceleration the model with θ gives for the record's spindle
@@ -121,7 +123,11 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
     give it where a coordinate is a log factor that is 0 at θ₀). ``noise_only``: the fit is consistent
     on noise-free records of its own model (an output-error fit: no noise-free synthetic fit is run,
     the whole bias counts as the noise's). ``hold``: coordinates kept at θ₀, neither corrected nor judged
-    (those the data do not determine: their synthetic refits scatter along a flat valley of the cost)."""
+    (those the data do not determine: their synthetic refits scatter along a flat valley of the cost).
+    ``side_by_side``: ``fit`` and ``simulate`` are safe on several threads at once; the records'
+    simulations and the antithetic pair's two refits then run on threads (:mod:`nifo_core.signal.parallel`),
+    the result the same to the last digit."""
+    each = thread_map if side_by_side else (lambda fn, items: [fn(x) for x in items])
     rng = np.random.default_rng(seed)
     draws = [noise_draw(r.n, rng) for r in records]
     t0 = np.asarray(theta0, float)
@@ -131,11 +137,11 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
     noise_bias, draw_sd = np.zeros_like(t0), np.zeros_like(t0)
     steps = []
     for _ in range(max(int(iterations), 1)):
-        bodies = [simulate(theta, r) for r in records]
+        bodies = each(lambda r: simulate(theta, r), records)
         if any(b is None or not np.all(np.isfinite(b)) for b in bodies):
             return None
-        got = [np.asarray(fit([_noisy(r, b, e, s * d) for r, b, e, d in zip(records, bodies, noise, draws)]), float)
-               for s in (1.0, -1.0)]
+        got = each(lambda s: np.asarray(fit([_noisy(r, b, e, s * d) for r, b, e, d in
+                                             zip(records, bodies, noise, draws)]), float), (1.0, -1.0))
         syn = 0.5 * (got[0] + got[1])
         clean = theta if noise_only else np.asarray(fit([_noisy(r, b, e, None)
                                                          for r, b, e in zip(records, bodies, noise)]), float)

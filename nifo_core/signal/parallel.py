@@ -1,0 +1,90 @@
+"""Independent computations side by side on threads: for work that releases the GIL.
+
+The simulations of a model (:mod:`nifo_core.predict.timesim`: numba kernels compiled ``nogil``, scipy's
+polyphase resampling and FFTs, which release the GIL too) are independent and pure. The output-error
+refinement's forward-difference Jacobian is one simulation per parameter at the same base point: its columns
+run on threads (:func:`thread_map` as least_squares' ``workers``, or :func:`forward_jacobian`), each column bit
+for bit what the serial loop gives (issue 29, ``benchmarks/bench_run.py --serial``).
+Threads rather than processes: no records pickled per evaluation and nothing to start; the records
+themselves are shared read-only.
+
+A map called from inside another map's worker runs serially (no nested pools oversubscribing the cores).
+``NIFO_THREADS`` (environment) sets the most threads; 1 runs everything serially.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from typing import Callable, Iterable, TypeVar
+
+import numpy as np
+
+__all__ = ["thread_map", "max_threads", "forward_jacobian"]
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+#: environment variable: the most threads (1: serial)
+THREADS_ENV = "NIFO_THREADS"
+
+_inside = threading.local()
+
+
+def max_threads() -> int:
+    """Most worker threads: ``NIFO_THREADS`` when set, else the CPUs this process may use."""
+    env = os.environ.get(THREADS_ENV, "").strip()
+    if env.isdigit() and int(env) >= 1:
+        return int(env)
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _in_worker(fn: Callable[[T], R]) -> Callable[[T], R]:
+    def run(item: T) -> R:
+        _inside.active = True
+        try:
+            return fn(item)
+        finally:
+            _inside.active = False
+    return run
+
+
+def thread_map(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
+    """``[fn(x) for x in items]``, the calls on up to :func:`max_threads` threads, results in order.
+
+    ``fn`` must be safe to run concurrently (pure, or touching only its own item). An exception from any
+    call is raised here (the first in item order), as the serial loop would raise it.
+    """
+    items = list(items)
+    workers = min(max_threads(), len(items))
+    if workers < 2 or getattr(_inside, "active", False):
+        return [fn(x) for x in items]
+    with ThreadPoolExecutor(workers) as pool:
+        return list(pool.map(_in_worker(fn), items))
+
+
+def forward_jacobian(fun: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, f0: np.ndarray,
+                     steps: np.ndarray) -> np.ndarray:
+    """Forward differences of ``fun`` at ``x0`` (``f0 = fun(x0)``), one column per step of ``steps``, the
+    columns on threads (:func:`thread_map`: ``fun`` must be safe to call from several threads at once).
+
+    Each column is divided by its step as represented, (x0 + h)_j - x0_j, as scipy's differences are.
+
+    Returns
+    -------
+    ndarray, shape (f0.size, x0.size)
+    """
+    x0 = np.asarray(x0, float)
+    f0 = np.asarray(f0, float)
+
+    def column(j: int) -> np.ndarray:
+        x = x0.copy()
+        x[j] += steps[j]
+        return (np.asarray(fun(x), float) - f0) / (x[j] - x0[j])
+
+    cols = thread_map(column, range(x0.size))
+    return np.column_stack(cols) if cols else np.zeros((f0.size, 0))

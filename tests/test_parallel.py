@@ -1,0 +1,92 @@
+"""Threads for independent simulations (nifo_core.signal.parallel): results in order, errors as the serial loop
+raises them, and the refinement's threaded Jacobian the same to the last digit as least_squares' own '2-point'."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+import scipy.optimize
+
+from nifo_core.signal.parallel import forward_jacobian, thread_map
+
+
+def test_thread_map_keeps_order_and_runs_on_threads(monkeypatch):
+    monkeypatch.setenv("NIFO_THREADS", "2")
+    seen = set()
+
+    def f(x):
+        seen.add(threading.get_ident())
+        return x * x
+    assert thread_map(f, range(50)) == [x * x for x in range(50)]
+    assert threading.get_ident() not in seen
+
+
+def test_thread_map_raises_the_first_error_in_item_order(monkeypatch):
+    monkeypatch.setenv("NIFO_THREADS", "2")
+
+    def f(x):
+        if x in (3, 7):
+            raise ValueError(f"item {x}")
+        return x
+    with pytest.raises(ValueError, match="item 3"):
+        thread_map(f, range(10))
+
+
+def test_a_map_inside_a_map_runs_serially(monkeypatch):
+    monkeypatch.setenv("NIFO_THREADS", "2")
+    outer = threading.get_ident()
+
+    def inner_threads(_):
+        here = threading.get_ident()
+        return {threading.get_ident() for _ in thread_map(lambda y: y, range(4))} | {here}
+    for ids in thread_map(inner_threads, range(2)):
+        assert len(ids) == 1 and outer not in ids
+
+
+def test_one_thread_runs_in_the_caller(monkeypatch):
+    monkeypatch.setenv("NIFO_THREADS", "1")
+    assert set(thread_map(lambda _: threading.get_ident(), range(4))) == {threading.get_ident()}
+
+
+def _problem():
+    t = np.linspace(0, 3, 400)
+    y = 1.3 * np.exp(-0.7 * t) * np.cos(4.1 * t + 0.2) + 0.05 * np.sin(11 * t)
+
+    def res(x):
+        return x[0] * np.exp(-x[1] * t) * np.cos(x[2] * t + x[3]) - y
+    return res
+
+
+@pytest.mark.parametrize("bounds", [(-np.inf, np.inf),
+                                    (np.array([0.0, 0.0, 3.0, -1.0]), np.array([2.0, 0.5000001, 5.0, 1.0]))])
+def test_least_squares_with_threads_gives_its_serial_result_bit_for_bit(monkeypatch, bounds):
+    """What the refinement does (nifo_core.predict.refine): least_squares' Jacobian columns on thread_map."""
+    monkeypatch.setenv("NIFO_THREADS", "2")
+    res = _problem()
+    threads = set()
+
+    def fun(x):
+        threads.add(threading.get_ident())
+        return res(x)
+    x0 = np.array([1.0, 0.5, 4.0, 0.0])      # a zero coordinate (the √ε step) and one near its upper bound
+    ref = scipy.optimize.least_squares(res, x0, bounds=bounds, method="trf", diff_step=1e-3, max_nfev=30)
+    got = scipy.optimize.least_squares(fun, x0, bounds=bounds, method="trf", diff_step=1e-3, max_nfev=30,
+                                       workers=thread_map)
+    assert np.array_equal(got.x, ref.x) and np.array_equal(got.jac, ref.jac) and got.nfev == ref.nfev
+    assert len(threads - {threading.get_ident()}) >= 1
+
+
+def test_forward_jacobian_is_the_serial_forward_difference(monkeypatch):
+    monkeypatch.setenv("NIFO_THREADS", "2")
+    res = _problem()
+    x0 = np.array([1.2, 0.6, 4.2, -0.3])
+    h = 1e-3 * np.where(x0 >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(x0))
+    f0 = res(x0)
+    serial = np.empty((f0.size, x0.size))
+    for j in range(x0.size):
+        x = x0.copy()
+        x[j] += h[j]
+        serial[:, j] = (res(x) - f0) / (x[j] - x0[j])
+    assert np.array_equal(forward_jacobian(res, x0, f0, h), serial)
