@@ -52,9 +52,11 @@ PRELOAD = "nifo.fleet.preload"
 #:   (:func:`start_worker_server`), not spawned as fresh interpreters that each import it.
 #:
 #: BLAS/OpenMP stay at one thread per worker (Dask's default; the fork server starts with
-#: Dask's pre-spawn environment, so its workers do too).
+#: Dask's pre-spawn environment, so its workers do too), and so do nifo's own simulation threads
+#: (``NIFO_THREADS``, :mod:`nifo_core.signal.parallel`): the workers are the parallelism.
 CLUSTER_CONFIG = {"distributed.worker.multiprocessing-method": "forkserver",
                   "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+                  "distributed.nanny.pre-spawn-environ.NIFO_THREADS": 1,
                   "distributed.worker.profile.enabled": False,
                   "distributed.admin.tick.interval": "1s",
                   "distributed.admin.system-monitor.interval": "5s",

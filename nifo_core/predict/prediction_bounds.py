@@ -28,6 +28,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..signal.parallel import thread_map
 from .model import IdentifiedModel, PredictionDivergedError
 from .refine import parameter_space
 
@@ -72,7 +73,8 @@ def prediction_spread(model: IdentifiedModel, simulate: Callable[[IdentifiedMode
     """The record's predictions at the sigma points of ``model``'s parameter covariance.
 
     ``simulate(m)`` returns the body acceleration model ``m`` predicts for the record (the caller's
-    predictor, with the record's drive and options). A model without a stored covariance (not refined,
+    predictor, with the record's drive and options; pure: the sigma points run on threads,
+    :mod:`nifo_core.signal.parallel`). A model without a stored covariance (not refined,
     or refined without more residual lines than parameters), or one whose sigma point diverges, gives
     an unavailable spread that says why.
     """
@@ -82,14 +84,20 @@ def prediction_spread(model: IdentifiedModel, simulate: Callable[[IdentifiedMode
                                            "nifo identify --refine)")
     to_model, x, cov = space
     s = _sqrt_cov(cov)
-    plus, minus = [], []
-    for k in range(s.shape[1]):
-        for sign, out in ((1.0, plus), (-1.0, minus)):
-            try:
-                out.append(np.asarray(simulate(to_model(x + sign * s[:, k])), float))
-            except PredictionDivergedError:
-                return PredictionSpread([], [], x.size, f"the model {'+' if sign > 0 else '-'}1σ along parameter "
-                                                        f"direction {k + 1} diverges on this record")
+    points = [(k, sign) for k in range(s.shape[1]) for sign in (1.0, -1.0)]
+
+    def at(point: tuple[int, float]) -> np.ndarray | tuple[int, float]:
+        k, sign = point
+        try:
+            return np.asarray(simulate(to_model(x + sign * s[:, k])), float)
+        except PredictionDivergedError:
+            return point
+    got = thread_map(at, points)          # the sigma points side by side (simulate is pure)
+    for (k, sign), g in zip(points, got):
+        if isinstance(g, tuple):
+            return PredictionSpread([], [], x.size, f"the model {'+' if sign > 0 else '-'}1σ along parameter "
+                                                    f"direction {k + 1} diverges on this record")
+    plus, minus = got[0::2], got[1::2]
     return PredictionSpread(plus, minus, x.size)
 
 
