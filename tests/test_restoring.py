@@ -314,3 +314,23 @@ def test_quadratic_damping_is_named_not_a_rising_knee(spectrum, rms):
     assert [c.kind for c in ch.suggested] == ["quadratic_damping"]
     assert ch.suggested[0].coefficient == pytest.approx(2000.0, rel=0.1)
     assert ch.candidate("velocity_deadzone").status in ("alternative", "redundant", "weak")
+
+
+def test_quadratic_stiffness_is_evaluated_from_the_static_position_at_every_level():
+    # z² pushes the mean position by m = -θ·mean z²/k, more at the higher level; (z + m)² = z² + 2m·z + m²
+    # is a stiffness 2θm that differs per level. Evaluated on z from the static position, one k holds
+    # every level: the offsets are the records' true mean positions and no level-dependent term is added.
+    strut = (StrutForce(Term("velocity_deadzone", {"knee": 0.03}), -700.0),
+             StrutForce(Term("quadratic_stiffness"), 3e5))
+    sims = [simulate(SimConfig(strut=strut, road=RandomRoad(rms_m=r), duration_s=60.0,
+                               noise=SensorNoise(relative=0.02)), rng=31 + i) for i, r in enumerate((0.0025, 0.006))]
+    ch = characterize([s.record for s in sims], m2_kg=M2)
+    assert sorted(c.kind for c in ch.suggested) == ["quadratic_stiffness", "velocity_deadzone"]
+    quad = next(c for c in ch.suggested if c.kind == "quadratic_stiffness")
+    true_mean = [float(np.mean(s.truth.z)) for s in sims]
+    print("mean position from static per record", [round(1e3 * m, 3) for m in true_mean], "mm; fitted",
+          [round(-1e3 * o, 3) for o in quad.offsets], "coefficient", quad.coefficient)
+    assert abs(true_mean[1]) > 3 * abs(true_mean[0])               # the levels' mean positions differ
+    np.testing.assert_allclose(-np.array(quad.offsets), true_mean, atol=0.15 * max(abs(m) for m in true_mean))
+    assert quad.coefficient == pytest.approx(3e5, rel=0.15)
+    assert any("from the static position" in n for n in ch.notes)

@@ -66,7 +66,7 @@ from .data import GridSearch, RegressionData, candidate_grid
 from .result import (DEFAULT_KINDS, POSITIVE_KINDS, Candidate, Characterization, FittedModel,
                                   RecordSummary, Thresholds)
 from .score import lstsq, score_candidate
-from .static import static_bump_stops
+from .static import shifted_offsets, static_bump_stops
 from ..kinds.describing import Term, kind as lookup_kind
 from ..errors import ConfigError, InputError
 from ..signal.integrate import IntegrationBand
@@ -146,10 +146,16 @@ def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None
         cand, j = max(scored, key=lambda cj: cj[0].err)
         chosen.append(replace(cand, status="suggested"))
         chosen_j.append(j)
-        base.append(data.regressor(search.terms[j]))
-        v = search.unit(j, extra)
-        extra = np.column_stack([extra, v])
-        r = r - v * (v @ r)
+        chosen_terms = [search.terms[i] for i in chosen_j]
+        shifts = shifted_offsets(data, chosen_terms)
+        if any(o is not None for o in shifts):  # z from the static position (.static): the basis anew
+            base = [data.regressor(t, offsets=o) for t, o in zip(chosen_terms, shifts)]
+            extra, r = search.basis(base)
+        else:
+            base.append(data.regressor(search.terms[j]))
+            v = search.unit(j, extra)
+            extra = np.column_stack([extra, v])
+            r = r - v * (v @ r)
     # --- bump stops: the gap from the static position, which sits elsewhere in every record ----
     static_terms, static_off = static_bump_stops(data, [c.term for c in chosen])
     base = []
@@ -200,7 +206,12 @@ def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None
         notes.append("no nonlinear candidate met the thresholds: no form of the library explains what the "
                      "linear fit leaves")
     for c in chosen:
-        if c.offsets:
+        if c.offsets and c.kind != "bump_stop":
+            where = ", ".join(f"{1e3 * -o:+.2f} mm ({rf.source or f'record {i}'})"
+                              for i, (o, rf) in enumerate(zip(c.offsets, rfs)))
+            notes.append(f"{c.term.label}: z measured from the static position; the mean position sat {where} "
+                         f"from it (rebound positive), found from the balance of the mean force")
+        elif c.offsets:
             where = ", ".join(f"{1e3 * -o:+.2f} mm ({rf.source or f'record {i}'})"
                               for i, (o, rf) in enumerate(zip(c.offsets, rfs)))
             notes.append(f"{c.term.label}: gap from the static position; the mean position sat {where} from it "
@@ -241,16 +252,7 @@ def rank_beyond(rfs: Sequence[RestoringForce], declared: Sequence[Term], *, m2_k
     data = RegressionData(rfs, n_groups=n_groups, body_stiffness=False)
     search = GridSearch(data, kinds, grid_points, progress)
     base = [data.regressor(t, offsets=o) for t, o in zip(declared, offsets or [None] * len(declared))]
-    extra, r = np.empty((data.rows.size, 0)), search.r0
-    for b in base:  # orthonormal basis of the declared columns beyond the linear ones (subsample rows)
-        v = b[data.rows] - search.q @ (search.q.T @ b[data.rows])
-        if extra.shape[1]:
-            v = v - extra @ (extra.T @ v)
-        nv = float(np.linalg.norm(v))
-        if nv > 1e-9 * max(float(np.linalg.norm(b[data.rows])), 1e-300):
-            v = v / nv
-            extra = np.column_stack([extra, v])
-            r = r - v * (v @ r)
+    extra, r = search.basis(base)
     e, sg = search.err(extra, r)
     n_grid = {k: len(search.grids[k]) for k in kinds}
     names = tuple(t.label for t in declared)

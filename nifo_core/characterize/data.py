@@ -93,7 +93,8 @@ class RegressionData:
         """g(z, ż) band-passed per record like every other column; kept rows, stacked.
 
         ``offsets``: one ``offset`` [m] per record replacing the term's own (a bump stop measured
-        from the static position, which sits elsewhere in each record: :mod:`.characterize_static`).
+        from the static position, which sits elsewhere in each record: :mod:`.static`); a kind
+        without an ``offset`` parameter (quadratic stiffness) is evaluated on ``z - offset``.
         """
         if offsets is not None and len(offsets) != len(self.rfs):
             raise ConfigError(f"{len(offsets)} offsets for {len(self.rfs)} records")
@@ -102,9 +103,15 @@ class RegressionData:
         if hit is not None:
             return hit
         parts = []
+        own = "offset" in term.spec.params
         for i, (rf, k) in enumerate(zip(self.rfs, self.keep)):
-            t = term if offsets is None else Term(term.kind, {**term.params, "offset": float(offsets[i])})
-            parts.append(bandpass(t.evaluate(rf.z, rf.zdot), rf.fs_hz, rf.band)[k])
+            if offsets is None:
+                g = term.evaluate(rf.z, rf.zdot)
+            elif own:
+                g = Term(term.kind, {**term.params, "offset": float(offsets[i])}).evaluate(rf.z, rf.zdot)
+            else:  # a form without an offset of its own: evaluated on z measured from the static position
+                g = term.evaluate(rf.z - float(offsets[i]), rf.zdot)
+            parts.append(bandpass(g, rf.fs_hz, rf.band)[k])
         out = np.concatenate(parts)
         if len(self._cache) < 48:
             self._cache[key] = out
@@ -239,6 +246,21 @@ class GridSearch:
             ok &= sign > 0
         idx = np.nonzero(ok)[0]
         return int(idx[np.argmax(err[idx])]) if idx.size else None
+
+    def basis(self, base: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """Orthonormal basis of the ``base`` columns beyond the linear ones (subsample rows), and the residual."""
+        rows = self.data.rows
+        extra, r = np.empty((rows.size, 0)), self.r0
+        for b in base:
+            v = b[rows] - self.q @ (self.q.T @ b[rows])
+            if extra.shape[1]:
+                v = v - extra @ (extra.T @ v)
+            nv = float(np.linalg.norm(v))
+            if nv > 1e-9 * max(float(np.linalg.norm(b[rows])), 1e-300):
+                v = v / nv
+                extra = np.column_stack([extra, v])
+                r = r - v * (v @ r)
+        return extra, r
 
     def unit(self, j: int, extra: np.ndarray) -> np.ndarray:
         g = self.gp[:, j]

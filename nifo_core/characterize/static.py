@@ -17,6 +17,14 @@ a scalar root per record (a stiffening stop makes the right side monotone in m).
 The gap s from the static position is then fitted with, on each record, the
 regressor g(z + m_i; s) — the term with ``offset = -m_i`` — and m_i recomputed
 from the refitted k, θ.
+
+An even stiffness (``quadratic_stiffness``, z²) moves the mean too (its mean force
+θ·mean z² > 0), and unlike a symmetric term it is not the same function of z
+measured from the mean: (z + m)² = z² + 2m·z + m², a stiffness 2θ·m that differs from
+level to level (m grows with the motion) and that one linear k cannot hold; left
+so, a level-dependent term (a wide play, say) takes it up. Its regressor is
+evaluated on z + m_i too (``offset = -m_i``, the same balance, no gap to search):
+:func:`shifted_offsets` during the selection, :func:`static_bump_stops` with a stop.
 """
 
 from __future__ import annotations
@@ -29,10 +37,12 @@ from scipy import optimize
 from .data import RegressionData
 from ..kinds.describing import Term
 
-__all__ = ["mean_shift", "static_bump_stops"]
+__all__ = ["mean_shift", "static_bump_stops", "shifted_offsets", "STATIC_KINDS", "SHIFTED_KINDS"]
 
 #: kinds whose threshold is measured from the static position (one-sided: they move the mean)
 STATIC_KINDS = frozenset({"bump_stop"})
+#: kinds without a threshold that are evaluated on z from the static position (even: they move the mean)
+SHIFTED_KINDS = frozenset({"quadratic_stiffness"})
 
 
 def mean_shift(z: np.ndarray, zdot: np.ndarray, k_per_kg: float, terms: Sequence[tuple[Term, float]]) -> float:
@@ -70,6 +80,27 @@ def mean_shift(z: np.ndarray, zdot: np.ndarray, k_per_kg: float, terms: Sequence
     return float(optimize.brentq(balance, -a, a, xtol=1e-9 * a))
 
 
+def shifted_offsets(data: RegressionData, terms: Sequence[Term], *,
+                    iterations: int = 4) -> list[tuple[float, ...] | None]:
+    """Per term, the offsets -m_i of every record for the :data:`SHIFTED_KINDS` terms, else None (module docstring).
+
+    A fixed point: fit k, θ with the current offsets, solve the mean balance of every record
+    (:func:`mean_shift`, with the terms other than bump stops, whose gap is still from the mean),
+    repeat. All None when ``terms`` hold no shifted kind.
+    """
+    terms = list(terms)
+    which = [t.kind in SHIFTED_KINDS for t in terms]
+    if not any(which):
+        return [None] * len(terms)
+    nl = len(data.lin)
+    off = [0.0] * len(data.rfs)
+    for _ in range(iterations):
+        c, _ = _fit(data, terms, [tuple(off) if w else None for w in which])
+        pairs = [(t, float(c[nl + i])) for i, t in enumerate(terms) if t.kind not in STATIC_KINDS]
+        off = [-mean_shift(rf.z, rf.zdot, float(c[0]), pairs) for rf in data.rfs]
+    return [tuple(off) if w else None for w in which]
+
+
 def _fit(data: RegressionData, terms: list[Term], offsets: list[list[float] | None]) -> tuple[np.ndarray, float]:
     a = np.column_stack([data.x[:, data.lin], *[data.regressor(t, offsets=o) for t, o in zip(terms, offsets)]])
     c = np.linalg.lstsq(a, data.y, rcond=None)[0]
@@ -105,7 +136,8 @@ def static_bump_stops(data: RegressionData, terms: Sequence[Term], *,
         Per term: the offset -m_i [m] of every record (bump stops), else None.
     """
     terms = list(terms)
-    offsets: list[list[float] | None] = [None] * len(terms)
+    offsets: list = list(shifted_offsets(data, terms))
+    shifted = [t.kind in SHIFTED_KINDS for t in terms]
     for j, t in enumerate(terms):
         if t.kind not in STATIC_KINDS:
             continue
@@ -118,7 +150,8 @@ def static_bump_stops(data: RegressionData, terms: Sequence[Term], *,
             for _ in range(3):  # m depends on k and θ, which depend on the offsets: a few fixed-point steps
                 off = _offsets(data, terms, cc, j, s)
                 trial_terms = terms[:j] + [Term(t.kind, {**t.params, "gap": s})] + terms[j + 1:]
-                cc, rss = _fit(data, trial_terms, offsets[:j] + [off] + offsets[j + 1:])
+                trial_off = [off if (i == j or shifted[i]) else o for i, o in enumerate(offsets)]
+                cc, rss = _fit(data, trial_terms, trial_off)
             return rss, s, off
 
         grid = np.linspace(0.3, 1.05, points) * g_mean
@@ -131,5 +164,5 @@ def static_bump_stops(data: RegressionData, terms: Sequence[Term], *,
         _, s, off = best
         main = int(np.argmax([float(np.std(rf.z)) for rf in data.rfs]))
         terms[j] = Term(t.kind, {**t.params, "gap": float(s), "offset": float(off[main])})
-        offsets[j] = off
+        offsets = [off if (i == j or shifted[i]) else o for i, o in enumerate(offsets)]
     return terms, [None if o is None else tuple(float(v) for v in o) for o in offsets]
