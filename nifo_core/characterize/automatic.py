@@ -65,7 +65,7 @@ import numpy as np
 from .data import GridSearch, RegressionData, candidate_grid
 from .result import (DEFAULT_KINDS, POSITIVE_KINDS, Candidate, Characterization, FittedModel,
                                   RecordSummary, Thresholds)
-from .score import lstsq, score_candidate
+from .score import detection_limit, lstsq, score_candidate
 from .static import shifted_offsets, static_bump_stops
 from ..kinds.describing import Term, kind as lookup_kind
 from ..errors import ConfigError, InputError
@@ -216,6 +216,30 @@ def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None
                               for i, (o, rf) in enumerate(zip(c.offsets, rfs)))
             notes.append(f"{c.term.label}: gap from the static position; the mean position sat {where} from it "
                          f"(rebound positive), found from the balance of the mean force")
+    unseen = []
+    e, sg = search.err(extra, r)
+    for k in [c.kind for c in out if c.status in ("weak", "alternative", "redundant")]:
+        # what was not seen, and how big it would have had to be: the kind's best given the suggestion
+        j = search.best_of(k, e, sg)
+        t = search.terms[j if j is not None else best1[k]]
+        th, peak = detection_limit(data, base, t, thresholds=thresholds, n_grid=n_grid[k])
+        if not np.isfinite(th):
+            continue
+        unit = t.spec.coef_unit if m2_kg else f"{t.spec.coef_unit}/kg"
+        scale = m2_kg or 1.0
+        force = f"±{th * peak * scale:.3g} N" + ("" if m2_kg else " per kg of M2")
+        text = f"{t.label} with |coefficient| below {th * scale:.3g} {unit} (peak force below {force}"
+        kp = t.spec.key_param
+        if kp is not None and len(search.grids[k]) > 2:  # the limit depends on the parameter: at the grid's ends
+            ends = []
+            for g in (search.grids[k][0], search.grids[k][-1]):
+                th_g, _ = detection_limit(data, base, g, thresholds=thresholds, n_grid=n_grid[k])
+                ends.append(f"{th_g * scale:.3g} {unit} at {kp}={float(g.params[kp]):.3g}")
+            text += f"; {', '.join(ends)}"
+        unseen.append(text + ")")
+    if unseen:
+        notes.append("could not have been seen in these data (detection limits given the suggested terms, "
+                     "their noise, levels and length): " + "; ".join(unseen))
     if lin["r2"] < 0.9:
         notes.append(f"the linear fit explains only {100 * lin['r2']:.0f} % of the force: the rest is noise or "
                      f"dynamics outside the one-mass equation of the output side (another mode, a second load "

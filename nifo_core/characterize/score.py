@@ -13,7 +13,7 @@ from .result import POSITIVE_KINDS, Candidate, Thresholds
 from ..kinds.describing import Term
 from ..signal.uncertainty import effective_samples
 
-__all__ = ["score_candidate", "lstsq"]
+__all__ = ["score_candidate", "lstsq", "detection_limit"]
 
 _EQUIVALENT = {"clearance": ("saturation", "gap", "limit"),
                "velocity_deadzone": ("velocity_saturation", "knee", "limit")}
@@ -166,3 +166,33 @@ def _canonical(term: Term, theta: float) -> tuple[Term, float, str | None]:
         name, kp, kq = _EQUIVALENT[term.kind]
         return term, 1.0, f"{name}({kq}={float(term.params[kp]):.4g}) with the opposite coefficient"
     return term, 1.0, None
+
+
+def detection_limit(data: RegressionData, base: list[np.ndarray], term: Term, *, thresholds: Thresholds,
+                    n_grid: int) -> tuple[float, float]:
+    """Smallest coefficient θ [per kg] of ``term`` that these data would have shown beside ``base``, and its peak g.
+
+    Adding θ·g to the truth lowers the residual sum of squares of the fit [z, ż, base] by
+    θ²·Σg⊥² (g⊥: g band-limited and orthogonalised against those columns), so the smallest θ
+    that passes the F-test at α/n_grid (N_eff effective samples, as :func:`score_candidate`)
+    and explains ``min_err`` of the residual is (the loop's detection limit, docs/method.md §5)
+
+        θ_min = sqrt( max(F_crit·RSS/dof, min_err·RSS) / Σg⊥² ),   F_crit = F⁻¹(1 - α/n_grid; 1, dof).
+
+    Returns ``(θ_min, |g|₉₉.₅)`` (the 99.5 % quantile of |g| on the measured motion: θ_min times it
+    is the peak force per kg of M2 of the smallest visible effect); θ_min is inf when g lies in
+    the span of the other columns.
+    """
+    a0 = np.column_stack([data.x, *base]) if base else data.x
+    res = data.y - a0 @ lstsq(a0, data.y)
+    rss = float(res @ res)
+    q, _ = np.linalg.qr(a0)
+    g = data.regressor(term)
+    gp = g - q @ (q.T @ g)
+    info = float(gp @ gp)
+    peak = float(np.quantile(np.abs(np.concatenate([term.evaluate(rf.z, rf.zdot) for rf in data.rfs])), 0.995))
+    if not info > 1e-12 * float(g @ g):
+        return float("inf"), peak
+    dof = max(_n_eff(res, data.rec, [rf.fs_hz for rf in data.rfs]) - a0.shape[1] - 1, 1.0)
+    f_crit = float(stats.f.isf(min(thresholds.alpha / max(n_grid, 1), 0.5), 1, dof))
+    return float(np.sqrt(max(f_crit * rss / dof, thresholds.min_err * rss) / info)), peak
