@@ -43,6 +43,11 @@ A candidate counts as *present* only if all of (:class:`Thresholds`):
   noise-free data the linear residual is rounding, and any ERR means nothing),
 - ``coulomb`` only with c > 0 (friction that feeds energy in is an artefact).
 
+What was not found is not called absent: for every kind not suggested, a note gives
+its detection limit given the suggested model (:func:`~.score.detection_limit`, the
+loop's formula): the smallest coefficient these data, their noise, levels and length
+would have shown, at the kind's best parameter and at both ends of its grid.
+
 ``backlash`` with c < 0 is physical: a·z + c·play(z) with c = -a is a spring in
 series with dry friction (Jenkins element, stick-slip; its force saturates at
 |c|·deadband/2, paper §3.3 after Ferri), the loops with flat tops of paper Fig. 7b.
