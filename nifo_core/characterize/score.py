@@ -13,7 +13,7 @@ from .result import POSITIVE_KINDS, Candidate, Thresholds
 from ..kinds.describing import Term
 from ..signal.uncertainty import effective_samples
 
-__all__ = ["score_candidate", "lstsq", "detection_limit"]
+__all__ = ["score_candidate", "lstsq", "detection_limit", "smallest_visible"]
 
 _EQUIVALENT = {"clearance": ("saturation", "gap", "limit"),
                "velocity_deadzone": ("velocity_saturation", "knee", "limit")}
@@ -194,5 +194,12 @@ def detection_limit(data: RegressionData, base: list[np.ndarray], term: Term, *,
     if not info > 1e-12 * float(g @ g):
         return float("inf"), peak
     dof = max(_n_eff(res, data.rec, [rf.fs_hz for rf in data.rfs]) - a0.shape[1] - 1, 1.0)
+    return smallest_visible(rss, info, dof, thresholds=thresholds, n_grid=n_grid), peak
+
+
+def smallest_visible(rss: float, info: float, dof: float, *, thresholds: Thresholds, n_grid: int) -> float:
+    """θ_min = sqrt( max(F_crit·RSS/dof, min_err·RSS) / Σg⊥² ), F_crit = F⁻¹(1 - α/n_grid; 1, dof): the smallest
+    coefficient of a column with Σg⊥² = ``info`` beyond the fit's residual ``rss`` that passes the F-test and
+    explains ``min_err`` of the residual (:func:`detection_limit`; the loop's :mod:`nifo_core.loop.detection`)."""
     f_crit = float(stats.f.isf(min(thresholds.alpha / max(n_grid, 1), 0.5), 1, dof))
-    return float(np.sqrt(max(f_crit * rss / dof, thresholds.min_err * rss) / info)), peak
+    return float(np.sqrt(max(f_crit * rss / dof, thresholds.min_err * rss) / info))

@@ -58,11 +58,11 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
-from scipy import stats
 
 from ..characterize.automatic import Candidate, Thresholds
 from ..kinds.describing import Term
 from ..characterize.restoring import RestoringForce, bandpass, bandpass_settle_samples
+from ..characterize.score import smallest_visible
 
 __all__ = ["DetectionLimit", "Confounding", "Undetermined", "detection_limits", "confounded_pairs",
            "undetermined_terms"]
@@ -314,8 +314,7 @@ def detection_limits(rfs: Sequence[RestoringForce], terms: Sequence[Term], candi
         if not info > 0:
             continue
         dof = max(float(c.n_eff) - x.shape[1] - 1, 1.0)
-        f_crit = float(stats.f.isf(min(thresholds.alpha / max(n_grid, 1), 0.5), 1, dof))
-        theta = float(np.sqrt(max(f_crit * rss / dof, thresholds.min_err * rss) / info))
+        theta = smallest_visible(rss, info, dof, thresholds=thresholds, n_grid=n_grid)
         raw = np.concatenate([np.abs(c.term.evaluate(rf.z, rf.zdot)) for rf in rfs])
         peak = theta * float(np.quantile(raw, 0.995)) * (m2_kg or 1.0)
         out.append(DetectionLimit(term=c.term, theta_per_kg=theta,

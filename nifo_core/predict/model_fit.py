@@ -30,7 +30,7 @@ import numpy as np
 
 from ..kinds.describing import Term
 from ..errors import ConfigError, NifoError
-from .feedback_paths import (PATH_KINDS, JointFit, PathResult, equivalent_gammas, fit_joint, path_model,
+from .feedback_paths import (PATH_KINDS, JointFit, PathResult, equivalent_gammas, fit_joint,
                              regimes_stable)
 from .heldout import HeldOut, Scores, split_records
 from .linear_part import RecordLines, pole_residue_response
