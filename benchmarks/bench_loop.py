@@ -18,7 +18,7 @@ significant digits, NMSE to 2, the same verdict. PASS/FAIL against the target: â
 
 Usage::
 
-    PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_loop.py [--f16] [--write-baseline] [--keep DIR]
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_loop.py [--f16] [--serial] [--write-baseline] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -134,6 +134,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, default=300.0, help="simulated record length per level [s]")
     ap.add_argument("--write-baseline", action="store_true", help="store this run's result as the baseline")
     ap.add_argument("--keep", type=Path, help="work in this directory (kept) instead of a temporary one")
+    ap.add_argument("--serial", action="store_true", help="also run the loop on one core (NIFO_THREADS=1, "
+                    "NIFO_FIGURE_WORKERS=0) in the same run: the gain, and the same model.json byte for byte")
     ap.add_argument("--no-identify", action="store_true", help="skip the in-run `nifo identify` yardstick")
     args = ap.parse_args(argv)
     base_path = HERE / ("bench_loop_f16_baseline.json" if args.f16 else "bench_loop_baseline.json")
@@ -155,6 +157,12 @@ def main(argv: list[str] | None = None) -> int:
         print(what, flush=True)
         t_loop = _nifo(["loop", *data, *common, *loop_only, "--out", str(work / "loop")])
         got = summary(work / "loop" / "loop.json")
+        if args.serial:     # the same loop on one core: the threads' and figure helpers' gain, the same result
+            t_ser = _nifo(["loop", *data, *common, *loop_only, "--out", str(work / "loop_serial")],
+                          NIFO_THREADS="1", NIFO_FIGURE_WORKERS="0")
+            same = (work / "loop" / "model.json").read_bytes() == (work / "loop_serial" / "model.json").read_bytes()
+            print(f"one core (NIFO_THREADS=1, no figure helpers): {t_ser:.1f} s; this run {t_ser / t_loop:.2f}x faster; "
+                  f"model.json {'identical' if same else 'DIFFERENT'}")
         t_id = None if args.no_identify else _nifo(["identify", *data, *common, "--out", str(work / "ident")])
 
     if t_id is not None:
