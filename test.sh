@@ -10,5 +10,10 @@ source "$here/tools/bootstrap.sh"
 nifo_need_chromium
 nifo_bootstrap "$here" "test"
 cd "$here"
-[ "$#" -eq 0 ] && set -- -n auto --dist loadfile --no-loadscope-reorder   # files in tests/durations.json order
+if [ "$#" -eq 0 ]; then
+  set -- -n auto --dist loadfile --no-loadscope-reorder   # files in tests/durations.json order
+  # the workers are the parallelism (as a fleet's are): nifo's simulations stay on one thread in each, so the
+  # ROS graph tests beside them keep their cores (tests/test_parallel.py sets its own threads)
+  export NIFO_THREADS="${NIFO_THREADS:-1}"
+fi
 exec "$here/.venv/bin/python" -m pytest "$@"

@@ -29,6 +29,7 @@ import numpy as np
 from ..errors import InputError, NifoError
 from .model import IdentifiedModel, predict_body, record_inputs
 from .prediction_error import band_nmse
+from ..signal.parallel import thread_map
 from ..signal.record import Record
 from .refine import start_up_samples
 
@@ -114,8 +115,8 @@ class HeldOut:
         record's length (NaN where not simulated): ``part='held-out'`` from a warm-up before the held-out part
         (:meth:`warmup`) to the end, ``'fit'`` from the record's first sample to the end of its fit part,
         ``'whole'`` all of it."""
-        out = []
-        for i, r in enumerate(self.records):
+        def one(i: int) -> np.ndarray:
+            r = self.records[i]
             if part == "held-out":
                 lo, hi = self.split[i] - self.warmup(model, i), r.n
             elif part == "fit":
@@ -126,8 +127,8 @@ class HeldOut:
             a1, force = record_inputs(seg, model)
             y = np.full(r.n, np.nan)
             y[lo:hi] = predict_body(model, a1, r.fs_hz, force=force, label=r.source).body_accel
-            out.append(y)
-        return out
+            return y
+        return thread_map(one, range(len(self.records)))     # the records side by side (pure simulations)
 
     def score(self, model: IdentifiedModel, *, part: str = "held-out") -> Scores:
         """Band NMSE of ``model`` on the held-out parts (``part='fit'``: on the fit parts, in-sample)."""
