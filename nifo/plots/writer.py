@@ -60,7 +60,8 @@ def figure_workers() -> int:
 
 
 def write_files(fig, path: str | Path, dpi: int) -> None:
-    """The PNG at ``path`` and the vector files beside it (:data:`nifo.plots.VECTOR_SUFFIXES`), then close."""
+    """The PNG at ``path`` and the vector files beside it (:data:`nifo.plots.VECTOR_SUFFIXES`); the caller
+    closes ``fig``."""
     for p in _targets(path):
         _render(fig, p, dpi)
 

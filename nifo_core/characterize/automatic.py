@@ -70,7 +70,7 @@ import numpy as np
 from .data import GridSearch, RegressionData, candidate_grid
 from .result import (DEFAULT_KINDS, POSITIVE_KINDS, Candidate, Characterization, FittedModel,
                                   RecordSummary, Thresholds)
-from .score import detection_limit, lstsq, score_candidate
+from .score import base_fit, detection_limit, lstsq, score_candidate
 from .static import shifted_offsets, static_bump_stops
 from ..kinds.describing import Term, kind as lookup_kind
 from ..errors import ConfigError, InputError
@@ -211,23 +211,20 @@ def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None
         notes.append("no nonlinear candidate met the thresholds: no form of the library explains what the "
                      "linear fit leaves")
     for c in chosen:
-        if c.offsets and c.kind != "bump_stop":
+        if c.offsets:
             where = ", ".join(f"{1e3 * -o:+.2f} mm ({rf.source or f'record {i}'})"
                               for i, (o, rf) in enumerate(zip(c.offsets, rfs)))
-            notes.append(f"{c.term.label}: z measured from the static position; the mean position sat {where} "
-                         f"from it (rebound positive), found from the balance of the mean force")
-        elif c.offsets:
-            where = ", ".join(f"{1e3 * -o:+.2f} mm ({rf.source or f'record {i}'})"
-                              for i, (o, rf) in enumerate(zip(c.offsets, rfs)))
-            notes.append(f"{c.term.label}: gap from the static position; the mean position sat {where} from it "
-                         f"(rebound positive), found from the balance of the mean force")
+            what = "gap from the static position" if c.kind == "bump_stop" else "z measured from the static position"
+            notes.append(f"{c.term.label}: {what}; the mean position sat {where} from it (rebound positive), "
+                         f"found from the balance of the mean force")
     unseen = []
     e, sg = search.err(extra, r)
+    against = base_fit(data, base)      # every limit is measured against the same fit
     for k in [c.kind for c in out if c.status in ("weak", "alternative", "redundant")]:
         # what was not seen, and how big it would have had to be: the kind's best given the suggestion
         j = search.best_of(k, e, sg)
         t = search.terms[j if j is not None else best1[k]]
-        th, peak = detection_limit(data, base, t, thresholds=thresholds, n_grid=n_grid[k])
+        th, peak = detection_limit(data, base, t, thresholds=thresholds, n_grid=n_grid[k], fit=against)
         if not np.isfinite(th):
             continue
         unit = t.spec.coef_unit if m2_kg else f"{t.spec.coef_unit}/kg"
@@ -238,7 +235,7 @@ def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None
         if kp is not None and len(search.grids[k]) > 2:  # the limit depends on the parameter: at the grid's ends
             ends = []
             for g in (search.grids[k][0], search.grids[k][-1]):
-                th_g, _ = detection_limit(data, base, g, thresholds=thresholds, n_grid=n_grid[k])
+                th_g, _ = detection_limit(data, base, g, thresholds=thresholds, n_grid=n_grid[k], fit=against)
                 ends.append(f"{th_g * scale:.3g} {unit} at {kp}={float(g.params[kp]):.3g}")
             text += f"; {', '.join(ends)}"
         unseen.append(text + ")")

@@ -13,7 +13,7 @@ from .result import POSITIVE_KINDS, Candidate, Thresholds
 from ..kinds.describing import Term
 from ..signal.uncertainty import effective_samples
 
-__all__ = ["score_candidate", "lstsq", "detection_limit", "smallest_visible"]
+__all__ = ["score_candidate", "lstsq", "base_fit", "detection_limit", "smallest_visible"]
 
 _EQUIVALENT = {"clearance": ("saturation", "gap", "limit"),
                "velocity_deadzone": ("velocity_saturation", "knee", "limit")}
@@ -168,8 +168,19 @@ def _canonical(term: Term, theta: float) -> tuple[Term, float, str | None]:
     return term, 1.0, None
 
 
+def base_fit(data: RegressionData, base: list[np.ndarray]) -> tuple[np.ndarray, float, float]:
+    """The fit [z, ż, base] every :func:`detection_limit` beside ``base`` is measured against: (orthonormal
+    basis of its columns, its residual sum of squares, its degrees of freedom N_eff - q - 1). Computed once
+    for all the kinds a note covers."""
+    a0 = np.column_stack([data.x, *base]) if base else data.x
+    res = data.y - a0 @ lstsq(a0, data.y)
+    q, _ = np.linalg.qr(a0)
+    dof = max(_n_eff(res, data.rec, [rf.fs_hz for rf in data.rfs]) - a0.shape[1] - 1, 1.0)
+    return q, float(res @ res), dof
+
+
 def detection_limit(data: RegressionData, base: list[np.ndarray], term: Term, *, thresholds: Thresholds,
-                    n_grid: int) -> tuple[float, float]:
+                    n_grid: int, fit: tuple[np.ndarray, float, float] | None = None) -> tuple[float, float]:
     """Smallest coefficient θ [per kg] of ``term`` that these data would have shown beside ``base``, and its peak g.
 
     Adding θ·g to the truth lowers the residual sum of squares of the fit [z, ż, base] by
@@ -179,21 +190,18 @@ def detection_limit(data: RegressionData, base: list[np.ndarray], term: Term, *,
 
         θ_min = sqrt( max(F_crit·RSS/dof, min_err·RSS) / Σg⊥² ),   F_crit = F⁻¹(1 - α/n_grid; 1, dof).
 
+    ``fit``: :func:`base_fit` of ``data`` and ``base``, when several terms are measured against the same base.
     Returns ``(θ_min, |g|₉₉.₅)`` (the 99.5 % quantile of |g| on the measured motion: θ_min times it
     is the peak force per kg of M2 of the smallest visible effect); θ_min is inf when g lies in
     the span of the other columns.
     """
-    a0 = np.column_stack([data.x, *base]) if base else data.x
-    res = data.y - a0 @ lstsq(a0, data.y)
-    rss = float(res @ res)
-    q, _ = np.linalg.qr(a0)
+    q, rss, dof = base_fit(data, base) if fit is None else fit
     g = data.regressor(term)
     gp = g - q @ (q.T @ g)
     info = float(gp @ gp)
     peak = float(np.quantile(np.abs(np.concatenate([term.evaluate(rf.z, rf.zdot) for rf in data.rfs])), 0.995))
     if not info > 1e-12 * float(g @ g):
         return float("inf"), peak
-    dof = max(_n_eff(res, data.rec, [rf.fs_hz for rf in data.rfs]) - a0.shape[1] - 1, 1.0)
     return smallest_visible(rss, info, dof, thresholds=thresholds, n_grid=n_grid), peak
 
 
