@@ -40,7 +40,6 @@ from nifo.pipeline.identify import run_identify
 from nifo.pipeline.options import CharacterizeOptions, IdentifyOptions, LoopOptions, PredictOptions, RunOptions
 from nifo.pipeline.predict import run_predict
 from nifo.settings import resolve
-from nifo.viz.offline import save_recording
 from nifo.viz.report_html import write_report
 from nifo.viz.results import read_results
 from nifo_core.errors import NifoError
@@ -212,6 +211,8 @@ def _run(args: RunOptions, data: list[Path], out: Path) -> dict:
     timings["report"] = time.monotonic() - t
     if not args.no_recording:
         t = begin("recording: Rerun .rrd with the live layout")
+        from nifo.viz.offline import save_recording   # rerun (a second to import) only when a recording is asked for
+
         save_recording(read, rrd)
         timings["recording"] = time.monotonic() - t
 
