@@ -15,5 +15,8 @@ if [ "$#" -eq 0 ]; then
   # the workers are the parallelism (as a fleet's are): nifo's simulations stay on one thread in each, so the
   # ROS graph tests beside them keep their cores (tests/test_parallel.py sets its own threads)
   export NIFO_THREADS="${NIFO_THREADS:-1}"
+  # and render their figures in the test's own process: helper processes beside two busy workers only add their
+  # start-up (tests/test_figure_writer.py and tests/test_kill.py run with the helpers a user's nifo has)
+  export NIFO_FIGURE_WORKERS="${NIFO_FIGURE_WORKERS:-0}"
 fi
 exec "$here/.venv/bin/python" -m pytest "$@"

@@ -11,6 +11,32 @@ REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("NIFO_SHARED_DATA", REPO.parent / "shared" / "data"))
 
 
+def built_once(tmp_path_factory, name: str, build) -> Path:
+    """``build(directory)`` once for the whole test run, across pytest-xdist's workers too; the directory.
+
+    The expensive results several test files read (a ``nifo run`` of the sample, of the F-16, of the simulated
+    pair) are built by the first worker that asks and read by the others: the workers share the run's base
+    temporary directory, and an exclusive lock on ``name.lock`` there makes a second asker wait for the first
+    build rather than repeat it. A build that raised leaves no ``.built`` mark, so the next asker builds again
+    (and fails the same way). Readers must not write into the directory."""
+    import fcntl
+
+    base = tmp_path_factory.getbasetemp()
+    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    target = root / name
+    with open(root / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (target / ".built").is_file():
+            if target.exists():
+                import shutil
+
+                shutil.rmtree(target)
+            target.mkdir()
+            build(target)
+            (target / ".built").touch()
+    return target
+
+
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
     if not SHARED_DATA.is_dir():

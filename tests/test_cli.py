@@ -28,7 +28,7 @@ SAMPLE = REPO / "bags" / "sample" / "road_1mm"
 
 @pytest.fixture(scope="module")
 def ran(tmp_path_factory):
-    out, code, _ = pipeline(tmp_path_factory.getbasetemp() / "nifo_run")
+    out, code, _ = pipeline(tmp_path_factory)
     assert code == 0
     return out
 

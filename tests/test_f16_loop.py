@@ -13,10 +13,13 @@ from __future__ import annotations
 
 import json
 import warnings
+from pathlib import Path
 
 import pytest
 
 from nifo.cli import main
+
+from conftest import built_once
 
 COLUMNS = ["--columns", "spindle_accel=Acceleration[1],body_accel=Acceleration[2],fs=Fs"]
 
@@ -62,11 +65,24 @@ def test_nifo_loop_on_level_1_alone_adds_nothing(f16, tmp_path):
     assert doc["effects_added"] == [], doc["report"]
 
 
+#: what the F-16 data are in the report (passed as --system)
+SYSTEM = "F-16 wing-payload interface (ground vibration test) [m/s²]"
+
+
+def f16_run_once(tmp_path_factory, f16) -> Path:
+    """``nifo run`` on the multisine levels 3/5/7 (hands off: only the columns and what the system is), built once
+    per test run and shared with test_report_browser.py; its output directory."""
+    def build(base: Path) -> None:
+        assert _quietly(["run", *[f16 / f"F16Data_FullMSine_Level{k}.mat" for k in (3, 5, 7)], *COLUMNS,
+                         "--system", SYSTEM, "--out", base / "out", "--no-recording"]) == 0
+
+    return built_once(tmp_path_factory, "f16_run_357", build) / "out"
+
+
 @pytest.mark.slow
-def test_nifo_run_on_levels_3_5_7_predicts_the_held_out_level_1_better_than_linear_on_both_excitations(f16, tmp_path):
-    out = tmp_path / "run"
-    assert _quietly(["run", *[f16 / f"F16Data_FullMSine_Level{k}.mat" for k in (3, 5, 7)], *COLUMNS, "--out", out,
-                     "--no-recording"]) == 0
+def test_nifo_run_on_levels_3_5_7_predicts_the_held_out_level_1_better_than_linear_on_both_excitations(
+        f16, tmp_path, tmp_path_factory):
+    out = f16_run_once(tmp_path_factory, f16)
     got = {}
     for exc in ("FullMSine", "SineSw"):
         pred = tmp_path / exc

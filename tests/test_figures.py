@@ -19,7 +19,7 @@ from test_run_cmd import pipeline
 
 @pytest.fixture(scope="module")
 def ran(tmp_path_factory):
-    out, code, _ = pipeline(tmp_path_factory.getbasetemp() / "nifo_run")
+    out, code, _ = pipeline(tmp_path_factory)
     assert code == 0
     return out
 

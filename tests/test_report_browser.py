@@ -1,7 +1,7 @@
 """The HTML report rendered in headless Chromium (Debian's ``chromium``; ``./test.sh`` installs it).
 
 Rendered: the report of ``nifo run`` on the bundled sample (bags/sample, with its truth files) and on
-two levels of the F-16 ground vibration test (real data, MAT files read with --columns; Noël &
+the multisine levels 3, 5 and 7 of the F-16 ground vibration test (real data, MAT files read with --columns; Noël &
 Schoukens 2017, nonlinearbenchmark.org). Every figure must load and every cell of the provenance
 table must be filled.
 
@@ -23,7 +23,8 @@ from pathlib import Path
 import pytest
 
 from nifo.cli import main
-from test_run_cmd import pipeline
+from test_f16_loop import f16_run_once
+from test_run_cmd import pipeline, sample_run_once
 
 REPO = Path(__file__).resolve().parents[1]
 CHROMIUM = shutil.which("chromium") or ("/usr/bin/chromium" if Path("/usr/bin/chromium").exists() else None)
@@ -60,26 +61,15 @@ def chromium():
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory) -> Path:
-    out, code, _ = pipeline(tmp_path_factory.getbasetemp() / "nifo_run")
+    out, code, _ = pipeline(tmp_path_factory)
     assert code == 0
-    return out / "report" / "report.html"
-
-
-def _run(out: Path, *argv: str) -> Path:
-    import contextlib
-    import io
-
-    with contextlib.redirect_stdout(io.StringIO()):
-        assert main(["run", *argv, "--out", str(out), "--no-recording"]) == 0
     return out / "report" / "report.html"
 
 
 @pytest.fixture(scope="module")
 def sample_report(tmp_path_factory) -> Path:
-    """``nifo run`` on the bundled sample (two simulated road levels with their truth files)."""
-    from nifo.commands.run import sample_data
-
-    return _run(tmp_path_factory.mktemp("sample") / "out", *map(str, sample_data()))
+    """``nifo run`` on the bundled sample (three simulated road levels with their truth files)."""
+    return sample_run_once(tmp_path_factory)[0] / "report" / "report.html"
 
 
 #: the F-16 GVT's two sides of the nonlinear interface (data/README.md): wing row 1, payload row 2
@@ -88,10 +78,12 @@ F16_COLUMNS = "spindle_accel=Acceleration[1],body_accel=Acceleration[2],fs=Fs"
 
 @pytest.fixture(scope="module")
 def f16_report(tmp_path_factory, shared_data) -> Path:
-    """``nifo run`` on F-16 sine sweeps at levels 1 and 7 (real data, read with --columns)."""
-    files = [shared_data / "f16" / f"F16Data_SineSw_Level{k}.mat" for k in (1, 7)]
-    return _run(tmp_path_factory.mktemp("f16") / "out", *map(str, files), "--columns", F16_COLUMNS,
-                "--system", "F-16 wing-payload interface (ground vibration test) [m/s²]")
+    """``nifo run`` on the F-16 multisine at levels 3, 5 and 7 (real data, read with --columns; the run
+    test_f16_loop.py checks the predictions of)."""
+    d = shared_data / "f16"
+    if not all((d / f"F16Data_FullMSine_Level{k}.mat").is_file() for k in (3, 5, 7)):
+        pytest.skip(f"F-16 files not found in {d}")
+    return f16_run_once(tmp_path_factory, d) / "report" / "report.html"
 
 
 def _chromium(chromium: str, tmp: Path, *args: str) -> subprocess.CompletedProcess:
@@ -153,8 +145,8 @@ def test_report_of_sample_and_f16_loads_every_figure_and_fills_every_provenance_
     assert len(seen["imgs"]) >= 5, seen["imgs"]
     assert all(i["complete"] and i["width"] > 0 for i in seen["imgs"]), seen["imgs"]
     assert not any(i["external"] for i in seen["imgs"]) and not seen["ext"] and not seen["errors"]
-    # one row per data file: the sample's three levels, two F-16 levels
-    assert len(seen["prov"]) == (3 if which == "sample_report" else 2), seen["prov"]
+    # one row per data file: the sample's three levels, three F-16 levels
+    assert len(seen["prov"]) == 3, seen["prov"]
     for row in seen["prov"]:
         assert len(row) == 6, row                            # path, format, fs, duration, size, channels
         for cell in row:

@@ -2,13 +2,12 @@
 
 The bundled sample (2 x 120 s) is what ``./nifo.sh`` runs; CI uses a 60 s pair
 of the same simulated car (same preset, noise, two road levels) to keep time.
-:func:`pipeline` runs it once per session and is shared with test_viz.py and
-test_report_browser.py.
+:func:`pipeline` runs it once per test run, across pytest-xdist's workers too, and is shared with
+test_cli.py, test_figures.py, test_viz.py and test_report_browser.py.
 """
 
 from __future__ import annotations
 
-import functools
 import json
 from pathlib import Path
 
@@ -16,18 +15,17 @@ import pytest
 
 from nifo.cli import main
 
+from conftest import built_once
+
 DURATION_S = 60
 
 
-@functools.lru_cache(maxsize=None)
-def pipeline(base: Path) -> tuple[Path, int, str]:
-    """Simulate two levels and ``nifo --json run`` them into ``base/out``: (out, exit code, the human text).
-
-    The human text goes to stderr under --json; the JSON summary (stdout) is kept in ``base/run.json``."""
+def _build_pipeline(base: Path) -> None:
+    """Simulate two levels and ``nifo --json run`` them into ``base/out``; the JSON summary (stdout) goes to
+    ``base/run.json``, the human text (stderr under --json) to ``base/run.txt``, the exit code to ``base/exit``."""
     import contextlib
     import io
 
-    base.mkdir(parents=True, exist_ok=True)
     data = []
     for name, rms, seed in (("road_lo", "1.0", 11), ("road_hi", "2.5", 12)):
         p = base / name
@@ -37,13 +35,21 @@ def pipeline(base: Path) -> tuple[Path, int, str]:
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         code = main(["--json", "run", *data, "--out", str(base / "out")])
-    (base / "run.json").write_text(out.getvalue())   # --json: the summary document alone on stdout
-    return base / "out", code, err.getvalue()
+    (base / "run.json").write_text(out.getvalue())
+    (base / "run.txt").write_text(err.getvalue())
+    (base / "exit").write_text(str(code))
+
+
+def pipeline(tmp_path_factory) -> tuple[Path, int, str]:
+    """The simulated pair's ``nifo --json run``, built once per test run (:func:`conftest.built_once`): (out, exit
+    code, the human text)."""
+    base = built_once(tmp_path_factory, "nifo_run", _build_pipeline)
+    return base / "out", int((base / "exit").read_text()), (base / "run.txt").read_text()
 
 
 @pytest.fixture(scope="module")
 def ran(tmp_path_factory):
-    return pipeline(tmp_path_factory.getbasetemp() / "nifo_run")
+    return pipeline(tmp_path_factory)
 
 
 def test_run_writes_each_step_in_its_own_directory_with_report_and_recording(ran):
@@ -115,17 +121,27 @@ def test_run_json_is_one_document_naming_every_result(ran):
 # --------------------------------------------------------------------------------------------
 # the bundled sample: the main job chooses the paper's two-step model from the levels
 # --------------------------------------------------------------------------------------------
-@pytest.fixture(scope="module")
-def sample_run(tmp_path_factory):
+def _build_sample_run(base: Path) -> None:
     import contextlib
     import io
 
-    out = tmp_path_factory.getbasetemp() / "sample_run"
     buf = io.StringIO()
     with contextlib.redirect_stdout(buf):
-        code = main(["run", "--out", str(out), "--no-loop", "--no-recording"])
-    assert code == 0
-    return out, buf.getvalue()
+        code = main(["run", "--out", str(base / "out"), "--no-recording"])
+    (base / "run.txt").write_text(buf.getvalue())
+    assert code == 0, buf.getvalue()[-2000:]
+
+
+def sample_run_once(tmp_path_factory) -> tuple[Path, str]:
+    """``nifo run`` on the bundled sample as ``./nifo.sh`` runs it (without the recording), built once per test
+    run and shared with test_report_browser.py: (out, what it printed)."""
+    base = built_once(tmp_path_factory, "sample_run", _build_sample_run)
+    return base / "out", (base / "run.txt").read_text()
+
+
+@pytest.fixture(scope="module")
+def sample_run(tmp_path_factory):
+    return sample_run_once(tmp_path_factory)
 
 
 def _sample_truth() -> tuple[dict, dict]:

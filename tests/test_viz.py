@@ -26,7 +26,7 @@ VIEWS = {  # space origin -> view class the blueprint must lay out
 
 @pytest.fixture(scope="module")
 def ran(tmp_path_factory):
-    return pipeline(tmp_path_factory.getbasetemp() / "nifo_run")
+    return pipeline(tmp_path_factory)
 
 
 def _entities(path: Path) -> dict[str, list]:

@@ -39,8 +39,7 @@ from nifo.pipeline.characterize import run_characterize
 from nifo.pipeline.identify import run_identify
 from nifo.pipeline.options import CharacterizeOptions, IdentifyOptions, LoopOptions, PredictOptions, RunOptions
 from nifo.pipeline.predict import run_predict
-from nifo.settings import resolve
-from nifo.viz.offline import save_recording
+from nifo.settings import probe_memo, resolve
 from nifo.viz.report_html import write_report
 from nifo.viz.results import read_results
 from nifo_core.errors import NifoError
@@ -109,7 +108,8 @@ def run_job(args: RunOptions) -> dict:
     data = [Path(p) for p in args.data]
     start_helpers()      # the figure helpers import matplotlib while the settings are chosen
     # all old or all new: the old --out is kept aside until the run succeeds (INCOMPLETE marks a killed run)
-    with staged_run(args.out) as out:
+    # the steps read the same files: each resolves its settings from them, probed once (nifo.settings.probe_memo)
+    with staged_run(args.out) as out, probe_memo():
         return _run(args, data, out)
 
 
@@ -212,6 +212,8 @@ def _run(args: RunOptions, data: list[Path], out: Path) -> dict:
     timings["report"] = time.monotonic() - t
     if not args.no_recording:
         t = begin("recording: Rerun .rrd with the live layout")
+        from nifo.viz.offline import save_recording   # rerun (a second to import) only when a recording is asked for
+
         save_recording(read, rrd)
         timings["recording"] = time.monotonic() - t
 

@@ -160,8 +160,7 @@ def plot_restoring_slices(rows: Sequence[SlicePlot], path: str | Path, *, title:
     axes[-1, 0].set_xlabel(vlabel, fontsize=8)
     axes[-1, 1].set_xlabel(zlabel, fontsize=8)
     fig.suptitle(title + (f"\n{subtitle}" if subtitle else ""), fontsize=10 if subtitle else 10.5)
-    fig.tight_layout(rect=(0, 0, 1, 0.965 if not subtitle else 0.955))
-    return save_figure(fig, path)
+    return save_figure(fig, path, tight_rect=(0, 0, 1, 0.965 if not subtitle else 0.955))
 
 
 def _binned(x: np.ndarray, y: np.ndarray, edges: np.ndarray, min_count: int = 8):
@@ -246,8 +245,7 @@ def plot_characteristics(panels: Sequence[CharacteristicPlot], path: str | Path,
         top.set_title(p.title, fontsize=8.5)
         top.legend(fontsize=7, loc="upper left", framealpha=0.8)
     fig.suptitle(title, fontsize=10.5)
-    fig.tight_layout(rect=(0, 0, 1, 0.95))
-    return save_figure(fig, path)
+    return save_figure(fig, path, tight_rect=(0, 0, 1, 0.95))
 
 
 def term_label(kind: str, params: dict, *, units: str = SI) -> str:
@@ -305,5 +303,4 @@ def plot_ranking(candidates: Sequence[dict], path: str | Path, *, title: str, mi
     ax.set_ylim(-0.7, n - 0.3 + 0.6)
     ax.grid(True, axis="x", lw=0.3, alpha=0.5, which="both")
     ax.set_title(title, fontsize=10)
-    fig.tight_layout()
-    return save_figure(fig, path)
+    return save_figure(fig, path, tight_rect=(0, 0, 1, 1))

@@ -59,9 +59,10 @@ def figure_workers() -> int:
     return min(2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
 
 
-def write_files(fig, path: str | Path, dpi: int) -> None:
-    """The PNG at ``path`` and the vector files beside it (:data:`nifo.plots.VECTOR_SUFFIXES`); the caller
-    closes ``fig``."""
+def write_files(fig, path: str | Path, dpi: int, tight_rect: tuple | None = None) -> None:
+    """The PNG at ``path`` and the vector files beside it (:data:`nifo.plots.VECTOR_SUFFIXES`), laid out first
+    (``tight_rect``: see :func:`nifo.plots.save_figure`); the caller closes ``fig``."""
+    _lay_out(fig, tight_rect)
     for p in _targets(path):
         _render(fig, p, dpi)
 
@@ -84,10 +85,17 @@ def _render(fig, path: Path, dpi: int) -> None:
         fig.savefig(path, dpi=dpi, bbox_inches="tight", metadata={"Date": None})
 
 
-def _render_pickled(blob: bytes, path: str, dpi: int) -> None:
-    """In a helper: one file of the pickled figure."""
+def _lay_out(fig, tight_rect: tuple | None) -> None:
+    if tight_rect is not None:
+        fig.tight_layout(rect=tight_rect)
+
+
+def _render_pickled(blob: bytes, path: str, dpi: int, tight_rect: tuple | None = None) -> None:
+    """In a helper: one file of the pickled figure (laid out here: the step that built it does not wait for
+    that)."""
     fig = pickle.loads(blob)
     try:
+        _lay_out(fig, tight_rect)
         _render(fig, Path(path), dpi)
     finally:
         from nifo.plots import pyplot
@@ -167,12 +175,12 @@ def figure_batch() -> Iterator[None]:
         raise
     else:
         first = None
-        for fut, blob, path, dpi in pending:
+        for fut, blob, path, dpi, tight_rect in pending:
             try:
                 fut.result()
             except BrokenProcessPool:
                 _reset_pool()
-                _render_pickled(blob, str(path), dpi)   # the helper died: render here
+                _render_pickled(blob, str(path), dpi, tight_rect)   # the helper died: render here
             except BaseException as err:     # noqa: BLE001 — the figure's own error, raised below as it was
                 first = first or err
         if first is not None:
@@ -189,7 +197,7 @@ def _reset_pool() -> None:
         _pool = None
 
 
-def submit_figure(fig, path: str | Path, dpi: int) -> bool:
+def submit_figure(fig, path: str | Path, dpi: int, tight_rect: tuple | None = None) -> bool:
     """Hand ``fig`` to the helpers when a :func:`figure_batch` is open (closing it here); False: write it yourself."""
     pending = _batch.get()
     if pending is None:
@@ -200,16 +208,16 @@ def submit_figure(fig, path: str | Path, dpi: int) -> bool:
     blob = pickle.dumps(fig, protocol=pickle.HIGHEST_PROTOCOL)
     for p in _targets(path):
         try:
-            fut = pool.submit(_render_pickled, blob, str(p), dpi)
+            fut = pool.submit(_render_pickled, blob, str(p), dpi, tight_rect)
         except (BrokenProcessPool, RuntimeError):
             _reset_pool()
             fut = Future()
             try:
-                _render_pickled(blob, str(p), dpi)
+                _render_pickled(blob, str(p), dpi, tight_rect)
                 fut.set_result(None)
             except BaseException as err:     # noqa: BLE001 — handed to the batch like a helper's error
                 fut.set_exception(err)
-        pending.append((fut, blob, p, dpi))
+        pending.append((fut, blob, p, dpi, tight_rect))
     from nifo.plots import pyplot
 
     pyplot().close(fig)
