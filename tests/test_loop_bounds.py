@@ -8,10 +8,13 @@ removes the bias by simulating its fit (:mod:`nifo_core.signal.bias_correction`)
 its bound holds the correction's uncertainty too.
 
 Issue 28's acceptance, measured with these tests (20 seeds, 2 % noise on both sensors, 2.5 mm road):
-coefficient median / truth and how often the 95 % bound holds the truth — cubic 2e8 N/m³ 0.991, 20/20;
-damper knee -700 N·s/m beyond 0.03 m/s 1.001, 20/20; Coulomb 100 N 1.005, 18/20; bump stop 2e5 N/m beyond
-4 mm 0.956, 16/20 (before the correction's geometric tail: 0.905, 3/20 — its bias shrinks only by 0.4-0.5 per
-iteration; what is left is below the acceptance's 18, and said so in the test).
+coefficient median / truth and how often the 95 % bound holds the truth — cubic 2e8 N/m³ 1.005, 20/20;
+damper knee -700 N·s/m beyond 0.03 m/s 1.002, 20/20; quadratic damping 2000 N·s²/m² 1.001, 20/20; Coulomb
+100 N 1.005, 18/20; bump stop 2e5 N/m beyond 4 mm 0.981, 19/20 (seeds 500-509 10/10, median 0.980;
+510-519 9/10, median 0.988). Before issue 28's bump-stop work: 0.956, 16/20 (two steps of the correction
+and a geometric tail stopped 1-2 % short of its fixed point; the fixed point itself sits -2.5 % low from the
+estimated noise level and the noise in the measured drive; the bound missed the gain on the correction's
+own error, the synthetic fits' scatter and Student's t: :mod:`nifo_core.signal.bias_correction`).
 """
 
 from __future__ import annotations
@@ -66,12 +69,14 @@ def test_cubic_and_knee_within_10_percent_and_bounds_hold_the_truth_in_18_of_20_
 
 
 @pytest.mark.slow
-def test_bump_stop_within_10_percent_and_its_bound_holds_the_truth_in_most_seeds():
-    """Below the acceptance's 18 of 20 (measured 16): the bias correction's fixed point is itself -2.5 to -7 %
-    on a stop in partial contact (five iterations, seeds 500-501), more than its bound carries."""
+def test_bump_stop_within_10_percent_and_its_bound_holds_the_truth_in_18_of_20_seeds():
+    """Measured 19 of 20, median 0.981 (seeds 500-509 10/10, 0.980; 510-519 9/10, 0.988; the miss 0.886 ± 0.092).
+
+    The correction's fixed point sits -2.5 % low on average (estimated noise level 0.89 × the truth, the
+    measured drive's own noise), within the bound now that it carries what the correction's error does."""
     cov, est = _coverage(Term("bump_stop", {"gap": 0.004, "side": "compression"}), 2e5)
     print(f"bump stop: coverage k {cov[0]:.2f}, c {cov[1]:.2f}, θ {cov[2]:.2f}; median/truth {np.median(est) / 2e5:.3f}")
-    assert np.all(cov[:2] >= 0.9) and cov[2] >= 0.75
+    assert np.all(cov >= 0.9)
     assert abs(np.median(est) / 2e5 - 1) < 0.1
 
 
