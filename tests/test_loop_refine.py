@@ -148,7 +148,7 @@ def test_refinement_can_be_switched_off_and_the_command_says_which_model_it_wrot
                    "road, Coulomb 30 N is added at 52.2 N (+74 %): beyond the knee both carry a sign(ż) part and "
                    "share it (the knee re-tuned to 0.022 m/s, the friction's eps 0.017 for 0.005); the bias "
                    "correction is refused there (it would move the knee's coefficient by -130 %: confounded); "
-                   "the final equation-error fit holds 36.2 N, the refined 34.2 N. Tried (issue 28): the pair fitted "
+                   "the final equation-error fit holds 36.2 N, the refined 33.4 N. Tried (issue 28): the pair fitted "
                    "jointly by output error at first addition (knee, coefficients, k, c free; bias-corrected) lands on "
                    "another explanation that predicts as well: knee 0.056 m/s, its coefficient undetermined (±200 %), "
                    "Coulomb 60 N — at 2 % noise these data do not separate the friction from the knee's sign(ż) part")
