@@ -201,7 +201,7 @@ class _Evaluator:
             self._cache[key] = simulated_correction(lambda rs: self._lstsq(self._fit_parts_of(rs), terms),
                                                     simulate, recs, self.noise, t0, seed=BIAS_SEED,
                                                     iterations=BIAS_ITERATIONS, drive_noise=True,
-                                                    pairs=BIAS_PAIRS)
+                                                    pairs=BIAS_PAIRS, side_by_side=True)
         return self._cache[key]
 
     def joint(self, terms: Sequence[Term]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
