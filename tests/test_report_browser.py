@@ -23,7 +23,7 @@ from pathlib import Path
 import pytest
 
 from nifo.cli import main
-from test_f16_loop import f16_run_once
+from test_f16_loop import COLUMNS, f16_run_once
 from test_run_cmd import pipeline, sample_run_once
 
 REPO = Path(__file__).resolve().parents[1]
@@ -73,7 +73,7 @@ def sample_report(tmp_path_factory) -> Path:
 
 
 #: the F-16 GVT's two sides of the nonlinear interface (data/README.md): wing row 1, payload row 2
-F16_COLUMNS = "spindle_accel=Acceleration[1],body_accel=Acceleration[2],fs=Fs"
+F16_COLUMNS = COLUMNS[1]
 
 
 @pytest.fixture(scope="module")

@@ -133,14 +133,20 @@ class Correction:
         """θ₀ - θ: the plain fit's estimated bias."""
         return self.theta_fit - self.theta
 
-    def extra_sd(self) -> np.ndarray:
-        """Standard deviation the correction adds beyond θ₀'s random error."""
-        tail = 0.0 if self.tail is None else TAIL_RTOL * self.tail
-        drive = 0.0 if self.drive_sd is None else self.drive_sd
+    def _extra_parts(self) -> list[tuple[np.ndarray, float]]:
+        """The standard deviations the correction adds beyond θ₀'s random error, each with the degrees of freedom
+        it was read with (inf: taken as known)."""
+        zero = np.zeros_like(self.draw_sd)
         # an error δb in the estimated bias moves the fixed point θ + b(θ) = θ₀ by δb/(1 - r): the gain, as θ₀'s own
         # random error (measured on a bump stop, r ≈ 0.5, five steps: without it 7 of 10 seeds' bounds held the truth)
-        bias = np.sqrt(self.draw_sd ** 2 + drive ** 2 + (NOISE_LEVEL_RTOL * self.noise_bias) ** 2)
-        return np.sqrt((self.gain * bias) ** 2 + tail ** 2)
+        return [(self.gain * self.draw_sd, float(self.pairs - 1) if self.pairs > 1 else np.inf),
+                (self.gain * (zero if self.drive_sd is None else self.drive_sd), float(DRIVE_PAIRS)),
+                (self.gain * NOISE_LEVEL_RTOL * self.noise_bias, np.inf),
+                (TAIL_RTOL * (zero if self.tail is None else self.tail), np.inf)]
+
+    def extra_sd(self) -> np.ndarray:
+        """Standard deviation the correction adds beyond θ₀'s random error."""
+        return np.sqrt(sum(np.square(sd) for sd, _ in self._extra_parts()))
 
     def half_width(self, random_half_width: np.ndarray, random_dof: float, *, level: float = 0.95) -> np.ndarray:
         """Half-width of the bound on :attr:`theta` at ``level``.
@@ -159,12 +165,7 @@ class Correction:
         if self.fit_sd is not None:
             rand_dof = np.where(self.fit_sd > rand, float(self.pairs), rand_dof)
             rand = np.maximum(rand, self.fit_sd)
-        zero = np.zeros_like(rand)
-        parts = [(self.gain * rand, rand_dof),
-                 (self.gain * self.draw_sd, float(self.pairs - 1) if self.pairs > 1 else np.inf),
-                 (self.gain * (zero if self.drive_sd is None else self.drive_sd), float(DRIVE_PAIRS)),
-                 (self.gain * NOISE_LEVEL_RTOL * self.noise_bias, np.inf),
-                 (TAIL_RTOL * (zero if self.tail is None else self.tail), np.inf)]
+        parts = [(self.gain * rand, rand_dof), *self._extra_parts()]
         var = sum(np.square(sd) for sd, _ in parts)
         den = sum(np.square(np.square(sd)) / dof for sd, dof in parts)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -200,8 +201,8 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
     (those the data do not determine: their synthetic refits scatter along a flat valley of the cost).
     ``side_by_side``: ``fit`` and ``simulate`` are safe on several threads at once; the records'
     simulations and the antithetic pair's two refits then run on threads (:mod:`nifo_core.signal.parallel`),
-    the result the same to the last digit. ``drive_noise``: measure :attr:`Correction.drive_sd` (two more
-    simulations and fits, at the last θ, the drive given ± one more draw of the spindle's estimated noise).
+    the result the same to the last digit. ``drive_noise``: measure :attr:`Correction.drive_sd` (2·:data:`DRIVE_PAIRS`
+    more simulations and fits, at the last θ, the drive given ± one more draw of the spindle's estimated noise).
     ``pairs``: antithetic pairs of noise draws per step (more: a smaller Monte-Carlo error, and
     :attr:`Correction.fit_sd` measured)."""
     each = thread_map if side_by_side else (lambda fn, items: [fn(x) for x in items])
