@@ -47,7 +47,7 @@ from scipy import signal
 from ..kinds.describing import Term, path_slopes
 from ..errors import ConfigError
 from .linear_part import LinearPart
-from ..simulate.quarter_car import _antialias_taps
+from ..simulate.quarter_car import _antialias_taps, decimate
 from ..kinds.strut_forces import g_one, strut_arrays, strut_force
 from ..signal.memo import ArrayMemo
 
@@ -307,7 +307,7 @@ def _up(x: np.ndarray, q: int) -> np.ndarray:
 
 
 def _down(x: np.ndarray, q: int) -> np.ndarray:
-    return x.copy() if q == 1 else signal.resample_poly(x, 1, q, window=_antialias_taps(q))
+    return decimate(x, q)
 
 
 def _down_up(x: np.ndarray, q: int) -> np.ndarray:

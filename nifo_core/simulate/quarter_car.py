@@ -48,7 +48,7 @@ from ..kinds.strut_forces import strut_force as _strut_force
 from .vehicle import QuarterCar
 
 __all__ = ["StrutForce", "RandomRoad", "ChirpRoad", "SensorNoise", "SimConfig", "Simulation", "Truth",
-           "simulate", "preset", "PRESETS"]
+           "simulate", "preset", "PRESETS", "decimate"]
 
 #: seconds simulated before the record starts (the input fades in over the first FADE_S)
 WARMUP_S = 8.0
@@ -537,9 +537,18 @@ def _antialias_taps(q: int) -> np.ndarray:
     return taps
 
 
-def _decimate(x: np.ndarray, q: int) -> np.ndarray:
-    """Anti-alias (zero-phase FIR) and keep every q-th sample: output k is at input k·q."""
-    return x.copy() if q == 1 else signal.resample_poly(x, 1, q, window=_antialias_taps(q))
+def decimate(x: np.ndarray, q: int) -> np.ndarray:
+    """Anti-alias (zero-phase FIR, :func:`_antialias_taps`) and keep every q-th sample: output k is at input k·q.
+
+    The same numbers as ``scipy.signal.resample_poly(x, 1, q, window=taps)`` (zeros beyond the ends; measured
+    2e-15 relative) by an overlap-add convolution at the fine rate: 2.3× faster for q = 8 and 515 taps on
+    0.5 M samples (15 ms against 35 ms). The polyphase filter does q times fewer products, but one at a time;
+    the FFT's are batched. The simulator and every model simulation (:mod:`nifo_core.predict.timesim`: the
+    loop's and the refinement's hundreds) decimate through it.
+    """
+    if q == 1:
+        return np.array(x, float)
+    return signal.oaconvolve(np.asarray(x, float), _antialias_taps(q), mode="same")[::q].copy()
 
 
 def _add_noise(x: np.ndarray, noise: SensorNoise, rng: np.random.Generator, *, absolute: float) -> np.ndarray:
@@ -586,7 +595,7 @@ def simulate(config: SimConfig, *, rng: np.random.Generator | int | None = None,
                           warmup_s=WARMUP_S, fade_s=FADE_S, rng=gen)
     acc1, acc2, truth_rows, n_lift = _integrate(config, xb, xbd, n_steps, rec, progress)
     keep = slice(n_warm, n_warm + n_rec)
-    chans = [_decimate(x, q)[keep] for x in (acc1, acc2, xb[: 2 * n_steps: 2])]
+    chans = [decimate(x, q)[keep] for x in (acc1, acc2, xb[: 2 * n_steps: 2])]
     noisy = [_add_noise(chans[0], config.noise, gen, absolute=config.noise.absolute_m_s2),
              _add_noise(chans[1], config.noise, gen, absolute=config.noise.absolute_m_s2),
              _add_noise(chans[2], config.noise, gen, absolute=0.0)]
