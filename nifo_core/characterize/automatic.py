@@ -16,7 +16,9 @@ the linear fit leaves that the candidate explains:
 vectorised over the grid (one QR of the linear regressors, then one dot
 product per grid point on a row subsample), refined around each kind's best
 grid point and refitted at full length. A forward orthogonal selection (FROLS)
-builds the suggested model one term at a time; kinds that explain the same
+builds the suggested model one term at a time, then each chosen term is chosen
+again given all the others (iterative OFR, :func:`_reselect`: the greedy first
+step may take a term that stands in for two); kinds that explain the same
 thing as a chosen term are listed as its alternatives, not suggested beside it.
 
 One filter for every column. ``y``, ``z``, ``ż`` (and ``x2``) are band-passed
