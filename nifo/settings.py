@@ -178,20 +178,20 @@ def resolve(paths: Sequence[Path], args: argparse.Namespace | None = None, *, fi
     if args is not None and getattr(args, "no_settings_from_data", False):
         from_data = False
     if from_data and paths:
-        parts = []
-        first = None
+        parts, probes = [], []
         for p in paths:
             ex, fs_p, dur, rec = _probe(Path(p), opts, merged)
             parts.append(ex)
             durations.append(dur)
             fs = fs_p if fs is None else fs
-            first = first or rec
+            probes.append(rec)
+        first = probes[0]
         excitation = combine_excitations(parts) if all(e is not None for e in parts) else None
         if excitation is not None and not excitation.periodic and not first.spindle_fixed:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 try:
-                    snr = suggest_band(first).band.f_lo_hz
+                    snr = suggest_band(probes).band.f_lo_hz
                 except NifoError:
                     snr = None
     # without the data's choices the integration band stays open (None): each step takes its default for the

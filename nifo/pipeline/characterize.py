@@ -44,7 +44,7 @@ def run_characterize(args: CharacterizeOptions) -> dict:
     opts = loader_options(input_options(args), settings)
     records = [load_record(p, **opts) for p in args.data]
     rates = {r.fs_hz for r in records}
-    band = band_for_records(settings.band or suggest_band(records[0]).band, records)
+    band = band_for_records(settings.band or suggest_band(records).band, records)
     kinds = tuple(k.strip() for k in args.kinds.split(",")) if args.kinds else DEFAULT_KINDS
     thresholds = Thresholds(min_err=args.min_err, min_err_cv=min(Thresholds.min_err_cv, args.min_err / 2))
     if args.top < 1 or args.amplitude_bins < 1:

@@ -400,7 +400,7 @@ def characterize(records: Record | Sequence[Record], *, band: IntegrationBand | 
         One record, or several at different excitation levels (same vehicle).
     band : IntegrationBand, optional
         Integration band for z, ż and the band-pass of every column; default
-        :func:`~nifo_core.characterize.restoring.suggest_band` of the first record.
+        :func:`~nifo_core.characterize.restoring.suggest_band` of the records together.
     m2_kg : float, optional
         Sprung mass [kg]: coefficients are then also given in N/m, N·s/m, N, ...
     kinds : sequence of str
@@ -432,7 +432,7 @@ def characterize(records: Record | Sequence[Record], *, band: IntegrationBand | 
     if not recs:
         raise InputError("no records to characterize")
     if band is None:
-        band = suggest_band(recs[0]).band
+        band = suggest_band(recs).band
     rfs = [restoring_force(r, band=band, body_displacement=body_stiffness) for r in recs]
     masks = None
     if freq_window_hz is not None:

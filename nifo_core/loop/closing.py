@@ -131,13 +131,13 @@ LOOP_PERIODS_PER_RECORD = 48.0
 def loop_band(records: Sequence[Record], band: IntegrationBand | None = None) -> tuple[IntegrationBand, str | None]:
     """The integration band for the loop on these records, and what was adapted (None: nothing).
 
-    Default: :func:`~nifo_core.characterize.restoring.suggest_band` of the first record. Its lower edge is raised
+    Default: :func:`~nifo_core.characterize.restoring.suggest_band` of the records together. Its lower edge is raised
     where the shortest record spans fewer than ``LOOP_PERIODS_PER_RECORD`` periods of it (30 s → 1.6 Hz,
     60 s → 0.8 Hz): every column of the equation error is band-limited alike, so a higher edge costs
     the loop only the motion below it, while a too-low one leaves no held-out part.
     """
     fs = float(records[0].fs_hz)
-    band = (band or suggest_band(records[0]).band).validate(fs)
+    band = (band or suggest_band(records).band).validate(fs)
     shortest = min(r.duration_s for r in records)
     need = LOOP_PERIODS_PER_RECORD / shortest if shortest > 0 else float("inf")
     if band.f_lo_hz >= need:
@@ -360,7 +360,7 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
     m2_kg : float, optional
         Sprung mass [kg]: coefficients also in N, N/m, N·s/m...
     band : IntegrationBand, optional
-        Integration band; default ``data.band``, else :func:`~nifo_core.characterize.restoring.suggest_band` of the first record.
+        Integration band; default ``data.band``, else :func:`~nifo_core.characterize.restoring.suggest_band` of the records together.
     settings : LoopSettings
     data : AnalysisSettings, optional
         The spectral settings, bands, period and transient (:mod:`nifo_core.settings`); default: the
