@@ -143,6 +143,13 @@ def _sigterm_as_interrupt():
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
+def _abandon_helpers() -> None:
+    """An interrupted command's figure helpers ended with it (:func:`nifo.plots.writer.abandon_helpers`), if any ran."""
+    writer = sys.modules.get("nifo.plots.writer")
+    if writer is not None:
+        writer.abandon_helpers()
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     first = next((a for a in argv if not a.startswith("-")), None)
@@ -183,6 +190,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt as e:
         from nifo.io.atomic import interrupt_note
 
+        _abandon_helpers()
         err, code = e, 130
         print(f"nifo {args.command}: {interrupt_note()}", file=sys.stderr)
     except Exception as e:
@@ -192,6 +200,7 @@ def main(argv: list[str] | None = None) -> int:
             raise
         from nifo.io.atomic import interrupt_note
 
+        _abandon_helpers()
         err, code = KeyboardInterrupt(), 130
         print(f"nifo {args.command}: {interrupt_note()}", file=sys.stderr)
     if args.json:

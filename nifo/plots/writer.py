@@ -35,7 +35,7 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Iterator
 
-__all__ = ["figure_batch", "submit_figure", "write_files", "figure_workers", "start_helpers"]
+__all__ = ["figure_batch", "submit_figure", "write_files", "figure_workers", "start_helpers", "abandon_helpers"]
 
 #: environment variable: helper processes for figures (0: write them in the calling process)
 WORKERS_ENV = "NIFO_FIGURE_WORKERS"
@@ -222,6 +222,26 @@ def submit_figure(fig, path: str | Path, dpi: int, tight_rect: tuple | None = No
 
     pyplot().close(fig)
     return True
+
+
+def abandon_helpers() -> None:
+    """An interrupted command's helpers, killed at once: none is left starting after its parent has gone.
+
+    A helper still starting when its parent exits unpickles the pool's queues, whose semaphores the parent's exit
+    has removed, and prints a traceback to the terminal before any of our code runs in it (measured:
+    ``tests/test_kill.py``, SIGTERM 7.3 s into ``nifo identify``: FileNotFoundError in ``SemLock._rebuild``).
+    The pool's processes are read from its ``_processes`` (Python 3.11 has no public way to end a pool's workers
+    at once; 3.14's ``terminate_workers`` is that)."""
+    global _pool, _pool_failed
+    with _lock:
+        pool, _pool, _pool_failed = _pool, None, True
+    if pool is None:
+        return
+    for proc in list((getattr(pool, "_processes", None) or {}).values()):
+        with contextlib.suppress(Exception):
+            proc.kill()
+    with contextlib.suppress(Exception):
+        pool.shutdown(wait=False, cancel_futures=True)
 
 
 def start_helpers() -> None:
