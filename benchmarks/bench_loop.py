@@ -11,7 +11,7 @@ directory. Then, as a user runs them (``python -m nifo``, a fresh process each, 
 ``nifo identify`` of the same records, timed in the same run, is the in-run
 yardstick (the machine is shared: the ratio loop/identify is what compares across runs). The result (terms added, their coefficients, held-out NMSE
 before and after, the verdict) is compared with a stored baseline (``benchmarks/bench_loop_baseline.json``, from
-the code before issue 29; ``--f16``: ``bench_loop_f16_baseline.json``): the same terms, coefficients to 3
+the code after issue 28's pooled integration band, its note holding the time before issue 29; ``--f16``: ``bench_loop_f16_baseline.json``): the same terms, coefficients to 3
 significant digits, NMSE to 2, the same verdict. PASS/FAIL against the target: ≤ 10 s for the loop.
 
 ``--f16``: the F-16 ground-vibration levels 3, 5, 7 (``../shared/data/f16``, docs/f16_loop.md), nothing declared.
