@@ -18,11 +18,15 @@ def _interrupt_again(unraisable) -> None:
 
 
 sys.unraisablehook = _interrupt_again
+from nifo.interrupt import by_interrupt  # noqa: E402  (no imports of its own: before anything can be interrupted)
+
 try:
     from nifo.cli import main
 
     code = main()
-except KeyboardInterrupt:   # Ctrl-C (or SIGINT) while starting up, before a command runs: nothing was written
+except BaseException as e:   # Ctrl-C (or SIGINT) while starting up, before a command runs: nothing was written
+    if not by_interrupt(e):  # (an interrupt inside an import can surface as the import's own error)
+        raise
     print("nifo: interrupted while starting; nothing was written", file=sys.stderr)
     code = 130
 sys.exit(code)

@@ -24,6 +24,7 @@ import traceback
 
 from nifo_core import __version__
 from nifo_core.errors import EXIT_CODES, USAGE_EXIT_CODE, NifoError
+from nifo.interrupt import by_interrupt
 
 __all__ = ["main", "build_parser", "add_common_arguments", "COMMANDS"]
 
@@ -109,15 +110,6 @@ def _error_doc(err: BaseException, code: int) -> dict:
     return {"type": type(err).__name__, "exit_code": code, "message": str(err)}
 
 
-def _interrupted(exc: BaseException) -> bool:
-    """Whether ``exc`` was raised while a KeyboardInterrupt was being handled (its context chain holds one)."""
-    seen = set()
-    while exc is not None and id(exc) not in seen:
-        if isinstance(exc, KeyboardInterrupt):
-            return True
-        seen.add(id(exc))
-        exc = exc.__context__
-    return False
 
 
 @contextlib.contextmanager
@@ -196,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as e:
         # a Ctrl-C/SIGTERM inside a library's clean-up can surface as another error raised while handling
         # it (matplotlib's savefig: AttributeError in restore_bbox): still an interruption, not a bug
-        if not _interrupted(e):
+        if not by_interrupt(e):
             raise
         from nifo.io.atomic import interrupt_note
 
