@@ -110,8 +110,6 @@ def _error_doc(err: BaseException, code: int) -> dict:
     return {"type": type(err).__name__, "exit_code": code, "message": str(err)}
 
 
-
-
 @contextlib.contextmanager
 def _sigterm_as_interrupt():
     """SIGTERM ends a command as Ctrl-C does (outputs cleaned up, exit 130): main thread of this process only."""
