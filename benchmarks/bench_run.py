@@ -169,6 +169,7 @@ def main(argv: list[str] | None = None) -> int:
         out = args.keep or Path(tmp) / "results"
         t_run, c_run, text = _nifo("run", *_sample(), "--out", str(out))
         model = out / "characterize_levels" / "two_step_model.yaml"
+        which = "two-step model" if model.is_file() else "suggested model"   # named now: the folder goes
         if model.is_file():
             ident = ["--model", str(model)]
         else:
@@ -184,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     load = os.getloadavg()[0]
     print(f"load average {load:.1f} on {os.cpu_count()} cores (other jobs slow the wall clock; CPU time is what "
           f"an idle machine's wall clock would be, give or take the threads)")
-    print(f"plain nifo identify ({'two-step model' if model.is_file() else 'suggested model'}, no refinement): "
+    print(f"plain nifo identify ({which}, no refinement): "
           f"wall {t_id:.1f} s, CPU {c_id:.1f} s")
     print(f"nifo run: wall {t_run:.1f} s, CPU {c_run:.1f} s" + (f"   [{steps.group(0)}]" if steps else ""))
     if args.serial:

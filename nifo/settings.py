@@ -16,17 +16,13 @@ the period and transient filled in, for the loaders.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import contextvars
 import warnings
-from collections import OrderedDict
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
-from typing import Iterator, Sequence
-
-import numpy as np
+from typing import Sequence
 
 from nifo.io.loader import iter_record_chunks
+from nifo.io.memo import nbytes, remembered
 from nifo_core.errors import NifoError, RecordTooShortError
 from nifo_core.signal.record import concatenate
 from nifo_core.signal.excitation import Excitation, analyse_excitation, combine_excitations
@@ -34,7 +30,7 @@ from nifo_core.characterize.restoring import suggest_band
 from nifo_core.settings import AnalysisSettings, GivenSettings, merge_given, resolve_settings
 
 __all__ = ["add_settings_arguments", "given_from_args", "given_from_file", "resolve", "loader_options",
-           "probe_memo", "PROBE_SAMPLES"]
+           "PROBE_SAMPLES"]
 
 #: samples of each file read to choose settings from the data (58 min at 600 Hz: a whole sweep or road test; the
 #: periods of a multisine), in chunks of PROBE_CHUNK (bags are decoded chunk by chunk)
@@ -84,58 +80,18 @@ def given_from_file(settings) -> GivenSettings:
                          band_hz=s.get("band_hz"), analysis_band_hz=s.get("freq_range_hz"))
 
 
-#: bytes of probed records kept inside :func:`probe_memo` (an hour at 600 Hz probed is 2**21 samples of 3-4 channels)
+#: bytes of probed records kept inside :func:`nifo.io.memo.reuse_reads` (an hour at 600 Hz probed is 2**21 samples
+#: of 3-4 channels)
 PROBE_MEMO_BYTES = 2 ** 27
-_probed: contextvars.ContextVar[OrderedDict | None] = contextvars.ContextVar("nifo_probed", default=None)
-
-
-@contextlib.contextmanager
-def probe_memo() -> Iterator[None]:
-    """Inside: a file probed once is not probed again (keyed by its size and modification time and the load
-    options). ``nifo run``'s steps each resolve their settings from the same files: measured on the bundled
-    sample, 0.6 s a resolve and seven of them. Only for work that reads files it does not change; outside, every
-    resolve probes."""
-    token = _probed.set(OrderedDict())
-    try:
-        yield
-    finally:
-        _probed.reset(token)
-
-
-def _identity(path: Path) -> tuple:
-    """What changes when a file (or a bag directory's files) changes: name, size, modification time."""
-    st = path.stat()
-    if not path.is_dir():
-        return (str(path.resolve()), st.st_size, st.st_mtime_ns, st.st_ino)
-    return (str(path.resolve()),) + tuple(sorted((q.name, q.stat().st_size, q.stat().st_mtime_ns)
-                                                for q in path.iterdir() if q.is_file()))
-
-
-def _nbytes(rec) -> int:
-    return sum(getattr(rec, f.name).nbytes for f in fields(rec) if isinstance(getattr(rec, f.name), np.ndarray))
 
 
 def _probe(path: Path, opts: dict, given: GivenSettings) -> tuple[Excitation, float, float, object]:
     """(excitation, fs, duration [s], first chunk) of one file from its first PROBE_SAMPLES samples, whole from the
-    start (the transient is part of what is probed); inside :func:`probe_memo`, once per file."""
+    start (the transient is part of what is probed); inside :func:`nifo.io.memo.reuse_reads`, once per file."""
     load = {k: v for k, v in opts.items() if k not in ("skip_seconds", "skip_periods")}
     load["period_samples"] = given.period_samples
-    memo = _probed.get()
-    if memo is None:
-        return _probe_file(path, load)
-    try:
-        key = (_identity(path), repr(sorted(load.items(), key=lambda kv: kv[0])))
-    except OSError:
-        return _probe_file(path, load)        # unreadable: the loader says why
-    if key in memo:
-        memo.move_to_end(key)
-        return memo[key]
-    got = _probe_file(path, load)
-    if _nbytes(got[3]) <= PROBE_MEMO_BYTES:
-        memo[key] = got
-        while sum(_nbytes(v[3]) for v in memo.values()) > PROBE_MEMO_BYTES:
-            memo.popitem(last=False)
-    return got
+    return remembered(path, load, lambda: _probe_file(path, load), kind="probe", max_bytes=PROBE_MEMO_BYTES,
+                      size=lambda got: nbytes(got[3]))
 
 
 def _probe_file(path: Path, load: dict) -> tuple[Excitation, float, float, object]:

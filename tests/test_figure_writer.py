@@ -116,3 +116,52 @@ def _running(pid: int) -> bool:
             return f.read().split(")")[-1].split()[0] != "Z"
     except FileNotFoundError:
         return False
+
+
+def _slow_figure():
+    """A figure whose rendering takes seconds (thousands of text objects)."""
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(4, 3))
+    for k in range(3000):
+        ax.text((k % 60) / 60, (k // 60) / 50, f"{k}", fontsize=4)
+    return fig
+
+
+def test_inside_a_run_a_step_does_not_wait_for_its_figures_and_the_run_lists_them(tmp_path):
+    """nifo run (deferred_figures inside staged_run): a step's folder is written in place and its batch ends
+    while its figures still render; the run's end waits for them and the step's marker lists them, so a later
+    nifo may replace the folder."""
+    from nifo.io.atomic import staged_dir, staged_run
+    from nifo.io.ownership import foreign_entries
+
+    out = tmp_path / "res"
+    with staged_run(out) as run, writer.deferred_figures():
+        with staged_dir(run / "step") as here, writer.figure_batch():
+            assert here == run / "step"                          # in place: no scratch folder to rename
+            save_figure(_slow_figure(), here / "slow.png")
+            t = time.monotonic()
+        assert time.monotonic() - t < 1.0 and not (run / "step" / "slow.svg").exists()   # still rendering
+        with staged_dir(run / "next") as here:
+            (here / "result.json").write_text("{}")
+        writer.wait_figures()
+        assert (run / "step" / "slow.png").stat().st_size > 1000 and (run / "step" / "slow.svg").is_file()
+    assert foreign_entries(out / "step") == [] and foreign_entries(out) == []
+    assert sorted(p.name for p in out.iterdir()) == [".nifo-output", "next", "step"]
+
+
+def test_a_run_that_fails_after_a_step_leaves_the_old_output_and_nothing_written_later(tmp_path):
+    from nifo.io.atomic import staged_dir, staged_run
+
+    out = tmp_path / "res"
+    with staged_run(out) as run:
+        (run / "old.json").write_text("{}")
+    before = sorted(p.name for p in out.iterdir())
+    with pytest.raises(KeyboardInterrupt):
+        with staged_run(out) as run, writer.deferred_figures():
+            with staged_dir(run / "step") as here, writer.figure_batch():
+                for k in range(4):
+                    save_figure(_slow_figure(), here / f"f{k}.png")
+            raise KeyboardInterrupt
+    assert sorted(p.name for p in out.iterdir()) == before
+    time.sleep(1.5)
+    assert sorted(p.name for p in out.iterdir()) == before and not list(tmp_path.glob(".res*"))

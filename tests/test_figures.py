@@ -171,5 +171,6 @@ def test_coefficient_and_t21_figures_shade_the_95_percent_bounds_of_the_result(r
 
 def test_the_report_shows_the_t21_and_coefficient_bounds(ran):
     html = (ran / "report" / "report.html").read_text()
+    assert 'alt="levels"' in html and "vector: levels.svg" not in html   # embedded alone: no vector file claimed
     assert "95 % bounds of the nominal T21" in html and "median half-width" in html
     assert "Final model with 95 % bounds" in html and "±" in html

@@ -1,7 +1,7 @@
 """nifo.settings: the data probed for the settings once per run, again when a file changes.
 
 ``nifo run``'s steps each resolve their settings from the same files; inside
-:func:`nifo.settings.probe_memo` (what ``nifo run`` opens) a file is read for
+:func:`nifo.io.memo.reuse_reads` (what ``nifo run`` opens) a file is read for
 that once. Counted here by the files the loader opens for probing (a real
 read of real records, the counter wraps the loader's chunk iterator).
 """
@@ -12,6 +12,7 @@ import pytest
 
 import nifo.settings as settings
 from nifo.io.loader import save_record
+from nifo.io.memo import reuse_reads
 from nifo_core.simulate.quarter_car import RandomRoad, SimConfig, preset, simulate
 
 
@@ -42,7 +43,7 @@ def test_inside_a_run_each_file_is_probed_once_and_the_settings_are_the_same(rec
     assert len(reads) == 2
     settings.resolve(records)
     assert len(reads) == 4                      # outside the memo every resolve reads
-    with settings.probe_memo():
+    with reuse_reads():
         first = settings.resolve(records)
         again = [settings.resolve(records) for _ in range(3)]
         assert len(reads) == 6                  # once per file
@@ -52,7 +53,7 @@ def test_inside_a_run_each_file_is_probed_once_and_the_settings_are_the_same(rec
 
 
 def test_a_file_that_changes_inside_the_memo_is_probed_again(records, reads, tmp_path):
-    with settings.probe_memo():
+    with reuse_reads():
         before = settings.resolve([records[0]])
         sim = simulate(SimConfig(strut=preset("paper_deadzone"), duration_s=30.0, road=RandomRoad(5e-3)), rng=9)
         save_record(records[0], sim.record)     # the same path, another record

@@ -68,6 +68,8 @@ SCRATCH_CHARS = len(".") + len(".partial-") + 7 + len("-") + 8
 
 #: what this process has committed, and what an interrupted run restored (for :func:`interrupt_note`)
 _state: dict[str, list[str]] = {"committed": [], "restored": []}
+#: the :func:`staged_run` folders being written (innermost last), each with the step folders written in place
+_runs: list[tuple[Path, list[Path]]] = []
 
 _OUTPUT_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EDQUOT, errno.ENOTDIR,
                   errno.EEXIST, errno.EFBIG, errno.EISDIR, errno.ENAMETOOLONG, errno.ELOOP, errno.ENOENT}
@@ -348,6 +350,11 @@ def staged_dir(out: str | os.PathLike) -> Iterator[Path]:
     disk, read-only, permissions) — then nothing at ``out`` changes.
     """
     final = check_output(out, kind="dir")
+    run = _run_holding(final)
+    if run is not None:     # a step of nifo run: the run is staged as a whole, its steps write in place
+        with _in_run(final, run) as here:
+            yield here
+        return
     with _term_as_interrupt():
         tmp = _scratch(final)
         try:
@@ -359,6 +366,34 @@ def staged_dir(out: str | os.PathLike) -> Iterator[Path]:
             if _is_output_oserror(err):
                 raise output_error(err, final) from err
             raise
+
+
+def _run_holding(final: Path) -> list[Path] | None:
+    """The folders written in place so far by the :func:`staged_run` this process is writing ``final`` into."""
+    for run, written in reversed(_runs):
+        if run in final.absolute().parents:
+            return written
+    return None
+
+
+@contextlib.contextmanager
+def _in_run(final: Path, written: list[Path]) -> Iterator[Path]:
+    """``final`` itself, new, under a run's folder: nobody sees it before the run is complete (its ``INCOMPLETE``
+    marker, all old or all new), so the step writes there and the run's figure helpers may still be writing its
+    figures after the step (:func:`nifo.plots.writer.deferred_figures`); its marker is written again, listing
+    them, when the run completes. On an error the folder goes, as a staged one would."""
+    try:
+        if final.exists():
+            _remove(final)
+        final.mkdir(parents=True)
+        yield final
+        write_marker(final)
+        written.append(final)
+    except BaseException as err:
+        _remove(final)
+        if _is_output_oserror(err):
+            raise output_error(err, final) from err
+        raise
 
 
 @contextlib.contextmanager
@@ -415,9 +450,13 @@ def staged_run(out: str | os.PathLike) -> Iterator[Path]:
                     os.replace(old, final)
             raise output_error(err, final) from err
         start = len(_state["committed"])
+        _runs.append((final.absolute(), written := []))
         try:
             yield final
             with _signals_held():
+                for d in written:      # the steps' folders, with what was written after each step (its figures)
+                    if d.is_dir():
+                        write_marker(d)
                 write_marker(final)
                 (final / INCOMPLETE).unlink()
                 _state["committed"][start:] = [str(final)]
@@ -431,6 +470,8 @@ def staged_run(out: str | os.PathLike) -> Iterator[Path]:
             if _is_output_oserror(err):
                 raise output_error(err, final) from err
             raise
+        finally:
+            _runs.pop()
         _remove(old)
 
 

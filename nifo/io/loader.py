@@ -59,6 +59,7 @@ from nifo_core.signal.record import Record
 
 from .assemble import FIXED, READ_ROLES, Assembly, Skip, _check_declared_rate, assemble_record  # noqa: F401
 from .inputs import regular_input
+from .memo import remembered
 
 if TYPE_CHECKING:
     from .bag import BagTopics
@@ -150,6 +151,13 @@ def load_record(path: str | os.PathLike, *, topics: "BagTopics | None" = None,
         :class:`TimestampError`, :class:`SampleRateError`,
         :class:`RecordTooShortError`, :class:`ConfigError`.
     """
+    options = dict(topics=topics, columns=columns, fs_hz=fs_hz, axis=axis, skip_seconds=skip_seconds,
+                   skip_periods=skip_periods, period_samples=period_samples)
+    # the record names its file as given: the same file given another way is read for its own name
+    return remembered(Path(path), {**options, "as_given": str(path)}, lambda: _load(path, **options))
+
+
+def _load(path, *, topics, columns, fs_hz, axis, skip_seconds, skip_periods, period_samples) -> Record:
     fmt = detect_format(path)
     skip = _skip(skip_seconds, skip_periods, period_samples, source=str(path))
     if fmt == "bag":

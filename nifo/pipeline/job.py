@@ -33,13 +33,14 @@ import yaml
 
 from nifo.io.atomic import staged_run
 from nifo.io.loader import input_options
-from nifo.plots.writer import start_helpers
+from nifo.io.memo import reuse_reads
+from nifo.plots.writer import deferred_figures, start_helpers, wait_figures
 from nifo.io.modelfile import load_model_spec
 from nifo.pipeline.characterize import run_characterize
 from nifo.pipeline.identify import run_identify
 from nifo.pipeline.options import CharacterizeOptions, IdentifyOptions, LoopOptions, PredictOptions, RunOptions
 from nifo.pipeline.predict import run_predict
-from nifo.settings import probe_memo, resolve
+from nifo.settings import resolve
 from nifo.viz.report_html import write_report
 from nifo.viz.results import read_results
 from nifo_core.errors import NifoError
@@ -108,8 +109,9 @@ def run_job(args: RunOptions) -> dict:
     data = [Path(p) for p in args.data]
     start_helpers()      # the figure helpers import matplotlib while the settings are chosen
     # all old or all new: the old --out is kept aside until the run succeeds (INCOMPLETE marks a killed run)
-    # the steps read the same files: each resolves its settings from them, probed once (nifo.settings.probe_memo)
-    with staged_run(args.out) as out, probe_memo():
+    # the steps read the same files: each file is probed and read once (nifo.io.memo); a step's figures render
+    # while the next steps compute (the run's folder is complete only at the end): waited for before the report
+    with staged_run(args.out) as out, reuse_reads(), deferred_figures():
         return _run(args, data, out)
 
 
@@ -204,6 +206,7 @@ def _run(args: RunOptions, data: list[Path], out: Path) -> dict:
         print(f"nifo run: {why}", file=sys.stderr)
         total -= 1
 
+    wait_figures()      # the report reads the steps' figures
     read = read_results(results)
     rrd = dirs["recording"] / "nifo.rrd"
     t = begin("report: one self-contained HTML file")

@@ -27,8 +27,8 @@ def pyplot():
 VECTOR_SUFFIXES = (".svg",)
 
 
-def save_figure(fig, path: str | Path, *, dpi: int = 130, tight_rect: tuple | None = None) -> Path:
-    """Write ``fig`` as PNG at ``path`` and as SVG beside it (same stem), close it; the PNG's path.
+def save_figure(fig, path: str | Path, *, dpi: int = 130, tight_rect: tuple | None = None, vector: bool = True) -> Path:
+    """Write ``fig`` as PNG at ``path`` and (``vector``) as SVG beside it (same stem), close it; the PNG's path.
 
     ``tight_rect``: lay the figure out tightly within that (left, bottom, right, top) box of the figure just
     before it is rendered (``Figure.tight_layout``): text extents are most of a figure's cost, and measured
@@ -38,10 +38,10 @@ def save_figure(fig, path: str | Path, *, dpi: int = 130, tight_rect: tuple | No
     from nifo.plots.writer import submit_figure, write_files
 
     p = Path(path)
-    if submit_figure(fig, p, dpi, tight_rect):
+    if submit_figure(fig, p, dpi, tight_rect, vector=vector):
         return p
     try:
-        write_files(fig, p, dpi, tight_rect)
+        write_files(fig, p, dpi, tight_rect, vector=vector)
     finally:
         pyplot().close(fig)
     return p

@@ -53,7 +53,8 @@ def _view(f: np.ndarray, band_hz: tuple[float, float], pad: float = 0.6) -> np.n
 
 
 def plot_transmissibility(path: str | Path, curves: Sequence[Curve], *, band_hz: tuple[float, float],
-                          title: str, ylabel: str = "|T21| = |X2/X1| [–]", phase: bool = True) -> Path:
+                          title: str, ylabel: str = "|T21| = |X2/X1| [–]", phase: bool = True,
+                          vector: bool = True) -> Path:
     """Magnitude (log-log) and optionally phase of complex transmissibilities.
 
     A curve whose style holds ``random_error`` (the normalized random error ε per line, same shape
@@ -95,7 +96,7 @@ def plot_transmissibility(path: str | Path, curves: Sequence[Curve], *, band_hz:
     axes[-1, 0].set_xlabel("frequency [Hz]")
     for a in axes[:, 0]:
         _freq_axis(a)
-    return save_figure(fig, path)
+    return save_figure(fig, path, vector=vector)
 
 
 #: unit of g_i (the describing function's output) from the unit of its coefficient c_i (force per unit of g_i)

@@ -11,6 +11,9 @@ its two files are rendered in helper processes, PNG and SVG as separate tasks,
 while the step builds the next figure or computes; the step waits for them
 before its output is committed (:func:`figure_batch` inside
 :func:`nifo.io.atomic.staged_dir`), so an output never lacks a figure it lists.
+Inside ``nifo run`` (:func:`deferred_figures`), whose folder nobody sees before
+the run is complete, they render while the next steps compute: the run waits
+for them before its report reads them.
 
 Outside a batch, in a daemonic process (a Dask worker cannot have children),
 with ``NIFO_FIGURE_WORKERS=0`` or where the pool cannot start, figures are
@@ -35,12 +38,13 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Iterator
 
-__all__ = ["figure_batch", "submit_figure", "write_files", "figure_workers", "start_helpers", "abandon_helpers"]
+__all__ = ["figure_batch", "deferred_figures", "wait_figures", "submit_figure", "write_files", "figure_workers", "start_helpers", "abandon_helpers"]
 
 #: environment variable: helper processes for figures (0: write them in the calling process)
 WORKERS_ENV = "NIFO_FIGURE_WORKERS"
 
 _batch: contextvars.ContextVar[list | None] = contextvars.ContextVar("nifo_figure_batch", default=None)
+_deferred: contextvars.ContextVar[list | None] = contextvars.ContextVar("nifo_figures_later", default=None)
 _pool: ProcessPoolExecutor | None = None
 _pool_failed = False
 _lock = threading.Lock()
@@ -59,19 +63,19 @@ def figure_workers() -> int:
     return min(2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
 
 
-def write_files(fig, path: str | Path, dpi: int, tight_rect: tuple | None = None) -> None:
-    """The PNG at ``path`` and the vector files beside it (:data:`nifo.plots.VECTOR_SUFFIXES`), laid out first
-    (``tight_rect``: see :func:`nifo.plots.save_figure`); the caller closes ``fig``."""
+def write_files(fig, path: str | Path, dpi: int, tight_rect: tuple | None = None, *, vector: bool = True) -> None:
+    """The PNG at ``path`` and (``vector``) the vector files beside it (:data:`nifo.plots.VECTOR_SUFFIXES`), laid
+    out first (``tight_rect``: see :func:`nifo.plots.save_figure`); the caller closes ``fig``."""
     _lay_out(fig, tight_rect)
-    for p in _targets(path):
+    for p in _targets(path, vector):
         _render(fig, p, dpi)
 
 
-def _targets(path: str | Path) -> list[Path]:
+def _targets(path: str | Path, vector: bool = True) -> list[Path]:
     from nifo.plots import VECTOR_SUFFIXES
 
     p = Path(path)
-    return [p, *(p.with_suffix(s) for s in VECTOR_SUFFIXES)]
+    return [p, *(p.with_suffix(s) for s in (VECTOR_SUFFIXES if vector else ()))]
 
 
 def _render(fig, path: Path, dpi: int) -> None:
@@ -174,19 +178,61 @@ def figure_batch() -> Iterator[None]:
                 fut.exception()
         raise
     else:
-        first = None
-        for fut, blob, path, dpi, tight_rect in pending:
-            try:
-                fut.result()
-            except BrokenProcessPool:
-                _reset_pool()
-                _render_pickled(blob, str(path), dpi, tight_rect)   # the helper died: render here
-            except BaseException as err:     # noqa: BLE001 — the figure's own error, raised below as it was
-                first = first or err
-        if first is not None:
-            raise first
+        later = _deferred.get()
+        if later is not None:     # inside nifo run: the job waits for them (deferred_figures)
+            later.extend(pending)
+        else:
+            _wait(pending)
     finally:
         _batch.reset(token)
+
+
+def _wait(pending: list) -> None:
+    """Wait for every figure of ``pending``; the first rendering error is raised, as raised."""
+    first = None
+    for fut, blob, path, dpi, tight_rect in pending:
+        try:
+            fut.result()
+        except BrokenProcessPool:
+            _reset_pool()
+            _render_pickled(blob, str(path), dpi, tight_rect)   # the helper died: render here
+        except BaseException as err:     # noqa: BLE001 — the figure's own error, raised below as it was
+            first = first or err
+    if first is not None:
+        raise first
+
+
+@contextlib.contextmanager
+def deferred_figures() -> Iterator[None]:
+    """Inside (``nifo run``), a step's :func:`figure_batch` does not wait for its figures: the helpers render
+    them while the next step computes, and they are waited for by :func:`wait_figures` (before the report reads
+    them) or on leaving. Only where the steps write into a folder nobody sees before the block is done
+    (:func:`nifo.io.atomic.staged_run`). When the block raises, figures not yet started are cancelled and running
+    ones waited for, so nothing is written after the caller cleans up."""
+    later: list = []
+    token = _deferred.set(later)
+    try:
+        yield
+    except BaseException:
+        for fut, *_ in later:
+            fut.cancel()
+        for fut, *_ in later:
+            with contextlib.suppress(BaseException):
+                fut.exception()
+        raise
+    else:
+        wait_figures()
+    finally:
+        _deferred.reset(token)
+
+
+def wait_figures() -> None:
+    """Inside :func:`deferred_figures`: wait for the figures handed to it so far (outside: nothing to wait for)."""
+    later = _deferred.get()
+    if later:
+        pending = list(later)
+        later.clear()
+        _wait(pending)
 
 
 def _reset_pool() -> None:
@@ -197,7 +243,7 @@ def _reset_pool() -> None:
         _pool = None
 
 
-def submit_figure(fig, path: str | Path, dpi: int, tight_rect: tuple | None = None) -> bool:
+def submit_figure(fig, path: str | Path, dpi: int, tight_rect: tuple | None = None, *, vector: bool = True) -> bool:
     """Hand ``fig`` to the helpers when a :func:`figure_batch` is open (closing it here); False: write it yourself."""
     pending = _batch.get()
     if pending is None:
@@ -206,7 +252,7 @@ def submit_figure(fig, path: str | Path, dpi: int, tight_rect: tuple | None = No
     if pool is None:
         return False
     blob = pickle.dumps(fig, protocol=pickle.HIGHEST_PROTOCOL)
-    for p in _targets(path):
+    for p in _targets(path, vector):
         try:
             fut = pool.submit(_render_pickled, blob, str(p), dpi, tight_rect)
         except (BrokenProcessPool, RuntimeError):

@@ -535,7 +535,8 @@ def levels_figure(results: Sequence[ResultDir], out_png: Path) -> Path | None:
     if truth is not None:
         curves.append(("true nominal linear T21 (simulator)", truth[0], truth[1],
                        {"color": "k", "lw": 0.9, "ls": ":"}))
-    return plot_transmissibility(out_png, curves, band_hz=res.analysis_band_hz,
+    # the PNG alone: it is embedded, and a vector file would have nowhere to go beside a single-file report
+    return plot_transmissibility(out_png, curves, band_hz=res.analysis_band_hz, vector=False,
                                  title="transmissibility across levels and the NIFO nominal estimate")
 
 
