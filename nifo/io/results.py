@@ -69,10 +69,14 @@ def _default(o: Any):
 
 
 def _nan_to_none(o):
-    """JSON has no NaN/inf: write null instead (strict parsers reject NaN)."""
-    if isinstance(o, float):
-        return o if np.isfinite(o) else None
-    if isinstance(o, dict):
+    """JSON has no NaN/inf: null instead (strict parsers reject NaN); arrays through :func:`_default` at once."""
+    if isinstance(o, (float, np.floating)):
+        return float(o) if np.isfinite(o) else None
+    if isinstance(o, np.ndarray):
+        return _default(o) if o.dtype.kind in "biuf" else _nan_to_none(o.tolist())
+    if isinstance(o, complex):
+        return _nan_to_none(_default(o))
+    if isinstance(o, Mapping):
         return {k: _nan_to_none(v) for k, v in o.items()}
     if isinstance(o, (list, tuple)):
         return [_nan_to_none(v) for v in o]
@@ -85,9 +89,8 @@ def write_json(path: str | os.PathLike, doc: Mapping, *, atomic: bool = True, in
     seps = None if indent else (",", ":")
     try:   # one pass: arrays' non-finite values are null already (_default)
         text = json.dumps(doc, default=_default, allow_nan=False, indent=indent, separators=seps) + "\n"
-    except ValueError:   # a NaN/inf float outside an array: every value checked (measured: 4× the time of one pass)
-        text = json.dumps(_nan_to_none(json.loads(json.dumps(doc, default=_default, allow_nan=True))),
-                          allow_nan=False, indent=indent, separators=seps) + "\n"
+    except ValueError:   # a NaN/inf float outside an array: every value checked
+        text = json.dumps(_nan_to_none(doc), default=_default, allow_nan=False, indent=indent, separators=seps) + "\n"
     p = Path(path)
     if not atomic:
         p.write_text(text)

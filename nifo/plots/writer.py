@@ -171,11 +171,7 @@ def figure_batch() -> Iterator[None]:
     try:
         yield
     except BaseException:
-        for fut, *_ in pending:
-            fut.cancel()
-        for fut, *_ in pending:
-            with contextlib.suppress(BaseException):
-                fut.exception()
+        _drop(pending)
         raise
     else:
         later = _deferred.get()
@@ -185,6 +181,15 @@ def figure_batch() -> Iterator[None]:
             _wait(pending)
     finally:
         _batch.reset(token)
+
+
+def _drop(pending: list) -> None:
+    """Cancel the figures of ``pending`` not yet started and wait for the running ones: none is written later."""
+    for fut, *_ in pending:
+        fut.cancel()
+    for fut, *_ in pending:
+        with contextlib.suppress(BaseException):
+            fut.exception()
 
 
 def _wait(pending: list) -> None:
@@ -214,11 +219,7 @@ def deferred_figures() -> Iterator[None]:
     try:
         yield
     except BaseException:
-        for fut, *_ in later:
-            fut.cancel()
-        for fut, *_ in later:
-            with contextlib.suppress(BaseException):
-                fut.exception()
+        _drop(later)
         raise
     else:
         wait_figures()

@@ -65,7 +65,7 @@ def lipschitz(t: Term) -> tuple[float, float]:
     return (1.0, 0.0) if t.variable == "z" else (0.0, 1.0)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def g_one(code, p0, p1, z, zd, y):  # pragma: no cover - compiled
     """One basis function, written as describing.py computes it (same rounding)."""
     if code == _CUBIC:
@@ -97,7 +97,7 @@ def g_one(code, p0, p1, z, zd, y):  # pragma: no cover - compiled
     return min(zd, 0.0)  # _ASYM_C
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def strut_force(z, zd, codes, coef, p0, p1, play, commit):  # pragma: no cover - compiled
     """N = Σ c_i·g_i(z, ż) (paper Eq. 1-2); commits the play states when ``commit``."""
     n1 = 0.0

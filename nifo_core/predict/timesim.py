@@ -104,13 +104,13 @@ def discretise(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.n
     return _discretise_cached(np.concatenate([a.ravel(), b]).tobytes(), a.shape[0], float(h))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _fb(z, zd, codes, coef, p0, p1, play, commit, la, lb):  # pragma: no cover - compiled
     """Feedback n = Σ γ_i·g_i(z, ż) - a·z - b·ż (the absorbed linear part taken out)."""
     return strut_force(z, zd, codes, coef, p0, p1, play, commit) - la * z - lb * zd
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _solve(z0, zd0, alpha, beta, guess, codes, coef, p0, p1, play, la, lb, atol):  # pragma: no cover - compiled
     """n = N(z0 + α·n, ż0 + β·n): fixed point, then bisection on a bracket. Returns (n, ok).
 
