@@ -450,7 +450,9 @@ def staged_run(out: str | os.PathLike) -> Iterator[Path]:
                     os.replace(old, final)
             raise output_error(err, final) from err
         start = len(_state["committed"])
-        _runs.append((final.absolute(), written := []))
+        entry: tuple[Path, list[Path]] = (final.absolute(), [])
+        written = entry[1]
+        _runs.append(entry)
         try:
             yield final
             with _signals_held():
@@ -471,7 +473,7 @@ def staged_run(out: str | os.PathLike) -> Iterator[Path]:
                 raise output_error(err, final) from err
             raise
         finally:
-            _runs.pop()
+            _runs.remove(entry)     # by identity: another thread's run may have started since
         _remove(old)
 
 
