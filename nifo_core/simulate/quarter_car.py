@@ -346,7 +346,7 @@ def preset(name: str) -> tuple[StrutForce, ...]:
 # strut forces by kind code: one compiled definition, shared with the prediction engine
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _forces(x1, x2, v1, v2, xb, xbd, par, codes, coef, p0, p1, play, commit):  # pragma: no cover
     """Accelerations ẍ1, ẍ2 [m/s²], N1 and the dynamic tire force [N], and whether the wheel lifts."""
     m1, m2, k1, c1, k2, c2, k3, w_static, lift = par[0], par[1], par[2], par[3], par[4], par[5], par[6], par[7], par[8]
