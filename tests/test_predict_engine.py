@@ -184,8 +184,8 @@ def test_the_banded_step_of_a_modal_linear_part_equals_the_full_product_to_the_l
     cols = np.arange(n)[None, :]
     assert (hi - lo).max() == 2 and np.all(phi[(cols < lo[:, None]) | (cols >= hi[:, None])] == 0)
     v = rng.normal(size=20_000)
-    codes, coef, p0, p1 = strut_arrays([Term("velocity_deadzone", {"knee": 0.01}), Term("backlash", {"deadband": 1e-4})],
-                                       [-0.2, 3.0])
+    terms = [Term("velocity_deadzone", {"knee": 0.01}), Term("backlash", {"deadband": 1e-4})]
+    codes, coef, p0, p1 = strut_arrays(terms, [-0.2, 3.0])
     outs = []
     for bands in ((lo, hi), (np.zeros(n, np.int64), np.full(n, n, np.int64))):
         got = [np.zeros(v.size) for _ in range(4)]

@@ -38,7 +38,8 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Iterator
 
-__all__ = ["figure_batch", "deferred_figures", "wait_figures", "submit_figure", "write_files", "figure_workers", "start_helpers", "abandon_helpers"]
+__all__ = ["figure_batch", "deferred_figures", "wait_figures", "submit_figure", "write_files", "figure_workers",
+           "start_helpers", "abandon_helpers"]
 
 #: environment variable: helper processes for figures (0: write them in the calling process)
 WORKERS_ENV = "NIFO_FIGURE_WORKERS"

@@ -11,9 +11,10 @@ and committed once per step (as :func:`describing.play_operator` does per sample
 ``tests/test_describing.py`` / ``tests/test_simulate.py`` check the two
 definitions agree.
 
-``g_one`` and ``strut_force`` are inlined into the time-stepping loops (``inline="always"``): called, each
-step passed five arrays through two levels of calls, and their reference counting cost 72 ns of a 306 ns
-step; inlined, the prediction engine's step takes 75 ns, with the same arithmetic (bit for bit). numba's
+``g_one`` and ``strut_force`` are inlined where they are called (``inline="always"``): called, each step
+passed five arrays through two levels of calls, and their reference counting cost 72 ns of a 306 ns step;
+inlined on the prediction engine's hot path, the step takes 68 ns, with the same arithmetic (bit for bit).
+Each inlined copy is compiled anew, so the rare paths call one compiled copy (``timesim._fb_called``). numba's
 on-disk cache keys a compiled loop on its own file only (a documented limitation, as it was before the
 inlining): after a change to this file, clear the callers' caches (``find . -name '*.nb[ic]' -delete``).
 """

@@ -312,7 +312,8 @@ def _simulate_paths(linear: LinearPart, terms, v: np.ndarray, h: float, z_limit:
     nf = v.size
     z, zd, zdd, nn = (np.zeros(nf) for _ in range(4))
     zdd[0] = float(cd @ b) * v[0]
-    fail = _run_paths(np.ascontiguousarray(phi), *_bands(phi), g0b, g1b, g0e, g1e, c, cd, ca, float(cd @ b), e.T @ cd, v,
+    fail = _run_paths(np.ascontiguousarray(phi), *_bands(phi), g0b, g1b, g0e, g1e, c, cd, ca, float(cd @ b),
+                      e.T @ cd, v,
                       codes, p0, p1, alpha, float(z_limit), z, zd, zdd, nn)
     return z, zd, zdd, nn, fail
 
