@@ -110,6 +110,17 @@ def test_helpers_die_with_a_killed_step(tmp_path):
     assert not alive, f"helpers {alive} outlived the killed step"
 
 
+def test_abandoned_helpers_leave_no_manager_thread_for_the_exit_hook_to_race():
+    """After abandon_helpers the pool's manager thread has ended and closed its pipe: Python 3.11's exit hook
+    writes to that pipe unguarded (CI: a traceback, Bad file descriptor, after an interrupted nifo run)."""
+    pool = writer._get_pool()
+    pool.submit(writer._warm).result()
+    manager, wakeup = pool._executor_manager_thread, pool._executor_manager_thread_wakeup
+    assert manager.is_alive() and not wakeup._closed
+    writer.abandon_helpers()
+    assert not manager.is_alive() and wakeup._closed
+
+
 def _running(pid: int) -> bool:
     try:
         with open(f"/proc/{pid}/stat") as f:

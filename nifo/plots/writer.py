@@ -47,6 +47,7 @@ WORKERS_ENV = "NIFO_FIGURE_WORKERS"
 _batch: contextvars.ContextVar[list | None] = contextvars.ContextVar("nifo_figure_batch", default=None)
 _deferred: contextvars.ContextVar[list | None] = contextvars.ContextVar("nifo_figures_later", default=None)
 _pool: ProcessPoolExecutor | None = None
+ABANDON_WAIT_S = 5.0     # the killed helpers' manager thread ends within milliseconds; a bound, not a wait
 _pool_failed = False
 _lock = threading.Lock()
 
@@ -238,11 +239,20 @@ def wait_figures() -> None:
 
 
 def _reset_pool() -> None:
+    """The pool shut down (a broken one, or between tests), its manager thread waited for (see abandon_helpers)."""
     global _pool
     with _lock:
-        if _pool is not None:
-            _pool.shutdown(wait=False, cancel_futures=True)
-        _pool = None
+        pool, _pool = _pool, None
+    if pool is not None:
+        _end(pool)
+
+
+def _end(pool: ProcessPoolExecutor) -> None:
+    manager = getattr(pool, "_executor_manager_thread", None)
+    with contextlib.suppress(Exception):
+        pool.shutdown(wait=False, cancel_futures=True)
+    if manager is not None:
+        manager.join(timeout=ABANDON_WAIT_S)
 
 
 def submit_figure(fig, path: str | Path, dpi: int, tight_rect: tuple | None = None, *, vector: bool = True) -> bool:
@@ -279,7 +289,12 @@ def abandon_helpers() -> None:
     has removed, and prints a traceback to the terminal before any of our code runs in it (measured:
     ``tests/test_kill.py``, SIGTERM 7.3 s into ``nifo identify``: FileNotFoundError in ``SemLock._rebuild``).
     The pool's processes are read from its ``_processes`` (Python 3.11 has no public way to end a pool's workers
-    at once; 3.14's ``terminate_workers`` is that)."""
+    at once; 3.14's ``terminate_workers`` is that).
+
+    Returns once the pool's manager thread has seen the helpers die and closed its pipe: Python 3.11's exit hook
+    writes to that pipe unguarded, and a close racing it printed ``OSError: [Errno 9] Bad file descriptor`` with a
+    traceback after the interrupted command's own message (CI, ``tests/test_kill.py``, SIGINT 7.0 s into
+    ``nifo run``)."""
     global _pool, _pool_failed
     with _lock:
         pool, _pool, _pool_failed = _pool, None, True
@@ -288,8 +303,7 @@ def abandon_helpers() -> None:
     for proc in list((getattr(pool, "_processes", None) or {}).values()):
         with contextlib.suppress(Exception):
             proc.kill()
-    with contextlib.suppress(Exception):
-        pool.shutdown(wait=False, cancel_futures=True)
+    _end(pool)
 
 
 def start_helpers() -> None:
