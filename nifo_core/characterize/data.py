@@ -17,6 +17,7 @@ from .result import POSITIVE_KINDS
 from ..kinds.describing import Term, kind as lookup_kind
 from ..errors import ConfigError, InputError
 from .restoring import RestoringForce, bandpass, bandpass_settle_samples
+from ..signal.parallel import max_threads, thread_map
 
 __all__ = ["RegressionData", "GridSearch", "candidate_grid", "refine_grid"]
 
@@ -96,26 +97,36 @@ class RegressionData:
         from the static position, which sits elsewhere in each record: :mod:`.static`); a kind
         without an ``offset`` parameter (quadratic stiffness) is evaluated on ``z - offset``.
         """
+        return self.regressors([term], offsets=offsets)[0]
+
+    def regressors(self, terms: Sequence[Term], *, offsets: Sequence[float] | None = None) -> list[np.ndarray]:
+        """:meth:`regressor` of each term; those not remembered computed side by side on threads
+        (:func:`~nifo_core.signal.parallel.thread_map`: each is its term's own evaluation and FFTs, which release
+        the GIL, so every column is what one thread gives; the first 48 remembered, in order)."""
         if offsets is not None and len(offsets) != len(self.rfs):
             raise ConfigError(f"{len(offsets)} offsets for {len(self.rfs)} records")
-        key = (term.kind, tuple(sorted(term.params.items())), None if offsets is None else tuple(offsets))
-        hit = self._cache.get(key)
-        if hit is not None:
-            return hit
+        off = None if offsets is None else tuple(float(o) for o in offsets)
+        keys = [(t.kind, tuple(sorted(t.params.items())), off) for t in terms]
+        out: list[np.ndarray | None] = [self._cache.get(k) for k in keys]
+        todo = [i for i, got in enumerate(out) if got is None]
+        for i, col in zip(todo, thread_map(lambda i: self._compute(terms[i], off), todo)):
+            out[i] = col
+            if len(self._cache) < 48:
+                self._cache.setdefault(keys[i], col)
+        return out
+
+    def _compute(self, term: Term, offsets: tuple[float, ...] | None) -> np.ndarray:
         parts = []
         own = "offset" in term.spec.params
         for i, (rf, k) in enumerate(zip(self.rfs, self.keep)):
             if offsets is None:
                 g = term.evaluate(rf.z, rf.zdot)
             elif own:
-                g = Term(term.kind, {**term.params, "offset": float(offsets[i])}).evaluate(rf.z, rf.zdot)
+                g = Term(term.kind, {**term.params, "offset": offsets[i]}).evaluate(rf.z, rf.zdot)
             else:  # a form without an offset of its own: evaluated on z measured from the static position
-                g = term.evaluate(rf.z - float(offsets[i]), rf.zdot)
+                g = term.evaluate(rf.z - offsets[i], rf.zdot)
             parts.append(bandpass(g, rf.fs_hz, rf.band)[k])
-        out = np.concatenate(parts)
-        if len(self._cache) < 48:
-            self._cache[key] = out
-        return out
+        return np.concatenate(parts)
 
 
 # --------------------------------------------------------------------------------------------
@@ -219,9 +230,12 @@ class GridSearch:
         self._refresh()
 
     def _add(self, terms: list[Term]) -> None:
-        for t in terms:
-            self.terms.append(t)
-            self.cols.append(self.data.regressor(t)[self.data.rows])
+        step = 4 * max_threads()    # a few columns per thread between two progress updates
+        for j in range(0, len(terms), step):
+            chunk = terms[j:j + step]
+            for t, col in zip(chunk, self.data.regressors(chunk)):
+                self.terms.append(t)
+                self.cols.append(col[self.data.rows])
             if self._progress:
                 self._progress(min(len(self.terms) / self._total, 1.0))
 
