@@ -340,7 +340,7 @@ def _down(x: np.ndarray, q: int) -> np.ndarray:
 
 
 def _down_up(x: np.ndarray, q: int) -> np.ndarray:
-    return _down(_up(x, q), q)
+    return _down(_UP(x, q), q)     # the fine-rate input the simulation has just interpolated: not again
 
 
 #: the measured input at the fine rate, and the spindle signal there decimated back: the same for every
