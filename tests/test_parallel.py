@@ -90,3 +90,26 @@ def test_forward_jacobian_is_the_serial_forward_difference(monkeypatch):
         x[j] += h[j]
         serial[:, j] = (res(x) - f0) / (x[j] - x0[j])
     assert np.array_equal(forward_jacobian(res, x0, f0, h), serial)
+
+
+def test_refinement_of_several_records_on_threads_is_its_serial_result_bit_for_bit(monkeypatch):
+    """The refinement's evaluations simulate the records side by side (and each Jacobian column's records one
+    after the other): the refined model, its cost and its evaluations are those of one thread, to the last bit."""
+    from nifo_core.kinds.describing import Term
+    from nifo_core.nifo.identify import identify_nifo
+    from nifo_core.predict.model import IdentifiedModel
+    from nifo_core.predict.refine import refine_model
+    from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
+
+    strut = (StrutForce(Term("coulomb", {"eps": 0.005}), 30.0),)
+    recs = [simulate(SimConfig(strut=strut, road=RandomRoad(rms), duration_s=40.0, fs_hz=400.0,
+                               noise=SensorNoise(relative=0.02)), rng=seed).record
+            for rms, seed in ((0.5e-3, 1), (1e-3, 2), (2e-3, 3))]
+    model = IdentifiedModel.from_nifo(identify_nifo(recs, [s.term for s in strut]))
+    got = {}
+    for n in ("1", "2"):
+        monkeypatch.setenv("NIFO_THREADS", n)
+        got[n] = refine_model(model, recs, max_iterations=8)
+    one, two = got["1"], got["2"]
+    assert np.array_equal(one.model.c_over_m2, two.model.c_over_m2)
+    assert one.nmse == two.nmse and one.evaluations == two.evaluations and one.parameters == two.parameters

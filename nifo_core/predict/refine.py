@@ -394,13 +394,16 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
         Safe on several threads at once (the Jacobian's columns)."""
         nonlocal n_eval
         m = sp.model(x)
-        parts, bad = [], set()
-        for k, (rec, skip, pen) in enumerate(zip(records, skips, penalty)):
+
+        def one(k: int) -> tuple[np.ndarray, bool]:
             try:
-                parts.append(_residual(m, rec, band, period_samples, skip, oversample))
+                return _residual(m, records[k], band, period_samples, skips[k], oversample), False
             except PredictionDivergedError:
-                bad.add(k)
-                parts.append(pen.astype(complex))
+                return penalty[k].astype(complex), True
+
+        # the records side by side (inside a Jacobian column's thread: one after the other, thread_map's rule)
+        got = thread_map(one, range(len(records)))
+        parts, bad = [g for g, _ in got], {k for k, (_, diverged) in enumerate(got) if diverged}
         r = np.concatenate(parts)
         out = np.concatenate([r.real, r.imag])
         with lock:
