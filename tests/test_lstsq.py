@@ -1,4 +1,4 @@
-"""The characterization's least squares (nifo_core.characterize.score.lstsq): the normal equations on unit-norm
+"""The equation-error fits' least squares (nifo_core.signal.least_squares.lstsq): the normal equations on unit-norm
 columns with a refinement step agree with the SVD solution of the same column-scaled problem, are more accurate
 than numpy's unscaled one where the columns' scales differ by 10^4 and more, and fall back to the SVD where the
 columns are nearly collinear or one is empty."""
@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nifo_core.characterize.score import GRAM_COND, lstsq
+from nifo_core.signal.least_squares import GRAM_COND, lstsq
 
 
 def _strut_columns(n: int = 120_000, seed: int = 3) -> tuple[np.ndarray, np.ndarray]:

@@ -6,12 +6,12 @@ from __future__ import annotations
 from typing import Sequence
 
 import numpy as np
-import scipy.linalg
 from scipy import stats
 
 from .data import RegressionData
 from .result import POSITIVE_KINDS, Candidate, Thresholds
 from ..kinds.describing import Term
+from ..signal.least_squares import lstsq
 from ..signal.uncertainty import effective_samples
 
 __all__ = ["score_candidate", "lstsq", "base_fit", "detection_limit", "smallest_visible"]
@@ -65,38 +65,6 @@ def _half_width(a0: np.ndarray, g: np.ndarray, res: np.ndarray, data: Regression
         return float("nan")
     var = float(sc @ sc) * (gp.size / covered) / info ** 2   # rows past the last whole block: same density
     return float(stats.t.ppf(0.5 + level / 2, sc.size - 1)) * float(np.sqrt(var))
-
-
-#: the scaled Gram matrix's condition number up to which :func:`lstsq` solves the normal equations (their error,
-#: ~cond·1e-16 before the refinement step, is then far below the noise); beyond it LAPACK's SVD solution
-GRAM_COND = 1e8
-
-
-def lstsq(a: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Least-squares coefficients of ``y`` on the columns of ``a``.
-
-    The characterization's fits are tall and thin (10⁵ rows, 3-8 columns, each fitted a dozen times per
-    candidate): normal equations on unit-norm columns, Cholesky-solved, plus one step of iterative refinement
-    from the residual (four passes over ``a``). It is also the more accurate: LAPACK's ``gelsd`` as numpy calls it
-    does not scale the columns, and a cubic's z³ (10⁻⁹ m³) beside ż (0.1 m/s) cost it ~5e-9 relative, against
-    2e-13 here (measured against the SVD solution on unit-norm columns, 180 000 rows).
-    Where the scaled Gram matrix's condition is :data:`GRAM_COND` or more (nearly collinear columns) the SVD
-    solution on unit-norm columns; with an empty column, a short ``a`` or a 2-D ``y``, :func:`numpy.linalg.lstsq`."""
-    a = np.asarray(a, float)
-    y = np.asarray(y, float)
-    if a.ndim != 2 or y.ndim != 1 or a.shape[0] < 8 * max(a.shape[1], 1) or a.shape[1] == 0:
-        return np.linalg.lstsq(a, y, rcond=None)[0]
-    gram = a.T @ a
-    scale = np.sqrt(np.diag(gram))
-    if not np.all((scale > 0) & np.isfinite(scale)):
-        return np.linalg.lstsq(a, y, rcond=None)[0]
-    gram = gram / np.outer(scale, scale)
-    if not np.linalg.cond(gram) < GRAM_COND:
-        return np.linalg.lstsq(a / scale, y, rcond=None)[0] / scale
-    factor = scipy.linalg.cho_factor(gram, check_finite=False)
-    x = scipy.linalg.cho_solve(factor, (a.T @ y) / scale, check_finite=False) / scale
-    r = y - a @ x
-    return x + scipy.linalg.cho_solve(factor, (a.T @ r) / scale, check_finite=False) / scale
 
 
 def _cv_rss(a: np.ndarray, y: np.ndarray, fold: np.ndarray) -> float:

@@ -36,6 +36,7 @@ from scipy import optimize
 
 from .data import RegressionData
 from ..kinds.describing import Term
+from ..signal.least_squares import lstsq
 
 __all__ = ["mean_shift", "static_bump_stops", "shifted_offsets", "STATIC_KINDS", "SHIFTED_KINDS"]
 
@@ -103,7 +104,7 @@ def shifted_offsets(data: RegressionData, terms: Sequence[Term], *,
 
 def _fit(data: RegressionData, terms: list[Term], offsets: list[list[float] | None]) -> tuple[np.ndarray, float]:
     a = np.column_stack([data.x[:, data.lin], *[data.regressor(t, offsets=o) for t, o in zip(terms, offsets)]])
-    c = np.linalg.lstsq(a, data.y, rcond=None)[0]
+    c = lstsq(a, data.y)
     r = data.y - a @ c
     return c, float(r @ r)
 

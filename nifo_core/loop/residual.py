@@ -35,6 +35,7 @@ from ..signal.spectral import SpectralSettings, auto_spectrum, cross_spectra
 from ..signal.noise import estimate_noise
 from ..signal.record import Record
 from ..signal.bias_correction import Correction, simulated_correction
+from ..signal.least_squares import lstsq
 from ..errors import NifoError
 from ..predict.model import predict_body
 from ..signal.uncertainty import CoefficientBounds, coefficient_bounds
@@ -174,7 +175,7 @@ class _Evaluator:
 
     def _lstsq(self, parts: Sequence[_Part], terms: Sequence[Term]) -> np.ndarray:
         y, x = _design(parts, terms, self.static)
-        return np.linalg.lstsq(x, y, rcond=None)[0]
+        return lstsq(x, y)
 
     def corrected(self, terms: Sequence[Term]) -> Correction | None:
         """The equation-error coefficients with the fit's bias (noise on both sensors, processing) removed by
@@ -207,7 +208,7 @@ class _Evaluator:
     def joint(self, terms: Sequence[Term]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(θ = [k, c, θ_i...], fit rows y, X) of the equation-error fit on the fit part."""
         y, x = _design(self.fit_parts, terms, self.static)
-        return np.linalg.lstsq(x, y, rcond=None)[0], y, x
+        return lstsq(x, y), y, x
 
     def bounds(self, terms: Sequence[Term], *, level: float = 0.95) -> CoefficientBounds:
         """θ with bounds: random error (:func:`coefficient_bounds`) and, when the bias is removed
