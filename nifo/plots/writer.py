@@ -43,11 +43,13 @@ __all__ = ["figure_batch", "deferred_figures", "wait_figures", "submit_figure", 
 
 #: environment variable: helper processes for figures (0: write them in the calling process)
 WORKERS_ENV = "NIFO_FIGURE_WORKERS"
+#: the most seconds to wait for a shut-down pool's manager thread (it ends within milliseconds once its helpers
+#: are gone; a bound, not a wait)
+ABANDON_WAIT_S = 5.0
 
 _batch: contextvars.ContextVar[list | None] = contextvars.ContextVar("nifo_figure_batch", default=None)
 _deferred: contextvars.ContextVar[list | None] = contextvars.ContextVar("nifo_figures_later", default=None)
 _pool: ProcessPoolExecutor | None = None
-ABANDON_WAIT_S = 5.0     # the killed helpers' manager thread ends within milliseconds; a bound, not a wait
 _pool_failed = False
 _lock = threading.Lock()
 

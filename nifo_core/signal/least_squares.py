@@ -32,7 +32,7 @@ def lstsq(a: np.ndarray, y: np.ndarray) -> np.ndarray:
     solution on unit-norm columns; with an empty column, a short ``a`` or a 2-D ``y``, :func:`numpy.linalg.lstsq`."""
     a = np.asarray(a, float)
     y = np.asarray(y, float)
-    if a.ndim != 2 or y.ndim != 1 or a.shape[0] < 8 * max(a.shape[1], 1) or a.shape[1] == 0:
+    if a.ndim != 2 or y.ndim != 1 or a.shape[1] == 0 or a.shape[0] < 8 * a.shape[1]:
         return np.linalg.lstsq(a, y, rcond=None)[0]
     gram = a.T @ a
     scale = np.sqrt(np.diag(gram))
