@@ -113,3 +113,91 @@ def test_refinement_of_several_records_on_threads_is_its_serial_result_bit_for_b
     one, two = got["1"], got["2"]
     assert np.array_equal(one.model.c_over_m2, two.model.c_over_m2)
     assert one.nmse == two.nmse and one.evaluations == two.evaluations and one.parameters == two.parameters
+
+
+def test_rational_fits_of_every_order_side_by_side_are_the_serial_fit(monkeypatch):
+    """fit_rational tries its orders a few at a time on threads: the chosen order, poles and residues, and the table
+    of every order tried, are those of one thread to the last bit."""
+    from nifo_core.predict.linear_part import LinearPart, fit_rational
+
+    poles = np.array([-1.5 + 2 * np.pi * 4j, -1.5 - 2 * np.pi * 4j, -3 + 2 * np.pi * 11j, -3 - 2 * np.pi * 11j])
+    res = np.array([-0.004j, 0.004j, 0.0012j, -0.0012j])
+    res[2:] -= res.sum().real / 2
+    f = np.linspace(1.0, 25.0, 400)
+    rng = np.random.default_rng(5)
+    t21 = LinearPart("rational", poles=poles, residues=res, band_hz=(2.0, 20.0)).t21(f)
+    t21 = t21 * (1 + 0.01 * (rng.standard_normal(f.size) + 1j * rng.standard_normal(f.size)))
+    got = {}
+    for n in ("1", "2"):
+        monkeypatch.setenv("NIFO_THREADS", n)
+        got[n] = fit_rational(f, t21, band_hz=(2.0, 20.0), max_order=16)
+    one, two = got["1"], got["2"]
+    assert len(one.candidates["orders_tried"]) == 8
+    assert np.array_equal(one.poles, two.poles) and np.array_equal(one.residues, two.residues)
+    assert one.candidates == two.candidates and one.fit_rms == two.fit_rms
+
+
+def test_the_loop_judges_a_flexible_bodys_candidates_side_by_side_as_one_thread_does(monkeypatch):
+    """On a flexible body (rational linear part) the loop judges every candidate on its held-out prediction; they
+    run side by side on threads: the result (trials, added terms, errors, model) is that of one thread."""
+    from test_feedback_paths import PERIOD, _linear, _paths_true, _record
+
+    from nifo_core.loop.closing import close_loop
+    from nifo_core.loop.results import LoopSettings
+    from nifo_core.settings import AnalysisSettings
+    from nifo_core.signal.integrate import IntegrationBand
+    from nifo_core.signal.spectral import SpectralSettings
+
+    truth = _linear(paths=_paths_true())
+    recs = [_record(lv, truth, periods=6) for lv in (1.0, 6.0)]
+    data = AnalysisSettings(spectral=SpectralSettings(block=PERIOD, overlap=0.0, window="boxcar"),
+                            band=IntegrationBand(1.0, 60.0), analysis_band_hz=(2.0, 20.0), period_samples=PERIOD,
+                            skip_periods=1)
+    got = {}
+    for n in ("1", "2"):
+        monkeypatch.setenv("NIFO_THREADS", n)
+        got[n] = close_loop(recs, (), data=data, settings=LoopSettings(max_rounds=1, refine=False))
+    one, two = got["1"], got["2"]
+    trials = one.rounds[0].trials
+    assert one.model.linear.kind == "rational" and len(trials) >= 2, one.report()   # judged side by side
+    assert one.to_dict() == two.to_dict()
+
+
+def test_the_bias_correction_side_by_side_is_its_serial_result_bit_for_bit(monkeypatch):
+    """simulated_correction runs a step's records, its noisy refits and its noise-free refit side by side on threads
+    (side_by_side=True): the corrected θ, the bias and every spread are those of the serial loop to the last bit."""
+    from nifo_core.signal.bias_correction import simulated_correction
+    from nifo_core.signal.noise import ChannelNoise, NoiseEstimate
+    from nifo_core.signal.record import Record
+
+    rng = np.random.default_rng(3)
+    fs = 200.0
+
+    def simulate(theta, rec):       # a static nonlinearity: ẍ2 = θ0·ẍ1 + θ1·ẍ1³
+        a = np.asarray(rec.spindle_accel, float)
+        return theta[0] * a + theta[1] * a * a * a
+
+    def fit(recs):                  # its least squares on the noisy ẍ1: errors in variables, biased
+        a = np.concatenate([np.asarray(r.spindle_accel, float) for r in recs])
+        y = np.concatenate([np.asarray(r.body_accel, float) for r in recs])
+        return np.linalg.lstsq(np.column_stack([a, a * a * a]), y, rcond=None)[0]
+
+    recs, noise = [], []
+    for k in range(3):
+        a1 = rng.standard_normal(4000) * (1 + k)
+        rec = Record(fs_hz=fs, spindle_accel=a1, body_accel=simulate(np.array([0.8, 0.05]), Record(fs, a1, a1)))
+        recs.append(rec)
+        s1, s2 = 0.1 * float(np.std(a1)), 0.1 * float(np.std(rec.body_accel))
+        noise.append(NoiseEstimate(f"r{k}", (ChannelNoise("spindle_accel", s1, 2 * s1 ** 2 / fs, 0.1, (1.0, 2.0)),
+                                             ChannelNoise("body_accel", s2, 2 * s2 ** 2 / fs, 0.1, (1.0, 2.0)))))
+    theta0 = fit(recs)
+    got = {}
+    for n, side in (("1", False), ("2", True)):
+        monkeypatch.setenv("NIFO_THREADS", n)
+        got[n] = simulated_correction(fit, simulate, recs, noise, theta0, pairs=2, side_by_side=side,
+                                      drive_noise=True)
+    one, two = got["1"], got["2"]
+    assert one is not None and not np.array_equal(one.theta, theta0)     # a correction was made
+    for name in ("theta", "noise_bias", "draw_sd", "tail", "drive_sd", "fit_sd"):
+        assert np.array_equal(getattr(one, name), getattr(two, name)), name
+    assert one.gain == two.gain

@@ -17,11 +17,14 @@ of the restoring force they explain beyond a linear strut
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
 from nifo.io.atomic import check_output, staged_dir
+from nifo.plots import DRAWING
 from nifo.plots.writer import figure_batch
 from nifo.io.loader import input_options, load_record
 from nifo.io.modelfile import write_model_spec
@@ -38,7 +41,10 @@ from nifo_core.characterize.restoring import (FrequencyTrack, RestoringForce, am
                                  suggest_band, track_frequency)
 
 
-def run_characterize(args: CharacterizeOptions) -> dict:
+def run_characterize(args: CharacterizeOptions, *, echo: Callable[[str], None] = print,
+                     show_progress: bool = True) -> dict:
+    """The step (module docstring); what it reports goes to ``echo`` (``nifo run`` collects the lines of steps it
+    runs side by side and prints them in order), its progress bar only with ``show_progress``."""
     check_output(args.out)   # refuse a file or a foreign directory before any work
     settings = resolve([Path(p) for p in args.data], args, opts=input_options(args))
     opts = loader_options(input_options(args), settings)
@@ -57,25 +63,27 @@ def run_characterize(args: CharacterizeOptions) -> dict:
         if not 0 < lo < hi:
             raise ConfigError(f"--freq-window {lo:g} {hi:g} must satisfy 0 < LO < HI")
         masks = [(t.freq_hz >= lo) & (t.freq_hz <= hi) for t in tracks]
-    with Progress(1.0, "characterize") as prog:
+    with Progress(1.0, "characterize") if show_progress else contextlib.nullcontext() as prog:
         last = [0.0]
 
         def step(frac: float) -> None:
-            prog.advance(frac - last[0])
+            if prog is not None:
+                prog.advance(frac - last[0])
             last[0] = frac
 
         char = characterize_restoring(rfs, m2_kg=args.m2, kinds=kinds, thresholds=thresholds, grid_points=args.grid,
                                       max_terms=args.max_terms, masks=masks, progress=step)
     with staged_dir(args.out) as tmp, figure_batch():   # figures rendered by helpers, all written before the commit
-        figures = _figures(tmp, args, rfs, tracks, masks, char)
+        with DRAWING:                                     # matplotlib: one thread at a time
+            figures = _figures(tmp, args, rfs, tracks, masks, char)
         doc = _document(args, records, rfs, tracks, char, figures, band_source=_band_source(settings))
         doc["settings"] = settings.to_dict()
         write_json(tmp / "characterize.json", doc, atomic=False, indent=2)
         write_model_spec(tmp / "suggested_model.yaml", char.suggested_terms,
                          settings={"band_hz": [band.f_lo_hz, band.f_hi_hz]},
                          note=_model_note(char), suggested_by=f"nifo characterize {__version__}")
-    print(_table(char, args.top, [str(p) for p in args.data], len(rates) > 1))
-    print(f"wrote {args.out}/ (characterize.json, suggested_model.yaml, {', '.join(figures)})")
+    echo(_table(char, args.top, [str(p) for p in args.data], len(rates) > 1))
+    echo(f"wrote {args.out}/ (characterize.json, suggested_model.yaml, {', '.join(figures)})")
     return {"out": str(args.out), "band_hz": [band.f_lo_hz, band.f_hi_hz], "nothing_found": char.nothing_found,
             "suggested": [c.term.label for c in char.suggested], "figures": figures}
 

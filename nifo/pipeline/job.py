@@ -17,15 +17,21 @@ at two road levels). Steps, each into its own subdirectory of ``--out``
    ``loop/model.json``;
 4. ``predict/``       the final model and the linear model of the same data on every record;
 5. ``report/report.html``  the self-contained HTML report of all of the above;
-6. ``recording/nifo.rrd``  the Rerun recording (``rerun results/recording/nifo.rrd``).
+6. ``recording/nifo.rrd``  the Rerun recording (``rerun results/recording/nifo.rrd``), written on a thread
+   beside the report.
+
+Independent work runs side by side on threads (``NIFO_THREADS=1``: one after the other, the same results): the
+two-step model's lowest and highest level, the report and the recording.
 """
 
 from __future__ import annotations
 
+import contextvars
 import importlib
 import json
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -44,6 +50,7 @@ from nifo.settings import resolve
 from nifo.viz.report_html import write_report
 from nifo.viz.results import read_results
 from nifo_core.errors import NifoError
+from nifo_core.signal.parallel import max_threads
 
 __all__ = ["run_job", "loop_available"]
 
@@ -71,10 +78,23 @@ def _two_step_model(ordered: list[Path], char_dir: Path, given: RunOptions) -> t
     naming both steps.
     """
     base = char_dir.parent / "characterize_levels"
-    suggested = {}
-    for name, path in (("lowest", ordered[0]), ("highest", ordered[-1])):
-        run_characterize(CharacterizeOptions(data=[str(path)], out=base / name).taking(given))
-        suggested[name] = load_model_spec(base / name / "suggested_model.yaml").terms
+    levels = (("lowest", ordered[0]), ("highest", ordered[-1]))
+
+    def one(level: tuple[str, Path]) -> list[str]:
+        lines: list[str] = []
+        run_characterize(CharacterizeOptions(data=[str(level[1])], out=base / level[0]).taking(given),
+                         echo=lines.append, show_progress=False)
+        return lines
+
+    # the two levels side by side on threads (independent steps into their own folders; each thread in a copy of
+    # this one's context: the job's read memo and deferred figures), their reports printed in order afterwards;
+    # leaving the pool waits for both, so a failed or interrupted one leaves nothing writing behind it
+    with ThreadPoolExecutor(min(2, max_threads())) as pool:
+        futures = [pool.submit(contextvars.copy_context().run, one, level) for level in levels]
+        reports = [f.result() for f in futures]
+    for lines in reports:
+        print("\n".join(lines))
+    suggested = {name: load_model_spec(base / name / "suggested_model.yaml").terms for name, _ in levels}
     high = list(suggested["highest"])
     variables = {t.variable for t in high}
     low = [t for t in suggested["lowest"] if t.variable not in variables and t.kind not in {h.kind for h in high}]
@@ -91,6 +111,12 @@ def _two_step_model(ordered: list[Path], char_dir: Path, given: RunOptions) -> t
     text = (f"step 1: {' + '.join(t.label for t in low)} on {ordered[0].name} (the lowest level); step 2: "
             f"{' + '.join(t.label for t in high)} on {', '.join(p.name for p in ordered[1:])}")
     return path, text
+
+
+def _record(read, rrd: Path) -> None:
+    from nifo.viz.offline import save_recording   # rerun (a second to import) only when a recording is asked for
+
+    save_recording(read, rrd)
 
 
 def loop_available() -> bool:
@@ -209,16 +235,20 @@ def _run(args: RunOptions, data: list[Path], out: Path) -> dict:
     wait_figures()      # the report reads the steps' figures
     read = read_results(results)
     rrd = dirs["recording"] / "nifo.rrd"
-    t = begin("report: one self-contained HTML file")
-    report = write_report(read, dirs["report"] / "report.html", title="nifo run: " + ", ".join(p.name for p in data),
-                          notes=notes, recording=None if args.no_recording else str(rrd))
-    timings["report"] = time.monotonic() - t
-    if not args.no_recording:
-        t = begin("recording: Rerun .rrd with the live layout")
-        from nifo.viz.offline import save_recording   # rerun (a second to import) only when a recording is asked for
-
-        save_recording(read, rrd)
-        timings["recording"] = time.monotonic() - t
+    # the report and the recording read the same results into their own folders: side by side (the recording on a
+    # thread in a copy of this context; leaving the pool waits for it, so a failed report leaves nothing writing)
+    side = not args.no_recording and max_threads() >= 2
+    with ThreadPoolExecutor(1) as pool:
+        recording = pool.submit(contextvars.copy_context().run, _record, read, rrd) if side else None
+        t = begin("report: one self-contained HTML file")
+        report = write_report(read, dirs["report"] / "report.html",
+                              title="nifo run: " + ", ".join(p.name for p in data),
+                              notes=notes, recording=None if args.no_recording else str(rrd))
+        timings["report"] = time.monotonic() - t
+        if not args.no_recording:
+            t = begin("recording: Rerun .rrd with the live layout")
+            recording.result() if recording is not None else _record(read, rrd)
+            timings["recording"] = time.monotonic() - t
 
     took = time.monotonic() - t0
     print(f"\nnifo run finished in {took:.0f} s (" + ", ".join(f"{k} {v:.0f} s" for k, v in timings.items()) + ")")

@@ -8,9 +8,14 @@ a PNG (for the report and quick looks) and the same figure as SVG beside it
 
 from __future__ import annotations
 
+import threading
 from pathlib import Path
 
-__all__ = ["pyplot", "save_figure", "VECTOR_SUFFIXES"]
+__all__ = ["pyplot", "save_figure", "VECTOR_SUFFIXES", "DRAWING"]
+
+#: held while a thread builds or renders figures: matplotlib (pyplot's state, the mathtext parser) is not
+#: thread-safe, so steps that run side by side on threads (``nifo run``'s two levels) draw one at a time
+DRAWING = threading.RLock()
 
 
 def pyplot():

@@ -77,6 +77,7 @@ from .static import shifted_offsets, static_bump_stops
 from ..kinds.describing import Term, kind as lookup_kind
 from ..errors import ConfigError, InputError
 from ..signal.integrate import IntegrationBand
+from ..signal.parallel import thread_map
 from ..signal.record import Record
 from .restoring import RestoringForce, instantaneous_frequency, restoring_force, suggest_band
 
@@ -131,7 +132,8 @@ def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None
     for k in kinds:  # a kind with only unphysical signs keeps its best, to show why it fails
         j = search.best_of(k, e1, s1)
         best1[k] = j if j is not None else search.best_of(k, e1, np.ones_like(s1))
-    table = {k: score(best1[k], [], ()) for k in kinds}
+    data.regressors([search.terms[best1[k]] for k in kinds])      # their columns side by side, remembered
+    table = dict(zip(kinds, thread_map(lambda k: score(best1[k], [], ()), kinds)))
     # --- forward selection: each step re-scores the best few kinds at full length ----------
     chosen: list[Candidate] = []
     chosen_j: list[int] = []
@@ -146,7 +148,8 @@ def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None
             scored = [(table[k], best1[k]) for k in sorted(kinds, key=lambda k: -table[k].err)[:_FULL_PER_STEP]]
         else:
             names = tuple(c.term.label for c in chosen)
-            scored = [(score(js[k], base, names), js[k]) for k in top]
+            data.regressors([search.terms[js[k]] for k in top])
+            scored = list(zip(thread_map(lambda k: score(js[k], base, names), top), [js[k] for k in top]))
         scored = [(c, j) for c, j in scored if c.present]
         if not scored:
             break

@@ -104,7 +104,9 @@ from ..kinds.describing import Term, make_term
 from .detection import confounded_pairs, detection_limits, undetermined_terms
 from ..errors import ConfigError, InputError, NifoError, RecordTooShortError
 from ..signal.integrate import IntegrationBand
+from ..signal.parallel import thread_map
 from ..characterize.data import RegressionData
+from ..characterize.result import Candidate
 from ..characterize.score import score_candidate
 from ..predict.feedback_paths import PATH_KINDS
 from ..predict.heldout import HeldOut, split_records
@@ -433,8 +435,8 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
         if pred.flexible and cands and all(t.kind in PATH_KINDS for t in terms):
             say(base + 0.5 / total, f"round {i}: the linear twin (one more linear path)")
             twin = _errors(ev, pred, [*terms, linear_twin(ev)])
-        for j, c in enumerate(cands):
-            say(base + (0.5 + 0.45 * j / max(len(cands), 1)) / total, f"round {i}: checking {c.term.label}")
+
+        def judge(c: Candidate) -> Trial:
             c = _static_candidate(ev, terms, c, s, m2_kg)  # a bump stop: its gap from the static position
             failed = []
             r2 = acts_linearly(ev, c.term)
@@ -457,16 +459,24 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
                 alts = [(k, a, _errors(ev, pred, [*terms[:k], a, *terms[k + 1:]]))
                         for k, a in one_of_kind_alternatives(terms, c.term, [r.term for r in ranked], ev.static)]
                 failed += one_of_kind_failures(terms, c.term, after, alts, s)
-            t = Trial(candidate=c, tire_shift=shift, tire_excluded_fraction=frac, heldout_gain=gain, after=after,
-                      accepted=not failed, failed=tuple(failed),
-                      unconfirmed=bool(pred_failed) and len(failed) == len(pred_failed) and not pred.flexible)
-            trials.append(t)
-            if t.accepted and not pred.flexible:
-                added = t
-                break
-        if pred.flexible:      # every candidate judged on the one metric: the best that passes
+            return Trial(candidate=c, tire_shift=shift, tire_excluded_fraction=frac, heldout_gain=gain, after=after,
+                         accepted=not failed, failed=tuple(failed),
+                         unconfirmed=bool(pred_failed) and len(failed) == len(pred_failed) and not pred.flexible)
+
+        if pred.flexible:      # every candidate judged on the one metric, side by side: the best that passes
+            say(base + 0.5 / total, f"round {i}: checking {len(cands)} candidates side by side")
+            if cands and ev.regression is None:     # made once here, not raced for by the candidates
+                ev.regression = RegressionData(ev.fit_rfs, n_groups=4, body_stiffness=False)
+            trials = thread_map(judge, cands)
             ok = [t for t in trials if t.accepted]
             added = min(ok, key=lambda t: t.after.prediction_nmse_pct) if ok else None
+        else:                  # in rank order, the first that passes
+            for j, c in enumerate(cands):
+                say(base + (0.5 + 0.45 * j / max(len(cands), 1)) / total, f"round {i}: checking {c.term.label}")
+                trials.append(judge(c))
+                if trials[-1].accepted:
+                    added = trials[-1]
+                    break
         pre = "".join(f"(Re-tuned first: {n}.) " for n in tuned)
         if added is None:
             text = pre + _nothing_text(i, ranked, trials)

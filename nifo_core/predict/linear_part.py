@@ -41,6 +41,7 @@ import scipy.linalg
 
 from ..kinds.describing import KINDS
 from ..errors import ConfigError
+from ..signal.parallel import max_threads, thread_map
 
 __all__ = ["BodyModel", "LinearPart", "RecordLines", "absorbed_rates", "fit_body_model", "fit_rational",
            "nominal_linear_part", "pole_residue_response", "select_linear_part"]
@@ -577,15 +578,28 @@ def fit_rational(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[float, 
     # pole decays at least at π·df (half-power bandwidth ≥ df)
     min_decay = np.pi * float(np.median(np.diff(f[m])))
     refits = {}
-    for o in orders:
+
+    def one(o: int) -> tuple:
         poles = _vf(s, h, wgt, _start_poles(o // 2, band_hz), n_iter, min_decay)
         p, r = _residues(s, h, wgt, _conj_clean(np.concatenate([poles, residual])))
-        if records:
-            p, r, refits[o] = _refit(list(records), p)
+        refit = _refit(list(records), p) if records else None
+        if refit is not None:
+            p, r = refit[0], refit[1]
         err = float(np.sqrt(np.mean(np.abs(1 - w**2 * np.sum(r[:, None] / (s[None, :] - p[:, None]), axis=0)
                                            - t[m]) ** 2 / np.abs(t[m]) ** 2)))
-        fits.append((o, err, p, r))
-        if err < 1e-9:       # exact: higher orders only add spurious poles
+        return (o, err, p, r), None if refit is None else refit[2]
+
+    # the orders are independent fits: a few side by side on threads (each its own numbers, so the same result)
+    batch, exact = max_threads(), False
+    for k in range(0, len(orders), batch):
+        for fit, refit in thread_map(one, orders[k:k + batch]):
+            fits.append(fit)
+            if refit is not None:
+                refits[fit[0]] = refit
+            if fit[1] < 1e-9:       # exact: higher orders only add spurious poles
+                exact = True
+                break
+        if exact:
             break
     extra = {}
     if records:

@@ -227,13 +227,15 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
             return None
         # steps before the last two on the first pair alone (:data:`FULL_STEPS`)
         now = jobs if step >= n_steps - FULL_STEPS else jobs[:2]
-        got = each(lambda job: np.asarray(fit([_noisy(r, b, e, job[1] * d) for r, b, e, d in
-                                               zip(records, bodies, noise, draws[job[0]])]), float), now)
+        # the noisy fits and (noise_only: not needed) the noise-free one side by side, the noise-free one last
+        got = each(lambda job: np.asarray(fit([_noisy(r, b, e, None if job is None else job[1] * d)
+                                               for r, b, e, d in zip(records, bodies, noise,
+                                                                     draws[0 if job is None else job[0]])]), float),
+                   now if noise_only else [*now, None])
+        clean = theta if noise_only else got.pop()
         half = np.array([0.5 * (got[i] - got[i + 1]) for i in range(0, len(got), 2)])
         means = np.array([0.5 * (got[i] + got[i + 1]) for i in range(0, len(got), 2)])
         syn = means.mean(axis=0)
-        clean = theta if noise_only else np.asarray(fit([_noisy(r, b, e, None)
-                                                         for r, b, e in zip(records, bodies, noise)]), float)
         noise_bias = free * (syn - clean)
         if len(half) == 1:
             draw_sd = free * np.abs(half[0])
