@@ -296,16 +296,17 @@ def rank_beyond(rfs: Sequence[RestoringForce], declared: Sequence[Term], *, m2_k
     e, sg = search.err(extra, r)
     n_grid = {k: len(search.grids[k]) for k in kinds}
     names = tuple(t.label for t in declared)
-    out = []
+    best = []
+    ok = np.array([t not in declared for t in search.terms])
     for k in kinds:
-        ok = np.array([t not in declared for t in search.terms])
         j = search.best_of(k, np.where(ok, e, -1.0), sg)
         if j is None:  # only the unphysical sign: keep its best, to show why it fails
             j = search.best_of(k, np.where(ok, e, -1.0), np.ones_like(sg))
-        if j is None or not ok[j]:
-            continue
-        out.append(score_candidate(data, base, search.terms[j], thresholds=thresholds, n_grid=n_grid[k], m2=m2_kg,
-                          names=names))
+        if j is not None and ok[j]:
+            best.append((k, j))
+    data.regressors([search.terms[j] for _, j in best])      # their columns side by side, remembered
+    out = thread_map(lambda kj: score_candidate(data, base, search.terms[kj[1]], thresholds=thresholds,
+                                                n_grid=n_grid[kj[0]], m2=m2_kg, names=names), best)
     return tuple(sorted(out, key=lambda c: -c.err))
 
 

@@ -227,16 +227,19 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
             return None
         # steps before the last two on the first pair alone (:data:`FULL_STEPS`)
         now = jobs if step >= n_steps - FULL_STEPS else jobs[:2]
-        # the noisy fits and (noise_only: not needed) the noise-free one side by side, the noise-free one last
+        # the noisy fits and the noise-free one side by side, the noise-free one last; it is only needed for the
+        # noise's part of the bias at the last step (noise_only: the whole bias)
+        clean_too = not noise_only and step == n_steps - 1
         got = each(lambda job: np.asarray(fit([_noisy(r, b, e, None if job is None else job[1] * d)
                                                for r, b, e, d in zip(records, bodies, noise,
                                                                      draws[0 if job is None else job[0]])]), float),
-                   now if noise_only else [*now, None])
-        clean = theta if noise_only else got.pop()
+                   [*now, None] if clean_too else now)
+        clean = got.pop() if clean_too else theta
         half = np.array([0.5 * (got[i] - got[i + 1]) for i in range(0, len(got), 2)])
         means = np.array([0.5 * (got[i] + got[i + 1]) for i in range(0, len(got), 2)])
         syn = means.mean(axis=0)
-        noise_bias = free * (syn - clean)
+        if clean_too or noise_only:
+            noise_bias = free * (syn - clean)
         if len(half) == 1:
             draw_sd = free * np.abs(half[0])
         else:   # the pairs' means scatter by the Monte-Carlo error; each half difference is one draw's own effect
