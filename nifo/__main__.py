@@ -18,7 +18,7 @@ def _interrupt_again(unraisable) -> None:
 
 
 sys.unraisablehook = _interrupt_again
-from nifo.interrupt import by_interrupt, leave  # noqa: E402  (stdlib only: before anything can be interrupted)
+from nifo.interrupt import by_interrupt  # noqa: E402  (no imports of its own: before anything can be interrupted)
 
 try:
     from nifo.cli import main
@@ -29,4 +29,4 @@ except BaseException as e:   # Ctrl-C (or SIGINT) while starting up, before a co
         raise
     print("nifo: interrupted while starting; nothing was written", file=sys.stderr)
     code = 130
-leave(code)
+sys.exit(code)

@@ -26,7 +26,7 @@ from nifo_core import __version__
 from nifo_core.errors import EXIT_CODES, USAGE_EXIT_CODE, NifoError
 from nifo.interrupt import by_interrupt
 
-__all__ = ["main", "entry", "build_parser", "add_common_arguments", "COMMANDS"]
+__all__ = ["main", "build_parser", "add_common_arguments", "COMMANDS"]
 
 #: order shown in ``nifo --help``
 COMMANDS = ("run", "simulate", "info", "characterize", "identify", "predict", "loop",
@@ -138,14 +138,6 @@ def _abandon_helpers() -> None:
     writer = sys.modules.get("nifo.plots.writer")
     if writer is not None:
         writer.abandon_helpers()
-
-
-def entry() -> None:
-    """The ``nifo`` console script: :func:`main`, then the process ends with its code (:func:`nifo.interrupt.leave`:
-    an interrupted command at once)."""
-    from nifo.interrupt import leave
-
-    leave(main())
 
 
 def main(argv: list[str] | None = None) -> int:
