@@ -176,3 +176,26 @@ def test_a_run_that_fails_after_a_step_leaves_the_old_output_and_nothing_written
     assert sorted(p.name for p in out.iterdir()) == before
     time.sleep(1.5)
     assert sorted(p.name for p in out.iterdir()) == before and not list(tmp_path.glob(".res*"))
+
+
+def test_a_signal_while_the_helpers_are_spawned_is_held_until_they_are_whole():
+    """A helper reads its start-up data from the command's process: Ctrl-C landing in that write left a half-started
+    helper whose EOFError traceback reached the terminal (tests/test_kill.py, SIGINT 2.8 s into nifo run). The
+    spawning holds SIGINT/SIGTERM back and delivers them when it is done."""
+    from nifo.plots.writer import _signals_held
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    before = signal.signal(signal.SIGINT, interrupt)
+    try:
+        done = []
+        with pytest.raises(KeyboardInterrupt, match="signal 2"):
+            with _signals_held():
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(0.05)            # a signal is handled at the next bytecode: held, nothing raised here
+                done.append("spawned")
+        assert done == ["spawned"]
+        assert signal.getsignal(signal.SIGINT) is interrupt     # the command's own handler is back
+    finally:
+        signal.signal(signal.SIGINT, before)
