@@ -247,7 +247,10 @@ def _run(args: RunOptions, data: list[Path], out: Path) -> dict:
         timings["report"] = time.monotonic() - t
         if not args.no_recording:
             t = begin("recording: Rerun .rrd with the live layout")
-            recording.result() if recording is not None else _record(read, rrd)
+            if recording is not None:
+                recording.result()
+            else:
+                _record(read, rrd)
             timings["recording"] = time.monotonic() - t
 
     took = time.monotonic() - t0

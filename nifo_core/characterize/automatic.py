@@ -132,7 +132,6 @@ def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None
     for k in kinds:  # a kind with only unphysical signs keeps its best, to show why it fails
         j = search.best_of(k, e1, s1)
         best1[k] = j if j is not None else search.best_of(k, e1, np.ones_like(s1))
-    data.regressors([search.terms[best1[k]] for k in kinds])      # their columns side by side, remembered
     table = dict(zip(kinds, thread_map(lambda k: score(best1[k], [], ()), kinds)))
     # --- forward selection: each step re-scores the best few kinds at full length ----------
     chosen: list[Candidate] = []
@@ -148,7 +147,6 @@ def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None
             scored = [(table[k], best1[k]) for k in sorted(kinds, key=lambda k: -table[k].err)[:_FULL_PER_STEP]]
         else:
             names = tuple(c.term.label for c in chosen)
-            data.regressors([search.terms[js[k]] for k in top])
             scored = list(zip(thread_map(lambda k: score(js[k], base, names), top), [js[k] for k in top]))
         scored = [(c, j) for c, j in scored if c.present]
         if not scored:
@@ -304,7 +302,6 @@ def rank_beyond(rfs: Sequence[RestoringForce], declared: Sequence[Term], *, m2_k
             j = search.best_of(k, np.where(ok, e, -1.0), np.ones_like(sg))
         if j is not None and ok[j]:
             best.append((k, j))
-    data.regressors([search.terms[j] for _, j in best])      # their columns side by side, remembered
     out = thread_map(lambda kj: score_candidate(data, base, search.terms[kj[1]], thresholds=thresholds,
                                                 n_grid=n_grid[kj[0]], m2=m2_kg, names=names), best)
     return tuple(sorted(out, key=lambda c: -c.err))

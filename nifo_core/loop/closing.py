@@ -105,7 +105,6 @@ from .detection import confounded_pairs, detection_limits, undetermined_terms
 from ..errors import ConfigError, InputError, NifoError, RecordTooShortError
 from ..signal.integrate import IntegrationBand
 from ..signal.parallel import thread_map
-from ..characterize.data import RegressionData
 from ..characterize.result import Candidate
 from ..characterize.score import score_candidate
 from ..predict.feedback_paths import PATH_KINDS
@@ -318,9 +317,7 @@ def _grid_candidates(ev: _Evaluator, pred: _Predictor, terms: Sequence[Term], s:
     if not grid or pred.linear is None:
         return []
     chosen = [t for t in grid if all(t.label != u.label for u in terms)]
-    if ev.regression is None:
-        ev.regression = RegressionData(ev.fit_rfs, n_groups=4, body_stiffness=False)
-    data = ev.regression
+    data = ev.regression()
     base = [data.regressor(t, offsets=ev.static.get(t.label)) for t in terms]
     return [score_candidate(data, base, t, thresholds=s.thresholds, n_grid=int(s.path_widths), m2=m2_kg,
                             names=tuple(t.label for t in terms)) for t in chosen]
@@ -465,8 +462,6 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
 
         if pred.flexible:      # every candidate judged on the one metric, side by side: the best that passes
             say(base + 0.5 / total, f"round {i}: checking {len(cands)} candidates side by side")
-            if cands and ev.regression is None:     # made once here, not raced for by the candidates
-                ev.regression = RegressionData(ev.fit_rfs, n_groups=4, body_stiffness=False)
             trials = thread_map(judge, cands)
             ok = [t for t in trials if t.accepted]
             added = min(ok, key=lambda t: t.after.prediction_nmse_pct) if ok else None

@@ -12,6 +12,7 @@ numbers of a held-out prediction.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, replace
 from typing import Mapping, Sequence
 
@@ -149,7 +150,8 @@ class _Evaluator:
         self.n_lin = len(self.fit_parts[0].linear)
         #: bump stops measured from the static position: term label → offset -m_i per record [m]
         self.static: dict[str, tuple[float, ...]] = {}
-        self.regression: RegressionData | None = None   # characterize's rows of the fit parts (made on demand)
+        self._regression: RegressionData | None = None   # characterize's rows of the fit parts (made on demand)
+        self._regression_lock = threading.Lock()         # the loop's candidates ask for it side by side
         spec = spectral or settings.spectral
         self.notes: list[str] = []
         shortest = min(r.n for r in self.test_recs)
@@ -159,6 +161,13 @@ class _Evaluator:
             self.notes.append(f"spectral block {spec.block} → {self.spec.block} samples for the per-band residual: "
                               f"the shortest held-out part is {shortest / held.records[0].fs_hz:.1f} s")
         self._cache: dict = {}
+
+    def regression(self) -> RegressionData:
+        """characterize's regression rows of the fit parts, made at the first call (safe on several threads)."""
+        with self._regression_lock:
+            if self._regression is None:
+                self._regression = RegressionData(self.fit_rfs, n_groups=4, body_stiffness=False)
+            return self._regression
 
     def _fit_parts_of(self, records: Sequence[Record]) -> list[_Part]:
         """The fit parts of ``records`` (the held records, renoised), cut exactly as :attr:`fit_parts`."""
@@ -328,9 +337,7 @@ def _static_candidate(ev: _Evaluator, terms: Sequence[Term], cand: Candidate, s:
     """
     if cand.kind not in STATIC_KINDS:
         return cand
-    if ev.regression is None:
-        ev.regression = RegressionData(ev.fit_rfs, n_groups=4, body_stiffness=False)
-    data = ev.regression
+    data = ev.regression()
     # the other terms keep their own (already static) frame; only the candidate is re-measured
     new, offs = static_bump_stops(data, [*terms, cand.term])
     term, off = new[-1], offs[-1]
