@@ -1,7 +1,12 @@
+"""``python -m nifo`` and the ``nifo`` console script (:func:`entry`): the command, with a Ctrl-C or SIGTERM at
+any moment (even while the libraries load) ending it with one line and exit 130."""
+
 import os
 import signal
 import sys
 import threading
+
+from nifo.interrupt import by_interrupt, watch   # no imports of its own: loaded before anything can be interrupted
 
 
 def _interrupt_again(unraisable) -> None:
@@ -17,16 +22,20 @@ def _interrupt_again(unraisable) -> None:
     sys.__unraisablehook__(unraisable)
 
 
-sys.unraisablehook = _interrupt_again
-from nifo.interrupt import by_interrupt  # noqa: E402  (no imports of its own: before anything can be interrupted)
+def entry() -> int:
+    """Run the ``nifo`` command line; its exit code."""
+    sys.unraisablehook = _interrupt_again
+    watch()
+    try:
+        from nifo.cli import main
 
-try:
-    from nifo.cli import main
+        return main()
+    except BaseException as e:   # Ctrl-C (or SIGINT) while starting up, before a command runs: nothing was written
+        if isinstance(e, SystemExit) or not by_interrupt(e):   # (an interrupt inside an import can surface as
+            raise                                              # the import's own error, or as nothing of it)
+        print("nifo: interrupted while starting; nothing was written", file=sys.stderr)
+        return 130
 
-    code = main()
-except BaseException as e:   # Ctrl-C (or SIGINT) while starting up, before a command runs: nothing was written
-    if not by_interrupt(e):  # (an interrupt inside an import can surface as the import's own error)
-        raise
-    print("nifo: interrupted while starting; nothing was written", file=sys.stderr)
-    code = 130
-sys.exit(code)
+
+if __name__ == "__main__":
+    sys.exit(entry())

@@ -17,14 +17,12 @@ import importlib
 import io
 import json
 import os
-import signal
 import sys
-import threading
 import traceback
 
 from nifo_core import __version__
 from nifo_core.errors import EXIT_CODES, USAGE_EXIT_CODE, NifoError
-from nifo.interrupt import by_interrupt
+from nifo.interrupt import by_interrupt, term_as_interrupt
 
 __all__ = ["main", "build_parser", "add_common_arguments", "COMMANDS"]
 
@@ -110,29 +108,6 @@ def _error_doc(err: BaseException, code: int) -> dict:
     return {"type": type(err).__name__, "exit_code": code, "message": str(err)}
 
 
-@contextlib.contextmanager
-def _sigterm_as_interrupt():
-    """SIGTERM ends a command as Ctrl-C does (outputs cleaned up, exit 130): main thread of this process only."""
-    if threading.current_thread() is not threading.main_thread() \
-            or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
-        yield
-        return
-    pid = os.getpid()
-
-    def on_term(signum, frame):  # noqa: ARG001
-        if os.getpid() != pid:   # a forked child (a pool worker) dies of the signal as it would have
-            signal.signal(signum, signal.SIG_DFL)
-            os.kill(os.getpid(), signum)
-            return
-        raise KeyboardInterrupt(f"signal {signum}")
-
-    signal.signal(signal.SIGTERM, on_term)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
-
-
 def _abandon_helpers() -> None:
     """An interrupted command's figure helpers ended with it (:func:`nifo.plots.writer.abandon_helpers`), if any ran."""
     writer = sys.modules.get("nifo.plots.writer")
@@ -164,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     target = io.StringIO() if args.quiet else (sys.stderr if args.json else None)
     summary, err, code = None, None, 0
     try:
-        with _sigterm_as_interrupt(), \
+        with term_as_interrupt(), \
                 contextlib.redirect_stdout(target) if target is not None else contextlib.nullcontext():
             result = args._run(args)
         if isinstance(result, dict):

@@ -1,20 +1,92 @@
-"""Whether an error is a Ctrl-C (or SIGTERM) in disguise: imported by ``python -m nifo`` before anything else.
+"""Ctrl-C and SIGTERM in the ``nifo`` command: imported by ``python -m nifo`` before anything else.
 
-An interrupt that lands inside a library can surface as another error raised from it: matplotlib's savefig
-(AttributeError in restore_bbox), or a class being created during an import (dataclasses' ``__set_name__``:
-RuntimeError, with the KeyboardInterrupt as its cause; measured in ``tests/test_kill.py``, SIGINT 2.3 s into
-``nifo identify``, while the command's parser imported scipy.stats). Those are interruptions, not bugs.
+- :func:`watch` (start of the process): SIGINT raises KeyboardInterrupt as Python's own handler does, and this
+  process remembers that it was signalled.
+- :func:`term_as_interrupt` (around a command, around an output's writing): SIGTERM ends the work as Ctrl-C does.
+- :func:`by_interrupt`: whether an error is an interruption. An interrupt that lands inside a library can
+  surface as another error raised from it: matplotlib's savefig (AttributeError in restore_bbox), or a class
+  being created during an import (dataclasses' ``__set_name__``: RuntimeError, with the KeyboardInterrupt as its
+  cause; measured in ``tests/test_kill.py``, SIGINT 2.3 s into ``nifo identify``, while the command's parser
+  imported scipy.stats). A C extension can also drop the KeyboardInterrupt altogether: numpy's import, cut while
+  it imported ``datetime``, raised ``ImportError: PyCapsule_Import could not import module "datetime"`` with no
+  trace of the interrupt (CI, ``tests/test_kill.py``, SIGINT 0.1 s into ``nifo identify``). So an error in a
+  process that has received SIGINT or SIGTERM is an interruption too.
+
+Nothing heavy is imported here: a Ctrl-C at start-up must find this module already loaded.
 """
 
 from __future__ import annotations
 
-__all__ = ["by_interrupt"]
+import contextlib
+import os
+import signal
+import threading
+from typing import Iterator
+
+__all__ = ["watch", "term_as_interrupt", "signalled", "by_interrupt"]
+
+_signalled = False
+
+
+def _note() -> None:
+    global _signalled
+    _signalled = True
+
+
+def signalled() -> bool:
+    """Whether this process has received SIGINT or SIGTERM through :func:`watch`'s or :func:`term_as_interrupt`'s
+    handler."""
+    return _signalled
+
+
+def _on_int(signum, frame):  # noqa: ARG001
+    _note()
+    raise KeyboardInterrupt
+
+
+def watch() -> None:
+    """From now on SIGINT is remembered (:func:`signalled`) and raises KeyboardInterrupt as before. Main thread,
+    and only over Python's own handler (a host that set its own keeps it)."""
+    if threading.current_thread() is threading.main_thread() \
+            and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _on_int)
+
+
+@contextlib.contextmanager
+def term_as_interrupt() -> Iterator[None]:
+    """SIGTERM raises KeyboardInterrupt inside the block, so the work is cleaned up as after Ctrl-C. Main thread of
+    this process, over the default handler only (nested blocks keep the outer one's); a forked child (a pool's
+    worker) dies of the signal as it would have."""
+    if threading.current_thread() is not threading.main_thread() \
+            or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        yield
+        return
+    pid = os.getpid()
+
+    def on_term(signum, frame):  # noqa: ARG001
+        if os.getpid() != pid:
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
+        _note()
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    signal.signal(signal.SIGTERM, on_term)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def by_interrupt(exc: BaseException | None) -> bool:
-    """Whether ``exc`` is a KeyboardInterrupt or was raised from or while handling one (its cause/context chain)."""
+    """Whether ``exc`` is an interruption: a KeyboardInterrupt, an error raised from or while handling one (its
+    cause/context chain), or any error once this process has been signalled (:func:`signalled`)."""
+    if exc is None:
+        return False
+    if _signalled:
+        return True
     seen: set[int] = set()
-    todo = [exc]
+    todo: list[BaseException | None] = [exc]
     while todo:
         e = todo.pop()
         if e is None or id(e) in seen:

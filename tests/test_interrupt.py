@@ -29,3 +29,43 @@ def test_an_error_raised_while_handling_an_interrupt_counts_and_others_do_not():
         assert by_interrupt(e)
     assert not by_interrupt(ValueError("a bug"))
     assert not by_interrupt(None)
+
+
+def test_an_interrupt_that_a_c_extension_drops_while_nifo_starts_still_ends_with_the_one_line(tmp_path):
+    # the shape measured in CI (tests/test_kill.py, SIGINT 0.1 s into nifo identify): numpy's C extension, cut
+    # while importing datetime, raised ImportError("PyCapsule_Import could not import module ...") and kept no
+    # trace of the KeyboardInterrupt. A stand-in numpy does the same, deterministically: the signal arrives, the
+    # interrupt is swallowed, an unrelated ImportError is raised.
+    import os
+    import subprocess
+    import sys
+
+    fake = tmp_path / "numpy"
+    fake.mkdir()
+    (fake / "__init__.py").write_text(
+        "import os, signal, time\n"
+        "try:\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    time.sleep(5)\n"
+        "except KeyboardInterrupt:\n"
+        "    pass\n"
+        "raise ImportError('PyCapsule_Import could not import module \"datetime\"')\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.getcwd()])}
+    p = subprocess.run([sys.executable, "-m", "nifo", "identify", "--help"], env=env, capture_output=True,
+                       text=True, timeout=120)
+    assert p.returncode == 130, p.stderr
+    assert p.stderr.strip() == "nifo: interrupted while starting; nothing was written"
+
+
+def test_an_error_without_an_interrupt_stays_a_bug_even_at_start_up(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    fake = tmp_path / "numpy"
+    fake.mkdir()
+    (fake / "__init__.py").write_text("raise ImportError('a broken numpy')\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.getcwd()])}
+    p = subprocess.run([sys.executable, "-m", "nifo", "identify", "--help"], env=env, capture_output=True,
+                       text=True, timeout=120)
+    assert p.returncode == 1 and "ImportError: a broken numpy" in p.stderr

@@ -55,6 +55,7 @@ from pathlib import Path
 from typing import Iterator
 
 from nifo_core.errors import OutputError
+from nifo.interrupt import term_as_interrupt
 
 from .ownership import INCOMPLETE, LEFTOVER as _LEFTOVER, MARKER, foreign_entries, nifo_bag_dir, nifo_wrote_file
 from .ownership import why_not_nifos, write_marker
@@ -249,24 +250,6 @@ def clean_leftovers(final: str | os.PathLike) -> list[Path]:
 # signals and the atomic swap
 # -----------------------------------------------------------------------------
 
-def _on_term(signum, frame):  # noqa: ARG001
-    raise KeyboardInterrupt(f"signal {signum}")
-
-
-@contextlib.contextmanager
-def _term_as_interrupt() -> Iterator[None]:
-    """SIGTERM raises KeyboardInterrupt inside the block (main thread, default handler only)."""
-    if threading.current_thread() is not threading.main_thread() \
-            or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
-        yield
-        return
-    signal.signal(signal.SIGTERM, _on_term)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
-
-
 @contextlib.contextmanager
 def _signals_held() -> Iterator[None]:
     """SIGINT/SIGTERM wait until the block is done (a rename pair is not cut in the middle)."""
@@ -355,7 +338,7 @@ def staged_dir(out: str | os.PathLike) -> Iterator[Path]:
         with _in_run(final, run) as here:
             yield here
         return
-    with _term_as_interrupt():
+    with term_as_interrupt():
         tmp = _scratch(final)
         try:
             yield tmp
@@ -403,7 +386,7 @@ def staged_file(path: str | os.PathLike, *, kind: str = "file") -> Iterator[Path
     ``kind="bag"`` allows a bag directory at ``path`` (see :func:`check_output`).
     """
     final = check_output(path, kind=kind)
-    with _term_as_interrupt():
+    with term_as_interrupt():
         tmpdir = _scratch(final)
         tmp = tmpdir / final.name
         try:
@@ -428,7 +411,7 @@ def staged_run(out: str | os.PathLike) -> Iterator[Path]:
     new content is removed and the previous one restored.
     """
     final = check_output(out, kind="dir")
-    with _term_as_interrupt():
+    with term_as_interrupt():
         old = final.with_name(f".{final.name}.old-{os.getpid()}")
         had_old = False
         try:
