@@ -199,3 +199,27 @@ def test_a_signal_while_the_helpers_are_spawned_is_held_until_they_are_whole():
         assert signal.getsignal(signal.SIGINT) is interrupt     # the command's own handler is back
     finally:
         signal.signal(signal.SIGINT, before)
+
+
+def test_a_script_without_a_main_guard_is_not_run_again_by_the_helpers(tmp_path):
+    # a user's script that calls nifo at module level (no `if __name__ == "__main__":`): spawned helpers import
+    # the parent's main module, and would run the script once more each (measured: its nifo run three times at once,
+    # into one folder). Every run of the script appends its pid; the figures must still come from the helpers.
+    runs = tmp_path / "runs.txt"
+    script = tmp_path / "user_script.py"
+    script.write_text(
+        "import os, sys\n"
+        f"sys.path.insert(0, {str(ROOT)!r}); sys.path.insert(0, {str(ROOT / 'tests')!r})\n"
+        f"open({str(runs)!r}, 'a').write(f'{{os.getpid()}}\\n')\n"
+        "from test_figure_writer import _figure\n"
+        "from nifo.plots import save_figure\n"
+        "from nifo.plots import writer\n"
+        "with writer.figure_batch():\n"
+        f"    save_figure(_figure(), {str(tmp_path / 'fig.png')!r})\n"
+        "print(len(writer._get_pool()._processes))\n")
+    env = {**os.environ, writer.WORKERS_ENV: "2"}
+    p = subprocess.run([sys.executable, str(script)], env=env, capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.strip() == "2"                                   # two helpers rendered
+    assert len(runs.read_text().split()) == 1, runs.read_text()     # the script ran once (3 times before)
+    assert (tmp_path / "fig.png").is_file() and (tmp_path / "fig.svg").is_file()

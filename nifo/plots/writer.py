@@ -31,6 +31,7 @@ import multiprocessing
 import os
 import pickle
 import signal
+import sys
 import threading
 import time
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -172,6 +173,28 @@ def _signals_held() -> Iterator[None]:
             signal.raise_signal(sig)
 
 
+@contextlib.contextmanager
+def _main_script_kept_out() -> Iterator[None]:
+    """The helpers spawned without running the caller's script again.
+
+    A spawned process imports the parent's main module first; for a script run as ``python script.py`` that means
+    executing it (as ``__mp_main__``), and a script without an ``if __name__ == "__main__":`` guard would start its
+    whole nifo job again in every helper (measured: ``nifo run`` called from such a script ran three times at once,
+    into the same folder, and failed). The helpers need nothing from it (they run :func:`_render_pickled`), so
+    while they are spawned the main module has no ``__file__`` to be run from. A module run with ``python -m``
+    (``nifo`` itself) is imported by name as before."""
+    main = sys.modules.get("__main__")
+    path = getattr(main, "__file__", None) if getattr(main, "__spec__", None) is None else None
+    if path is None:
+        yield
+        return
+    del main.__file__
+    try:
+        yield
+    finally:
+        main.__file__ = path
+
+
 def _get_pool() -> ProcessPoolExecutor | None:
     global _pool, _pool_failed
     with _lock:
@@ -181,7 +204,8 @@ def _get_pool() -> ProcessPoolExecutor | None:
                 _pool_failed = True
                 return None
             try:
-                with _signals_held():     # the helpers are spawned by the submissions: whole, or not at all
+                # the helpers are spawned by the submissions: whole, or not at all; without the caller's script
+                with _signals_held(), _main_script_kept_out():
                     _pool = ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("spawn"),
                                                 initializer=_helper_init, initargs=(os.getpid(),))
                     for _ in range(n):
