@@ -15,10 +15,14 @@ it; nothing but the CLI imports a command (the import-linter contract in ``.impo
 
 The steps print their human-readable summary as the commands always did (the CLI routes it to stderr with
 ``--json`` and drops it with ``--quiet``) and return the command's summary dict.
+
+The front door is lazy (``lazy_loader``, as :mod:`nifo_core.signal`'s): a name's module is imported when the name
+is first used, so importing one module of the package does not import the others.
 """
 
-from .identify import CHUNK_SAMPLES, accumulate, check_usable, summarize
-from .options import CharacterizeOptions, IdentifyOptions, Inputs, LoopOptions, PredictOptions, RunOptions
+import lazy_loader
 
-__all__ = ["CHUNK_SAMPLES", "accumulate", "check_usable", "summarize", "Inputs", "CharacterizeOptions",
-           "IdentifyOptions", "LoopOptions", "PredictOptions", "RunOptions"]
+__getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
+    "identify": ["CHUNK_SAMPLES", "accumulate", "check_usable", "summarize"],
+    "options": ["CharacterizeOptions", "IdentifyOptions", "Inputs", "LoopOptions", "PredictOptions", "RunOptions"],
+})

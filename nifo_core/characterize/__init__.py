@@ -11,20 +11,20 @@ Modules:
 
 Layer: it imports :mod:`nifo_core.signal` and :mod:`nifo_core.kinds` (``.importlinter``). The names below are its
 front door; the modules' private (``_``) names stay inside the package.
+
+The front door is lazy (``lazy_loader``, as :mod:`nifo_core.signal`'s): a name's module is imported when the name
+is first used, so importing one module of the package does not import the others.
 """
 
-from .restoring import (RestoringForce, restoring_force, bandpass, bandpass_settle_samples, suggest_band,
-                        BandSuggestion, FrequencyTrack, track_frequency, instantaneous_frequency, Slice,
-                        frequency_slices, amplitude_slices, local_amplitude)
-from .automatic import (Thresholds, Candidate, FittedModel, Characterization, RecordSummary, characterize,
-                        characterize_restoring, rank_beyond, DEFAULT_KINDS, POSITIVE_KINDS, candidate_grid)
-from .data import RegressionData, GridSearch, refine_grid
-from .score import score_candidate, lstsq
-from .static import mean_shift, static_bump_stops
+import lazy_loader
 
-__all__ = ["RestoringForce", "restoring_force", "bandpass", "bandpass_settle_samples", "suggest_band",
-           "BandSuggestion", "FrequencyTrack", "track_frequency", "instantaneous_frequency", "Slice",
-           "frequency_slices", "amplitude_slices", "local_amplitude", "Thresholds", "Candidate", "FittedModel",
-           "Characterization", "RecordSummary", "characterize", "characterize_restoring", "rank_beyond",
-           "DEFAULT_KINDS", "POSITIVE_KINDS", "candidate_grid", "RegressionData", "GridSearch", "refine_grid",
-           "score_candidate", "lstsq", "mean_shift", "static_bump_stops"]
+__getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
+    "restoring": ["RestoringForce", "restoring_force", "bandpass", "bandpass_settle_samples", "suggest_band",
+                  "BandSuggestion", "FrequencyTrack", "track_frequency", "instantaneous_frequency", "Slice",
+                  "frequency_slices", "amplitude_slices", "local_amplitude"],
+    "automatic": ["Thresholds", "Candidate", "FittedModel", "Characterization", "RecordSummary", "characterize",
+                  "characterize_restoring", "rank_beyond", "DEFAULT_KINDS", "POSITIVE_KINDS", "candidate_grid"],
+    "data": ["RegressionData", "GridSearch", "refine_grid"],
+    "score": ["score_candidate", "lstsq"],
+    "static": ["mean_shift", "static_bump_stops"],
+})

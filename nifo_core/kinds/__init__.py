@@ -7,10 +7,15 @@ Modules:
 
 Layer: it imports the bottom, beside :mod:`nifo_core.signal` (``.importlinter``). The names below are its front
 door; the modules' private (``_``) names stay inside the package.
+
+The front door is lazy (``lazy_loader``, as :mod:`nifo_core.signal`'s): a name's module is imported when the name
+is first used, so importing one module of the package does not import the others.
 """
 
-from .describing import Kind, Term, KINDS, ALIASES, kind, make_term, evaluate_terms, play_operator, path_slopes, CODES
-from .strut_forces import PLAY, kind_code, strut_arrays, g_one, strut_force, lipschitz
+import lazy_loader
 
-__all__ = ["Kind", "Term", "KINDS", "ALIASES", "kind", "make_term", "evaluate_terms", "play_operator", "path_slopes",
-           "CODES", "PLAY", "kind_code", "strut_arrays", "g_one", "strut_force", "lipschitz"]
+__getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
+    "describing": ["Kind", "Term", "KINDS", "ALIASES", "kind", "make_term", "evaluate_terms", "play_operator",
+                   "path_slopes", "CODES"],
+    "strut_forces": ["PLAY", "kind_code", "strut_arrays", "g_one", "strut_force", "lipschitz"],
+})

@@ -12,13 +12,16 @@ Modules:
 Layer: it imports everything else: :mod:`nifo_core.characterize`, :mod:`nifo_core.predict`,
 :mod:`nifo_core.settings` (``.importlinter``). The names below are its front door; the modules' private (``_``)
 names stay inside the package.
+
+The front door is lazy (``lazy_loader``, as :mod:`nifo_core.signal`'s): a name's module is imported when the name
+is first used, so importing one module of the package does not import the others.
 """
 
-from .closing import (LoopSettings, Errors, Trial, Evidence, Round, LoopRefinement, LoopResult, close_loop,
-                      RESIDUAL_BANDS_HZ, NOTHING_MISSING)
-from .detection import (DetectionLimit, Confounding, Undetermined, detection_limits, confounded_pairs,
-                        undetermined_terms)
+import lazy_loader
 
-__all__ = ["LoopSettings", "Errors", "Trial", "Evidence", "Round", "LoopRefinement", "LoopResult", "close_loop",
-           "RESIDUAL_BANDS_HZ", "NOTHING_MISSING", "DetectionLimit", "Confounding", "Undetermined",
-           "detection_limits", "confounded_pairs", "undetermined_terms"]
+__getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
+    "closing": ["LoopSettings", "Errors", "Trial", "Evidence", "Round", "LoopRefinement", "LoopResult", "close_loop",
+                "RESIDUAL_BANDS_HZ", "NOTHING_MISSING"],
+    "detection": ["DetectionLimit", "Confounding", "Undetermined", "detection_limits", "confounded_pairs",
+                  "undetermined_terms"],
+})

@@ -9,13 +9,16 @@ Modules:
 
 Layer: it imports :mod:`nifo_core.signal` and :mod:`nifo_core.kinds` (``.importlinter``). The names below are its
 front door; the modules' private (``_``) names stay inside the package.
+
+The front door is lazy (``lazy_loader``, as :mod:`nifo_core.signal`'s): a name's module is imported when the name
+is first used, so importing one module of the package does not import the others.
 """
 
-from .identify import (IllConditionedWarning, InputMeasured, StaticFit, NifoResult, FixedTerms, StreamingNifo,
-                       identify_nifo, identify_two_step, nifo_from_spectra, static_fits, DEFAULT_ANALYSIS_BAND_HZ,
-                       DEFAULT_COND_LIMIT)
-from .result import ILL_FRACTION, OnIll
+import lazy_loader
 
-__all__ = ["IllConditionedWarning", "InputMeasured", "StaticFit", "NifoResult", "FixedTerms", "StreamingNifo",
-           "identify_nifo", "identify_two_step", "nifo_from_spectra", "static_fits", "DEFAULT_ANALYSIS_BAND_HZ",
-           "DEFAULT_COND_LIMIT", "ILL_FRACTION", "OnIll"]
+__getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
+    "identify": ["IllConditionedWarning", "InputMeasured", "StaticFit", "NifoResult", "FixedTerms", "StreamingNifo",
+                 "identify_nifo", "identify_two_step", "nifo_from_spectra", "static_fits",
+                 "DEFAULT_ANALYSIS_BAND_HZ", "DEFAULT_COND_LIMIT"],
+    "result": ["ILL_FRACTION", "OnIll"],
+})

@@ -16,30 +16,27 @@ Modules:
 
 Layer: it imports :mod:`nifo_core.nifo`, :mod:`nifo_core.simulate`, :mod:`nifo_core.settings` and below
 (``.importlinter``). The names below are its front door; the modules' private (``_``) names stay inside the package.
+
+The front door is lazy (``lazy_loader``, as :mod:`nifo_core.signal`'s): a name's module is imported when the name
+is first used, so importing one module of the package does not import the others.
 """
 
-from .linear_part import (BodyModel, LinearPart, RecordLines, absorbed_rates, fit_body_model, fit_rational,
-                          nominal_linear_part, pole_residue_response, select_linear_part)
-from .timesim import TimeResponse, discretise, simulate_response
-from .fixed_point import contraction_bound, fixed_point_solve
-from .model import (IdentifiedModel, Prediction, PredictedTransmissibility, PredictionDivergedError, predict_body,
-                    predict_transmissibility, record_inputs)
-from .feedback_paths import (PATH_KINDS, SMALL_SLOPE, JointFit, PathFit, PathResult, check_terms, choose_paths,
-                             equivalent_gammas, fit_joint, fit_paths, path_model, path_remainders, regimes_stable)
-from .prediction_error import band_spectra, band_nmse
-from .refine import Refinement, refine_model, refine_jointly, model_nmse, parameter_space, start_up_samples
-from .heldout import HeldOut, split_records, Scores
-from .prediction_bounds import PredictionSpread, prediction_spread, line_spread, half_width, Z95
-from .model_fit import (Fitted, JointPathResult, LinearChoice, choose_linear_form, fit_linear, fit_model,
-                        joint_paths, path_eligible)
+import lazy_loader
 
-__all__ = ["BodyModel", "LinearPart", "RecordLines", "absorbed_rates", "fit_body_model", "fit_rational",
-           "nominal_linear_part", "pole_residue_response", "select_linear_part", "TimeResponse", "discretise",
-           "simulate_response", "contraction_bound", "fixed_point_solve", "IdentifiedModel", "Prediction",
-           "PredictedTransmissibility", "PredictionDivergedError", "predict_body", "predict_transmissibility",
-           "record_inputs", "PATH_KINDS", "SMALL_SLOPE", "JointFit", "PathFit", "PathResult", "check_terms",
-           "choose_paths", "equivalent_gammas", "fit_joint", "fit_paths", "path_model", "path_remainders",
-           "regimes_stable", "band_spectra", "band_nmse", "Refinement", "refine_model", "refine_jointly",
-           "model_nmse", "parameter_space", "start_up_samples", "HeldOut", "split_records", "Scores",
-           "PredictionSpread", "prediction_spread", "line_spread", "half_width", "Z95", "Fitted", "JointPathResult",
-           "LinearChoice", "choose_linear_form", "fit_linear", "fit_model", "joint_paths", "path_eligible"]
+__getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
+    "linear_part": ["BodyModel", "LinearPart", "RecordLines", "absorbed_rates", "fit_body_model", "fit_rational",
+                    "nominal_linear_part", "pole_residue_response", "select_linear_part"],
+    "timesim": ["TimeResponse", "discretise", "simulate_response"],
+    "fixed_point": ["contraction_bound", "fixed_point_solve"],
+    "model": ["IdentifiedModel", "Prediction", "PredictedTransmissibility", "PredictionDivergedError",
+              "predict_body", "predict_transmissibility", "record_inputs"],
+    "feedback_paths": ["PATH_KINDS", "SMALL_SLOPE", "JointFit", "PathFit", "PathResult", "check_terms",
+                       "choose_paths", "equivalent_gammas", "fit_joint", "fit_paths", "path_model",
+                       "path_remainders", "regimes_stable"],
+    "prediction_error": ["band_spectra", "band_nmse"],
+    "refine": ["Refinement", "refine_model", "refine_jointly", "model_nmse", "parameter_space", "start_up_samples"],
+    "heldout": ["HeldOut", "split_records", "Scores"],
+    "prediction_bounds": ["PredictionSpread", "prediction_spread", "line_spread", "half_width", "Z95"],
+    "model_fit": ["Fitted", "JointPathResult", "LinearChoice", "choose_linear_form", "fit_linear", "fit_model",
+                  "joint_paths", "path_eligible"],
+})

@@ -8,11 +8,15 @@ Modules:
 
 Layer: it imports :mod:`nifo_core.signal` and :mod:`nifo_core.kinds` (``.importlinter``). The names below are its
 front door; the modules' private (``_``) names stay inside the package.
+
+The front door is lazy (``lazy_loader``, as :mod:`nifo_core.signal`'s): a name's module is imported when the name
+is first used, so importing one module of the package does not import the others.
 """
 
-from .vehicle import QuarterCar
-from .road import RandomRoad, ChirpRoad, Road, road_signal, road_from_dict
-from .quarter_car import StrutForce, SensorNoise, SimConfig, Simulation, Truth, simulate, preset, PRESETS
+import lazy_loader
 
-__all__ = ["QuarterCar", "RandomRoad", "ChirpRoad", "Road", "road_signal", "road_from_dict", "StrutForce",
-           "SensorNoise", "SimConfig", "Simulation", "Truth", "simulate", "preset", "PRESETS"]
+__getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
+    "vehicle": ["QuarterCar"],
+    "road": ["RandomRoad", "ChirpRoad", "Road", "road_signal", "road_from_dict"],
+    "quarter_car": ["StrutForce", "SensorNoise", "SimConfig", "Simulation", "Truth", "simulate", "preset", "PRESETS"],
+})
