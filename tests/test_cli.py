@@ -180,3 +180,13 @@ def test_every_name_of_a_lazy_front_door_is_its_modules_own():
     import nifo_core.signal.integrate   # noqa: F401  (the submodule of the same name as a function: not shadowing it)
     from nifo_core.signal import integrate
     assert callable(integrate) and integrate.__module__ == "nifo_core.signal.integrate"
+
+
+@pytest.mark.parametrize("command", ["loop", "characterize"])
+@pytest.mark.parametrize("mass", ["-3", "0", "nan", "inf", "300kg"])
+def test_a_sprung_mass_that_is_not_one_is_a_usage_error_before_any_data_is_read(command, mass, tmp_path, capsys):
+    with pytest.raises(SystemExit) as e:
+        main([command, str(SAMPLE), "--m2", mass, "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "argument --m2:" in err and "e.g. --m2 300" in err, err
+    assert not (tmp_path / "out").exists()

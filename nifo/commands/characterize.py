@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from nifo.commands import sprung_mass
 from nifo.io.loader import add_input_arguments
 from nifo.io.provenance import add_system_argument
 from nifo.pipeline.characterize import run_characterize
@@ -50,7 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_settings_arguments(p, cond_limit=False)
     add_system_argument(p)
     g = p.add_argument_group("analysis")
-    g.add_argument("--m2", type=float, metavar="KG", help="sprung mass [kg]: coefficients and plots in newtons")
+    g.add_argument("--m2", type=sprung_mass, metavar="KG", help="sprung mass [kg]: coefficients and plots in newtons")
     g.add_argument("--top", type=int, default=5, metavar="N", help="candidates shown in the table (default 5)")
     g.add_argument("--max-terms", type=int, default=3, metavar="N", help="most terms suggested (default 3)")
     g.add_argument("--kinds", metavar="KIND,...", help=f"kinds to try (default: {','.join(DEFAULT_KINDS)})")

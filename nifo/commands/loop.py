@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from nifo.commands import sprung_mass
 from nifo.io.loader import add_input_arguments
 from nifo.io.provenance import add_system_argument
 from nifo.pipeline.loop import run_loop
@@ -46,7 +47,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_system_argument(p)
     g = p.add_argument_group("loop")
     g.add_argument("--max-rounds", type=int, default=4, metavar="N", help="most effects added (default 4)")
-    g.add_argument("--m2", type=float, metavar="KG", help="sprung mass [kg]: coefficients in newtons")
+    g.add_argument("--m2", type=sprung_mass, metavar="KG", help="sprung mass [kg]: coefficients in newtons")
     g.add_argument("--fit-fraction", type=float, default=2 / 3, metavar="F",
                    help="leading fraction of each record used for fitting (default 2/3; the rest is held out; "
                         "periodic data: whole periods)")
