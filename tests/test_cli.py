@@ -154,7 +154,7 @@ def test_progress_off_a_terminal_writes_plain_lines_and_nests():
 
 def test_nifo_info_is_a_quick_look_that_loads_no_signal_processing():
     # nifo info reads and summarises a file: the core's front doors are lazy (nifo_core.signal), so it loads neither
-    # scipy.signal nor numba nor the integrator (measured: 2.0 s -> 0.46 s, imports 1.2 s -> 0.3 s)
+    # scipy.signal nor numba nor the integrator (measured: 1.3-1.7 s -> 0.37-0.41 s, imports 1.2 s -> 0.3 s)
     from nifo.commands.run import SAMPLE_DIR
 
     heavy = ("scipy.signal", "numba", "nifo_core.signal.integrate", "nifo_core.signal.spectral")

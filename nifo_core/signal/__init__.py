@@ -17,8 +17,9 @@ front door; the modules' private (``_``) names stay inside the package.
 
 The front door is lazy (scientific-python's ``lazy_loader``, SPEC 1): a name's module is imported when the name is
 first used. Importing :mod:`nifo_core.signal.record` alone (``nifo info``, every file reader) then costs no
-scipy.signal, numba or the integrator's FIR design: measured, ``nifo info`` on a bag 2.0 s → 0.46 s, of which
-imports 1.2 s → 0.3 s (``python -X importtime -m nifo info BAG``). ``EAGER_IMPORT=1`` imports everything at once.
+scipy.signal, numba or the integrator's FIR design: measured, ``nifo info`` on a 20 s bag 1.3-1.7 s → 0.37-0.41 s
+(three runs each, alternating, from an empty directory; ``benchmarks/compare_versions.py`` says why), its imports
+1.2 s → 0.3 s (``python -X importtime -m nifo info BAG``). ``EAGER_IMPORT=1`` imports everything at once.
 """
 
 import lazy_loader
