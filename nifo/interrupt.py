@@ -3,6 +3,7 @@
 - :func:`watch` (start of the process): SIGINT raises KeyboardInterrupt as Python's own handler does, and this
   process remembers that it was signalled.
 - :func:`term_as_interrupt` (around a command, around an output's writing): SIGTERM ends the work as Ctrl-C does.
+- :func:`signals_held` (around what must not be cut in the middle): SIGINT and SIGTERM wait until the block is done.
 - :func:`by_interrupt`: whether an error is an interruption. An interrupt that lands inside a library can
   surface as another error raised from it: matplotlib's savefig (AttributeError in restore_bbox), or a class
   being created during an import (dataclasses' ``__set_name__``: RuntimeError, with the KeyboardInterrupt as its
@@ -23,7 +24,7 @@ import signal
 import threading
 from typing import Iterator
 
-__all__ = ["watch", "term_as_interrupt", "signalled", "by_interrupt"]
+__all__ = ["watch", "term_as_interrupt", "signals_held", "by_interrupt"]
 
 _signalled = False
 
@@ -33,19 +34,13 @@ def _note() -> None:
     _signalled = True
 
 
-def signalled() -> bool:
-    """Whether this process has received SIGINT or SIGTERM through :func:`watch`'s or :func:`term_as_interrupt`'s
-    handler."""
-    return _signalled
-
-
 def _on_int(signum, frame):  # noqa: ARG001
     _note()
     raise KeyboardInterrupt
 
 
 def watch() -> None:
-    """From now on SIGINT is remembered (:func:`signalled`) and raises KeyboardInterrupt as before. Main thread,
+    """From now on SIGINT is remembered (:func:`by_interrupt`) and raises KeyboardInterrupt as before. Main thread,
     and only over Python's own handler (a host that set its own keeps it)."""
     if threading.current_thread() is threading.main_thread() \
             and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
@@ -78,9 +73,38 @@ def term_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
+@contextlib.contextmanager
+def signals_held() -> Iterator[None]:
+    """SIGINT and SIGTERM held back until the block is done, then delivered (once each) to the handlers it had.
+
+    For what must not be cut in the middle: an output's pair of renames (:mod:`nifo.io.atomic`), the spawning of
+    figure helpers, each of which reads its start-up data through a pipe from this process (cut, a half-started
+    helper printed an ``EOFError`` traceback: tests/test_kill.py, SIGINT 2.8 s into ``nifo run``). The handlers are
+    swapped rather than the signals blocked (``pthread_sigmask``): a process spawned inside the block would
+    inherit a blocked mask. Main thread only (handlers are set there); elsewhere nothing is held."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+    old = {}
+    try:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            before = signal.getsignal(sig)
+            if before is not None:          # None: a handler not set from Python, which cannot be put back
+                old[sig] = before
+                signal.signal(sig, lambda signum, frame: held.append(signum))
+        yield
+    finally:
+        for sig, before in old.items():
+            signal.signal(sig, before)
+        for sig in dict.fromkeys(held):
+            signal.raise_signal(sig)
+
+
 def by_interrupt(exc: BaseException | None) -> bool:
     """Whether ``exc`` is an interruption: a KeyboardInterrupt, an error raised from or while handling one (its
-    cause/context chain), or any error once this process has been signalled (:func:`signalled`)."""
+    cause/context chain), or any error once this process has received SIGINT (:func:`watch`) or SIGTERM
+    (:func:`term_as_interrupt`)."""
     if exc is None:
         return False
     if _signalled:

@@ -182,7 +182,7 @@ def test_a_signal_while_the_helpers_are_spawned_is_held_until_they_are_whole():
     """A helper reads its start-up data from the command's process: Ctrl-C landing in that write left a half-started
     helper whose EOFError traceback reached the terminal (tests/test_kill.py, SIGINT 2.8 s into nifo run). The
     spawning holds SIGINT/SIGTERM back and delivers them when it is done."""
-    from nifo.plots.writer import _signals_held
+    from nifo.interrupt import signals_held as _signals_held
 
     def interrupt(signum, frame):
         raise KeyboardInterrupt(f"signal {signum}")

@@ -47,15 +47,13 @@ import ctypes
 import errno
 import os
 import shutil
-import signal
 import stat
 import tempfile
-import threading
 from pathlib import Path
 from typing import Iterator
 
 from nifo_core.errors import OutputError
-from nifo.interrupt import term_as_interrupt
+from nifo.interrupt import signals_held, term_as_interrupt
 
 from .ownership import INCOMPLETE, LEFTOVER as _LEFTOVER, MARKER, foreign_entries, nifo_bag_dir, nifo_wrote_file
 from .ownership import why_not_nifos, write_marker
@@ -250,20 +248,6 @@ def clean_leftovers(final: str | os.PathLike) -> list[Path]:
 # signals and the atomic swap
 # -----------------------------------------------------------------------------
 
-@contextlib.contextmanager
-def _signals_held() -> Iterator[None]:
-    """SIGINT/SIGTERM wait until the block is done (a rename pair is not cut in the middle)."""
-    sigs = {signal.SIGINT, signal.SIGTERM}
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
-
-
 _RENAME_EXCHANGE = 2
 _AT_FDCWD = -100
 
@@ -286,7 +270,7 @@ def _exchange(a: Path, b: Path) -> bool:
 
 def _commit(tmp: Path, final: Path) -> None:
     """Put ``tmp`` at ``final``; the old ``final`` (if any) is removed afterwards."""
-    with _signals_held():
+    with signals_held():
         if final.exists() or final.is_symlink():
             if _exchange(tmp, final):
                 old = tmp          # tmp now holds the old content
@@ -417,7 +401,7 @@ def staged_run(out: str | os.PathLike) -> Iterator[Path]:
         try:
             final.parent.mkdir(parents=True, exist_ok=True)
             clean_leftovers(final)
-            with _signals_held():
+            with signals_held():
                 had_old = final.exists()
                 if had_old:
                     os.replace(final, old)
@@ -427,7 +411,7 @@ def staged_run(out: str | os.PathLike) -> Iterator[Path]:
                     f"nifo run (process {os.getpid()}) is writing this directory, or was killed while it did: "
                     "its content is incomplete. Run nifo run again.\n")
         except OSError as err:
-            with _signals_held():
+            with signals_held():
                 if had_old and old.exists():
                     _remove(final)
                     os.replace(old, final)
@@ -438,7 +422,7 @@ def staged_run(out: str | os.PathLike) -> Iterator[Path]:
         _runs.append(entry)
         try:
             yield final
-            with _signals_held():
+            with signals_held():
                 for d in written:      # the steps' folders, with what was written after each step (its figures)
                     if d.is_dir():
                         write_marker(d)
@@ -446,7 +430,7 @@ def staged_run(out: str | os.PathLike) -> Iterator[Path]:
                 (final / INCOMPLETE).unlink()
                 _state["committed"][start:] = [str(final)]
         except BaseException as err:
-            with _signals_held():
+            with signals_held():
                 _remove(final)
                 if had_old:
                     os.replace(old, final)

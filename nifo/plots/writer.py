@@ -39,6 +39,8 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Iterator
 
+from nifo.interrupt import signals_held
+
 __all__ = ["figure_batch", "deferred_figures", "wait_figures", "submit_figure", "write_files", "figure_workers",
            "start_helpers", "abandon_helpers"]
 
@@ -146,34 +148,6 @@ def _warm() -> None:
 
 
 @contextlib.contextmanager
-def _signals_held() -> Iterator[None]:
-    """Ctrl-C and SIGTERM held back while the helpers are spawned, and delivered right after.
-
-    A helper reads its start-up data from this process through a pipe. A signal that ends this process in the
-    middle of that write leaves the helper half started: its ``EOFError`` traceback lands on the user's terminal
-    (measured in tests/test_kill.py: SIGINT 2.8 s into ``nifo run``). Held back, the signal arrives once every
-    helper is whole, so the command's clean-up (:func:`abandon_helpers`) finds and ends them all. Main thread only
-    (signal handlers are set there); elsewhere nothing is held."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    held: list[int] = []
-    old = {}
-    try:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            before = signal.getsignal(sig)
-            if before is not None:          # None: a handler not set from Python, which cannot be put back
-                old[sig] = before
-                signal.signal(sig, lambda signum, frame: held.append(signum))
-        yield
-    finally:
-        for sig, before in old.items():
-            signal.signal(sig, before)
-        for sig in dict.fromkeys(held):
-            signal.raise_signal(sig)
-
-
-@contextlib.contextmanager
 def _main_script_kept_out() -> Iterator[None]:
     """The helpers spawned without running the caller's script again.
 
@@ -204,8 +178,9 @@ def _get_pool() -> ProcessPoolExecutor | None:
                 _pool_failed = True
                 return None
             try:
-                # the helpers are spawned by the submissions: whole, or not at all; without the caller's script
-                with _signals_held(), _main_script_kept_out():
+                # the helpers are spawned by the submissions: whole (a signal held until they are), without the
+                # caller's script
+                with signals_held(), _main_script_kept_out():
                     _pool = ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("spawn"),
                                                 initializer=_helper_init, initargs=(os.getpid(),))
                     for _ in range(n):
