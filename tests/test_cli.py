@@ -190,3 +190,29 @@ def test_a_sprung_mass_that_is_not_one_is_a_usage_error_before_any_data_is_read(
     err = capsys.readouterr().err
     assert e.value.code == 2 and "argument --m2:" in err and "e.g. --m2 300" in err, err
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("flag, value, says", [
+    ("--max-rounds", "0", "0 must be a whole number in 1..10"),
+    ("--max-rounds", "11", "11 must be a whole number in 1..10"),
+    ("--max-rounds", "two", "'two' is not a whole number"),
+    ("--fit-fraction", "0.95", "0.95 must be in [0.3, 0.9]"),
+    ("--refine-seconds", "2", "2 must be at least 5 s"),
+    ("--refine-seconds", "x", "'x' is not a number"),
+])
+def test_a_loop_setting_the_loop_refuses_is_a_usage_error_before_any_data_is_read(flag, value, says, tmp_path, capsys):
+    """The loop's own rule (LoopSettings) checks the flag as it is parsed: before, --max-rounds 0 was refused after
+    the data were read and the settings printed."""
+    with pytest.raises(SystemExit) as e:
+        main(["loop", str(SAMPLE), flag, value, "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and f"argument {flag}: {says}" in err, err
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_loop_setting_it_accepts_reaches_the_loop():
+    from nifo.cli import build_parser
+
+    args = build_parser().parse_args(["loop", str(SAMPLE), "--out", "x", "--max-rounds", "10", "--fit-fraction",
+                                      "0.3", "--refine-seconds", "5"])
+    assert (args.max_rounds, args.fit_fraction, args.refine_seconds) == (10, 0.3, 5.0)

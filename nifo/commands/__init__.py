@@ -6,8 +6,9 @@ and ``run(args) -> int``. :mod:`nifo.cli` lists them in ``COMMANDS``. Argument t
 
 import argparse
 import math
+from typing import Callable
 
-__all__ = ["sprung_mass"]
+__all__ = ["sprung_mass", "checked_by"]
 
 
 def sprung_mass(text: str) -> float:
@@ -19,3 +20,29 @@ def sprung_mass(text: str) -> float:
     if not (math.isfinite(m) and m > 0):
         raise argparse.ArgumentTypeError(f"{text} kg is not a sprung mass: give its positive mass (e.g. --m2 300)")
     return m
+
+
+def checked_by(settings: Callable, field: str, convert: Callable = int) -> Callable[[str], object]:
+    """An argument type for one field of a settings class: the value converted, then checked by the class itself
+    (its one rule, ``settings(**{field: value})``), so a value it refuses is a usage error at once (exit 2, one line
+    naming the flag) rather than an error after the data are read."""
+    from nifo_core.errors import NifoError
+
+    what = "a whole number" if convert is int else "a number"
+
+    def parse(text: str):
+        try:
+            value = convert(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
+        try:
+            settings(**{field: value})
+        except NifoError as err:     # "max_rounds=0 must be ..." said of what was typed: "0 must be ..."
+            message = err.message
+            if message.startswith(f"{field}="):
+                message = f"{text} {message.split(' ', 1)[-1]}"
+            raise argparse.ArgumentTypeError(message + (f". Fix: {err.hint}" if err.hint else "")) from None
+        return value
+
+    parse.__name__ = field
+    return parse

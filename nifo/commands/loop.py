@@ -8,13 +8,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from nifo.commands import sprung_mass
+from nifo.commands import checked_by, sprung_mass
 from nifo.io.loader import add_input_arguments
 from nifo.io.provenance import add_system_argument
 from nifo.pipeline.loop import run_loop
 from nifo.pipeline.options import LoopOptions
 from nifo.settings import add_settings_arguments
 from nifo_core.characterize.automatic import DEFAULT_KINDS
+from nifo_core.loop.results import LoopSettings
 
 HELP = "find the effect the model lacks from the residual, add it, report the error before and after"
 DESCRIPTION = f"""{HELP}.
@@ -46,11 +47,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_settings_arguments(p)
     add_system_argument(p)
     g = p.add_argument_group("loop")
-    g.add_argument("--max-rounds", type=int, default=4, metavar="N", help="most effects added (default 4)")
+    g.add_argument("--max-rounds", type=checked_by(LoopSettings, "max_rounds"), default=4, metavar="N",
+                   help="most effects added (1-10, default 4)")
     g.add_argument("--m2", type=sprung_mass, metavar="KG", help="sprung mass [kg]: coefficients in newtons")
-    g.add_argument("--fit-fraction", type=float, default=2 / 3, metavar="F",
-                   help="leading fraction of each record used for fitting (default 2/3; the rest is held out; "
-                        "periodic data: whole periods)")
+    g.add_argument("--fit-fraction", type=checked_by(LoopSettings, "fit_fraction", float), default=2 / 3,
+                   metavar="F", help="leading fraction of each record used for fitting (0.3-0.9, default 2/3; the "
+                                     "rest is held out; periodic data: whole periods)")
     g.add_argument("--kinds", metavar="KIND,...", help=f"kinds to try (default: {','.join(DEFAULT_KINDS)})")
     g.add_argument("--grid", type=int, default=24, metavar="N", help="grid points per parameter (default 24)")
     g.add_argument("--prediction", choices=("model", "none"), default="model",
@@ -64,8 +66,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--no-refine", action="store_true",
                    help="write the equation-error fit (default: refine the final model by output error on the fit "
                         "parts and keep it when its held-out prediction is not worse)")
-    g.add_argument("--refine-seconds", type=float, default=60.0, metavar="S",
-                   help="leading seconds of each fit part the refinement simulates (default 60)")
+    g.add_argument("--refine-seconds", type=checked_by(LoopSettings, "refine_seconds", float), default=60.0,
+                   metavar="S", help="leading seconds of each fit part the refinement simulates (at least 5, "
+                                     "default 60)")
 
 
 def run(args: argparse.Namespace) -> dict:
