@@ -44,6 +44,23 @@ def shared_data() -> Path:
     return SHARED_DATA
 
 
+@pytest.fixture
+def sigint_deliverable():
+    """Ctrl-C reaches the processes the test starts, as from a terminal. A process inherits an *ignored* SIGINT, and
+    a pytest worker had one (measured: ``-n 3``, tests/test_interrupt.py's SIGINT never came, exit 1); nifo rightly
+    leaves an ignored signal ignored. Python's handler is put in for the test (children start with the default)."""
+    import signal
+
+    before = signal.getsignal(signal.SIGINT)
+    if before is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        if before is signal.SIG_IGN:
+            signal.signal(signal.SIGINT, before)
+
+
 #: measured seconds per test file (`--durations=0` of a whole run on 2 cores, summed per file; refresh with
 #: ``python tests/durations.py LOG``). Used only to hand the longest files out first: ``./test.sh`` runs the files on
 #: every core (pytest-xdist, ``--dist loadfile``: a file's module fixtures are built once), and a long file taken

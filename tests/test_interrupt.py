@@ -6,6 +6,8 @@ import pytest
 
 from nifo.interrupt import by_interrupt
 
+pytestmark = pytest.mark.usefixtures("sigint_deliverable")   # (conftest.py)
+
 
 def test_an_interrupt_inside_class_creation_counts_as_an_interrupt():
     # the shape measured in tests/test_kill.py: SIGINT while scipy.stats created a dataclass during an import;

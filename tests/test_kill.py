@@ -33,6 +33,8 @@ from nifo_core.simulate.quarter_car import SimConfig, simulate
 
 from conftest import REPO
 
+pytestmark = pytest.mark.usefixtures("sigint_deliverable")   # (conftest.py)
+
 KILLS = int(os.environ.get("NIFO_KILLS", 20))   # the acceptance: 20 kills of each command
 SEED = 14
 
