@@ -75,9 +75,15 @@ def figure_workers() -> int:
 def write_files(fig, path: str | Path, dpi: int, tight_rect: tuple | None = None, *, vector: bool = True) -> None:
     """The PNG at ``path`` and (``vector``) the vector files beside it (:data:`nifo.plots.VECTOR_SUFFIXES`), laid
     out first (``tight_rect``: see :func:`nifo.plots.save_figure`); the caller closes ``fig``."""
+    _write(fig, _targets(path, vector), dpi, tight_rect)
+
+
+def _write(fig, paths: Sequence[str | Path], dpi: int, tight_rect: tuple | None) -> None:
+    """``fig`` laid out once, then each of its files rendered: in the calling process and in a helper alike (the
+    same bytes either way)."""
     _lay_out(fig, tight_rect)
-    for p in _targets(path, vector):
-        _render(fig, p, dpi)
+    for path in paths:
+        _render(fig, Path(path), dpi)
 
 
 def _targets(path: str | Path, vector: bool = True) -> list[Path]:
@@ -114,9 +120,7 @@ def _render_pickled(blob: bytes, paths: Sequence[str], dpi: int, tight_rect: tup
     that)."""
     fig = pickle.loads(blob)
     try:
-        _lay_out(fig, tight_rect)
-        for path in paths:
-            _render(fig, Path(path), dpi)
+        _write(fig, paths, dpi, tight_rect)
     finally:
         from nifo.plots import pyplot
 
