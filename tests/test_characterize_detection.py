@@ -43,3 +43,24 @@ def test_an_effect_at_three_times_the_detection_limit_is_found_and_at_a_third_is
         found[factor] = "cubic_stiffness" in {c.kind for c in characterize_restoring(more, m2_kg=m2).suggested}
     print("cubic detection limit", th * m2, "N/m³; found at 3x / at 1/3:", found)
     assert found == {3.0: True, 1.0 / 3.0: False}
+
+
+def test_a_ranking_on_a_grid_search_built_before_is_the_ranking_built_anew(knee_data):
+    """The loop builds the candidates' grid once and ranks every round on it (rank_beyond(search=)): the same
+    candidates, numbers to the bit; a grid built on other data, kinds or grid points is refused."""
+    from nifo_core.characterize.automatic import grid_search, rank_beyond
+    from nifo_core.errors import ConfigError
+
+    rfs, m2 = knee_data
+    kinds = ("velocity_deadzone", "coulomb", "cubic_stiffness")
+    search = grid_search(rfs, kinds=kinds, grid_points=12)
+    for declared in ((), (Term("velocity_deadzone", {"knee": 0.03}),)):   # two rounds on the one search
+        anew = rank_beyond(rfs, declared, m2_kg=m2, kinds=kinds, grid_points=12)
+        kept = rank_beyond(rfs, declared, m2_kg=m2, kinds=kinds, grid_points=12, search=search)
+        assert [c.term for c in kept] == [c.term for c in anew]
+        assert [(c.err, c.theta, c.p_value) for c in kept] == [(c.err, c.theta, c.p_value) for c in anew]
+    for other in (dict(kinds=kinds[:2], grid_points=12), dict(kinds=kinds, grid_points=24)):
+        with pytest.raises(ConfigError, match="other data, kinds"):
+            rank_beyond(rfs, (), m2_kg=m2, search=search, **other)
+    with pytest.raises(ConfigError, match="other data, kinds"):
+        rank_beyond(list(reversed(rfs)), (), m2_kg=m2, kinds=kinds, grid_points=12, search=search)

@@ -82,7 +82,8 @@ from ..signal.record import Record
 from .restoring import RestoringForce, instantaneous_frequency, restoring_force, suggest_band
 
 __all__ = ["Thresholds", "Candidate", "FittedModel", "Characterization", "RecordSummary", "characterize",
-           "characterize_restoring", "rank_beyond", "DEFAULT_KINDS", "POSITIVE_KINDS", "candidate_grid"]
+           "characterize_restoring", "rank_beyond", "grid_search", "DEFAULT_KINDS", "POSITIVE_KINDS",
+           "candidate_grid"]
 
 #: kinds re-scored at full length per selection step (the best ones on the subsample)
 _FULL_PER_STEP = 3
@@ -267,11 +268,28 @@ def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None
                             z_range_m=data.zmax, zdot_range_m_s=data.vmax, notes=tuple(notes))
 
 
+def grid_search(rfs: Sequence[RestoringForce], *, kinds: Sequence[str] = DEFAULT_KINDS, grid_points: int = 24,
+                n_groups: int = 4, progress: Callable[[float], None] | None = None) -> GridSearch:
+    """The candidate grids of ``kinds`` on ``rfs``, band-limited and orthogonalised against the linear columns: what
+    :func:`rank_beyond` scores. It depends on the data alone, not on the terms a model holds, so the loop builds it
+    once and ranks every round's residual on it (``rank_beyond(..., search=)``): building it is most of a ranking's
+    time (the grid's regressors, one band-pass per column and record). Kept, it holds the grid's projected columns on
+    the row subsample, not their full-length copies (:meth:`RegressionData.forget`: measured on four 300 s records,
+    +168 MB of peak memory for the loop when they were kept)."""
+    if not rfs:
+        raise InputError("no restoring-force data to rank candidates on")
+    kinds = tuple(dict.fromkeys(lookup_kind(k).name for k in kinds))
+    search = GridSearch(RegressionData(rfs, n_groups=n_groups, body_stiffness=False), kinds, grid_points, progress)
+    search.data.forget()
+    return search
+
+
 def rank_beyond(rfs: Sequence[RestoringForce], declared: Sequence[Term], *, m2_kg: float | None = None,
                 kinds: Sequence[str] = DEFAULT_KINDS, thresholds: Thresholds = Thresholds(),
                 grid_points: int = 24, n_groups: int = 4,
                 progress: Callable[[float], None] | None = None,
-                offsets: Sequence[Sequence[float] | None] | None = None) -> tuple[Candidate, ...]:
+                offsets: Sequence[Sequence[float] | None] | None = None,
+                search: GridSearch | None = None) -> tuple[Candidate, ...]:
     """Each kind's best candidate on top of a linear strut AND the ``declared`` terms, ranked by ERR.
 
     What a model holding ``declared`` still lacks (the tracing step of the
@@ -282,13 +300,17 @@ def rank_beyond(rfs: Sequence[RestoringForce], declared: Sequence[Term], *, m2_k
     :class:`Candidate` is given the declared terms (``conditional_on``).
     A candidate identical to a declared term is not listed. ``offsets``: per declared term, None or
     one ``offset`` [m] per record (a bump stop from the static position, :mod:`.characterize_static`).
+    ``search``: the :func:`grid_search` of these ``rfs``, ``kinds``, ``grid_points`` and ``n_groups``, built before
+    (the same ranking, without building it again).
     """
-    if not rfs:
-        raise InputError("no restoring-force data to rank candidates on")
-    kinds = tuple(dict.fromkeys(lookup_kind(k).name for k in kinds))
+    if search is None:
+        search = grid_search(rfs, kinds=kinds, grid_points=grid_points, n_groups=n_groups, progress=progress)
+    elif ([id(r) for r in search.data.rfs], tuple(search.grids), search.grid_points, search.data.n_groups) != (
+            [id(r) for r in rfs], tuple(dict.fromkeys(lookup_kind(k).name for k in kinds)), grid_points, n_groups):
+        raise ConfigError("the grid search given was built on other data, kinds, grid points or groups than these")
+    kinds = tuple(search.grids)
     declared = tuple(declared)
-    data = RegressionData(rfs, n_groups=n_groups, body_stiffness=False)
-    search = GridSearch(data, kinds, grid_points, progress)
+    data = search.data
     base = [data.regressor(t, offsets=o) for t, o in zip(declared, offsets or [None] * len(declared))]
     extra, r = search.basis(base)
     e, sg = search.err(extra, r)
@@ -304,6 +326,7 @@ def rank_beyond(rfs: Sequence[RestoringForce], declared: Sequence[Term], *, m2_k
             best.append((k, j))
     out = thread_map(lambda kj: score_candidate(data, base, search.terms[kj[1]], thresholds=thresholds,
                                                 n_grid=n_grid[kj[0]], m2=m2_kg, names=names), best)
+    data.forget()
     return tuple(sorted(out, key=lambda c: -c.err))
 
 

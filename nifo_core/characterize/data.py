@@ -31,6 +31,7 @@ class RegressionData:
     def __init__(self, rfs: Sequence[RestoringForce], *, n_groups: int, body_stiffness: bool,
                  masks: Sequence[np.ndarray | None] | None = None) -> None:
         self.rfs = list(rfs)
+        self.n_groups = n_groups
         self.keep: list[np.ndarray] = []
         ys, xs, groups, folds, recs = [], [], [], [], []
         masks = list(masks) if masks is not None else [None] * len(self.rfs)
@@ -114,6 +115,10 @@ class RegressionData:
             if len(self._cache) < 48:
                 self._cache.setdefault(keys[i], col)
         return out
+
+    def forget(self) -> None:
+        """Drop the remembered full-length columns (:meth:`regressors`): for data kept while other work runs."""
+        self._cache.clear()
 
     def _compute(self, term: Term, offsets: tuple[float, ...] | None) -> np.ndarray:
         parts = []
@@ -217,6 +222,7 @@ class GridSearch:
     def __init__(self, data: RegressionData, kinds: Sequence[str], grid_points: int,
                  progress: Callable[[float], None] | None) -> None:
         self.data = data
+        self.grid_points = grid_points
         rows = data.rows
         self.q, _ = np.linalg.qr(data.x[rows])
         ys = data.y[rows]

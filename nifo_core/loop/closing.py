@@ -99,7 +99,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..characterize.automatic import rank_beyond
+from ..characterize.automatic import grid_search, rank_beyond
 from ..kinds.describing import Term, make_term
 from .detection import confounded_pairs, detection_limits, undetermined_terms
 from ..errors import ConfigError, InputError, NifoError, RecordTooShortError
@@ -414,6 +414,7 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
     rounds: list[Round] = []
     verdict = ""
     total = s.max_rounds + 1
+    search = None
     for i in range(1, s.max_rounds + 1):
         base = (i - 1) / total
         tuned: list[str] = []
@@ -422,9 +423,12 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
             terms, tuned = _retune(ev, terms, s)
             current = _errors(ev, pred, terms)
         say(base, f"round {i}: tracing the residual")
+        if search is None:      # the candidates' grid on the fit parts: the data's, the same in every round
+            search = grid_search(ev.fit_rfs, kinds=s.kinds, grid_points=s.grid_points,
+                                 progress=lambda f, b=base: say(b + 0.5 * f / total, f"round {i}: tracing"))
         ranked = rank_beyond(ev.fit_rfs, terms, m2_kg=m2_kg, kinds=s.kinds, thresholds=s.thresholds,
                              grid_points=s.grid_points, offsets=[ev.static.get(t.label) for t in terms],
-                             progress=lambda f, b=base: say(b + 0.5 * f / total, f"round {i}: tracing"))
+                             search=search)
         trials: list[Trial] = []
         added = None
         cands = _round_candidates(ev, pred, terms, ranked, s, m2_kg)
