@@ -1,6 +1,6 @@
 """One module per ``nifo`` sub-command.
 
-Each module defines ``HELP`` (one line for ``nifo --help``), ``add_arguments(parser)``
+Each module defines ``HELP`` (one line for ``nifo --help``, from :data:`SUMMARIES`), ``add_arguments(parser)``
 and ``run(args) -> int``. :mod:`nifo.cli` lists them in ``COMMANDS``. Argument types they share live here.
 """
 
@@ -8,7 +8,23 @@ import argparse
 import math
 from typing import Callable
 
-__all__ = ["sprung_mass", "checked_by"]
+__all__ = ["SUMMARIES", "sprung_mass", "checked_by"]
+
+#: each command's line in ``nifo --help`` (its module's ``HELP``): here, so that the top-level help lists the
+#: commands without importing them (each imports its step and the libraries: 1-1.3 s)
+SUMMARIES = {
+    "run": "the whole job on the bundled sample (or given data): characterize, identify, predict, loop, report",
+    "simulate": "simulate a nonlinear quarter car and write the record and its truth",
+    "info": "show format, channels, sample rate, duration and RMS of data files",
+    "characterize": "restoring-force plots and automatic characterization of strut nonlinearities",
+    "identify": "identify the nominal linear transmissibility and the nonlinear coefficient functions (NIFO)",
+    "predict": "predict the body response of other data with an identified model and compare with the measurement",
+    "loop": "find the effect the model lacks from the residual, add it, report the error before and after",
+    "replay": "publish a recorded bag into the ROS 2 graph (live nodes see it as the vehicle)",
+    "view": "turn result directories into a Rerun recording (save, spawn a viewer, or connect)",
+    "report": "write a self-contained HTML report of result directories",
+    "fleet": "identify a fleet: many bags of many vehicles on Dask, one model per vehicle/corner, odd struts flagged",
+}
 
 
 def sprung_mass(text: str) -> float:

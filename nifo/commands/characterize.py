@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from nifo.commands import sprung_mass
+from nifo.commands import SUMMARIES, sprung_mass
 from nifo.io.loader import add_input_arguments
 from nifo.io.provenance import add_system_argument
 from nifo.pipeline.characterize import run_characterize
@@ -16,7 +16,7 @@ from nifo.pipeline.options import CharacterizeOptions
 from nifo.settings import add_settings_arguments
 from nifo_core.characterize.automatic import DEFAULT_KINDS, Thresholds
 
-HELP = "restoring-force plots and automatic characterization of strut nonlinearities"
+HELP = SUMMARIES["characterize"]
 DESCRIPTION = f"""{HELP}.
 
 The body acceleration, negated, is the strut force per unit sprung mass

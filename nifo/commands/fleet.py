@@ -13,10 +13,11 @@ import argparse
 import sys
 from pathlib import Path
 
+from nifo.commands import SUMMARIES
 from nifo.io.loader import add_input_arguments, input_options
 from nifo_core.errors import ConfigError
 
-HELP = "identify a fleet: many bags of many vehicles on Dask, one model per vehicle/corner, odd struts flagged"
+HELP = SUMMARIES["fleet"]
 DESCRIPTION = f"""{HELP}.
 
 INPUT is a manifest (CSV or YAML; columns vehicle, corner, date, path, model,

@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from nifo.commands import SUMMARIES
 from nifo.io.loader import add_input_arguments
 from nifo.io.provenance import add_system_argument
 from nifo.pipeline.identify import run_identify
@@ -24,7 +25,7 @@ from nifo.pipeline.options import CHUNK_SAMPLES, IdentifyOptions
 from nifo.settings import add_settings_arguments
 from nifo_core.errors import IllConditionedError
 
-HELP = "identify the nominal linear transmissibility and the nonlinear coefficient functions (NIFO)"
+HELP = SUMMARIES["identify"]
 DESCRIPTION = f"""{HELP}.
 
 Output-only NIFO (Haroon & Adams, Eq. 8-9): from spindle and body

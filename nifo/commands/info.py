@@ -10,10 +10,11 @@ import numpy as np
 from nifo_core.errors import NifoError
 from nifo_core.signal.record import Record
 
+from nifo.commands import SUMMARIES
 from nifo.io.loader import add_input_arguments, input_options, load_record
 from nifo.io.provenance import add_system_argument, system_of
 
-HELP = "show format, channels, sample rate, duration and RMS of data files"
+HELP = SUMMARIES["info"]
 DESCRIPTION = """\
 Show, for each data file (rosbag2 bag directory or .mcap, .csv, .mat), what
 nifo reads from it: format, the topics/columns used, sample rate, duration,

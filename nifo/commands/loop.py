@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from nifo.commands import checked_by, sprung_mass
+from nifo.commands import SUMMARIES, checked_by, sprung_mass
 from nifo.io.loader import add_input_arguments
 from nifo.io.provenance import add_system_argument
 from nifo.pipeline.loop import run_loop
@@ -17,7 +17,7 @@ from nifo.settings import add_settings_arguments
 from nifo_core.characterize.automatic import DEFAULT_KINDS
 from nifo_core.loop.results import LoopSettings
 
-HELP = "find the effect the model lacks from the residual, add it, report the error before and after"
+HELP = SUMMARIES["loop"]
 DESCRIPTION = f"""{HELP}.
 
 Each DATA file is split in time: the first --fit-fraction fits, the rest is

@@ -10,13 +10,14 @@ import nifo.pipeline.predict as _step
 import argparse
 from pathlib import Path
 
+from nifo.commands import SUMMARIES
 from nifo.io.loader import add_input_arguments
 from nifo.io.provenance import add_system_argument
 from nifo.pipeline.options import PredictOptions
 from nifo.pipeline.predict import run_predict
 from nifo.settings import add_settings_arguments
 
-HELP = "predict the body response of other data with an identified model and compare with the measurement"
+HELP = SUMMARIES["predict"]
 DESCRIPTION = _step.__doc__.split("\n", 1)[1].strip() if _step.__doc__ else HELP
 
 

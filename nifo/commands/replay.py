@@ -5,10 +5,11 @@ from __future__ import annotations
 import argparse
 import sys
 
+from nifo.commands import SUMMARIES
 from nifo.io.bag_replay import replay_bag
 from nifo_core.errors import ConfigError
 
-HELP = "publish a recorded bag into the ROS 2 graph (live nodes see it as the vehicle)"
+HELP = SUMMARIES["replay"]
 DESCRIPTION = """\
 Publish every message of a rosbag2 bag (directory or .mcap) on its recorded
 topic, paced by the recorded times, as serialized bytes straight from the bag:

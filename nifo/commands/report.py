@@ -14,7 +14,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-HELP = "write a self-contained HTML report of result directories"
+from nifo.commands import SUMMARIES
+
+HELP = SUMMARIES["report"]
 DESCRIPTION = __doc__.split("\n", 1)[1].strip() if __doc__ else HELP
 
 

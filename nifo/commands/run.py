@@ -10,6 +10,7 @@ import nifo.pipeline.job as _step
 import argparse
 from pathlib import Path
 
+from nifo.commands import SUMMARIES
 from nifo.io.loader import add_input_arguments
 from nifo.io.provenance import add_system_argument
 from nifo.pipeline.job import loop_available, run_job
@@ -19,7 +20,7 @@ from nifo_core.errors import InputError
 
 __all__ = ["add_arguments", "run", "sample_data", "loop_available", "SAMPLE_DIR"]
 
-HELP = "the whole job on the bundled sample (or given data): characterize, identify, predict, loop, report"
+HELP = SUMMARIES["run"]
 DESCRIPTION = _step.__doc__.split("\n", 1)[1].strip() if _step.__doc__ else HELP
 
 #: the bundled sample, relative to the checkout

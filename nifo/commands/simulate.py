@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nifo.commands import SUMMARIES
 from nifo.io.atomic import check_output, staged_file
 from nifo.progress import Progress
 from nifo_core.kinds.describing import make_term
@@ -20,7 +21,7 @@ from nifo_core.errors import ConfigError
 from nifo_core.simulate.quarter_car import (PRESETS, ChirpRoad, RandomRoad, SensorNoise, SimConfig, Simulation, StrutForce,
                                 preset, simulate)
 
-HELP = "simulate a nonlinear quarter car and write the record and its truth"
+HELP = SUMMARIES["simulate"]
 DESCRIPTION = f"""{HELP}.
 
 Road: Gaussian random (--road-rms, default 2.5 mm, 0.5-40 Hz) or the paper's

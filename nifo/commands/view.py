@@ -17,7 +17,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-HELP = "turn result directories into a Rerun recording (save, spawn a viewer, or connect)"
+from nifo.commands import SUMMARIES
+
+HELP = SUMMARIES["view"]
 DESCRIPTION = __doc__.split("\n", 1)[1].strip() if __doc__ else HELP
 
 
