@@ -139,7 +139,10 @@ def main(argv: list[str] | None = None) -> int:
         # and warms in its own process while this one parses, reads the manifest and starts the scheduler
         # (measured: 0.8 s of this process's start-up saved; docs/fleet.md, "Start-up and scaling")
         start_worker_server()
-    parser = build_parser(first) if first in COMMANDS else build_parser(summary=True)
+    # the top-level help (also asked before a command: ``nifo -h run``) and a mistyped command need every name
+    before = argv[:argv.index(first)] if first is not None else argv
+    top = first not in COMMANDS or any(a in ("-h", "--help", "--version") for a in before)
+    parser = build_parser(summary=True) if top else build_parser(first)
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):
         parser.print_help()

@@ -167,13 +167,18 @@ def test_nifo_info_is_a_quick_look_that_loads_no_signal_processing():
     assert p.stdout.strip().splitlines()[-1] == "0 []", p.stdout
 
 
-def test_nifo_help_lists_every_command_without_importing_one():
+def test_nifo_help_lists_every_command_without_importing_one(capsys):
     """``nifo --help``, ``nifo --version`` and a mistyped command need the commands' names and lines only: none of
     their modules (each imports its step and the libraries) is imported (measured: ``nifo --help`` 1.97 -> 0.09 s),
-    and the help is the full parser's, line for line."""
-    from nifo.cli import build_parser
+    and the help is the full parser's, line for line; asked before a command (``nifo -h run``) it lists every
+    command too (it listed that one alone)."""
+    from nifo.cli import COMMANDS, build_parser, main
 
     assert build_parser(summary=True).format_help() == build_parser().format_help()
+    with pytest.raises(SystemExit) as done:
+        main(["-h", "run"])
+    listed = capsys.readouterr().out
+    assert done.value.code == 0 and all(f"\n    {name}" in listed for name in COMMANDS), listed
     code = ("import sys\nfrom nifo.cli import main\n"
             "for argv in (['--help'], ['--version'], ['rnu']):\n"
             "    try:\n        main(argv)\n    except SystemExit:\n        pass\n"
