@@ -96,7 +96,7 @@ def _groups(out: Path) -> dict:
 def test_fleet_writes_every_output_and_flags_exactly_the_planted_struts(result):
     assert {p.name for p in result.iterdir()} >= {"fleet.parquet", "fleet.csv", "bags.parquet", "bags.csv",
                                                  "fleet.json", "fleet.html", "t21.png", "coefficients.png",
-                                                 "fleet.rrd"}
+                                                 "t21.svg", "coefficients.svg", "fleet.rrd"}
     g = _groups(result)
     assert {v for v, r in g.items() if r["flagged"]} == {"v01", "v06"}
     assert g["v01"]["c2_z"] < -3.5 and "c2 = " in g["v01"]["flag_evidence"]

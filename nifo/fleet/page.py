@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from nifo.fleet.runner import FleetRun
+from nifo.plots import VECTOR_SUFFIXES, pyplot, save_figure
 from nifo_core import __version__
 
 __all__ = ["plot_t21", "plot_coefficients", "write_page", "FLEET_HTML"]
@@ -61,9 +62,7 @@ def _ok_groups(run: FleetRun):
 
 def plot_t21(path: Path, run: FleetRun) -> Path:
     """|T21| and phase of every group (pooled NIFO T21) on shared axes; flagged groups in red."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, (am, ap) = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True, constrained_layout=True)
     band = None
@@ -91,16 +90,12 @@ def plot_t21(path: Path, run: FleetRun) -> Path:
     am.legend(fontsize=8, loc="lower left")
     for ax in (am, ap):
         ax.grid(True, which="both", alpha=0.3)
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def plot_coefficients(path: Path, run: FleetRun) -> Path:
     """Every coefficient of every group with 95 % interval bars, the fleet median and its ±z_limit·scale band."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     ok = _ok_groups(run)
     names = list(dict.fromkeys(c.name for _, r in ok for c in r["health"].coefficients))  # the assessed set
@@ -132,9 +127,7 @@ def plot_coefficients(path: Path, run: FleetRun) -> Path:
     ax.set_xlabel("group (vehicle/corner)")
     axes[0, 0].set_title(f"coefficients, 95 % intervals; dashed: fleet median; grey: ± {zl:g} robust σ; red: flagged",
                          fontsize=9)
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def _fmt(c: dict, z: float) -> str:
@@ -147,7 +140,8 @@ def _fmt(c: dict, z: float) -> str:
 
 
 def write_page(out: Path, run: FleetRun, *, title: str) -> list[str]:
-    """fleet.html, t21.png and coefficients.png into ``out``; returns the file names."""
+    """fleet.html and the two figures (PNG, and SVG beside each: :func:`nifo.plots.save_figure`) into ``out``;
+    returns the file names."""
     import jinja2
 
     plot_t21(out / "t21.png", run)
@@ -178,4 +172,5 @@ def write_page(out: Path, run: FleetRun, *, title: str) -> list[str]:
         flags=flags, t21_png="t21.png", coef_png="coefficients.png", coef_heads=heads, rows=rows,
         failed=[b for b in run.bags if b["status"] != "ok"])
     (out / FLEET_HTML).write_text(text)
-    return [FLEET_HTML, "t21.png", "coefficients.png"]
+    return [FLEET_HTML, *(f"{stem}{suffix}" for stem in ("t21", "coefficients")
+                          for suffix in (".png", *VECTOR_SUFFIXES))]
