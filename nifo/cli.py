@@ -27,9 +27,8 @@ from nifo.interrupt import by_interrupt, term_as_interrupt
 
 __all__ = ["main", "build_parser", "add_common_arguments", "COMMANDS"]
 
-#: order shown in ``nifo --help``
-COMMANDS = ("run", "simulate", "info", "characterize", "identify", "predict", "loop",
-            "replay", "view", "report", "fleet")
+#: order shown in ``nifo --help``: the summaries' (:data:`nifo.commands.SUMMARIES`)
+COMMANDS = tuple(SUMMARIES)
 
 
 def _load(name: str):

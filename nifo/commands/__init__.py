@@ -12,7 +12,7 @@ __all__ = ["SUMMARIES", "sprung_mass", "checked_by"]
 
 #: each command's line in ``nifo --help`` (its module's ``HELP``): here, so that the top-level help lists the
 #: commands without importing them (each imports its step and the libraries: 1-1.3 s)
-SUMMARIES = {
+SUMMARIES = {    # in the order of ``nifo --help``
     "run": "the whole job on the bundled sample (or given data): characterize, identify, predict, loop, report",
     "simulate": "simulate a nonlinear quarter car and write the record and its truth",
     "info": "show format, channels, sample rate, duration and RMS of data files",

@@ -92,6 +92,11 @@ _FULL_PER_STEP = 3
 # Long (over 100 lines): the ranking, the greedy model search and the suggested model share one set of
 # band-limited columns and grids. Left whole here while the noise branch (issue 28) edits its body; to split after
 # the merge.
+def _kind_names(kinds: Sequence[str]) -> tuple[str, ...]:
+    """Each kind by its library name (aliases resolved), once, in the order given."""
+    return tuple(dict.fromkeys(lookup_kind(k).name for k in kinds))
+
+
 def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None = None,
                            kinds: Sequence[str] = DEFAULT_KINDS, thresholds: Thresholds = Thresholds(),
                            grid_points: int = 24, max_terms: int = 3, n_groups: int = 4,
@@ -117,7 +122,7 @@ def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None
         raise ConfigError(f"max_terms={max_terms} must be at least 1")
     if masks is not None and len(masks) != len(rfs):
         raise InputError(f"{len(masks)} masks for {len(rfs)} records")
-    kinds = tuple(dict.fromkeys(lookup_kind(k).name for k in kinds))
+    kinds = _kind_names(kinds)
     data = RegressionData(rfs, n_groups=n_groups, body_stiffness=body_stiffness, masks=masks)
     search = GridSearch(data, kinds, grid_points, progress)
     n_grid = {k: len(search.grids[k]) for k in kinds}
@@ -278,7 +283,7 @@ def grid_search(rfs: Sequence[RestoringForce], *, kinds: Sequence[str] = DEFAULT
     +168 MB of peak memory for the loop when they were kept)."""
     if not rfs:
         raise InputError("no restoring-force data to rank candidates on")
-    kinds = tuple(dict.fromkeys(lookup_kind(k).name for k in kinds))
+    kinds = _kind_names(kinds)
     search = GridSearch(RegressionData(rfs, n_groups=n_groups, body_stiffness=False), kinds, grid_points, progress)
     search.data.forget()
     return search
@@ -306,7 +311,7 @@ def rank_beyond(rfs: Sequence[RestoringForce], declared: Sequence[Term], *, m2_k
     if search is None:
         search = grid_search(rfs, kinds=kinds, grid_points=grid_points, n_groups=n_groups, progress=progress)
     elif ([id(r) for r in search.data.rfs], tuple(search.grids), search.grid_points, search.data.n_groups) != (
-            [id(r) for r in rfs], tuple(dict.fromkeys(lookup_kind(k).name for k in kinds)), grid_points, n_groups):
+            [id(r) for r in rfs], _kind_names(kinds), grid_points, n_groups):
         raise ConfigError("the grid search given was built on other data, kinds, grid points or groups than these")
     kinds = tuple(search.grids)
     declared = tuple(declared)
