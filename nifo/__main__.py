@@ -1,12 +1,20 @@
 """``python -m nifo`` and the ``nifo`` console script (:func:`entry`): the command, with a Ctrl-C or SIGTERM at
 any moment (even while the libraries load) ending it with one line and exit 130."""
 
-import os
-import signal
 import sys
-import threading
 
-from nifo.interrupt import by_interrupt, watch   # no imports of its own: loaded before anything can be interrupted
+#: what an interrupted start says (the command's own interruptions say what was written)
+STARTING = "nifo: interrupted while starting; nothing was written"
+
+try:    # a Ctrl-C before nifo's handler is in (watch) arrives as Python's KeyboardInterrupt: here, not a traceback
+    import os
+    import signal
+    import threading
+
+    from nifo.interrupt import by_interrupt, watch   # stdlib only: loaded before anything can be interrupted
+except KeyboardInterrupt:
+    print(STARTING, file=sys.stderr)
+    sys.exit(130)
 
 
 def _interrupt_again(unraisable) -> None:
@@ -24,16 +32,16 @@ def _interrupt_again(unraisable) -> None:
 
 def entry() -> int:
     """Run the ``nifo`` command line; its exit code."""
-    sys.unraisablehook = _interrupt_again
-    watch()
     try:
+        sys.unraisablehook = _interrupt_again
+        watch()
         from nifo.cli import main
 
         return main()
     except BaseException as e:   # Ctrl-C (or SIGINT) while starting up, before a command runs: nothing was written
         if isinstance(e, SystemExit) or not by_interrupt(e):   # (an interrupt inside an import can surface as
             raise                                              # the import's own error, or as nothing of it)
-        print("nifo: interrupted while starting; nothing was written", file=sys.stderr)
+        print(STARTING, file=sys.stderr)
         return 130
 
 
