@@ -159,6 +159,45 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
+_TEARDOWN = """
+import os, signal, sys
+import nifo.pipeline.identify as cmd
+from nifo.__main__ import entry
+
+class Teardown:
+    def __del__(self):   # a module global's finalizer: runs when the interpreter tears its modules down
+        sys.stderr.write("teardown ran\\n")
+
+kept = Teardown()
+if sys.argv[1] == "identify":
+    real = cmd.accumulate
+    def accumulate(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        return real(*args, **kwargs)
+    cmd.accumulate = accumulate
+sys.exit(entry())
+"""
+
+
+def test_an_interrupted_command_ends_without_the_interpreter_teardown_a_finished_one_has(tmp_path):
+    """CI: SIGTERM 3.3 s into ``nifo identify`` printed its one line, then the interpreter's teardown aborted
+    (``Fatal Python error: PyThreadState_Get``, exit -6): the interrupt had landed inside native library state.
+    An interrupted command now ends after the exit hooks, before the teardown (nifo.__main__); a finished one
+    exits as Python does (the control: the same script without the signal)."""
+    data = _record(tmp_path)
+    model = tmp_path / "model.yaml"
+    model.write_text("nifo_model: 1\nnonlinearities:\n  - {kind: velocity_deadzone, params: {knee: 0.03}}\n")
+    out = tmp_path / "ident"
+    cut = subprocess.run([sys.executable, "-c", _TEARDOWN, "identify", str(data), "--model", str(model),
+                          "--out", str(out)], cwd=tmp_path, env=_env(), capture_output=True, text=True, timeout=300)
+    assert cut.returncode == 130, (cut.returncode, cut.stderr)
+    assert cut.stderr.strip() == "nifo identify: interrupted; nothing was written", cut.stderr
+    assert not out.exists() and not _leftovers(tmp_path)
+    done = subprocess.run([sys.executable, "-c", _TEARDOWN, "--version"], cwd=tmp_path, env=_env(),
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0 and "teardown ran" in done.stderr, (done.returncode, done.stderr)
+
+
 def test_identify_terminated_by_sigterm_exits_130_as_run_does(tmp_path):
     """Issue 26: nifo identify killed with SIGTERM while computing exited -15 (run: 130). The signal is sent by
     the process itself while it reads its data (a real identify otherwise), so the point is deterministic."""
