@@ -2,7 +2,9 @@
 
 Run: ``.venv/bin/python benchmarks/bench_predict.py [--duration S] [--fs HZ] [--oversample Q]``.
 Also a structure like the F-16's (rational order 30) with three plays, with constant coefficients and through
-feedback paths (:mod:`nifo_core.predict.feedback_paths`), the ratio printed.
+feedback paths (:mod:`nifo_core.predict.feedback_paths`), the ratio printed; and, for these and the quarter car
+with every kind, the step as it runs (each row of the block-diagonal Φ two fixed products) against the same step
+looping over each row's band (the baseline, same run), bit for bit the same output.
 Target: 300 s at 600 Hz predicted in less than 2 s after compilation (CPU
 time of the process; the wall time is printed beside it, with the load). Each
 model is the true one of a simulated record (so the accuracy printed beside
@@ -16,6 +18,7 @@ printed. The first call (numba compile or cache load) is a warm-up and not timed
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import time
 
@@ -44,6 +47,31 @@ def _timed(fn, repeats: int):
         out = fn()
         best, cpu = min(best, time.perf_counter() - t0), min(cpu, time.process_time() - c0)
     return best, cpu, out
+
+
+@contextlib.contextmanager
+def _band_loop():
+    """Inside, the step kernels loop over each row's band of Φ instead of its two fixed products (the baseline)."""
+    from nifo_core.predict import timesim
+
+    rows = timesim._rows
+    timesim._rows = lambda phi: (*rows(phi)[:-1], False)
+    try:
+        yield
+    finally:
+        timesim._rows = rows
+
+
+def _against_band_loop(name: str, fn, repeats: int) -> None:
+    """CPU of ``fn`` (a prediction) as it runs and with the band's loop, and whether the outputs are identical."""
+    _, fast, out = _timed(fn, repeats)
+    with _band_loop():
+        _, slow, ref = _timed(fn, repeats)
+    same = all(np.array_equal(getattr(out, k), getattr(ref, k)) for k in ("z", "zdot", "body_accel"))
+    print(f"{name:<38} step kernel: two products per row {fast:6.3f} s CPU, band loop {slow:6.3f} s "
+          f"-> {slow / fast:.2f}x, output {'identical' if same else 'DIFFERENT'}")
+    if not same:
+        raise SystemExit(f"{name}: the two step forms differ")
 
 
 def _nmse(y, yhat, v) -> float:
@@ -78,6 +106,8 @@ def _rational_cases(duration: float, fs: float, q, repeats: int):
     predict_body(paths, a1[: int(5 * fs)], fs, oversample=q)                 # compile or load the kernel
     wc, cc, _ = _timed(lambda: predict_body(const, a1, fs, oversample=q), repeats)
     wp, cp, _ = _timed(lambda: predict_body(paths, a1, fs, oversample=q), repeats)
+    _against_band_loop("rational order 30, constant γ", lambda: predict_body(const, a1, fs, oversample=q), repeats)
+    _against_band_loop("rational order 30, feedback paths", lambda: predict_body(paths, a1, fs, oversample=q), repeats)
     return wc, cc, wp, cp
 
 
@@ -116,6 +146,8 @@ def main() -> int:
         except ConfigError as err:
             line += f"; frequency domain refused ({err.message})"
         print(line)
+        if strut is cases["every kind (incl. backlash), 2.5 mm"][0]:
+            _against_band_loop(name, lambda: predict_body(model, a1, fs, oversample=q), args.repeats)
     wall_c, cpu_c, wall_p, cpu_p = _rational_cases(args.duration, fs, q, args.repeats)
     worst = max(worst, cpu_c, cpu_p)
     print(f"{'rational order 30, three plays, constant γ':<38} time domain: wall {wall_c:6.3f} s, CPU {cpu_c:6.3f} s")

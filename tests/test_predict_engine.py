@@ -165,9 +165,10 @@ def test_a_measured_force_drives_a_fixed_spindle_model():
     assert err < 2e-3
 
 
-def test_the_banded_step_of_a_modal_linear_part_equals_the_full_product_to_the_last_bit():
+def test_the_paired_and_banded_steps_of_a_modal_linear_part_equal_the_full_product_to_the_last_bit():
     """A rational linear part is in real modal form: Φ is block diagonal, and the engine multiplies only inside
-    the blocks (timesim._bands). Against the full product, every sample is the same bit for bit."""
+    the blocks (timesim._rows): two fixed products per row (2×2 blocks and a 1×1 one), or a loop over the band.
+    Against the full product, every sample is the same bit for bit."""
     from nifo_core.kinds.strut_forces import strut_arrays
     from nifo_core.predict import timesim
 
@@ -180,18 +181,42 @@ def test_the_banded_step_of_a_modal_linear_part_equals_the_full_product_to_the_l
         b[2 * k], c[2 * k], c[2 * k + 1] = 1.0, rng.normal(), rng.normal()
     a[-1, -1], b[-1], c[-1] = -40.0, 1.0, -float(c[:-1] @ b[:-1])     # c·b = 0
     phi, g0, g1 = timesim.discretise(a, b, 1 / 4800)
-    lo, hi = timesim._bands(phi)
+    phi, lo, hi, c1, pa, pb, paired = timesim._rows(phi)
     cols = np.arange(n)[None, :]
-    assert (hi - lo).max() == 2 and np.all(phi[(cols < lo[:, None]) | (cols >= hi[:, None])] == 0)
+    assert paired and (hi - lo).max() == 2 and (hi - lo)[-1] == 1
+    assert np.all(phi[(cols < lo[:, None]) | (cols >= hi[:, None])] == 0)
     v = rng.normal(size=20_000)
     terms = [Term("velocity_deadzone", {"knee": 0.01}), Term("backlash", {"deadband": 1e-4})]
     codes, coef, p0, p1 = strut_arrays(terms, [-0.2, 3.0])
+    full = (np.zeros(n, np.int64), np.full(n, n, np.int64))
     outs = []
-    for bands in ((lo, hi), (np.zeros(n, np.int64), np.full(n, n, np.int64))):
+    for rows in ((phi, lo, hi, c1, pa, pb, True), (phi, lo, hi, c1, pa, pb, False), (phi, *full, c1, pa, pb, False)):
         got = [np.zeros(v.size) for _ in range(4)]
-        fail = timesim._run(np.ascontiguousarray(phi), *bands, g0, g1, c, c @ a, c @ a @ a, float(c @ a @ b), v, codes,
-                            coef, p0, p1, 0.0, 0.0, np.inf, 0.0, *got)
+        fail = timesim._run(*rows, g0, g1, c, c @ a, c @ a @ a, float(c @ a @ b), v, codes, coef, p0, p1, 0.0, 0.0,
+                            np.inf, 0.0, *got)
         assert fail == -1
         outs.append(got)
-    for banded, full in zip(*outs):
-        assert np.array_equal(banded, full)
+    for pair, band, whole in zip(*outs):
+        assert np.array_equal(pair, whole) and np.array_equal(band, whole)
+    assert not timesim._rows(np.triu(np.ones((3, 3))))[-1]    # a row of three: the band's loop
+
+
+def test_the_linear_peak_is_computed_once_per_record_and_linear_part_and_never_stale():
+    """The divergence bound's scale (the linear part's peak response to the record) is kept per record and
+    realised response: the same linear part built again is looked up, a changed one is computed anew."""
+    from dataclasses import replace
+
+    from nifo_core.predict import model as pm
+
+    fs = 400.0
+    v = np.random.default_rng(5).normal(size=8000)
+    lin = LinearPart("body", body=BodyModel(k=(2 * np.pi * 1.5) ** 2, c=2.0))
+    direct = pm._peak(v, pm._Realised(lin), fs)
+    pm._PEAK.clear()
+    assert pm._linear_peak(lin, v, fs) == direct
+    again = LinearPart("body", body=BodyModel(k=(2 * np.pi * 1.5) ** 2, c=2.0), absorbed=(0.0, 0.0))
+    assert pm._linear_peak(again, v.copy(), fs) == direct and len(pm._PEAK._kept) == 1   # looked up
+    stiffer = replace(lin, body=BodyModel(k=(2 * np.pi * 3.0) ** 2, c=2.0))
+    assert pm._linear_peak(stiffer, v, fs) == pm._peak(v, pm._Realised(stiffer), fs) != direct
+    assert pm._linear_peak(lin, v * 2, fs) == pytest.approx(2 * direct, rel=1e-12)
+    assert len(pm._PEAK._kept) == 3

@@ -172,129 +172,161 @@ def _bracketed(z0, zd0, alpha, beta, guess, codes, coef, p0, p1, play, la, lb, a
     return 0.5 * (lo + hi), True
 
 
-@numba.njit(cache=True, nogil=True)   # nogil: simulations side by side (nifo_core.signal.parallel)
-def _run(phi, lo, hi, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, la, lb, z_limit, atol,
-         out_z, out_zd, out_zdd, out_n):  # pragma: no cover - compiled
-    """March the FOH-discretised linear part with the implicit strut feedback; returns the failing step or -1.
-    Row i of Φ is nonzero only in columns lo[i]..hi[i]-1 (:func:`_bands`)."""
-    ns = phi.shape[0]
-    nt = codes.size
-    x = np.zeros(ns)
-    xs = np.zeros(ns)
-    play = np.zeros(nt)
-    alpha = 0.0
-    beta = 0.0
-    for i in range(ns):
-        alpha += cz[i] * g1[i]
-        beta += cd[i] * g1[i]
-    active = nt > 0 or la != 0.0 or lb != 0.0
-    nk = _fb_called(0.0, 0.0, codes, coef, p0, p1, play, True, la, lb) if active else 0.0
-    nprev = nk
-    out_z[0], out_zd[0], out_zdd[0], out_n[0] = 0.0, 0.0, dd * (v[0] + nk), nk
-    for j in range(v.size - 1):
-        uk = v[j] + nk
-        un = v[j + 1]
-        z0 = 0.0
-        zd0 = 0.0
+def _step_kernels(paired: bool):
+    """The two step kernels (one input; measured input and feedback paths), for Φ's rows as two fixed products
+    (``paired``) or as loops over their bands (:func:`_rows`). ``paired`` is a constant of the compiled code, not
+    a branch in the step: with it as an argument (or the row in an inlined helper) the step ran no faster, or
+    8× slower, than the band's loop (measured on the kernel with paths, F-16 level 7: 55 and 480 ms against 61;
+    compiled with it as a constant, 49 ms)."""
+
+    @numba.njit(cache=True, nogil=True)   # nogil: simulations side by side (nifo_core.signal.parallel)
+    def run(phi, lo, hi, c1, pa, pb, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, la, lb, z_limit, atol,
+             out_z, out_zd, out_zdd, out_n):  # pragma: no cover - compiled
+        """March the FOH-discretised linear part with the implicit strut feedback; returns the failing step or -1.
+        Row i of Φ is nonzero only in columns lo[i]..hi[i]-1 (:func:`_rows`)."""
+        ns = phi.shape[0]
+        nt = codes.size
+        x = np.zeros(ns)
+        xs = np.zeros(ns)
+        play = np.zeros(nt)
+        alpha = 0.0
+        beta = 0.0
         for i in range(ns):
-            acc = g0[i] * uk + g1[i] * un
-            for l in range(lo[i], hi[i]):
-                acc += phi[i, l] * x[l]
-            xs[i] = acc
-            z0 += cz[i] * acc
-            zd0 += cd[i] * acc
-        n = 0.0
-        if active:
-            n, ok = _solve(z0, zd0, alpha, beta, 2.0 * nk - nprev, codes, coef, p0, p1, play, la, lb, atol)
-            nprev = nk
+            alpha += cz[i] * g1[i]
+            beta += cd[i] * g1[i]
+        active = nt > 0 or la != 0.0 or lb != 0.0
+        nk = _fb_called(0.0, 0.0, codes, coef, p0, p1, play, True, la, lb) if active else 0.0
+        nprev = nk
+        out_z[0], out_zd[0], out_zdd[0], out_n[0] = 0.0, 0.0, dd * (v[0] + nk), nk
+        for j in range(v.size - 1):
+            uk = v[j] + nk
+            un = v[j + 1]
+            z0 = 0.0
+            zd0 = 0.0
+            for i in range(ns):
+                acc = g0[i] * uk + g1[i] * un
+                if paired:
+                    acc += pa[i] * x[lo[i]]
+                    acc += pb[i] * x[c1[i]]
+                else:
+                    for l in range(lo[i], hi[i]):
+                        acc += phi[i, l] * x[l]
+                xs[i] = acc
+                z0 += cz[i] * acc
+                zd0 += cd[i] * acc
+            n = 0.0
+            if active:
+                n, ok = _solve(z0, zd0, alpha, beta, 2.0 * nk - nprev, codes, coef, p0, p1, play, la, lb, atol)
+                nprev = nk
+                if not ok:
+                    return j + 1
+            zdd = dd * (un + n)
+            for i in range(ns):
+                x[i] = xs[i] + g1[i] * n
+                zdd += ca[i] * x[i]
+            z = z0 + alpha * n
+            zd = zd0 + beta * n
+            if nt:
+                strut_force(z, zd, codes, coef, p0, p1, play, True)   # commit the play states
+            nk = n
+            out_z[j + 1], out_zd[j + 1], out_zdd[j + 1], out_n[j + 1] = z, zd, zdd, n
+            if not (abs(z) <= z_limit):
+                return j + 1
+        return -1
+
+
+    @numba.njit(cache=True, nogil=True)
+    def run_paths(phi, lo, hi, c1, pa, pb, g0b, g1b, g0e, g1e, cz, cd, ca, ddb, dde, v, codes, p0, p1, alpha, z_limit,
+                   out_z, out_zd, out_zdd, out_n):  # pragma: no cover - compiled
+        """March the two-input linear part (measured input v, each term's remainder through its path); Φ's rows
+        banded as in :func:`_run`."""
+        ns, m = phi.shape[0], codes.size
+        x = np.zeros(ns)
+        xs = np.zeros(ns)
+        play = np.zeros(m)
+        n = np.zeros(m)
+        nn = np.zeros(m)
+        az = np.zeros(m)      # z_{k+1} = z0 + Σ az_i·n_i
+        ad = np.zeros(m)
+        zmax = 0.0
+        for i in range(m):
+            for l in range(ns):
+                az[i] += cz[l] * g1e[l, i]
+                ad[i] += cd[l] * g1e[l, i]
+        for j in range(v.size - 1):
+            z0 = 0.0
+            zd0 = 0.0
+            for l in range(ns):
+                acc = g0b[l] * v[j] + g1b[l] * v[j + 1]
+                for i in range(m):
+                    acc += g0e[l, i] * n[i]
+                if paired:
+                    acc += pa[l] * x[lo[l]]
+                    acc += pb[l] * x[c1[l]]
+                else:
+                    for k in range(lo[l], hi[l]):
+                        acc += phi[l, k] * x[k]
+                xs[l] = acc
+                z0 += cz[l] * acc
+                zd0 += cd[l] * acc
+            for i in range(m):
+                nn[i] = n[i]
+            ok = False
+            for _ in range(100):        # contraction: |az_i| ~ h², the remainders 1-Lipschitz in z
+                z = z0
+                for i in range(m):
+                    z += az[i] * nn[i]
+                change = 0.0
+                for i in range(m):
+                    new = g_one(codes[i], p0[i], p1[i], z, 0.0, play[i]) - alpha[i] * z
+                    change = max(change, abs(new - nn[i]))
+                    nn[i] = new
+                if change <= 1e-13 * (abs(z) + zmax) or change == 0.0:
+                    ok = True
+                    break
             if not ok:
                 return j + 1
-        zdd = dd * (un + n)
-        for i in range(ns):
-            x[i] = xs[i] + g1[i] * n
-            zdd += ca[i] * x[i]
-        z = z0 + alpha * n
-        zd = zd0 + beta * n
-        if nt:
-            strut_force(z, zd, codes, coef, p0, p1, play, True)   # commit the play states
-        nk = n
-        out_z[j + 1], out_zd[j + 1], out_zdd[j + 1], out_n[j + 1] = z, zd, zdd, n
-        if not (abs(z) <= z_limit):
-            return j + 1
-    return -1
-
-
-@numba.njit(cache=True, nogil=True)
-def _run_paths(phi, lo, hi, g0b, g1b, g0e, g1e, cz, cd, ca, ddb, dde, v, codes, p0, p1, alpha, z_limit,
-               out_z, out_zd, out_zdd, out_n):  # pragma: no cover - compiled
-    """March the two-input linear part (measured input v, each term's remainder through its path); Φ's rows
-    banded as in :func:`_run`."""
-    ns, m = phi.shape[0], codes.size
-    x = np.zeros(ns)
-    xs = np.zeros(ns)
-    play = np.zeros(m)
-    n = np.zeros(m)
-    nn = np.zeros(m)
-    az = np.zeros(m)      # z_{k+1} = z0 + Σ az_i·n_i
-    ad = np.zeros(m)
-    zmax = 0.0
-    for i in range(m):
-        for l in range(ns):
-            az[i] += cz[l] * g1e[l, i]
-            ad[i] += cd[l] * g1e[l, i]
-    for j in range(v.size - 1):
-        z0 = 0.0
-        zd0 = 0.0
-        for l in range(ns):
-            acc = g0b[l] * v[j] + g1b[l] * v[j + 1]
-            for i in range(m):
-                acc += g0e[l, i] * n[i]
-            for k in range(lo[l], hi[l]):
-                acc += phi[l, k] * x[k]
-            xs[l] = acc
-            z0 += cz[l] * acc
-            zd0 += cd[l] * acc
-        for i in range(m):
-            nn[i] = n[i]
-        ok = False
-        for _ in range(100):        # contraction: |az_i| ~ h², the remainders 1-Lipschitz in z
             z = z0
+            zd = zd0
+            zdd = ddb * v[j + 1]
             for i in range(m):
                 z += az[i] * nn[i]
-            change = 0.0
+                zd += ad[i] * nn[i]
+                zdd += dde[i] * nn[i]
             for i in range(m):
-                new = g_one(codes[i], p0[i], p1[i], z, 0.0, play[i]) - alpha[i] * z
-                change = max(change, abs(new - nn[i]))
-                nn[i] = new
-            if change <= 1e-13 * (abs(z) + zmax) or change == 0.0:
-                ok = True
-                break
-        if not ok:
-            return j + 1
-        z = z0
-        zd = zd0
-        zdd = ddb * v[j + 1]
-        for i in range(m):
-            z += az[i] * nn[i]
-            zd += ad[i] * nn[i]
-            zdd += dde[i] * nn[i]
-        for i in range(m):
-            play[i] = g_one(codes[i], p0[i], p1[i], z, 0.0, play[i])
-            n[i] = play[i] - alpha[i] * z
-        for l in range(ns):
-            val = xs[l]
+                play[i] = g_one(codes[i], p0[i], p1[i], z, 0.0, play[i])
+                n[i] = play[i] - alpha[i] * z
+            for l in range(ns):
+                val = xs[l]
+                for i in range(m):
+                    val += g1e[l, i] * n[i]
+                x[l] = val
+                zdd += ca[l] * val
+            tot = 0.0
             for i in range(m):
-                val += g1e[l, i] * n[i]
-            x[l] = val
-            zdd += ca[l] * val
-        tot = 0.0
-        for i in range(m):
-            tot += n[i]
-        out_z[j + 1], out_zd[j + 1], out_zdd[j + 1], out_n[j + 1] = z, zd, zdd, tot
-        zmax = max(zmax, abs(z))
-        if not (abs(z) <= z_limit):
-            return j + 1
-    return -1
+                tot += n[i]
+            out_z[j + 1], out_zd[j + 1], out_zdd[j + 1], out_n[j + 1] = z, zd, zdd, tot
+            zmax = max(zmax, abs(z))
+            if not (abs(z) <= z_limit):
+                return j + 1
+        return -1
+
+    return run, run_paths
+
+
+#: the kernels of a block-diagonal Φ (every linear part nifo builds), and of any other (the band's loop)
+_run_paired, _run_paths_paired = _step_kernels(True)
+_run_band, _run_paths_band = _step_kernels(False)
+
+
+def _run(phi, lo, hi, c1, pa, pb, paired, *args):
+    """:func:`_step_kernels`' single-input kernel for ``_rows(phi)``; returns the failing step or -1."""
+    return (_run_paired if paired else _run_band)(phi, lo, hi, c1, pa, pb, *args)
+
+
+def _run_paths(phi, lo, hi, c1, pa, pb, paired, *args):
+    """:func:`_step_kernels`' feedback-path kernel for ``_rows(phi)``; returns the failing step or -1."""
+    return (_run_paths_paired if paired else _run_paths_band)(phi, lo, hi, c1, pa, pb, *args)
 
 
 def _simulate_paths(linear: LinearPart, terms, v: np.ndarray, h: float, z_limit: float):
@@ -312,23 +344,36 @@ def _simulate_paths(linear: LinearPart, terms, v: np.ndarray, h: float, z_limit:
     nf = v.size
     z, zd, zdd, nn = (np.zeros(nf) for _ in range(4))
     zdd[0] = float(cd @ b) * v[0]
-    fail = _run_paths(np.ascontiguousarray(phi), *_bands(phi), g0b, g1b, g0e, g1e, c, cd, ca, float(cd @ b),
+    fail = _run_paths(*_rows(phi), g0b, g1b, g0e, g1e, c, cd, ca, float(cd @ b),
                       e.T @ cd, v,
                       codes, p0, p1, alpha, float(z_limit), z, zd, zdd, nn)
     return z, zd, zdd, nn, fail
 
 
-def _bands(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(lo, hi): row i of ``phi`` is zero outside columns lo[i]..hi[i]-1. A rational linear part is in real modal
-    form (one 2×2 block per conjugate pair, :meth:`LinearPart.state_space`), so Φ = e^{A·h} is block diagonal
-    with exact zeros: the step multiplies 2 numbers per state instead of all n, and skipping products with an
-    exact zero leaves every sum the same to the last bit. Measured on the F-16's flexible body (22 states, level 5,
-    73 728 samples): a prediction 0.20 → 0.10 s, with feedback paths 0.22 → 0.12 s, the same to the last bit."""
+def _rows(phi: np.ndarray) -> tuple:
+    """Φ for the step kernels: ``(Φ, lo, hi, c1, pa, pb, paired)``, row i of Φ zero outside columns lo[i]..hi[i]-1.
+
+    A rational linear part is in real modal form (one 2×2 block per conjugate pair, one 1×1 per real pole,
+    :meth:`LinearPart.state_space`), so Φ = e^{A·h} is block diagonal with exact zeros, and every row has at most
+    two nonzeros: then (``paired``) row i is the two fixed products pa[i]·x[lo[i]] + pb[i]·x[c1[i]] (pb = 0 for a
+    1×1 block), otherwise a loop over lo[i]..hi[i]-1. Either way the products are summed in column order, and
+    those with an exact zero are skipped (or add +0): every sum is the same to the last bit as the full product.
+    Measured on the F-16's flexible body (22 states, level 5, 73 728 samples): the band instead of the full row
+    took a prediction 0.20 → 0.10 s (0.22 → 0.12 s with feedback paths); the two fixed products instead of the
+    band's loop took the path kernel on level 7 (442 368 fine steps, one play) 61 → 49 ms, the same to the last
+    bit (``benchmarks/bench_predict.py`` prints both forms, same run)."""
+    phi = np.ascontiguousarray(phi, float)
     nz = phi != 0.0
     n = phi.shape[0]
     lo = np.array([int(np.argmax(r)) if r.any() else 0 for r in nz], dtype=np.int64)
     hi = np.array([n - int(np.argmax(r[::-1])) if r.any() else 0 for r in nz], dtype=np.int64)
-    return lo, hi
+    width = hi - lo
+    paired = bool(n == 0 or width.max() <= 2)
+    rows = np.arange(n)
+    c1 = np.where(width == 2, lo + 1, lo)
+    pa = np.where(width >= 1, phi[rows, np.minimum(lo, n - 1)], 0.0) if n else np.zeros(0)
+    pb = np.where(width == 2, phi[rows, np.minimum(lo + 1, n - 1)], 0.0) if n else np.zeros(0)
+    return phi, lo, hi, c1, pa, pb, paired
 
 
 def _up(x: np.ndarray, q: int) -> np.ndarray:
@@ -397,7 +442,7 @@ def simulate_response(linear: LinearPart, terms: Sequence[Term], gammas: Sequenc
         z, zd, zdd, nn = (np.zeros(nf) for _ in range(4))
         la, lb = linear.absorbed
         atol = 1e-13 * float(np.max(np.abs(v))) if v.size else 0.0
-        fail = _run(np.ascontiguousarray(phi), *_bands(phi), g0, g1, c, cd, ca, dd, v, codes, coef, p0, p1, la, lb,
+        fail = _run(*_rows(phi), g0, g1, c, cd, ca, dd, v, codes, coef, p0, p1, la, lb,
                     float(z_limit), atol, z, zd, zdd, nn)
     ext = np.asarray(external, float)
     n = ext.size
