@@ -161,7 +161,7 @@ sys.exit(main(sys.argv[1:]))
 
 _TEARDOWN = """
 import os, signal, sys
-import nifo.pipeline.identify as cmd
+import nifo.cli as cli
 from nifo.__main__ import entry
 
 class Teardown:
@@ -169,33 +169,49 @@ class Teardown:
         sys.stderr.write("teardown ran\\n")
 
 kept = Teardown()
-if sys.argv[1] == "identify":
-    real = cmd.accumulate
-    def accumulate(*args, **kwargs):
-        os.kill(os.getpid(), signal.SIGTERM)
-        return real(*args, **kwargs)
-    cmd.accumulate = accumulate
+real_main = cli.main
+
+def main():   # the command's modules imported once entry() has started, as in nifo itself
+    import nifo.pipeline.identify as cmd
+    if sys.argv[1] == "identify-whole":   # the same command, not interrupted
+        sys.argv[1] = "identify"
+    elif sys.argv[1] == "identify":
+        real = cmd.accumulate
+        def accumulate(*args, **kwargs):
+            os.kill(os.getpid(), signal.SIGTERM)
+            return real(*args, **kwargs)
+        cmd.accumulate = accumulate
+    return real_main()
+
+cli.main = main
 sys.exit(entry())
 """
 
 
-def test_an_interrupted_command_ends_without_the_interpreter_teardown_a_finished_one_has(tmp_path):
+def test_a_command_that_returns_ends_without_the_interpreter_teardown_interrupted_or_not(tmp_path):
     """CI: SIGTERM 3.3 s into ``nifo identify`` printed its one line, then the interpreter's teardown aborted
     (``Fatal Python error: PyThreadState_Get``, exit -6): the interrupt had landed inside native library state.
-    An interrupted command now ends after the exit hooks, before the teardown (nifo.__main__); a finished one
-    exits as Python does (the control: the same script without the signal)."""
+    A command that returns, interrupted or finished, now ends after the exit hooks and before the teardown
+    (nifo.__main__; it also saved 0.84 s at the end of nifo run). The control: a command line that argparse ends
+    itself (``--version``) exits as Python does, its module globals finalized."""
     data = _record(tmp_path)
     model = tmp_path / "model.yaml"
     model.write_text("nifo_model: 1\nnonlinearities:\n  - {kind: velocity_deadzone, params: {knee: 0.03}}\n")
+
+    def nifo(*argv: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-c", _TEARDOWN, *argv], cwd=tmp_path, env=_env(), capture_output=True,
+                              text=True, timeout=300)
+
     out = tmp_path / "ident"
-    cut = subprocess.run([sys.executable, "-c", _TEARDOWN, "identify", str(data), "--model", str(model),
-                          "--out", str(out)], cwd=tmp_path, env=_env(), capture_output=True, text=True, timeout=300)
+    cut = nifo("identify", str(data), "--model", str(model), "--out", str(out))
     assert cut.returncode == 130, (cut.returncode, cut.stderr)
     assert cut.stderr.strip() == "nifo identify: interrupted; nothing was written", cut.stderr
     assert not out.exists() and not _leftovers(tmp_path)
-    done = subprocess.run([sys.executable, "-c", _TEARDOWN, "--version"], cwd=tmp_path, env=_env(),
-                          capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0 and "teardown ran" in done.stderr, (done.returncode, done.stderr)
+    done = nifo("identify-whole", str(data), "--model", str(model), "--out", str(out), "--quiet")
+    assert done.returncode == 0 and done.stderr == "", (done.returncode, done.stderr)
+    assert (out / "identify.json").is_file() and (out / "model.json").is_file()
+    own = nifo("--version")
+    assert own.returncode == 0 and "teardown ran" in own.stderr, (own.returncode, own.stderr)
 
 
 def test_identify_terminated_by_sigterm_exits_130_as_run_does(tmp_path):
