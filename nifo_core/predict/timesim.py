@@ -234,7 +234,6 @@ def _step_kernels(paired: bool):
                 return j + 1
         return -1
 
-
     @numba.njit(cache=True, nogil=True)
     def run_paths(phi, lo, hi, c1, pa, pb, g0b, g1b, g0e, g1e, cz, cd, ca, ddb, dde, v, codes, p0, p1, alpha, z_limit,
                    out_z, out_zd, out_zdd, out_n):  # pragma: no cover - compiled
@@ -371,8 +370,8 @@ def _rows(phi: np.ndarray) -> tuple:
     paired = bool(n == 0 or width.max() <= 2)
     rows = np.arange(n)
     c1 = np.where(width == 2, lo + 1, lo)
-    pa = np.where(width >= 1, phi[rows, np.minimum(lo, n - 1)], 0.0) if n else np.zeros(0)
-    pb = np.where(width == 2, phi[rows, np.minimum(lo + 1, n - 1)], 0.0) if n else np.zeros(0)
+    pa = np.where(width >= 1, phi[rows, lo], 0.0)
+    pb = np.where(width == 2, phi[rows, c1], 0.0)
     return phi, lo, hi, c1, pa, pb, paired
 
 
