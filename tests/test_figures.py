@@ -2,7 +2,8 @@
 labels, no mixed log axis, an SVG beside every PNG, the true curve where a truth file is present,
 and the record's units (``--system '... [V]'``) instead of m/s².
 
-Result directories from :func:`test_run_cmd.pipeline` (simulated quarter car with truth files).
+Result directories from :func:`test_run_cmd.pipeline` (``nifo run`` on the bundled sample: simulated quarter cars
+with their truth files).
 """
 
 from __future__ import annotations
@@ -64,7 +65,9 @@ def test_every_axis_label_has_a_unit_and_no_literal_mu_i(ran, tmp_path, monkeypa
     figs = []
     for mod in (loop, nifo, restoring):
         monkeypatch.setattr(mod, "save_figure", lambda fig, path, **kw: (figs.append(fig), Path(path))[1])
-    data = str(ran.parent / "road_hi")
+    data = str(tmp_path / "road_hi")   # 60 s of the paper's strut at 2.5 mm road: each command's figures
+    assert main(["-q", "simulate", "--out", data, "--preset", "paper", "--road-rms", "2.5", "--duration", "60",
+                 "--noise", "0.02", "--seed", "12"]) == 0
     assert main(["-q", "characterize", data, "--out", str(tmp_path / "c"), "--grid", "8"]) == 0
     assert main(["-q", "identify", data, "--model", str(tmp_path / "c" / "suggested_model.yaml"),
                  "--out", str(tmp_path / "i")]) == 0

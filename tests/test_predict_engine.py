@@ -153,12 +153,20 @@ def test_a_measured_force_drives_a_fixed_spindle_model():
                             c_over_m2=np.array([c3 / m2]), body=body, analysis_band_hz=(1.0, 100.0), fs_hz=fs,
                             settings=SpectralSettings(), band=IntegrationBand(0.5, 400.0), force_gain=1 / m2)
     pred = predict_body(model, None, fs, force=force)
-    # reference: the same ODE by scipy's stiff-safe integrator at tight tolerance
+    # reference: the same ODE by scipy's integrator at tight tolerance
     from scipy.integrate import solve_ivp
     t = np.arange(n) / fs
-    fi = lambda tt: np.interp(tt, t, force)  # noqa: E731
-    sol = solve_ivp(lambda tt, x: [x[1], (fi(tt) - c2 * x[1] - k2 * x[0] - c3 * x[0] ** 3) / m2], (0, t[-1]), [0, 0],
-                    t_eval=t, rtol=1e-9, atol=1e-12, max_step=1 / fs)
+    samples = force.tolist()
+
+    def rhs(tt, x):   # the force linear between samples
+        i = min(int(tt * fs), n - 2)
+        w = tt * fs - i
+        fi = samples[i] + w * (samples[i + 1] - samples[i])
+        return [x[1], (fi - c2 * x[1] - k2 * x[0] - c3 * x[0] ** 3) / m2]
+
+    # 8th order at rtol 1e-8: 0.64 M right-hand sides in 4.3 s, against 2.1 M in 13 s for RK45 at 1e-9; the two
+    # references differ by 1.4e-6 of y's RMS, far below the bound asserted here
+    sol = solve_ivp(rhs, (0, t[-1]), [0, 0], t_eval=t, method="DOP853", rtol=1e-8, atol=1e-11, max_step=1 / fs)
     v = pred.valid
     err = np.std(pred.z[v] - sol.y[0][v]) / np.std(sol.y[0][v])
     print(f"\nforce-driven Duffing oscillator: relative error of y {err:.2e}")

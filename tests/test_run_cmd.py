@@ -1,9 +1,8 @@
-"""``nifo run``: the whole job on a short simulated pair of levels produces the report and the recording.
+"""``nifo run``: the whole job on the bundled sample produces every step's output, the report and the recording.
 
-The bundled sample (2 x 120 s) is what ``./nifo.sh`` runs; CI uses a 60 s pair
-of the same simulated car (same preset, noise, two road levels) to keep time.
-:func:`pipeline` runs it once per test run, across pytest-xdist's workers too, and is shared with
-test_cli.py, test_figures.py, test_viz.py and test_report_browser.py.
+:func:`pipeline` runs ``nifo --json run`` on the bundled sample once per test run, as ``./nifo.sh`` does (the
+three simulated road levels with their truth files), across pytest-xdist's workers too; test_cli.py,
+test_figures.py, test_viz.py and test_report_browser.py read the same output.
 """
 
 from __future__ import annotations
@@ -17,33 +16,28 @@ from nifo.cli import main
 
 from conftest import built_once
 
-DURATION_S = 60
+#: the bundled sample's records, as the run names them
+SAMPLE_RECORDS = ["road_0p5mm", "road_1mm", "road_2p5mm"]
 
 
 def _build_pipeline(base: Path) -> None:
-    """Simulate two levels and ``nifo --json run`` them into ``base/out``; the JSON summary (stdout) goes to
+    """``nifo --json run`` on the bundled sample into ``base/out``: the JSON summary (stdout) goes to
     ``base/run.json``, the human text (stderr under --json) to ``base/run.txt``, the exit code to ``base/exit``."""
     import contextlib
     import io
 
-    data = []
-    for name, rms, seed in (("road_lo", "1.0", 11), ("road_hi", "2.5", 12)):
-        p = base / name
-        assert main(["simulate", "--out", str(p), "--preset", "paper", "--road-rms", rms, "--duration",
-                     str(DURATION_S), "--noise", "0.02", "--seed", str(seed)]) == 0
-        data.append(str(p))
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main(["--json", "run", *data, "--out", str(base / "out")])
+        code = main(["--json", "run", "--out", str(base / "out")])
     (base / "run.json").write_text(out.getvalue())
     (base / "run.txt").write_text(err.getvalue())
     (base / "exit").write_text(str(code))
 
 
 def pipeline(tmp_path_factory) -> tuple[Path, int, str]:
-    """The simulated pair's ``nifo --json run``, built once per test run (:func:`conftest.built_once`): (out, exit
-    code, the human text)."""
-    base = built_once(tmp_path_factory, "nifo_run", _build_pipeline)
+    """The sample's ``nifo --json run``, built once per test run (:func:`conftest.built_once`): (out, exit code,
+    the human text)."""
+    base = built_once(tmp_path_factory, "sample_run", _build_pipeline)
     return base / "out", int((base / "exit").read_text()), (base / "run.txt").read_text()
 
 
@@ -67,9 +61,9 @@ def test_run_identifies_on_every_level_and_predicts_each_with_the_final_model(ra
     ident = json.loads((out / "identify" / "identify.json").read_text())
     names = [d["name"] for d in ident["data"]] if isinstance(ident["data"], list) else \
         [e["name"] for st in ident["data"]["steps"] for e in st["data"]]
-    assert set(names) == {"road_lo", "road_hi"}
+    assert set(names) == set(SAMPLE_RECORDS)
     pred = json.loads((out / "predict" / "predict.json").read_text())
-    assert [r["name"] for r in pred["records"]] == ["road_lo", "road_hi"]
+    assert [r["name"] for r in pred["records"]] == SAMPLE_RECORDS
     doc = json.loads((out.parent / "run.json").read_text())
     assert doc["final_model"] == str(out / "loop" / "model.json") and pred["model"] == str(out / "loop")
     # the settings were chosen once from the data and say why
@@ -121,22 +115,11 @@ def test_run_json_is_one_document_naming_every_result(ran):
 # --------------------------------------------------------------------------------------------
 # the bundled sample: the main job chooses the paper's two-step model from the levels
 # --------------------------------------------------------------------------------------------
-def _build_sample_run(base: Path) -> None:
-    import contextlib
-    import io
-
-    buf = io.StringIO()
-    with contextlib.redirect_stdout(buf):
-        code = main(["run", "--out", str(base / "out"), "--no-recording"])
-    (base / "run.txt").write_text(buf.getvalue())
-    assert code == 0, buf.getvalue()[-2000:]
-
-
 def sample_run_once(tmp_path_factory) -> tuple[Path, str]:
-    """``nifo run`` on the bundled sample as ``./nifo.sh`` runs it (without the recording), built once per test
-    run and shared with test_report_browser.py: (out, what it printed)."""
-    base = built_once(tmp_path_factory, "sample_run", _build_sample_run)
-    return base / "out", (base / "run.txt").read_text()
+    """``nifo run`` on the bundled sample as ``./nifo.sh`` runs it (:func:`pipeline`): (out, what it printed)."""
+    out, code, text = pipeline(tmp_path_factory)
+    assert code == 0, text[-2000:]
+    return out, text
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ from nifo.cli import main
 rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
-from test_run_cmd import pipeline  # noqa: E402
+from test_run_cmd import SAMPLE_RECORDS, pipeline  # noqa: E402
 
 VIEWS = {  # space origin -> view class the blueprint must lay out
     "/accel": "TimeSeries", "/restoring/velocity": "2D", "/restoring/displacement": "2D",
@@ -72,15 +72,21 @@ def _check(path: Path, records: list[str], terms: int) -> dict[str, list]:
 def test_run_recording_has_the_expected_entities_and_blueprint(ran):
     out, _, _ = ran
     ident = json.loads((out / "identify" / "identify.json").read_text())
-    _check(out / "recording" / "nifo.rrd", ["road_lo", "road_hi"], len(ident["result"]["terms"]))
+    _check(out / "recording" / "nifo.rrd", SAMPLE_RECORDS, len(ident["result"]["terms"]))
 
 
 def test_view_saves_the_same_layout_from_result_directories(ran, tmp_path):
+    from nifo.commands.run import SAMPLE_DIR
+
     out, _, _ = ran
+    # the run's identification is two-step (logged as its final estimate); a one-step identification is replayed
+    # along its data
+    ident = tmp_path / "identify"
+    assert main(["-q", "identify", str(SAMPLE_DIR / "road_1mm"), "--model",
+                 str(out / "characterize" / "suggested_model.yaml"), "--out", str(ident)]) == 0
     rrd = tmp_path / "v.rrd"
-    assert main(["view", str(out / "identify"), str(out / "characterize"), "--save", str(rrd)]) == 0
-    ents = _check(rrd, ["road_lo", "road_hi"], len(json.loads((out / "identify" / "identify.json").read_text())
-                                                   ["result"]["terms"]))
+    assert main(["view", str(ident), str(out / "characterize"), "--save", str(rrd)]) == 0
+    ents = _check(rrd, SAMPLE_RECORDS, len(json.loads((ident / "identify.json").read_text())["result"]["terms"]))
     # the estimate is replayed along the data: several updates, the last one at the last sample's stamp
     n_avg = ents["/convergence/n_avg"]
     rows = sum(c.num_rows for c in n_avg)
