@@ -12,6 +12,7 @@ ill-conditioned amplify rounding, hence not 1e-15).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -377,15 +378,8 @@ def test_malformed_late_nan_stalled_and_restarted_streams_are_logged_and_skipped
 
 
 # ----------------------------------------------------------------------------- acceptance: live = nifo identify
-@pytest.fixture
-def cpu_hog():
-    """One core kept busy by another process for the whole test (the graph must not lose a sample)."""
-    with busy_core() as hog:
-        yield hog
-
-
 @pytest.mark.slow
-def test_bundled_bag_replayed_reliably_with_a_cpu_hog_equals_nifo_identify(domain, tmp_path, cpu_hog):
+def test_bundled_bag_replayed_reliably_with_a_cpu_hog_equals_nifo_identify(domain, tmp_path):
     """run_pipeline.py --bag bags/sample/road_2p5mm --reliable: the final published estimate equals
     ``nifo identify`` on the same bag (rtol 1e-9), no sample lost, no gap, while a CPU hog runs."""
     from nifo_core.nifo.identify import NifoResult
@@ -397,9 +391,12 @@ def test_bundled_bag_replayed_reliably_with_a_cpu_hog_equals_nifo_identify(domai
                            text=True, timeout=300)
     assert ident.returncode == 0, ident.stderr
     ref = NifoResult.from_dict(json.loads((tmp_path / "identify" / "identify.json").read_text())["result"])
-    col = None
-    try:
+    # one core kept busy by another process while the graph replays the bag (it must not lose a sample); started
+    # after the reference, which it would only slow down
+    with contextlib.ExitStack() as stack:
+        cpu_hog = stack.enter_context(busy_core())
         col = Collector(dom)
+        stack.callback(col.close)
         p = subprocess.run([sys.executable, str(REPO / "launch_scripts" / "run_pipeline.py"), "--bag", str(bag),
                             "--model", str(model), "--reliable", "--rate", "0", "--linger", "3", "--domain-id",
                             str(dom), "--log-dir", str(tmp_path), "--checkpoint", str(tmp_path / "id.npz")],
@@ -412,6 +409,3 @@ def test_bundled_bag_replayed_reliably_with_a_cpu_hog_equals_nifo_identify(domai
         assert t.header.stamp.sec * 10**9 + t.header.stamp.nanosec == ref.freq_hz.size * 0 + 119_998_333_333
         assert t.header.frame_id == "body"
         assert cpu_hog.poll() is None  # the hog ran throughout
-    finally:
-        if col:
-            col.close()
