@@ -242,7 +242,7 @@ class StreamingIntegrator:
         if a.size == 0:
             return np.empty(0), np.empty(0)
         ext = np.concatenate([self._buf, a])
-        if a.size <= self.DIRECT_MAX:     # the same outputs to rounding (1e-15 of the largest), 3-60× sooner
+        if a.size <= self.DIRECT_MAX:     # the same outputs to rounding (1e-15 of the largest), sooner (above)
             v = np.convolve(ext, self._hv, mode="valid")
             x = np.convolve(ext, self._hd, mode="valid")
         else:
