@@ -37,6 +37,7 @@ from scipy import optimize
 from .data import RegressionData
 from ..kinds.describing import Term
 from ..signal.least_squares import lstsq
+from ..signal.parallel import thread_map
 
 __all__ = ["mean_shift", "static_bump_stops", "shifted_offsets", "STATIC_KINDS", "SHIFTED_KINDS"]
 
@@ -66,11 +67,15 @@ def mean_shift(z: np.ndarray, zdot: np.ndarray, k_per_kg: float, terms: Sequence
     """
     z, zdot = np.asarray(z, float), np.asarray(zdot, float)
     terms = [(Term(t.kind, {**t.params, "offset": 0.0}) if t.kind in STATIC_KINDS else t, th) for t, th in terms]
+    # a term of ż does not move with m: its mean force is computed once, not at every step of the root search
+    # (the same numbers, summed in the same order; it was 2/3 of the loop's static bump-stop search)
+    moving = [t.spec.variable == "z" for t, _ in terms]
+    fixed = [0.0 if mv else th * float(np.mean(t.evaluate(z, zdot))) for (t, th), mv in zip(terms, moving)]
 
     def balance(m: float) -> float:
         zs = z + m
-        return k_per_kg * m + sum(th * float(np.mean(t.evaluate(zs if t.spec.variable == "z" else z, zdot)))
-                                  for t, th in terms)
+        return k_per_kg * m + sum(th * float(np.mean(t.evaluate(zs, zdot))) if mv else f
+                                  for (t, th), mv, f in zip(terms, moving, fixed))
 
     a = 2.0 * float(np.max(np.abs(z))) if z.size else 0.0
     if not (a > 0 and np.isfinite(k_per_kg)):
@@ -155,13 +160,15 @@ def static_bump_stops(data: RegressionData, terms: Sequence[Term], *,
                 cc, rss = _fit(data, trial_terms, trial_off)
             return rss, s, off
 
+        # the trials of a grid are independent: side by side on threads, then taken in grid order (the same
+        # choice as one after the other)
         grid = np.linspace(0.3, 1.05, points) * g_mean
-        for s in grid:
-            best = min(best, trial(float(s), c), key=lambda b: b[0])
+        for got in thread_map(lambda s: trial(float(s), c), grid):
+            best = min(best, got, key=lambda b: b[0])
         step = grid[1] - grid[0]
-        for s in np.linspace(best[1] - step, best[1] + step, 9):
-            if s > 0:
-                best = min(best, trial(float(s), c), key=lambda b: b[0])
+        finer = [s for s in np.linspace(best[1] - step, best[1] + step, 9) if s > 0]
+        for got in thread_map(lambda s: trial(float(s), c), finer):
+            best = min(best, got, key=lambda b: b[0])
         _, s, off = best
         main = int(np.argmax([float(np.std(rf.z)) for rf in data.rfs]))
         terms[j] = Term(t.kind, {**t.params, "gap": float(s), "offset": float(off[main])})
