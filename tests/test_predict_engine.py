@@ -201,7 +201,7 @@ def test_the_paired_and_banded_steps_of_a_modal_linear_part_equal_the_full_produ
     for rows in ((phi, lo, hi, c1, pa, pb, True), (phi, lo, hi, c1, pa, pb, False), (phi, *full, c1, pa, pb, False)):
         got = [np.zeros(v.size) for _ in range(4)]
         fail = timesim._run(*rows, g0, g1, c, c @ a, c @ a @ a, float(c @ a @ b), v, codes, coef, p0, p1, 0.0, 0.0,
-                            np.inf, 0.0, *got)
+                            np.inf, 0.0, 1, *got)    # q = 1: every output at every step
         assert fail == -1
         outs.append(got)
     for pair, band, whole in zip(*outs):

@@ -48,7 +48,7 @@ from ..kinds.describing import Term, path_slopes
 from ..errors import ConfigError
 from .linear_part import LinearPart
 from ..simulate.quarter_car import _antialias_taps, decimate
-from ..kinds.strut_forces import g_one, strut_arrays, strut_force
+from ..kinds.strut_forces import PLAY, g_one, strut_arrays, strut_force
 from ..signal.memo import ArrayMemo
 
 __all__ = ["TimeResponse", "discretise", "simulate_response"]
@@ -180,12 +180,17 @@ def _step_kernels(paired: bool):
     compiled with it as a constant, 49 ms)."""
 
     @numba.njit(cache=True, nogil=True)   # nogil: simulations side by side (nifo_core.signal.parallel)
-    def run(phi, lo, hi, c1, pa, pb, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, la, lb, z_limit, atol,
+    def run(phi, lo, hi, c1, pa, pb, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, la, lb, z_limit, atol, q,
              out_z, out_zd, out_zdd, out_n):  # pragma: no cover - compiled
         """March the FOH-discretised linear part with the implicit strut feedback; returns the failing step or -1.
-        Row i of Φ is nonzero only in columns lo[i]..hi[i]-1 (:func:`_rows`)."""
+        Row i of Φ is nonzero only in columns lo[i]..hi[i]-1 (:func:`_rows`). z̈ is written at every fine step
+        (it is decimated), z, ż and n at every ``q``-th (the record's instants): ``out_z[k]`` is fine step k·q."""
         ns = phi.shape[0]
         nt = codes.size
+        plays = False           # only a play has a state to commit after the step
+        for i in range(nt):
+            if codes[i] == PLAY:
+                plays = True
         x = np.zeros(ns)
         xs = np.zeros(ns)
         play = np.zeros(nt)
@@ -198,6 +203,8 @@ def _step_kernels(paired: bool):
         nk = _fb_called(0.0, 0.0, codes, coef, p0, p1, play, True, la, lb) if active else 0.0
         nprev = nk
         out_z[0], out_zd[0], out_zdd[0], out_n[0] = 0.0, 0.0, dd * (v[0] + nk), nk
+        ph = 0
+        k = 0
         for j in range(v.size - 1):
             uk = v[j] + nk
             un = v[j + 1]
@@ -226,10 +233,15 @@ def _step_kernels(paired: bool):
                 zdd += ca[i] * x[i]
             z = z0 + alpha * n
             zd = zd0 + beta * n
-            if nt:
+            if plays:
                 strut_force(z, zd, codes, coef, p0, p1, play, True)   # commit the play states
             nk = n
-            out_z[j + 1], out_zd[j + 1], out_zdd[j + 1], out_n[j + 1] = z, zd, zdd, n
+            out_zdd[j + 1] = zdd
+            ph += 1
+            if ph == q:
+                ph = 0
+                k += 1
+                out_z[k], out_zd[k], out_n[k] = z, zd, n
             if not (abs(z) <= z_limit):
                 return j + 1
         return -1
@@ -430,6 +442,7 @@ def simulate_response(linear: LinearPart, terms: Sequence[Term], gammas: Sequenc
     v = _UP(np.asarray(external, float), q)
     if linear.paths is not None:     # each term through its own path; ``gammas`` are in the paths
         z, zd, zdd, nn, fail = _simulate_paths(linear, terms, v, h, z_limit)
+        z, zd, nn = z[::q], zd[::q], nn[::q]
     else:
         a, b, c = linear.state_space()
         phi, g0, g1 = discretise(a, b, h)
@@ -438,11 +451,14 @@ def simulate_response(linear: LinearPart, terms: Sequence[Term], gammas: Sequenc
         dd = float(cd @ b)
         codes, coef, p0, p1 = strut_arrays(list(terms), list(gammas))
         nf = v.size
-        z, zd, zdd, nn = (np.zeros(nf) for _ in range(4))
+        # z, ż and n only at the record's instants: three fine-rate arrays fewer (measured on an hour at 600 Hz,
+        # 4 fine steps per sample: traced peak 664 → 508 MB, the time the same, every output the same bits)
+        z, zd, nn = (np.zeros((nf + q - 1) // q) for _ in range(3))
+        zdd = np.zeros(nf)
         la, lb = linear.absorbed
         atol = 1e-13 * float(np.max(np.abs(v))) if v.size else 0.0
         fail = _run(*_rows(phi), g0, g1, c, cd, ca, dd, v, codes, coef, p0, p1, la, lb,
-                    float(z_limit), atol, z, zd, zdd, nn)
+                    float(z_limit), atol, q, z, zd, zdd, nn)
     ext = np.asarray(external, float)
     n = ext.size
     if spindle_accel is None:
@@ -451,5 +467,5 @@ def simulate_response(linear: LinearPart, terms: Sequence[Term], gammas: Sequenc
     else:           # ẍ2 = ẍ1 + z̈ at the fine rate, decimated: the decimation is linear, ẍ1's part is the record's
         a1 = np.asarray(spindle_accel, float)
         a2 = (_DOWN_UP(a1, q) + _down(zdd, q))[:n]
-    return TimeResponse(z=z[::q][:n], zdot=zd[::q][:n], zddot=a2 - a1, body_accel=a2, force=nn[::q][:n],
+    return TimeResponse(z=z[:n], zdot=zd[:n], zddot=a2 - a1, body_accel=a2, force=nn[:n],
                         diverged_at=-1 if fail < 0 else int(fail // q), oversample=q)
