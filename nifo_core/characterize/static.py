@@ -162,13 +162,15 @@ def static_bump_stops(data: RegressionData, terms: Sequence[Term], *,
 
         # the trials of a grid are independent: side by side on threads, then taken in grid order (the same
         # choice as one after the other)
+        def tried(gaps) -> None:
+            nonlocal best
+            for got in thread_map(lambda s: trial(float(s), c), gaps):
+                best = min(best, got, key=lambda b: b[0])
+
         grid = np.linspace(0.3, 1.05, points) * g_mean
-        for got in thread_map(lambda s: trial(float(s), c), grid):
-            best = min(best, got, key=lambda b: b[0])
+        tried(grid)
         step = grid[1] - grid[0]
-        finer = [s for s in np.linspace(best[1] - step, best[1] + step, 9) if s > 0]
-        for got in thread_map(lambda s: trial(float(s), c), finer):
-            best = min(best, got, key=lambda b: b[0])
+        tried([s for s in np.linspace(best[1] - step, best[1] + step, 9) if s > 0])
         _, s, off = best
         main = int(np.argmax([float(np.std(rf.z)) for rf in data.rfs]))
         terms[j] = Term(t.kind, {**t.params, "gap": float(s), "offset": float(off[main])})
