@@ -51,7 +51,7 @@ from ..simulate.quarter_car import _antialias_taps, decimate
 from ..kinds.strut_forces import PLAY, g_one, strut_arrays, strut_force
 from ..signal.memo import ArrayMemo
 
-__all__ = ["TimeResponse", "discretise", "simulate_response"]
+__all__ = ["TimeResponse", "discretise", "simulate_response", "lookahead_samples"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -385,6 +385,19 @@ def _rows(phi: np.ndarray) -> tuple:
     pa = np.where(width >= 1, phi[rows, lo], 0.0)
     pb = np.where(width == 2, phi[rows, c1], 0.0)
     return phi, lo, hi, c1, pa, pb, paired
+
+
+def lookahead_samples(q: int) -> int:
+    """How many samples of later input a simulated sample depends on, at ``q`` fine steps per sample.
+
+    The march itself is causal; the interpolation of the input to the fine rate and the decimation of z̈ back are
+    zero-phase FIR filters (:func:`~nifo_core.simulate.quarter_car._antialias_taps`), each reaching half its length
+    ahead. So the first k samples of a response are the same (to rounding: the filters' FFT blocks differ) whether
+    the input stops at sample k + ``lookahead_samples(q)`` or goes on."""
+    if q <= 1:
+        return 0
+    half = _antialias_taps(q).size // 2
+    return 2 * (-(-half // q)) + 1
 
 
 def _up(x: np.ndarray, q: int) -> np.ndarray:

@@ -194,7 +194,7 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
                          seed: int = 0, iterations: int = ITERATIONS, scale: np.ndarray | None = None,
                          noise_only: bool = False, hold: np.ndarray | None = None,
                          side_by_side: bool = False, drive_noise: bool = False,
-                         pairs: int = 1) -> Correction | None:
+                         pairs: int = 1, reads: Sequence[int] | None = None) -> Correction | None:
     """``theta0`` (the fit ``fit`` on ``records``) with the fit's bias removed (module docstring).
 
     ``simulate(θ, record)`` is the body acceleration the model with θ gives for the record's spindle
@@ -209,10 +209,17 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
     the result the same to the last digit. ``drive_noise``: measure :attr:`Correction.drive_sd` (2·:data:`DRIVE_PAIRS`
     more simulations and fits, at the last θ, the drive given ± one more draw of the spindle's estimated noise).
     ``pairs``: antithetic pairs of noise draws per step of the last :data:`FULL_STEPS` (more: a smaller Monte-Carlo
-    error, and :attr:`Correction.fit_sd` measured); the steps before them run on the first pair."""
+    error, and :attr:`Correction.fit_sd` measured); the steps before them run on the first pair.
+    ``reads``: the first ``reads[i]`` samples of record i are all that ``fit`` reads of it, and all its simulation
+    needs to give them (the simulation's look-ahead included): every synthetic record is cut there, so the
+    simulations and the fits do only that work. The noise draws are still taken for the whole records, so the same
+    seed gives the same draws; the result is the same to rounding (the filters' FFT lengths differ)."""
     each = thread_map if side_by_side else (lambda fn, items: [fn(x) for x in items])
     rng = np.random.default_rng(seed)
-    draws = [[noise_draw(r.n, rng) for r in records] for _ in range(max(int(pairs), 1))]
+    whole = [r.n for r in records]
+    draws = [[noise_draw(n, rng) for n in whole] for _ in range(max(int(pairs), 1))]
+    if reads is not None:
+        records = [r.slice(0, max(1, min(r.n, int(k)))) for r, k in zip(records, reads, strict=True)]
     jobs = [(k, sign) for k in range(len(draws)) for sign in (1.0, -1.0)]
     t0 = np.asarray(theta0, float)
     size = np.abs(t0) if scale is None else np.broadcast_to(np.abs(np.asarray(scale, float)), t0.shape)
@@ -250,7 +257,8 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
         if len(steps) == min(int(iterations), ITERATIONS) and np.any(np.abs(theta - t0) > MAX_RELATIVE_BIAS * size):
             return None     # judged on the first steps: a converged correction may exceed it (a bump stop's: +52 %)
     gain, tail = 1.0, None
-    drive_sd = _drive_sd(fit, simulate, records, noise, draws[0], theta, rng, each, free) if drive_noise else None
+    drive_sd = (_drive_sd(fit, simulate, records, noise, draws[0], theta, rng, each, free, whole)
+                if drive_noise else None)
     if drive_sd is not None and not np.all(np.isfinite(drive_sd)):
         return None
     if len(steps) > 1:
@@ -269,7 +277,7 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
     return Correction(theta, t0, noise_bias, draw_sd, gain, tail, drive_sd, fit_sd, len(draws))
 
 
-def _drive_sd(fit, simulate, records, noise, draws, theta, rng, each, free) -> np.ndarray:
+def _drive_sd(fit, simulate, records, noise, draws, theta, rng, each, free, whole) -> np.ndarray:
     """The synthetic fit's standard deviation from the noise in its drive: the root mean square of the half
     differences of the fits whose drive carries ± one more draw of the spindle's estimated noise
     (:data:`DRIVE_PAIRS` pairs, at ``theta``).
@@ -283,7 +291,7 @@ def _drive_sd(fit, simulate, records, noise, draws, theta, rng, each, free) -> n
     noise cannot be taken out of it), a scatter per record as large as the measurement draws', carried in
     the bound.
     """
-    extra = [[noise_draw(r.n, rng)[0] for r in records] for _ in range(DRIVE_PAIRS)]
+    extra = [[noise_draw(n, rng)[0] for n in whole] for _ in range(DRIVE_PAIRS)]   # whole records: the same draws
 
     def one(job: tuple[int, float]) -> np.ndarray:
         k, sign = job
