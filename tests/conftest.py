@@ -80,3 +80,37 @@ def pytest_collection_modifyitems(config, items):
         f = it.nodeid.split("::")[0].rsplit("/", 1)[-1]
         rank.setdefault(it.nodeid.split("::")[0], -seconds.get(f, typical))
     items.sort(key=lambda it: rank[it.nodeid.split("::")[0]])   # stable: a file's tests keep their order
+
+
+def static_cubic_problem(seed: int, n: int, *, read: int | None = None):
+    """An errors-in-variables problem for the bias correction (nifo_core.signal.bias_correction): ẍ2 = θ0·ẍ1 +
+    θ1·ẍ1³ (θ = 0.8, 0.05) on three records of ``n`` samples at 200 Hz, each with a noise estimate of 10 % of its
+    channels' RMS. Returns (model(θ, record), its least squares on the first ``read`` samples of each record (all:
+    None), the records, the noise estimates)."""
+    import numpy as np
+
+    from nifo_core.signal.noise import ChannelNoise, NoiseEstimate
+    from nifo_core.signal.record import Record
+
+    rng = np.random.default_rng(seed)
+    fs = 200.0
+    cut = slice(None, read)
+
+    def model(theta, rec):          # a static nonlinearity
+        a = np.asarray(rec.spindle_accel, float)
+        return theta[0] * a + theta[1] * a * a * a
+
+    def fit(recs):                  # least squares on the noisy ẍ1: errors in variables, biased
+        a = np.concatenate([np.asarray(r.spindle_accel, float)[cut] for r in recs])
+        y = np.concatenate([np.asarray(r.body_accel, float)[cut] for r in recs])
+        return np.linalg.lstsq(np.column_stack([a, a * a * a]), y, rcond=None)[0]
+
+    recs, noise = [], []
+    for k in range(3):
+        a1 = rng.standard_normal(n) * (1 + k)
+        rec = Record(fs_hz=fs, spindle_accel=a1, body_accel=model(np.array([0.8, 0.05]), Record(fs, a1, a1)))
+        recs.append(rec)
+        s1, s2 = 0.1 * float(np.std(a1)), 0.1 * float(np.std(rec.body_accel))
+        noise.append(NoiseEstimate(f"r{k}", (ChannelNoise("spindle_accel", s1, 2 * s1 ** 2 / fs, 0.1, (1.0, 2.0)),
+                                             ChannelNoise("body_accel", s2, 2 * s2 ** 2 / fs, 0.1, (1.0, 2.0)))))
+    return model, fit, recs, noise

@@ -20,41 +20,16 @@ from nifo_core.predict.linear_part import BodyModel, LinearPart
 from nifo_core.predict.timesim import lookahead_samples, simulate_response
 from nifo_core.signal.bias_correction import simulated_correction
 from nifo_core.signal.integrate import IntegrationBand
-from nifo_core.signal.noise import ChannelNoise, NoiseEstimate
-from nifo_core.signal.record import Record
 from nifo_core.simulate.quarter_car import RandomRoad, SimConfig, preset, simulate
 
-
-def _static_problem(m: int):
-    """ẍ2 = θ0·ẍ1 + θ1·ẍ1³ on three records; the fit reads the first ``m`` samples of each."""
-    rng = np.random.default_rng(5)
-    fs = 200.0
-
-    def model(theta, rec):
-        a = np.asarray(rec.spindle_accel, float)
-        return theta[0] * a + theta[1] * a ** 3
-
-    def fit(recs):
-        a = np.concatenate([np.asarray(r.spindle_accel, float)[:m] for r in recs])
-        y = np.concatenate([np.asarray(r.body_accel, float)[:m] for r in recs])
-        return np.linalg.lstsq(np.column_stack([a, a ** 3]), y, rcond=None)[0]
-
-    recs, noise = [], []
-    for k in range(3):
-        a1 = rng.standard_normal(3000) * (1 + k)
-        rec = Record(fs_hz=fs, spindle_accel=a1, body_accel=model(np.array([0.8, 0.05]), Record(fs, a1, a1)))
-        recs.append(rec)
-        s1, s2 = 0.1 * float(np.std(a1)), 0.1 * float(np.std(rec.body_accel))
-        noise.append(NoiseEstimate(f"r{k}", (ChannelNoise("spindle_accel", s1, 2 * s1 ** 2 / fs, 0.1, (1.0, 2.0)),
-                                             ChannelNoise("body_accel", s2, 2 * s2 ** 2 / fs, 0.1, (1.0, 2.0)))))
-    return model, fit, recs, noise
+from conftest import static_cubic_problem
 
 
 def test_records_cut_where_the_fit_stops_reading_give_the_same_correction_bit_for_bit():
     """A fit that reads the first 1800 of 3000 samples: cut there, every number of the correction is the uncut one's
     to the last bit (the noise draws are taken for the whole records, so the cut does not move the seed's stream)."""
     m = 1800
-    model, fit, recs, noise = _static_problem(m)
+    model, fit, recs, noise = static_cubic_problem(5, 3000, read=m)
     theta0 = fit(recs)
     whole = simulated_correction(fit, model, recs, noise, theta0, pairs=2, drive_noise=True)
     seen = []

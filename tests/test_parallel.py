@@ -167,29 +167,10 @@ def test_the_bias_correction_side_by_side_is_its_serial_result_bit_for_bit(monke
     """simulated_correction runs a step's records, its noisy refits and its noise-free refit side by side on threads
     (side_by_side=True): the corrected θ, the bias and every spread are those of the serial loop to the last bit."""
     from nifo_core.signal.bias_correction import simulated_correction
-    from nifo_core.signal.noise import ChannelNoise, NoiseEstimate
-    from nifo_core.signal.record import Record
 
-    rng = np.random.default_rng(3)
-    fs = 200.0
+    from conftest import static_cubic_problem
 
-    def simulate(theta, rec):       # a static nonlinearity: ẍ2 = θ0·ẍ1 + θ1·ẍ1³
-        a = np.asarray(rec.spindle_accel, float)
-        return theta[0] * a + theta[1] * a * a * a
-
-    def fit(recs):                  # its least squares on the noisy ẍ1: errors in variables, biased
-        a = np.concatenate([np.asarray(r.spindle_accel, float) for r in recs])
-        y = np.concatenate([np.asarray(r.body_accel, float) for r in recs])
-        return np.linalg.lstsq(np.column_stack([a, a * a * a]), y, rcond=None)[0]
-
-    recs, noise = [], []
-    for k in range(3):
-        a1 = rng.standard_normal(4000) * (1 + k)
-        rec = Record(fs_hz=fs, spindle_accel=a1, body_accel=simulate(np.array([0.8, 0.05]), Record(fs, a1, a1)))
-        recs.append(rec)
-        s1, s2 = 0.1 * float(np.std(a1)), 0.1 * float(np.std(rec.body_accel))
-        noise.append(NoiseEstimate(f"r{k}", (ChannelNoise("spindle_accel", s1, 2 * s1 ** 2 / fs, 0.1, (1.0, 2.0)),
-                                             ChannelNoise("body_accel", s2, 2 * s2 ** 2 / fs, 0.1, (1.0, 2.0)))))
+    simulate, fit, recs, noise = static_cubic_problem(3, 4000)
     theta0 = fit(recs)
     got = {}
     for n, side in (("1", False), ("2", True)):
