@@ -1,17 +1,23 @@
-"""Rendering the main job's figures: one task per file (the old way) against one task per figure (issue 29).
+"""Rendering the main job's figures two ways, in one process, alternating (issue 29).
 
-Runs ``nifo run`` in-process (the bundled sample, or ``--f16`` levels 1/3/5/7), keeps every figure as it is handed
-to the figure helpers (pickled, not yet laid out), then renders each one in this process both ways, alternating:
+Runs ``nifo run`` in-process (the bundled sample; ``--f16``: levels 1/3/5/7; ``--short``: the kill test's 20 s
+record, ``--no-loop --no-refine``), keeps every figure as it is handed to the figure helpers (pickled, not yet
+laid out), then renders each one in this process both ways:
 
-- per file: for the PNG and for the SVG, the figure unpickled, laid out (``tight_layout``) and rendered;
-- per figure (what :mod:`nifo.plots.writer` does): unpickled and laid out once, then both files rendered.
+- default: one task per file (the old way: unpickled, laid out and rendered for the PNG and again for the SVG)
+  against one task per figure (what :mod:`nifo.plots.writer` does: unpickled and laid out once, both files
+  rendered). Measured (F-16, 23 figures): 14.85 → 12.30 CPU-s (0.83); two SVGs of figures laid out without
+  ``tight_layout`` differ, their bounding box by 0.0004 and 0.8 pt: an SVG rendered after the PNG of the same
+  figure object (as the calling process always rendered them) is cropped to text extents measured once.
+- ``--mathtext``: per figure, with matplotlib's own cache of parsed math text (one per renderer) against
+  :mod:`nifo.plots.mathtext_cache` (one per process, empty at the start of each pass, as in a new helper).
+  Measured (2026-11-28): sample 15.23 → 13.59 CPU-s (0.893), ``--short`` 6.63 → 5.62 (0.848), every file the
+  same bytes.
 
 Prints the CPU seconds of each way over all figures (the best of ``--repeats``), their ratio, and the files the
-two ways wrote differently. Measured (F-16, 23 figures): 14.85 → 12.30 CPU-s (0.83); two SVGs of figures laid
-out without ``tight_layout`` differ, their bounding box by 0.0004 and 0.8 pt: an SVG rendered after the PNG of
-the same figure object (as the calling process always rendered them) is cropped to text extents measured once.
+two ways wrote differently.
 
-    PYTHONPATH=. python benchmarks/bench_figures.py [--f16] [--repeats 3]
+    PYTHONPATH=. python benchmarks/bench_figures.py [--f16 | --short] [--mathtext] [--repeats 3]
 """
 
 from __future__ import annotations
@@ -27,11 +33,10 @@ from pathlib import Path
 from profile_run import job_options
 
 from nifo.pipeline.job import run_job
-from nifo.plots import pyplot
-from nifo.plots import writer
+from nifo.plots import mathtext_cache, pyplot, writer
 
 
-def _capture(f16: bool, out: Path) -> list[tuple[bytes, list[str], int, tuple | None]]:
+def _capture(job) -> list[tuple[bytes, list[str], int, tuple | None]]:
     """Every figure the job hands to the helpers: (pickled figure, file names, dpi, layout box)."""
     kept = []
     submit = writer.submit_figure
@@ -43,7 +48,7 @@ def _capture(f16: bool, out: Path) -> list[tuple[bytes, list[str], int, tuple | 
 
     writer.submit_figure = keep
     try:
-        run_job(job_options(f16=f16, out=out))
+        run_job(job)
     finally:
         writer.submit_figure = submit
     return kept
@@ -66,31 +71,64 @@ def _digest(folder: Path) -> dict[str, str]:
     return {p.name: hashlib.sha1(p.read_bytes()).hexdigest() for p in sorted(folder.iterdir())}
 
 
+def _short_job(out: Path):
+    """The kill test's job (tests/test_kill.py): ``nifo run --no-loop --no-refine`` on 20 s of the paper's
+    damper-knee strut at 2.5 mm RMS road."""
+    from nifo.io.loader import save_record
+    from nifo.pipeline.options import RunOptions
+    from nifo_core.simulate.quarter_car import RandomRoad, SimConfig, preset, simulate
+
+    out.mkdir(parents=True)
+    sim = simulate(SimConfig(strut=preset("paper_deadzone"), duration_s=20.0, road=RandomRoad(2.5e-3)), rng=2)
+    data = save_record(out / "road.mcap", sim.record)
+    return RunOptions(data=[data], out=out / "res", no_loop=True, no_refine=True, no_recording=True)
+
+
+def _own_cache(fig_blob: bytes, paths: list[Path], dpi: int, rect) -> None:
+    mathtext_cache.uninstall()
+    _per_figure(fig_blob, paths, dpi, rect)
+
+
+def _shared_cache(fig_blob: bytes, paths: list[Path], dpi: int, rect) -> None:
+    mathtext_cache.install()
+    _per_figure(fig_blob, paths, dpi, rect)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--f16", action="store_true", help="F-16 levels 1/3/5/7 from ../shared/data/f16")
+    which = ap.add_mutually_exclusive_group()
+    which.add_argument("--f16", action="store_true", help="F-16 levels 1/3/5/7 from ../shared/data/f16")
+    which.add_argument("--short", action="store_true", help="the kill test's 20 s record, no loop, no refinement")
+    ap.add_argument("--mathtext", action="store_true",
+                    help="compare matplotlib's math-text cache with nifo's shared one (default: per file/figure)")
     ap.add_argument("--repeats", type=int, default=3, help="timed passes of each way (default 3)")
     args = ap.parse_args(argv)
+    if args.mathtext:
+        ways = (("own cache", _own_cache), ("shared cache", _shared_cache))
+    else:
+        ways = (("per file", _per_file), ("per figure", _per_figure))
     with tempfile.TemporaryDirectory(prefix="nifo_bench_figures_") as tmp:
         root = Path(tmp)
-        figures = _capture(args.f16, root / "job")
+        job = _short_job(root / "short") if args.short else job_options(f16=args.f16, out=root / "job")
+        figures = _capture(job)
         print(f"\n{len(figures)} figures, {sum(len(f[1]) for f in figures)} files")
-        best = {"per file": float("inf"), "per figure": float("inf")}
+        best = {name: float("inf") for name, _ in ways}
         digests = {}
         for r in range(args.repeats):
-            for way, fn in (("per file", _per_file), ("per figure", _per_figure))[:: 1 if r % 2 == 0 else -1]:
+            for way, fn in ways[:: 1 if r % 2 == 0 else -1]:
                 folder = root / way.replace(" ", "_")
                 folder.mkdir(exist_ok=True)
+                mathtext_cache.uninstall()     # each pass starts with an empty shared cache, as a new helper does
                 t0 = time.process_time()
                 for k, (blob, names, dpi, rect) in enumerate(figures):
                     fn(blob, [folder / f"{k:02d}_{n}" for n in names], dpi, rect)
                 best[way] = min(best[way], time.process_time() - t0)
                 digests[way] = _digest(folder)
+    (a, _), (b, _) = ways
     for way, sec in best.items():
-        print(f"  {way:<11} {sec:6.2f} CPU-s (best of {args.repeats})")
-    differ = [n for n, h in digests["per file"].items() if digests["per figure"].get(n) != h]
-    print(f"per figure / per file: {best['per figure'] / best['per file']:.3f}; files that differ: "
-          f"{', '.join(differ) or 'none'}")
+        print(f"  {way:<12} {sec:6.2f} CPU-s (best of {args.repeats})")
+    differ = [n for n, h in digests[a].items() if digests[b].get(n) != h]
+    print(f"{b} / {a}: {best[b] / best[a]:.3f}; files that differ: {', '.join(differ) or 'none'}")
     return 0
 
 

@@ -25,6 +25,9 @@ def pyplot():
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
 
+    from nifo.plots.mathtext_cache import install
+
+    install()      # math text parsed once per process, not once per renderer
     return plt
 
 

@@ -5,8 +5,9 @@ figure, is what figures cost. Measured on the 23 figures of ``nifo run`` on the
 bundled sample (2 idle cores, matplotlib 3.11): PNG 11.0 s + SVG 8.9 s of
 rendering, building them a fraction of that, pickling a finished figure 0.27 s
 for all 23. Rendering is text layout and tick placement spread over thousands
-of small calls (no hot spot to remove; one tight bounding box for both formats
-instead of two saved 5 %). So a figure is pickled as soon as it is built and
+of small calls (no hot spot to remove but the math text every renderer parsed
+again, now parsed once per process: :mod:`nifo.plots.mathtext_cache`; one tight
+bounding box for both formats instead of two saved 5 %). So a figure is pickled as soon as it is built and
 its files are rendered in a helper process, PNG then SVG in one task (one
 unpickling and one layout for both: measured on the 23 figures of ``nifo run``
 on F-16 levels 1/3/5/7, ``benchmarks/bench_figures.py``, see there), while the
