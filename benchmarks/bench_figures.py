@@ -117,9 +117,9 @@ def main(argv: list[str] | None = None) -> int:
         # an untimed pass of each way first: the first figures rendered after the job ran in this process can be
         # laid out a little differently from later passes (tick labels 2.7 px apart, either way; a helper, which
         # only renders, gives the same bytes pass after pass)
+        (root / "warm-up").mkdir()
         for way, fn in ways:
             for k, (blob, names, dpi, rect) in enumerate(figures):
-                (root / "warm-up").mkdir(exist_ok=True)
                 fn(blob, [root / "warm-up" / f"{k:02d}_{n}" for n in names], dpi, rect)
         for r in range(args.repeats):
             for way, fn in ways[:: 1 if r % 2 == 0 else -1]:

@@ -28,7 +28,7 @@ __all__ = ["install", "uninstall", "cache_info", "ENTRIES"]
 
 #: parsed strings kept (the sample's 23 figures parse 396 distinct keys)
 ENTRIES = 4096
-#: the parameters of ``MathTextParser._parse_cached`` this replaces (matplotlib 3.8-3.11)
+#: the parameters of ``MathTextParser._parse_cached`` this replaces (as in matplotlib 3.11.2, where it was measured)
 _SIGNATURE = ("self", "s", "dpi", "prop", "antialiased", "load_glyph_flags")
 _lock = threading.Lock()
 _installed = False
