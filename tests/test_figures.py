@@ -113,6 +113,35 @@ def test_coefficient_labels_do_not_overlap_ticks_and_loop_errors_has_no_log_axis
             assert not any(_overlap(leg.get_window_extent(r), b) for b in bars)
 
 
+@pytest.mark.parametrize("connected", [False, True])
+def test_the_slice_grid_legend_hides_no_text_of_its_panel(monkeypatch, connected):
+    """The legend sat on the first row's note (z RMS, bottom right) of the sample's restoring_amplitude figure."""
+    from nifo.plots import restoring
+
+    figs = _captured(monkeypatch, restoring)
+    rng = np.random.default_rng(1)
+    rows = []
+    for k, amp in enumerate((1e-3, 3e-3)):
+        t = np.linspace(0, 20, 4000)
+        z, zd = amp * np.sin(2 * np.pi * t), amp * 2 * np.pi * np.cos(2 * np.pi * t)
+        if not connected:
+            z, zd = amp * rng.standard_normal(4000), 6 * amp * rng.standard_normal(4000)
+        force = 100 * z + 2 * zd + 0.01 * amp * rng.standard_normal(4000)
+        rows.append(restoring.SlicePlot(f"level {k}", z, zd, force, model=100 * z + 2 * zd, connected=connected,
+                                        note=f"z RMS {1e3 * np.std(z):.2f} mm"))
+    restoring.plot_restoring_slices(rows, "unused.png", title="restoring force by amplitude")
+    fig = figs[-1]
+    r = fig.canvas.get_renderer()
+    legends = [ax for ax in fig.axes if ax.get_legend() is not None]
+    assert legends
+    for ax in legends:
+        box = ax.get_legend().get_window_extent(r)
+        texts = [t for t in ax.texts if t.get_text()]
+        assert texts
+        hidden = [t.get_text() for t in texts if _overlap(box, t.get_window_extent(r))]
+        assert not hidden, hidden
+
+
 def test_true_curves_are_drawn_when_a_truth_file_is_beside_the_data(ran):
     assert "true nominal linear T21" in _svg_text(ran / "identify" / "transmissibility.svg")
     assert "true (simulator)" in _svg_text(ran / "characterize" / "characteristic.svg")

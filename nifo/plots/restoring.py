@@ -155,7 +155,9 @@ def plot_restoring_slices(rows: Sequence[SlicePlot], path: str | Path, *, title:
             av.set_title("velocity view (damping)", fontsize=9)
             ad.set_title("displacement view (stiffness)", fontsize=9)
         if row.model is not None and not any(r.model is not None for r in rows[:i]):
-            ad.legend(fontsize=7, loc="lower right" if not row.connected else "upper right", markerscale=6,
+            # scattered slices: the slice's condition is at the top right and the note (z RMS) at the bottom right;
+            # the upper left is where a restoring force (positive stiffness) leaves the panel empty
+            ad.legend(fontsize=7, loc="upper left" if not row.connected else "upper right", markerscale=6,
                       framealpha=0.8)
     axes[-1, 0].set_xlabel(vlabel, fontsize=8)
     axes[-1, 1].set_xlabel(zlabel, fontsize=8)
