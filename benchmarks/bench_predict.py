@@ -4,7 +4,9 @@ Run: ``.venv/bin/python benchmarks/bench_predict.py [--duration S] [--fs HZ] [--
 Also a structure like the F-16's (rational order 30) with three plays, with constant coefficients and through
 feedback paths (:mod:`nifo_core.predict.feedback_paths`), the ratio printed; and, for these and the quarter car
 with every kind, the step as it runs (each row of the block-diagonal Φ two fixed products) against the same step
-looping over each row's band (the baseline, same run), bit for bit the same output.
+looping over each row's band (the baseline, same run), bit for bit the same output; and for each quarter car,
+three models of one record (a forward-difference Jacobian's columns) marched together
+(:mod:`nifo_core.predict.timesim_lanes`) against one by one (the baseline, same run), bit for bit the same.
 Target: 300 s at 600 Hz predicted in less than 2 s after compilation (CPU
 time of the process; the wall time is printed beside it, with the load). Each
 model is the true one of a simulated record (so the accuracy printed beside
@@ -21,12 +23,13 @@ import argparse
 import contextlib
 import os
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from nifo_core.kinds.describing import Term
 from nifo_core.errors import ConfigError
-from nifo_core.predict.model import BodyModel, IdentifiedModel, predict_body
+from nifo_core.predict.model import BodyModel, IdentifiedModel, predict_bodies, predict_body
 from nifo_core.simulate.quarter_car import RandomRoad, SimConfig, StrutForce, preset, simulate
 
 TARGET_S = 2.0
@@ -72,6 +75,31 @@ def _against_band_loop(name: str, fn, repeats: int) -> None:
           f"-> {slow / fast:.2f}x, output {'identical' if same else 'DIFFERENT'}")
     if not same:
         raise SystemExit(f"{name}: the two step forms differ")
+
+
+def _columns(model: IdentifiedModel, lanes: int) -> list[IdentifiedModel]:
+    """The model and ``lanes - 1`` copies, each with one coefficient 0.1 % larger: a forward-difference
+    Jacobian's columns, as the output-error refinement simulates them."""
+    out = [model]
+    for j in range(lanes - 1):
+        g = np.array(model.c_over_m2, float)
+        if g.size:
+            g[j % g.size] *= 1.001
+        out.append(replace(model, c_over_m2=g))
+    return out
+
+
+def _against_one_by_one(name: str, model: IdentifiedModel, a1, fs: float, q, repeats: int, lanes: int = 3) -> None:
+    """CPU of ``lanes`` predictions of one record marched together (:func:`predict_bodies`) against one by one
+    (the baseline, same run), and whether every output is identical."""
+    models = _columns(model, lanes)
+    _, alone, ref = _timed(lambda: [predict_body(m, a1, fs, oversample=q) for m in models], repeats)
+    _, together, out = _timed(lambda: predict_bodies(models, a1, fs, oversample=q), repeats)
+    same = all(np.array_equal(getattr(o, k), getattr(r, k)) for o, r in zip(out, ref) for k in ("z", "zdot", "body_accel"))
+    print(f"{name:<38} {lanes} models of one record: marched together {together:6.3f} s CPU, one by one "
+          f"{alone:6.3f} s -> {together / alone:.2f}, output {'identical' if same else 'DIFFERENT'}")
+    if not same:
+        raise SystemExit(f"{name}: the models marched together differ from one by one")
 
 
 def _nmse(y, yhat, v) -> float:
@@ -146,6 +174,7 @@ def main() -> int:
         except ConfigError as err:
             line += f"; frequency domain refused ({err.message})"
         print(line)
+        _against_one_by_one(name, model, a1, fs, q, args.repeats)
         if strut is cases["every kind (incl. backlash), 2.5 mm"][0]:
             _against_band_loop(name, lambda: predict_body(model, a1, fs, oversample=q), args.repeats)
     wall_c, cpu_c, wall_p, cpu_p = _rational_cases(args.duration, fs, q, args.repeats)

@@ -129,7 +129,7 @@ class CorruptDataError(DataFileError):
 USAGE_EXIT_CODE = 2
 
 #: error class name -> (exit code, what it means), as ``nifo --help`` lists them; unique per class.
-#: ``PredictionDivergedError`` (:mod:`nifo_core.predict.model`) and the fleet's errors (:mod:`nifo.fleet.cluster`) are
+#: ``PredictionDivergedError`` (:mod:`nifo_core.predict.time_prediction`) and the fleet's errors (:mod:`nifo.fleet.cluster`) are
 #: heavy to import and are listed here by name; tests/test_cli.py checks the numbers against the classes.
 EXIT_CODES: dict[str, tuple[int, str]] = {
     **{cls.__name__: (cls.exit_code, (cls.__doc__ or "").strip().splitlines()[0].split(". ")[0].rstrip("."))

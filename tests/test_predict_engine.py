@@ -214,7 +214,7 @@ def test_the_linear_peak_is_computed_once_per_record_and_linear_part_and_never_s
     realised response: the same linear part built again is looked up, a changed one is computed anew."""
     from dataclasses import replace
 
-    from nifo_core.predict import model as pm
+    from nifo_core.predict import time_prediction as pm
 
     fs = 400.0
     v = np.random.default_rng(5).normal(size=8000)

@@ -5,7 +5,9 @@ Modules:
 - :mod:`nifo_core.predict.linear_part`  the linear part: a one-mass body or a stable rational fit of T21
 - :mod:`nifo_core.predict.timesim`  the prediction engine: the model simulated in time
 - :mod:`nifo_core.predict.fixed_point`  the frequency-domain fast path, where it provably converges
+- :mod:`nifo_core.predict.timesim_lanes`  several models of one record marched together (the same bits)
 - :mod:`nifo_core.predict.model`  ``IdentifiedModel`` and ``predict_body``
+- :mod:`nifo_core.predict.time_prediction`  the time-domain prediction: a model's input, simulation, divergence
 - :mod:`nifo_core.predict.feedback_paths`  terms with a bounded remainder through their own feedback paths
 - :mod:`nifo_core.predict.prediction_error`  band NMSE of a prediction
 - :mod:`nifo_core.predict.refine`  output-error refinement of a model's coefficients
@@ -27,6 +29,8 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
     "linear_part": ["BodyModel", "LinearPart", "RecordLines", "absorbed_rates", "fit_body_model", "fit_rational",
                     "nominal_linear_part", "pole_residue_response", "select_linear_part"],
     "timesim": ["TimeResponse", "discretise", "simulate_response"],
+    "timesim_lanes": ["simulate_responses"],
+    "time_prediction": ["predict_bodies"],
     "fixed_point": ["contraction_bound", "fixed_point_solve"],
     "model": ["IdentifiedModel", "Prediction", "PredictedTransmissibility", "PredictionDivergedError",
               "predict_body", "predict_transmissibility", "record_inputs"],

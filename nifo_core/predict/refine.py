@@ -55,7 +55,9 @@ refinement with the estimated noise (the loop does so; ``refine_model`` itself d
 
 Minimised by :func:`scipy.optimize.least_squares` (trust-region reflective,
 finite-difference Jacobian: one simulation per parameter and record per
-iteration, the parameters' simulations side by side on threads, :mod:`nifo_core.signal.parallel`). The refinement never makes the model worse on the records it is
+iteration; a record's simulations for all the parameters marched together, :mod:`nifo_core.predict.timesim_lanes`,
+the same bits as one by one, and the parameters split over threads, :mod:`nifo_core.signal.parallel`). The
+refinement never makes the model worse on the records it is
 given; whether it predicts *other* levels better is measured, not assumed
 (``tools/f16_predict.py``, ``tests/test_refine.py``).
 """
@@ -74,12 +76,13 @@ from ..kinds.describing import KINDS, Term
 from ..errors import ConfigError, IllConditionedError, InputError
 from .linear_part import BodyModel, absorbed_rates
 from .model import IdentifiedModel, PredictionDivergedError, predict_body, record_inputs
+from .time_prediction import predict_bodies
 from .prediction_error import band_spectra
-from ..signal.parallel import thread_map
+from ..signal.parallel import batch_map, thread_map
 from ..signal.record import Record
 
 __all__ = ["Refinement", "refine_model", "refine_jointly", "model_nmse", "parameter_space", "start_up_samples",
-           "prediction_residual", "moved_refinement"]
+           "prediction_residual", "prediction_residuals", "moved_refinement"]
 
 #: relative error a diverged simulation counts as (per record; 1 = predicting zero)
 _DIVERGED = 10.0
@@ -273,9 +276,15 @@ def _residual(model, rec, band_hz, period_samples, skip, oversample) -> np.ndarr
     """(Ŷ - Y)/‖Y‖ on the band's lines (complex)."""
     a1, force = record_inputs(rec, model)
     p = predict_body(model, a1, rec.fs_hz, force=force, oversample=oversample, label=rec.source)
-    y, yh = band_spectra(rec.body_accel, p.body_accel, rec.fs_hz, band_hz=band_hz, period_samples=period_samples,
+    return _scored(p.body_accel, rec, band_hz, period_samples, skip)
+
+
+def _scored(body_accel: np.ndarray, rec, band_hz, period_samples, skip) -> np.ndarray:
+    y, yh = band_spectra(rec.body_accel, body_accel, rec.fs_hz, band_hz=band_hz, period_samples=period_samples,
                          skip_samples=skip)
     return (yh - y) / np.sqrt(np.sum(np.abs(y) ** 2))
+
+
 
 
 def _space(start: IdentifiedModel, scale_from: IdentifiedModel, *, shape: bool, linear_params: bool,
@@ -391,27 +400,59 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
 
     def evaluate(name: str, sp: _Space, x: np.ndarray) -> np.ndarray:
         """Residual vector (real, imaginary) of every record at θ = x; a diverged record gets its penalty.
-        Safe on several threads at once (the Jacobian's columns)."""
+        Safe on several threads at once. A θ the Jacobian's columns computed together (:func:`columns`) is
+        taken from there."""
         nonlocal n_eval
-        m = sp.model(x)
+        key = np.asarray(x, float).tobytes()
+        if key in ready:
+            out, bad = ready.pop(key)
+        else:
+            m = sp.model(x)
 
-        def one(k: int) -> tuple[np.ndarray, bool]:
-            try:
-                return _residual(m, records[k], band, period_samples, skips[k], oversample), False
-            except PredictionDivergedError:
-                return penalty[k].astype(complex), True
+            def one(k: int) -> np.ndarray | None:
+                try:
+                    return _residual(m, records[k], band, period_samples, skips[k], oversample)
+                except PredictionDivergedError:
+                    return None
 
-        # the records side by side (inside a Jacobian column's thread: one after the other, thread_map's rule)
-        got = thread_map(one, range(len(records)))
-        parts, bad = [g for g, _ in got], {k for k, (_, diverged) in enumerate(got) if diverged}
-        r = np.concatenate(parts)
-        out = np.concatenate([r.real, r.imag])
+            # the records side by side
+            out, bad = assembled(thread_map(one, range(len(records))))
         with lock:
             n_eval += 1
-            diverged[np.asarray(x, float).tobytes()] = bad
+            diverged[key] = bad
             if progress is not None:
                 progress(name, n_eval, float(np.sum(out ** 2)))
         return out
+
+    def assembled(parts: list) -> tuple[np.ndarray, set]:
+        """The residual vector from each record's residual (None: diverged, its penalty), and the diverged."""
+        bad = {k for k, r in enumerate(parts) if r is None}
+        r = np.concatenate([penalty[k].astype(complex) if p is None else p for k, p in enumerate(parts)])
+        return np.concatenate([r.real, r.imag]), bad
+
+    ready: dict[bytes, tuple[np.ndarray, set]] = {}   # residual vectors computed together, until evaluate takes them
+
+    def columns(sp: _Space):
+        """least_squares' ``workers`` for the forward-difference Jacobian: its θs' simulations of each record
+        marched together (:mod:`nifo_core.predict.timesim_lanes`, the same bits as one by one), the θs split over
+        the threads; then ``fun`` of each θ in order, which finds its residual computed."""
+        def work(fun, xs):
+            xs = [np.asarray(x, float) for x in xs]
+
+            def batch(part: list[np.ndarray]) -> list[tuple[np.ndarray, set]]:
+                models = [sp.model(x) for x in part]
+                per_record = [prediction_residuals(models, rec, band_hz=band, period_samples=period_samples,
+                                                   skip_samples=s, oversample=oversample)
+                              for rec, s in zip(records, skips)]
+                return [assembled([per_record[k][lane] for k in range(len(records))]) for lane in range(len(part))]
+
+            for x, res in zip(xs, batch_map(batch, xs)):
+                ready[x.tobytes()] = res
+            try:
+                return [fun(x) for x in xs]
+            finally:
+                ready.clear()
+        return work
 
     def per_record(x: np.ndarray, out: np.ndarray) -> list[float]:
         """Band NMSE [%] per record from the residual vector at θ = x (inf where the simulation diverged)."""
@@ -426,10 +467,10 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
         if not np.all(np.isfinite(before[name])):
             return None
         lo, hi = sp.bounds()
-        # the Jacobian's columns (one simulation of every record per parameter) side by side on threads
+        # the Jacobian's columns (one simulation of every record per parameter) marched together, on threads
         sol = scipy.optimize.least_squares(lambda x: evaluate(name, sp, x), x0, bounds=(lo, hi), method="trf",
                                            diff_step=1e-3, x_scale=1.0, max_nfev=max_iterations, f_scale=1.0,
-                                           workers=thread_map)
+                                           workers=columns(sp))
         if sol.cost <= 0.5 * float(np.sum(r0 ** 2)):
             return sol.x, sp, sol, per_record(sol.x, sol.fun)
         return x0, sp, sol, before[name]
@@ -619,6 +660,20 @@ def prediction_residual(model: IdentifiedModel, record: Record, *, band_hz: tupl
 
     Raises :class:`~nifo_core.predict.model.PredictionDivergedError` where the simulation diverges."""
     return _residual(model, record, band_hz, period_samples, skip_samples, oversample)
+
+
+def prediction_residuals(models: Sequence[IdentifiedModel], record: Record, *, band_hz: tuple[float, float],
+                         period_samples: int | None = None, skip_samples: int = 0,
+                         oversample: int | None = None) -> list[np.ndarray | None]:
+    """:func:`prediction_residual` of each model on ``record``, None where its simulation diverges: the same
+    values, the models' simulations marched together (:func:`~nifo_core.predict.time_prediction.predict_bodies`;
+    models of one parameter space, e.g. a Jacobian's columns)."""
+    if not models:
+        return []
+    a1, force = record_inputs(record, models[0])
+    preds = predict_bodies(models, a1, record.fs_hz, force=force, oversample=oversample, label=record.source)
+    return [None if isinstance(p, PredictionDivergedError)
+            else _scored(p.body_accel, record, band_hz, period_samples, skip_samples) for p in preds]
 
 
 def _values(sp: _Space, x: np.ndarray) -> list[float]:

@@ -36,7 +36,7 @@ from ..signal.noise import NoiseEstimate
 from .prediction_bounds import Z95
 from ..signal.parallel import forward_jacobian
 from ..signal.record import Record
-from .refine import Refinement, moved_refinement, parameter_space, prediction_residual
+from .refine import Refinement, moved_refinement, parameter_space, prediction_residual, prediction_residuals
 
 __all__ = ["REFIT_EVALUATIONS", "correct_refinement"]
 
@@ -96,22 +96,26 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
             return None
 
     def fit(recs: Sequence[Record]) -> np.ndarray:
-        def residual(x: np.ndarray) -> np.ndarray:     # pure: the Jacobian's columns run side by side
+        def residual(x: np.ndarray) -> np.ndarray:     # pure: the refits run side by side
             model, parts = to_model(x), []
             for rec, skip in zip(recs, skips):
                 try:
                     parts.append(prediction_residual(model, rec, band_hz=band, period_samples=period,
                                                      skip_samples=skip, oversample=oversample))
                 except PredictionDivergedError:
-                    n = parts[-1].size if parts else 1
-                    parts.append(np.full(n, np.sqrt(_DIVERGED / n), complex))
-            r = np.concatenate(parts)
-            return np.concatenate([r.real, r.imag])
+                    parts.append(None)
+            return _vector(parts)
+
+        def residuals(xs: list[np.ndarray]) -> list[np.ndarray]:   # the Jacobian's columns, marched together
+            per_record = [prediction_residuals([to_model(x) for x in xs], rec, band_hz=band, period_samples=period,
+                                               skip_samples=skip, oversample=oversample)
+                          for rec, skip in zip(recs, skips)]
+            return [_vector([got[lane] for got in per_record]) for lane in range(len(xs))]
         # the refit starts at the synthetic truth and moves by the bias alone (a fraction of a half-width): the
         # Jacobian there serves every step (simplified Gauss-Newton), one simulation per step instead of 1 + len(θ)
         x0 = np.asarray(truth["x"], float)
         f0 = residual(x0)
-        jac0 = _forward_jacobian(residual, x0, f0)
+        jac0 = _forward_jacobian(residual, x0, f0, together=residuals)
         key = x0.tobytes()
 
         def fun(x: np.ndarray) -> np.ndarray:      # θ0: least_squares' first evaluation is the Jacobian's base
@@ -133,11 +137,26 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
     return _moved(refinement, cor, cov, noise, hold)
 
 
-def _forward_jacobian(fun, x0: np.ndarray, f0: np.ndarray, rel_step: float = DIFF_STEP) -> np.ndarray:
+def _vector(parts: list) -> np.ndarray:
+    """The refit's residual vector (real, imaginary) from each record's residual; a diverged one (None) counts as
+    relative error _DIVERGED, spread over as many lines as the record before it."""
+    out = []
+    for p in parts:
+        if p is None:
+            n = out[-1].size if out else 1
+            p = np.full(n, np.sqrt(_DIVERGED / n), complex)
+        out.append(p)
+    r = np.concatenate(out)
+    return np.concatenate([r.real, r.imag])
+
+
+def _forward_jacobian(fun, x0: np.ndarray, f0: np.ndarray, rel_step: float = DIFF_STEP, *,
+                      together=None) -> np.ndarray:
     """Forward differences of ``fun`` at ``x0`` (``f0 = fun(x0)``), steps h_j = rel_step·sign(x_j)·max(1, |x_j|),
-    the columns side by side on threads (:func:`nifo_core.signal.parallel.forward_jacobian`)."""
+    the columns side by side on threads, or marched together by ``together`` (``fun`` of a list of points,
+    :func:`nifo_core.signal.parallel.forward_jacobian`)."""
     h = rel_step * np.where(x0 >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(x0))
-    return forward_jacobian(fun, x0, f0, h)
+    return forward_jacobian(fun, x0, f0, h, together=together)
 
 
 def _moved(refinement: Refinement, cor: Correction, cov: np.ndarray, noise: Sequence[NoiseEstimate],

@@ -21,7 +21,7 @@ from typing import Callable, Iterable, TypeVar
 
 import numpy as np
 
-__all__ = ["thread_map", "max_threads", "forward_jacobian"]
+__all__ = ["thread_map", "batch_map", "max_threads", "forward_jacobian"]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -67,10 +67,26 @@ def thread_map(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
         return list(pool.map(_in_worker(fn), items))
 
 
+def batch_map(fn: Callable[[list[T]], list[R]], items: Iterable[T]) -> list[R]:
+    """``fn`` of contiguous batches of ``items``, a batch per thread, its results in item order: for work that is
+    cheaper together than one by one (several simulations of a record marched together,
+    :mod:`nifo_core.predict.timesim_lanes`). Inside another map's worker, or with one thread, one batch of all.
+    ``fn(batch)`` returns one result per item of ``batch``."""
+    items = list(items)
+    if not items:
+        return []
+    n = 1 if getattr(_inside, "active", False) else min(max_threads(), len(items))
+    bounds = np.linspace(0, len(items), n + 1).round().astype(int)
+    batches = [items[a:b] for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+    return [r for got in thread_map(fn, batches) for r in got]
+
+
 def forward_jacobian(fun: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, f0: np.ndarray,
-                     steps: np.ndarray) -> np.ndarray:
+                     steps: np.ndarray, *, together: Callable[[list[np.ndarray]], list[np.ndarray]] | None = None
+                     ) -> np.ndarray:
     """Forward differences of ``fun`` at ``x0`` (``f0 = fun(x0)``), one column per step of ``steps``, the
-    columns on threads (:func:`thread_map`: ``fun`` must be safe to call from several threads at once).
+    columns on threads (:func:`thread_map`: ``fun`` must be safe to call from several threads at once), or, with
+    ``together`` (``fun`` of several points at once, the same values), in batches (:func:`batch_map`).
 
     Each column is divided by its step as represented, (x0 + h)_j - x0_j, as scipy's differences are.
 
@@ -80,11 +96,11 @@ def forward_jacobian(fun: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, f0
     """
     x0 = np.asarray(x0, float)
     f0 = np.asarray(f0, float)
-
-    def column(j: int) -> np.ndarray:
+    points = []
+    for j in range(x0.size):
         x = x0.copy()
         x[j] += steps[j]
-        return (np.asarray(fun(x), float) - f0) / (x[j] - x0[j])
-
-    cols = thread_map(column, range(x0.size))
+        points.append(x)
+    values = batch_map(together, points) if together is not None else thread_map(fun, points)
+    cols = [(np.asarray(f, float) - f0) / (x[j] - x0[j]) for j, (x, f) in enumerate(zip(points, values))]
     return np.column_stack(cols) if cols else np.zeros((f0.size, 0))

@@ -1,0 +1,210 @@
+"""Several models simulated on one record in one march: the lanes of the prediction engine (issue 29).
+
+The step kernel of :mod:`nifo_core.predict.timesim` is latency-bound: each fine step waits for its implicit
+feedback solve, a chain of fixed-point iterations, each waiting for the one before (54-98 ns per step with one to
+three terms, against 23 ns without any). The output-error refinement's forward-difference Jacobian simulates the
+same record once per parameter, with models that differ only in their numbers. Marched together — each step of
+every lane before the next step, the lanes' fixed-point iterations interleaved — the processor overlaps their
+chains. Every lane does exactly the arithmetic of its own march, in the same order, so each response is the
+single simulation's to the last bit (``tests/test_predict_lanes.py``).
+
+Measured on the loop's refinement models (bench_loop's records, 245 k fine steps, one to four terms; one
+thread, best of 3): three lanes took 0.56-0.66 of the time of three single marches, two lanes 0.65-0.83; a
+model without terms gains nothing (its step has no chain to overlap). ``benchmarks/bench_predict.py --lanes``
+prints the ratio on the machine it runs on.
+
+Lanes share the record (input and rate) and the kernel's shape: the same term kinds in the same order and a
+linear part with the same state size and block pattern (every model of a refinement). Where they do not —
+feedback paths, a linear part not block-diagonal, different kinds — :func:`simulate_responses` simulates the
+models one after the other.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numba
+import numpy as np
+
+from ..kinds.describing import Term
+from ..kinds.strut_forces import PLAY, g_one
+from .linear_part import LinearPart
+from .timesim import (TimeResponse, _UP, _bracketed, _fine_steps, march_arrays, march_outputs, response,
+                      simulate_response)
+
+__all__ = ["simulate_responses"]
+
+
+@numba.njit(cache=True, inline="always")
+def _fb_lane(z, zd, codes, coef, p0, p1, play, lane, commit, la, lb):  # pragma: no cover - compiled
+    """``timesim._fb`` for lane ``lane`` of the (lanes, terms) arrays: the same sum in the same order."""
+    n1 = 0.0
+    for i in range(codes.size):
+        g = g_one(codes[i], p0[lane, i], p1[lane, i], z, zd, play[lane, i])
+        if commit and codes[i] == PLAY:
+            play[lane, i] = g
+        n1 += coef[lane, i] * g
+    return n1 - la * z - lb * zd
+
+
+@numba.njit(cache=True, nogil=True)
+def _run_lanes(lo, c1, pa, pb, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, la, lb, z_limit, atol, q,
+               out_z, out_zd, out_zdd, out_n, fail):  # pragma: no cover - compiled
+    """``timesim``'s paired single-input kernel for every lane (row l of each 2-D array), marched together.
+
+    Per step: each lane's prediction of the state, then the lanes' fixed-point iterations interleaved (a lane
+    stops iterating when it has converged; after 40 the bracketed bisection, lane by lane), then each lane's
+    update. A lane that fails (no finite solve, or |z| beyond its bound) stops there with ``fail[l]`` the step,
+    as the single kernel returns it; the others go on."""
+    nl, ns = pa.shape
+    nt = codes.size
+    plays = False
+    for i in range(nt):
+        if codes[i] == PLAY:
+            plays = True
+    x = np.zeros((nl, ns))
+    xs = np.zeros((nl, ns))
+    play = np.zeros((nl, nt))
+    alpha = np.zeros(nl)
+    beta = np.zeros(nl)
+    active = np.zeros(nl, np.bool_)
+    nk = np.zeros(nl)
+    nprev = np.zeros(nl)
+    z0 = np.zeros(nl)
+    zd0 = np.zeros(nl)
+    cur = np.zeros(nl)
+    res = np.zeros(nl)
+    guess = np.zeros(nl)
+    done = np.zeros(nl, np.bool_)
+    for l in range(nl):
+        fail[l] = -1
+        for i in range(ns):
+            alpha[l] += cz[l, i] * g1[l, i]
+            beta[l] += cd[l, i] * g1[l, i]
+        active[l] = nt > 0 or la[l] != 0.0 or lb[l] != 0.0
+        if active[l]:
+            nk[l] = _fb_lane(0.0, 0.0, codes, coef, p0, p1, play, l, True, la[l], lb[l])
+        nprev[l] = nk[l]
+        out_z[l, 0], out_zd[l, 0], out_zdd[l, 0], out_n[l, 0] = 0.0, 0.0, dd[l] * (v[0] + nk[l]), nk[l]
+    ph = 0
+    k = 0
+    for j in range(v.size - 1):
+        un = v[j + 1]
+        for l in range(nl):
+            if fail[l] >= 0:
+                done[l] = True
+                continue
+            uk = v[j] + nk[l]
+            a = 0.0
+            b = 0.0
+            for i in range(ns):
+                acc = g0[l, i] * uk + g1[l, i] * un
+                acc += pa[l, i] * x[l, lo[i]]
+                acc += pb[l, i] * x[l, c1[i]]
+                xs[l, i] = acc
+                a += cz[l, i] * acc
+                b += cd[l, i] * acc
+            z0[l] = a
+            zd0[l] = b
+            if active[l]:
+                guess[l] = 2.0 * nk[l] - nprev[l]
+                cur[l] = guess[l]
+                done[l] = False
+            else:
+                res[l] = 0.0
+                done[l] = True
+        for _ in range(40):
+            left = False
+            for l in range(nl):
+                if done[l]:
+                    continue
+                n = cur[l]
+                nn = _fb_lane(z0[l] + alpha[l] * n, zd0[l] + beta[l] * n, codes, coef, p0, p1, play, l, False,
+                              la[l], lb[l])
+                if abs(nn - n) <= 1e-13 * max(abs(nn), abs(n)) + atol:
+                    res[l] = nn
+                    done[l] = True
+                else:
+                    cur[l] = nn
+                    left = True
+            if not left:
+                break
+        for l in range(nl):
+            if fail[l] >= 0:
+                continue
+            if not done[l]:
+                n, ok = _bracketed(z0[l], zd0[l], alpha[l], beta[l], guess[l], codes, coef[l], p0[l], p1[l],
+                                   play[l], la[l], lb[l], atol)
+                if not ok:
+                    fail[l] = j + 1
+                    continue
+                res[l] = n
+            n = res[l]
+            if active[l]:
+                nprev[l] = nk[l]
+            zdd = dd[l] * (un + n)
+            for i in range(ns):
+                x[l, i] = xs[l, i] + g1[l, i] * n
+                zdd += ca[l, i] * x[l, i]
+            z = z0[l] + alpha[l] * n
+            zd = zd0[l] + beta[l] * n
+            if plays:
+                _fb_lane(z, zd, codes, coef, p0, p1, play, l, True, 0.0, 0.0)   # commit the play states
+            nk[l] = n
+            out_zdd[l, j + 1] = zdd
+            if ph + 1 == q:
+                out_z[l, k + 1], out_zd[l, k + 1], out_n[l, k + 1] = z, zd, n
+            if not (abs(z) <= z_limit[l]):
+                fail[l] = j + 1
+        ph += 1
+        if ph == q:
+            ph = 0
+            k += 1
+    return fail
+
+
+def _same_shape(marches) -> bool:
+    """Whether the marches fit one lane kernel: paired rows with the same pattern, the same term kinds."""
+    first = marches[0]
+    _, lo, _, c1, _, _, paired = first.rows
+    return all(m.rows[6] and paired and np.array_equal(m.rows[1], lo) and np.array_equal(m.rows[3], c1)
+               and np.array_equal(m.codes, first.codes) for m in marches)
+
+
+def simulate_responses(linears: Sequence[LinearPart], terms: Sequence[Sequence[Term]],
+                       gammas: Sequence[Sequence[float]], external: np.ndarray, fs_hz: float, *,
+                       spindle_accel: np.ndarray | None = None, oversample: int = 8,
+                       z_limits: Sequence[float] | None = None) -> list[TimeResponse]:
+    """:func:`~nifo_core.predict.timesim.simulate_response` of each model (``linears[l]``, ``terms[l]``,
+    ``gammas[l]``, bound ``z_limits[l]``) for one external input: the same responses, bit for bit, marched
+    together where the models share the kernel's shape (module docstring), else one after the other."""
+    n_lanes = len(linears)
+    limits = [np.inf] * n_lanes if z_limits is None else [float(b) for b in z_limits]
+    if not (len(terms) == len(gammas) == len(limits) == n_lanes):
+        raise ValueError("one linear part, term list, coefficient list and bound per lane")
+
+    def one_by_one() -> list[TimeResponse]:
+        return [simulate_response(lin, t, g, external, fs_hz, spindle_accel=spindle_accel, oversample=oversample,
+                                  z_limit=b) for lin, t, g, b in zip(linears, terms, gammas, limits)]
+
+    if n_lanes < 2 or any(lin.paths is not None or not lin.stable for lin in linears):
+        return one_by_one()     # (an unstable linear part: the single simulation says so)
+    q = _fine_steps(oversample)
+    h = 1.0 / (fs_hz * q)
+    marches = [march_arrays(lin, t, g, h) for lin, t, g in zip(linears, terms, gammas)]
+    if not _same_shape(marches):
+        return one_by_one()
+    v = _UP(np.asarray(external, float), q)
+    args = [m.kernel_args(v, b, q) for m, b in zip(marches, limits)]
+    # (g0, g1, c, cd, ca, dd, v, codes, coef, p0, p1, la, lb, z_limit, atol, q): a row per lane, v/codes/atol/q shared
+    stacked = [np.array([a[i] for a in args], dtype=float) for i in (0, 1, 2, 3, 4, 5)]
+    coef, p0, p1 = (np.array([a[i] for a in args], dtype=float) for i in (8, 9, 10))
+    la, lb, bounds = (np.array([a[i] for a in args], dtype=float) for i in (11, 12, 13))
+    pa = np.array([m.rows[4] for m in marches], dtype=float)
+    pb = np.array([m.rows[5] for m in marches], dtype=float)
+    outs = march_outputs(v.size, q, lanes=n_lanes)
+    fail = np.zeros(n_lanes, dtype=np.int64)
+    _run_lanes(marches[0].rows[1], marches[0].rows[3], pa, pb, *stacked, v, marches[0].codes, coef, p0, p1, la, lb,
+               bounds, args[0][14], q, *outs, fail)
+    z, zd, zdd, nn = outs
+    return [response(z[l], zd[l], zdd[l], nn[l], int(fail[l]), external, spindle_accel, q) for l in range(n_lanes)]
