@@ -285,8 +285,6 @@ def _scored(body_accel: np.ndarray, rec, band_hz, period_samples, skip) -> np.nd
     return (yh - y) / np.sqrt(np.sum(np.abs(y) ** 2))
 
 
-
-
 def _space(start: IdentifiedModel, scale_from: IdentifiedModel, *, shape: bool, linear_params: bool,
            track_absorbed: bool, residues: bool = False) -> _Space:
     g = np.abs(np.asarray(scale_from.c_over_m2, float))

@@ -31,12 +31,12 @@ import scipy.optimize
 
 from ..signal.bias_correction import MAX_RELATIVE_BIAS, Correction, simulated_correction
 from ..errors import NifoError
-from .model import PredictionDivergedError, predict_body, record_inputs
+from .model import predict_body, record_inputs
 from ..signal.noise import NoiseEstimate
 from .prediction_bounds import Z95
 from ..signal.parallel import forward_jacobian
 from ..signal.record import Record
-from .refine import Refinement, moved_refinement, parameter_space, prediction_residual, prediction_residuals
+from .refine import Refinement, moved_refinement, parameter_space, prediction_residuals
 
 __all__ = ["REFIT_EVALUATIONS", "correct_refinement"]
 
@@ -96,21 +96,15 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
             return None
 
     def fit(recs: Sequence[Record]) -> np.ndarray:
-        def residual(x: np.ndarray) -> np.ndarray:     # pure: the refits run side by side
-            model, parts = to_model(x), []
-            for rec, skip in zip(recs, skips):
-                try:
-                    parts.append(prediction_residual(model, rec, band_hz=band, period_samples=period,
-                                                     skip_samples=skip, oversample=oversample))
-                except PredictionDivergedError:
-                    parts.append(None)
-            return _vector(parts)
-
-        def residuals(xs: list[np.ndarray]) -> list[np.ndarray]:   # the Jacobian's columns, marched together
-            per_record = [prediction_residuals([to_model(x) for x in xs], rec, band_hz=band, period_samples=period,
-                                               skip_samples=skip, oversample=oversample)
-                          for rec, skip in zip(recs, skips)]
+        def residuals(xs: list[np.ndarray]) -> list[np.ndarray]:   # pure: the refits run side by side
+            """The residual vector at each θ of ``xs``; several θs (the Jacobian's columns) marched together."""
+            models = [to_model(x) for x in xs]
+            per_record = [prediction_residuals(models, rec, band_hz=band, period_samples=period, skip_samples=skip,
+                                               oversample=oversample) for rec, skip in zip(recs, skips)]
             return [_vector([got[lane] for got in per_record]) for lane in range(len(xs))]
+
+        def residual(x: np.ndarray) -> np.ndarray:
+            return residuals([x])[0]
         # the refit starts at the synthetic truth and moves by the bias alone (a fraction of a half-width): the
         # Jacobian there serves every step (simplified Gauss-Newton), one simulation per step instead of 1 + len(θ)
         x0 = np.asarray(truth["x"], float)

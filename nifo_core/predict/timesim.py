@@ -488,9 +488,13 @@ class MarchArrays:
 
     def kernel_args(self, v: np.ndarray, z_limit: float, q: int) -> tuple:
         """The kernel's arguments after Φ's rows and before the outputs, for input ``v`` at the fine rate."""
-        atol = 1e-13 * float(np.max(np.abs(v))) if v.size else 0.0
         return (self.g0, self.g1, self.c, self.cd, self.ca, self.dd, v, self.codes, self.coef, self.p0, self.p1,
-                self.la, self.lb, z_limit, atol, q)
+                self.la, self.lb, z_limit, solve_tolerance(v), q)
+
+
+def solve_tolerance(v: np.ndarray) -> float:
+    """Absolute tolerance [m/s²] of the implicit feedback solve for fine-rate input ``v``: rounding of its scale."""
+    return 1e-13 * float(np.max(np.abs(v))) if v.size else 0.0
 
 
 def march_arrays(linear: LinearPart, terms: Sequence[Term], gammas: Sequence[float], h: float) -> MarchArrays:

@@ -9,9 +9,10 @@ chains. Every lane does exactly the arithmetic of its own march, in the same ord
 single simulation's to the last bit (``tests/test_predict_lanes.py``).
 
 Measured on the loop's refinement models (bench_loop's records, 245 k fine steps, one to four terms; one
-thread, best of 3): three lanes took 0.56-0.66 of the time of three single marches, two lanes 0.65-0.83; a
-model without terms gains nothing (its step has no chain to overlap). ``benchmarks/bench_predict.py --lanes``
-prints the ratio on the machine it runs on.
+thread, best of 3): three lanes' marches took 0.56-0.66 of the time of three single ones, two lanes 0.65-0.83; a
+model without terms gains nothing (its step has no chain to overlap). Whole predictions (interpolation, decimation
+and all), three lanes: 0.71-0.81; ``benchmarks/bench_predict.py`` prints that ratio on the machine it runs on.
+The F-16's 22-state modal body with one play: 0.91-0.94 (its step is mostly the linear update, not the solve).
 
 Lanes share the record (input and rate) and the kernel's shape: the same term kinds in the same order and a
 linear part with the same state size and block pattern (every model of a refinement). Where they do not —
@@ -30,7 +31,7 @@ from ..kinds.describing import Term
 from ..kinds.strut_forces import PLAY, g_one
 from .linear_part import LinearPart
 from .timesim import (TimeResponse, _UP, _bracketed, _fine_steps, march_arrays, march_outputs, response,
-                      simulate_response)
+                      simulate_response, solve_tolerance)
 
 __all__ = ["simulate_responses"]
 
@@ -195,16 +196,17 @@ def simulate_responses(linears: Sequence[LinearPart], terms: Sequence[Sequence[T
     if not _same_shape(marches):
         return one_by_one()
     v = _UP(np.asarray(external, float), q)
-    args = [m.kernel_args(v, b, q) for m, b in zip(marches, limits)]
-    # (g0, g1, c, cd, ca, dd, v, codes, coef, p0, p1, la, lb, z_limit, atol, q): a row per lane, v/codes/atol/q shared
-    stacked = [np.array([a[i] for a in args], dtype=float) for i in (0, 1, 2, 3, 4, 5)]
-    coef, p0, p1 = (np.array([a[i] for a in args], dtype=float) for i in (8, 9, 10))
-    la, lb, bounds = (np.array([a[i] for a in args], dtype=float) for i in (11, 12, 13))
-    pa = np.array([m.rows[4] for m in marches], dtype=float)
-    pb = np.array([m.rows[5] for m in marches], dtype=float)
+
+    def lanes(field: str) -> np.ndarray:
+        return np.array([getattr(m, field) for m in marches], dtype=float)
+
+    first = marches[0]
     outs = march_outputs(v.size, q, lanes=n_lanes)
     fail = np.zeros(n_lanes, dtype=np.int64)
-    _run_lanes(marches[0].rows[1], marches[0].rows[3], pa, pb, *stacked, v, marches[0].codes, coef, p0, p1, la, lb,
-               bounds, args[0][14], q, *outs, fail)
+    _run_lanes(first.rows[1], first.rows[3], np.array([m.rows[4] for m in marches], dtype=float),
+               np.array([m.rows[5] for m in marches], dtype=float),
+               *(lanes(f) for f in ("g0", "g1", "c", "cd", "ca", "dd")), v, first.codes,
+               *(lanes(f) for f in ("coef", "p0", "p1", "la", "lb")), np.array(limits, dtype=float),
+               solve_tolerance(v), q, *outs, fail)
     z, zd, zdd, nn = outs
     return [response(z[l], zd[l], zdd[l], nn[l], int(fail[l]), external, spindle_accel, q) for l in range(n_lanes)]

@@ -3,8 +3,9 @@
 The simulations of a model (:mod:`nifo_core.predict.timesim`: numba kernels compiled ``nogil``, scipy's
 polyphase resampling and FFTs, which release the GIL too) are independent and pure. The output-error
 refinement's forward-difference Jacobian is one simulation per parameter at the same base point: its columns
-run on threads (:func:`thread_map` as least_squares' ``workers``, or :func:`forward_jacobian`), each column bit
-for bit what the serial loop gives (issue 29, ``benchmarks/bench_run.py --serial``).
+run on threads (:func:`forward_jacobian`), or in batches, a batch per thread (:func:`batch_map`: a record's
+simulations for a batch of columns marched together, :mod:`nifo_core.predict.timesim_lanes`), each column bit for
+bit what the serial loop gives (issue 29, ``benchmarks/bench_run.py --serial``).
 Threads rather than processes: no records pickled per evaluation and nothing to start; the records
 themselves are shared read-only.
 
