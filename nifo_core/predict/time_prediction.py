@@ -254,8 +254,9 @@ def predict_bodies(models: Sequence, spindle_accel: np.ndarray | None, fs_hz: fl
     if a1 is None and force is None:
         raise InputError("nothing drives the model: give the spindle acceleration or a force", channel="spindle_accel")
     inputs = [_time_inputs(m, m.linear, a1, force, fs_hz, oversample) for m in models]
-    shared = bool(inputs) and all(q == inputs[0][1] and np.array_equal(v, inputs[0][0]) for v, q, _ in inputs)
-    if len(models) > 1 and shared and all(m.linear.paths is None for m in models):
+    # one input for all (every model of a parameter space but one with another k3): simulate_responses marches
+    # them together where it can and says where it cannot
+    if inputs and all(q == inputs[0][1] and np.array_equal(v, inputs[0][0]) for v, q, _ in inputs):
         v, q = inputs[0][0], inputs[0][1]
         responses = simulate_responses([m.linear for m in models], [_static_frame(m.terms) for m in models],
                                        [m.c_over_m2 for m in models], v, fs_hz, spindle_accel=a1, oversample=q,

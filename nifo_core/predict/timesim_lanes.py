@@ -168,8 +168,8 @@ def _same_shape(marches) -> bool:
     """Whether the marches fit one lane kernel: paired rows with the same pattern, the same term kinds."""
     first = marches[0]
     _, lo, _, c1, _, _, paired = first.rows
-    return all(m.rows[6] and paired and np.array_equal(m.rows[1], lo) and np.array_equal(m.rows[3], c1)
-               and np.array_equal(m.codes, first.codes) for m in marches)
+    return paired and all(m.rows[6] and np.array_equal(m.rows[1], lo) and np.array_equal(m.rows[3], c1)
+                          and np.array_equal(m.codes, first.codes) for m in marches)
 
 
 def simulate_responses(linears: Sequence[LinearPart], terms: Sequence[Sequence[Term]],
