@@ -304,6 +304,10 @@ class IdentifierNode(Node):
             self.get_logger().error(f"block at {b.fs_hz:g} Hz, the estimate is at {self._nifo.fs_hz:g} Hz: skipped "
                                     "(reset to start over at the new rate)", throttle_duration_sec=5.0)
             return
+        if self._seq is None and b.seq > 0 and self._next_ns is None:
+            self.get_logger().info(f"{TOPICS['accel']}: the first block taken is the integrator's block {b.seq}; "
+                                   f"the {b.seq} before it were published before this node listened (not in the "
+                                   "estimate)")
         if self._seq is not None and b.seq != self._seq + 1 and b.seq != 0:  # 0: the integrator restarted
             self._stream.blocks_missing += max(0, b.seq - self._seq - 1)
             self.get_logger().warning(f"{TOPICS['accel']}: blocks {self._seq + 1}..{b.seq - 1} never arrived "

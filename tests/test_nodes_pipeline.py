@@ -375,6 +375,7 @@ def test_malformed_late_nan_stalled_and_restarted_streams_are_logged_and_skipped
             assert what in il, il[-3000:]
         idl = (tmp_path / "identifier.log").read_text()
         assert "malformed block skipped" in idl and "stream gap" in idl, idl[-3000:]
+        assert "the first block taken" not in idl, idl[-3000:]  # it listened before the stream began
     finally:
         stop(procs)
         if col:
