@@ -62,6 +62,25 @@ def test_bandpass_does_not_mutate_its_input():
     np.testing.assert_array_equal(x, x0)
 
 
+def test_bandpass_remembers_by_content_the_same_bits_and_never_a_stale_result():
+    """The loop band-passes the same g(z, ż) again and again: an earlier result is returned for an equal array (the
+    same bits as computing it), never for a changed one (the memo keys on content, not identity), and is read-only."""
+    from nifo_core.characterize import restoring
+
+    fs, band = 200.0, IntegrationBand(1.0, 60.0)
+    x = np.random.default_rng(2).standard_normal((2, 8000))
+    first = bandpass(x, fs, band)
+    fresh = restoring._bandpassed(x.copy(), fs, 1.0, 60.0)
+    np.testing.assert_array_equal(first, fresh)
+    again = bandpass(x.copy(), fs, band)
+    assert again is first and not again.flags.writeable        # found by content
+    x[1, 4000] += 1.0                                           # the same array object, changed in place
+    changed = bandpass(x, fs, band)
+    assert changed is not first and np.abs(changed - first).max() > 1e-3
+    np.testing.assert_array_equal(changed, restoring._bandpassed(x.copy(), fs, 1.0, 60.0))
+    assert bandpass(x, fs, IntegrationBand(2.0, 60.0)) is not changed   # another band: another result
+
+
 def test_track_frequency_follows_a_chirp_and_flags_it_as_a_sweep():
     fs = 300.0
     t = np.arange(int(200 * fs)) / fs

@@ -35,6 +35,7 @@ from scipy import signal, stats
 
 from ..errors import ConfigError, InputError, NifoError, RecordTooShortError
 from ..signal.integrate import IntegrationBand, default_band, integrate, integrator_taps
+from ..signal.memo import ArrayMemo
 from ..signal.record import Record
 
 __all__ = ["RestoringForce", "restoring_force", "bandpass", "bandpass_settle_samples", "suggest_band",
@@ -76,12 +77,22 @@ def bandpass(x: np.ndarray, fs_hz: float, band: IntegrationBand) -> np.ndarray:
     :func:`~nifo_core.signal.integrate.integrate` the ends see zero padding; see
     :func:`bandpass_settle_samples`.
     """
-    x = np.asarray(x, dtype=float)
-    n = x.shape[-1]
     band.validate(fs_hz)
-    nfft = _bp_nfft(n, fs_hz, band)
-    h = _bandpass_response(float(fs_hz), float(band.f_lo_hz), float(band.f_hi_hz), nfft)
-    return sfft.irfft(sfft.rfft(x, nfft, axis=-1) * h, nfft, axis=-1)[..., :n]
+    return _BANDPASSED(np.asarray(x, dtype=float), float(fs_hz), float(band.f_lo_hz), float(band.f_hi_hz))
+
+
+def _bandpassed(x: np.ndarray, fs_hz: float, f_lo: float, f_hi: float) -> np.ndarray:
+    n = x.shape[-1]
+    nfft = _bp_nfft(n, fs_hz, IntegrationBand(f_lo, f_hi))
+    h = _bandpass_response(fs_hz, f_lo, f_hi, nfft)
+    return np.ascontiguousarray(sfft.irfft(sfft.rfft(x, nfft, axis=-1) * h, nfft, axis=-1)[..., :n])
+
+
+#: band-passed arrays, looked up by content (:class:`~nifo_core.signal.memo.ArrayMemo`: read-only results). The loop
+#: band-passes the same g(z, ż) again and again (the design matrices of its rounds, candidates and bounds): measured
+#: in ``nifo loop`` on ``benchmarks/bench_loop.py``'s 4 x 300 s, 1141 of 2864 calls repeat an earlier one, 725 of them
+#: within the last 64 distinct arrays, 654 within the last 32; at 1-5 MB a result, 32 kept (at most 64 MB)
+_BANDPASSED = ArrayMemo(_bandpassed, size=32, max_bytes=2 ** 26)
 
 
 @lru_cache(maxsize=16)
