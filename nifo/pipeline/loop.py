@@ -27,7 +27,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from nifo.io.atomic import check_output, staged_dir
-from nifo.plots.writer import figure_batch
+from nifo.plots.writer import figure_batch, start_helpers
 from nifo.io.loader import input_options, load_record
 from nifo.io.modelfile import load_model_spec, write_model_spec
 from nifo.io.provenance import input_provenance, system_of
@@ -43,6 +43,7 @@ from nifo_core.loop.closing import LoopResult, LoopSettings, close_loop
 
 def run_loop(args: LoopOptions) -> dict:
     check_output(args.out)   # refuse a file or a foreign directory before any work
+    start_helpers()          # the figure helpers import matplotlib while the records are read (one core busy)
     spec = load_model_spec(args.model) if args.model else None
     declared = list(spec.terms) if spec else []
     data = resolve([Path(p) for p in args.data], args, file_settings=spec.settings if spec else None,
