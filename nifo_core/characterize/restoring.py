@@ -75,7 +75,8 @@ def bandpass(x: np.ndarray, fs_hz: float, band: IntegrationBand) -> np.ndarray:
     the body acceleration and to every describing function g(z, ż) so they are
     band-limited exactly as z and ż are (docs/method.md §5 step 3). Like
     :func:`~nifo_core.signal.integrate.integrate` the ends see zero padding; see
-    :func:`bandpass_settle_samples`.
+    :func:`bandpass_settle_samples`. The result is read-only: an equal array
+    band-passed again is looked up, not recomputed (:data:`_BANDPASSED`).
     """
     band.validate(fs_hz)
     return _BANDPASSED(np.asarray(x, dtype=float), float(fs_hz), float(band.f_lo_hz), float(band.f_hi_hz))
