@@ -117,16 +117,25 @@ def _fb_called(z, zd, codes, coef, p0, p1, play, commit, la, lb):  # pragma: no 
     return _fb(z, zd, codes, coef, p0, p1, play, commit, la, lb)
 
 
+#: fixed-point iterations of the implicit feedback solve before the bracketed bisection takes over
+FIXED_POINT_ITERATIONS = 40
+
+
+@numba.njit(cache=True, inline="always")
+def _settled(nn, n, atol):  # pragma: no cover - compiled
+    """The fixed-point iteration n → nn has converged: the change below 1e-13 relative or ``atol`` [m/s²] (rounding
+    of the input's scale). One test for the single march and the lanes (:mod:`.timesim_lanes`): the same bits."""
+    return abs(nn - n) <= 1e-13 * max(abs(nn), abs(n)) + atol
+
+
 @numba.njit(cache=True, inline="always")
 def _solve(z0, zd0, alpha, beta, guess, codes, coef, p0, p1, play, la, lb, atol):  # pragma: no cover - compiled
-    """n = N(z0 + α·n, ż0 + β·n): fixed point, then bisection on a bracket (:func:`_bracketed`). Returns (n, ok).
-
-    Converged when the change is below 1e-13 relative or ``atol`` [m/s²] (rounding of the input's scale).
-    """
+    """n = N(z0 + α·n, ż0 + β·n): fixed point (:func:`_settled`), then bisection on a bracket (:func:`_bracketed`).
+    Returns (n, ok)."""
     n = guess
-    for _ in range(40):
+    for _ in range(FIXED_POINT_ITERATIONS):
         nn = _fb(z0 + alpha * n, zd0 + beta * n, codes, coef, p0, p1, play, False, la, lb)
-        if abs(nn - n) <= 1e-13 * max(abs(nn), abs(n)) + atol:
+        if _settled(nn, n, atol):
             return nn, True
         n = nn
     return _bracketed(z0, zd0, alpha, beta, guess, codes, coef, p0, p1, play, la, lb, atol)

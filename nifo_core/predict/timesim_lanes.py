@@ -30,8 +30,8 @@ import numpy as np
 from ..kinds.describing import Term
 from ..kinds.strut_forces import PLAY, g_one
 from .linear_part import LinearPart
-from .timesim import (TimeResponse, _UP, _bracketed, _fine_steps, march_arrays, march_outputs, response,
-                      simulate_response, solve_tolerance)
+from .timesim import (FIXED_POINT_ITERATIONS, TimeResponse, _UP, _bracketed, _fine_steps, _settled, march_arrays,
+                      march_outputs, response, simulate_response, solve_tolerance)
 
 __all__ = ["simulate_responses"]
 
@@ -54,9 +54,9 @@ def _run_lanes(lo, c1, pa, pb, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, l
     """``timesim``'s paired single-input kernel for every lane (row l of each 2-D array), marched together.
 
     Per step: each lane's prediction of the state, then the lanes' fixed-point iterations interleaved (a lane
-    stops iterating when it has converged; after 40 the bracketed bisection, lane by lane), then each lane's
-    update. A lane that fails (no finite solve, or |z| beyond its bound) stops there with ``fail[l]`` the step,
-    as the single kernel returns it; the others go on."""
+    stops iterating when it has converged; after FIXED_POINT_ITERATIONS the bracketed bisection, lane by lane),
+    then each lane's update. A lane that fails (no finite solve, or |z| beyond its bound) stops there with
+    ``fail[l]`` the step, as the single kernel returns it; the others go on."""
     nl, ns = pa.shape
     nt = codes.size
     plays = False
@@ -114,7 +114,7 @@ def _run_lanes(lo, c1, pa, pb, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, l
             else:
                 res[l] = 0.0
                 done[l] = True
-        for _ in range(40):
+        for _ in range(FIXED_POINT_ITERATIONS):
             left = False
             for l in range(nl):
                 if done[l]:
@@ -122,7 +122,7 @@ def _run_lanes(lo, c1, pa, pb, g0, g1, cz, cd, ca, dd, v, codes, coef, p0, p1, l
                 n = cur[l]
                 nn = _fb_lane(z0[l] + alpha[l] * n, zd0[l] + beta[l] * n, codes, coef, p0, p1, play, l, False,
                               la[l], lb[l])
-                if abs(nn - n) <= 1e-13 * max(abs(nn), abs(n)) + atol:
+                if _settled(nn, n, atol):
                     res[l] = nn
                     done[l] = True
                 else:
