@@ -155,9 +155,13 @@ def main(argv=None) -> int:
                                   should_stop=lambda: stopping):
                 print("run_pipeline: the nodes did not come up within 60 s (see their logs); replaying anyway",
                       file=sys.stderr)
-            cmd = [sys.executable, "-m", "nifo", "replay", a.bag, "--rate", str(a.rate), "--wait", "15"]
+            imu = [f"{a.namespace}/spindle/imu", f"{a.namespace}/body/imu"]
+            # the start waits for the topics the integrator takes: nothing here listens to a bag's others (the
+            # tire patch of a simulated run), and waiting for them too held every replay the whole 15 s
+            cmd = [sys.executable, "-m", "nifo", "replay", a.bag, "--rate", str(a.rate), "--wait", "15",
+                   "--wait-for", *imu]
             if a.reliable:  # only the sensor topics the integrator takes: nobody acknowledges the others
-                cmd += ["--reliable", "--topics", f"{a.namespace}/spindle/imu", f"{a.namespace}/body/imu"]
+                cmd += ["--reliable", "--topics", *imu]
             replay = subprocess.Popen(cmd, env=env, start_new_session=True)
             procs.append(replay)
             print(f"run_pipeline: replaying {a.bag} (pid {replay.pid})", file=sys.stderr)

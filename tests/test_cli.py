@@ -121,6 +121,25 @@ def test_replay_json_in_a_subprocess_on_its_own_ros_domain():
     assert doc["command"] == "replay" and doc["messages"] > 0
 
 
+def test_replay_waits_only_for_the_topics_named_and_says_which_had_no_subscriber():
+    """--wait-for: the start waits for those topics alone (run_pipeline.py names the Imu topics; waiting for a
+    bag's tire-patch topic, which no node takes, held every replay the whole --wait). Nobody listens here: after
+    the wait the replay says so on stderr and publishes everything (stdout stays one JSON document); a topic the
+    bag does not hold is one line and the configuration exit code."""
+    pytest.importorskip("rclpy")
+    env = {**os.environ, "ROS_DOMAIN_ID": str(random.randint(60, 100)), "PYTHONPATH": str(REPO)}
+    base = [sys.executable, "-m", "nifo", "replay", str(SAMPLE), "--rate", "0", "--start", "118", "--json"]
+    proc = subprocess.run([*base, "--wait", "1", "--wait-for", "/nifo/spindle/imu", "/nifo/body/imu"],
+                          capture_output=True, text=True, cwd=REPO, env=env, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "nifo replay: no subscriber on /nifo/spindle/imu, /nifo/body/imu after 1 s; replaying anyway" in proc.stderr
+    assert json.loads(proc.stdout)["by_topic"].get("/nifo/tire_patch/displacement", 0) > 0   # still published
+    bad = subprocess.run([*base, "--wait", "1", "--wait-for", "/nifo/spindle/imu", "/nope"], capture_output=True,
+                         text=True, cwd=REPO, env=env, timeout=120)
+    assert bad.returncode == EXIT_CODES["ConfigError"][0], bad.stderr
+    assert "--wait-for /nope: not a topic this replay publishes" in bad.stderr and "Traceback" not in bad.stderr
+
+
 def test_quiet_prints_nothing_on_stdout_and_verbose_shows_progress(tmp_path, capsys):
     assert main(["-q", "simulate", "--out", str(tmp_path / "a.csv"), "--duration", "3", "--seed", "2"]) == 0
     cap = capsys.readouterr()

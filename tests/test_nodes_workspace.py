@@ -123,6 +123,9 @@ def test_run_pipeline_replays_a_bag_through_the_nodes_into_a_live_rerun_recordin
                 os.killpg(p.pid, signal.SIGKILL)
     assert p.returncode == 0, out
     assert "replay finished (exit 0)" in out and "exit codes [0, 0, 0, 0]" in out, out
+    # the replay waited for the Imu topics the nodes take, not for the bag's tire-patch topic nobody takes (which
+    # held it the whole --wait 15 before it started)
+    assert "no subscriber on" not in out, out
     integ = (tmp_path / "logs" / "integrator.log").read_text()
     assert "sample rate 200 Hz" in integ
     assert ckpt.exists()  # the identifier wrote its checkpoint on the way out (clean SIGINT shutdown)

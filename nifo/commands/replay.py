@@ -32,7 +32,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--start", type=float, default=0.0, metavar="S", help="skip the first S seconds")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="publish only these topics")
     p.add_argument("--wait", type=float, default=0.0, metavar="S",
-                   help="wait up to S seconds for a subscriber on every topic before starting")
+                   help="wait up to S seconds for a subscriber on every topic (or those of --wait-for) before "
+                        "starting")
+    p.add_argument("--wait-for", nargs="+", metavar="TOPIC", dest="wait_for",
+                   help="the topics --wait waits for (default: every topic published; a pipeline takes the Imu "
+                        "topics and nobody may listen to the others)")
     p.add_argument("--depth", type=int, default=1000,
                    help="best-effort publisher history depth (default 1000; --reliable keeps all)")
     p.add_argument("--reliable", action="store_true",
@@ -51,7 +55,9 @@ def run(args: argparse.Namespace) -> dict:
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     try:
         stats = replay_bag(args.bag, rate=args.rate, loop=args.loop, start_s=args.start, topics=args.topics,
-                           wait_s=args.wait, depth=args.depth, reliable=args.reliable)
+                           wait_s=args.wait, depth=args.depth, reliable=args.reliable,
+                           wait_for=getattr(args, "wait_for", None),
+                           log=lambda line: print(line, file=sys.stderr))   # stdout: the --json document
     finally:
         rclpy.try_shutdown()
     per = ", ".join(f"{t} {n}" for t, n in stats.by_topic.items())
