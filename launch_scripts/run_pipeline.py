@@ -41,7 +41,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 
-from nifo_nodes.launcher import CONFIG_DIR, NodeSpec, start, stop  # noqa: E402
+from nifo_nodes.launcher import CONFIG_DIR, NodeSpec, dds_env, start, stop  # noqa: E402
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -109,7 +109,7 @@ def wait_for_graph(namespace: str, env: dict, *, block_readers: int = 1, timeout
 
 def main(argv=None) -> int:
     a = parse_args(argv)
-    env = dict(os.environ)
+    env = dds_env(dict(os.environ))     # the nodes' and the replay's Fast DDS profile (nifo_nodes.launcher)
     if a.domain_id is not None:
         env["ROS_DOMAIN_ID"] = str(a.domain_id)
     repo = str(Path(__file__).resolve().parents[1])

@@ -76,6 +76,7 @@ def test_colcon_build_installs_entry_points_that_run_the_nodes(tmp_path):
         assert (inst / "lib" / "nifo_ros" / exe).is_file()
     share = inst / "share" / "nifo_ros"
     assert (share / "launch" / "pipeline.launch.py").is_file() and (share / "config" / "integrator.yaml").is_file()
+    assert (share / "config" / "fastdds_profile.xml").is_file()       # the nodes' Fast DDS profile goes with them
     assert (tmp_path / "install" / "nifo_ros" / "share" / "ament_index" / "resource_index" / "packages"
             / "nifo_ros").is_file()
     # the installed console script runs our integrator node with the installed parameter file
@@ -97,6 +98,34 @@ def test_colcon_build_installs_entry_points_that_run_the_nodes(tmp_path):
     finally:
         if p.poll() is None:
             os.killpg(p.pid, signal.SIGKILL)
+
+
+@pytest.mark.ros
+def test_the_nodes_get_the_fast_dds_profile_unless_one_is_given_and_fast_dds_reads_it(tmp_path):
+    """nifo_nodes.launcher.dds_env: the shipped profile (heartbeats every 100 ms: a stopping node's last messages
+    acknowledged at once, not on Fast DDS's 3 s heartbeat) unless a profile file is set already. Fast DDS reads
+    it without complaint, where it names a broken one (the control: the check can fail)."""
+    pytest.importorskip("rclpy")
+    from nifo_nodes.launcher import DDS_PROFILE, dds_env
+
+    assert dds_env({"A": "1"}) == {"A": "1", "FASTRTPS_DEFAULT_PROFILES_FILE": str(DDS_PROFILE)}
+    for mine in ({"FASTRTPS_DEFAULT_PROFILES_FILE": "mine.xml"}, {"FASTDDS_DEFAULT_PROFILES_FILE": "mine.xml"}):
+        assert dds_env(mine) == mine
+    broken = tmp_path / "broken.xml"
+    broken.write_text("<profiles><data_writer")
+    code = ("import rclpy; from std_msgs.msg import String; rclpy.init(); n = rclpy.create_node('profile_check'); "
+            "n.create_publisher(String, 'profile_check', 10); print('publisher made')")
+
+    def publisher(profile: Path) -> str:
+        env = {k: v for k, v in os.environ.items() if k not in ("FASTRTPS_DEFAULT_PROFILES_FILE",
+                                                                  "FASTDDS_DEFAULT_PROFILES_FILE")}
+        env.update(ROS_DOMAIN_ID=str(random.randint(100, 200)), FASTRTPS_DEFAULT_PROFILES_FILE=str(profile))
+        r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+        assert r.returncode == 0 and "publisher made" in r.stdout, r.stderr
+        return r.stdout + r.stderr       # Fast DDS logs on stdout
+
+    assert "XMLPARSER" in publisher(broken)
+    assert "Error" not in publisher(DDS_PROFILE)
 
 
 @pytest.mark.ros
@@ -126,6 +155,8 @@ def test_run_pipeline_replays_a_bag_through_the_nodes_into_a_live_rerun_recordin
     # the replay waited for the Imu topics the nodes take, not for the bag's tire-patch topic nobody takes (which
     # held it the whole --wait 15 before it started)
     assert "no subscriber on" not in out, out
+    logs = "".join(f.read_text() for f in (tmp_path / "logs").glob("*.log"))
+    assert "XMLPARSER" not in logs, logs        # the nodes' Fast DDS profile (nifo_nodes.launcher.DDS_PROFILE) read
     integ = (tmp_path / "logs" / "integrator.log").read_text()
     assert "sample rate 200 Hz" in integ
     assert ckpt.exists()  # the identifier wrote its checkpoint on the way out (clean SIGINT shutdown)
