@@ -207,19 +207,15 @@ import sys
 from pathlib import Path
 from nifo.interrupt import watch
 watch()
-from nifo.plots import pyplot, save_figure, writer
-
-def slow():
-    fig, ax = pyplot().subplots(figsize=(4, 3))
-    for k in range(1000):
-        ax.text((k % 60) / 60, (k // 60) / 50, f"{k}", fontsize=4)
-    return fig
+sys.path.insert(0, sys.argv[2])
+from test_figure_writer import _slow_figure
+from nifo.plots import save_figure, writer
 
 out = Path(sys.argv[1])
 with writer.deferred_figures():
     with writer.figure_batch():
         for k in range(2):
-            save_figure(slow(), out / f"f{k}.png")
+            save_figure(_slow_figure(), out / f"f{k}.png")
     print("waiting", flush=True)
     writer.wait_figures()
 print("all written", flush=True)
@@ -232,9 +228,9 @@ def test_ctrl_c_while_a_run_waits_for_its_figures_ends_it_at_once(tmp_path):
     helpers killed, not taken as one more figure error to raise after all of them are done."""
     out = tmp_path / "figs"
     out.mkdir()
-    p = subprocess.Popen([sys.executable, "-c", _WAITING_SCRIPT, str(out)], cwd=ROOT, stdout=subprocess.PIPE,
-                         stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(ROOT),
-                                                                 writer.WORKERS_ENV: "2"})
+    p = subprocess.Popen([sys.executable, "-c", _WAITING_SCRIPT, str(out), str(Path(__file__).parent)], cwd=ROOT,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         env={**os.environ, "PYTHONPATH": str(ROOT), writer.WORKERS_ENV: "2"})
     try:
         assert p.stdout.readline().strip() == "waiting", p.stderr.read()
         time.sleep(0.3)
