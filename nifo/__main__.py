@@ -6,6 +6,21 @@ import sys
 #: what an interrupted start says (the command's own interruptions say what was written)
 STARTING = "nifo: interrupted while starting; nothing was written"
 
+#: a Ctrl-C that landed in a finalizer before the command's hook (:func:`_interrupt_again`) is in
+_lost_at_start: list[BaseException] = []
+
+
+def _keep_lost_interrupt(unraisable) -> None:
+    """Until :func:`entry` sets its hook: a KeyboardInterrupt raised inside a finalizer is kept, not printed as
+    'Exception ignored' and lost (tests/test_kill.py: SIGINT 0.1 s into ``nifo run`` landed in importlib's module
+    lock callback; the command then ran to the end and exited 0)."""
+    if isinstance(unraisable.exc_value, KeyboardInterrupt):
+        _lost_at_start.append(unraisable.exc_value)
+        return
+    sys.__unraisablehook__(unraisable)
+
+
+sys.unraisablehook = _keep_lost_interrupt
 try:    # a Ctrl-C before nifo's handler is in (watch) arrives as Python's KeyboardInterrupt: here, not a traceback
     import atexit
     import os
@@ -13,6 +28,9 @@ try:    # a Ctrl-C before nifo's handler is in (watch) arrives as Python's Keybo
     import threading
 
     from nifo.interrupt import by_interrupt, watch   # stdlib only: loaded before anything can be interrupted
+
+    if _lost_at_start:
+        raise KeyboardInterrupt
 except KeyboardInterrupt:
     print(STARTING, file=sys.stderr)
     sys.exit(130)
@@ -77,6 +95,8 @@ def entry() -> int:
     try:
         atexit.register(_end_without_teardown)
         sys.unraisablehook = _interrupt_again
+        if _lost_at_start:   # swallowed between the guarded imports and here
+            raise KeyboardInterrupt
         watch()
         from nifo.cli import main
 

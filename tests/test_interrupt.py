@@ -71,3 +71,56 @@ def test_an_error_without_an_interrupt_stays_a_bug_even_at_start_up(tmp_path):
     p = subprocess.run([sys.executable, "-m", "nifo", "identify", "--help"], env=env, capture_output=True,
                        text=True, timeout=120)
     assert p.returncode == 1 and "ImportError: a broken numpy" in p.stderr
+
+
+#: ``python -m nifo ARGS`` with a Ctrl-C that lands inside a finalizer when module ``argv[1]`` is first imported:
+#: the shape measured in tests/test_kill.py (SIGINT 0.1 s into ``nifo run``: "Exception ignored in: <function
+#: _get_module_lock.<locals>.cb>", the KeyboardInterrupt swallowed, the run finished with exit 0)
+_CUT_IN_A_FINALIZER = """
+import os, runpy, signal, sys
+
+cut_at = sys.argv.pop(1)
+
+class Cut:
+    def __del__(self):   # the signal arrives while a finalizer runs: its KeyboardInterrupt is raised in there
+        os.kill(os.getpid(), signal.SIGINT)
+        for _ in range(10 ** 7):
+            pass
+
+class Finder:
+    def find_spec(self, name, path=None, target=None):
+        if name == cut_at:
+            sys.meta_path.remove(self)
+            Cut()   # dropped at once: its finalizer runs here, inside the import
+        return None
+
+sys.meta_path.insert(0, Finder())
+sys.argv[0] = "nifo"
+runpy.run_module("nifo", run_name="__main__", alter_sys=True)
+"""
+
+
+@pytest.mark.parametrize("cut_at, said", [
+    ("nifo.interrupt", "nifo: interrupted while starting; nothing was written"),   # nifo's guarded first imports
+    ("nifo.pipeline.identify", "nifo: interrupted while starting; nothing was written"),   # the command's imports
+])
+def test_a_ctrl_c_swallowed_by_a_finalizer_still_interrupts_the_command(tmp_path, cut_at, said):
+    import os
+    import subprocess
+    import sys
+
+    from nifo.io.loader import save_record
+    from nifo_core.simulate.quarter_car import RandomRoad, SimConfig, preset, simulate
+
+    sim = simulate(SimConfig(strut=preset("paper_deadzone"), duration_s=5.0, road=RandomRoad(2.5e-3)), rng=3)
+    data = save_record(tmp_path / "road.mcap", sim.record)
+    model = tmp_path / "model.yaml"
+    model.write_text("nifo_model: 1\nnonlinearities:\n  - {kind: velocity_deadzone, params: {knee: 0.03}}\n")
+    out = tmp_path / "ident"
+    env = {**os.environ, "PYTHONPATH": os.getcwd()}
+    p = subprocess.run([sys.executable, "-c", _CUT_IN_A_FINALIZER, cut_at, "identify", str(data), "--model",
+                        str(model), "--out", str(out), "--quiet"], env=env, capture_output=True, text=True,
+                       timeout=300)
+    assert p.returncode == 130, (p.returncode, p.stderr)
+    assert p.stderr.strip() == said, p.stderr
+    assert not out.exists()
