@@ -109,11 +109,9 @@ def test_a_ctrl_c_swallowed_by_a_finalizer_still_interrupts_the_command(tmp_path
     import subprocess
     import sys
 
-    from nifo.io.loader import save_record
-    from nifo_core.simulate.quarter_car import RandomRoad, SimConfig, preset, simulate
+    from nifo.commands.run import sample_data
 
-    sim = simulate(SimConfig(strut=preset("paper_deadzone"), duration_s=5.0, road=RandomRoad(2.5e-3)), rng=3)
-    data = save_record(tmp_path / "road.mcap", sim.record)
+    data = sample_data()[0]   # a bundled bag (the command is cut before it reads it; without the cut it would)
     model = tmp_path / "model.yaml"
     model.write_text("nifo_model: 1\nnonlinearities:\n  - {kind: velocity_deadzone, params: {knee: 0.03}}\n")
     out = tmp_path / "ident"
