@@ -114,3 +114,49 @@ def static_cubic_problem(seed: int, n: int, *, read: int | None = None):
         noise.append(NoiseEstimate(f"r{k}", (ChannelNoise("spindle_accel", s1, 2 * s1 ** 2 / fs, 0.1, (1.0, 2.0)),
                                              ChannelNoise("body_accel", s2, 2 * s2 ** 2 / fs, 0.1, (1.0, 2.0)))))
     return model, fit, recs, noise
+
+
+# ----------------------------------------------------------------------------- CPU per test file (tests/cpu_usage.py)
+_CPU: dict = {}
+_SESSION_START: list[float] = []
+
+
+def pytest_sessionstart(session):
+    import time
+
+    _SESSION_START.append(time.monotonic())
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """The test's setup, call and teardown (its module's fixtures with its first and last test) read around."""
+    from cpu_usage import add, usage
+
+    before = usage()
+    yield
+    add(_CPU, item.nodeid.split("::")[0].rsplit("/", 1)[-1], before, usage())
+
+
+def pytest_sessionfinish(session):
+    if hasattr(session.config, "workeroutput"):      # an xdist worker: its table goes to the controller
+        session.config.workeroutput["nifo_cpu"] = dict(_CPU)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error):
+    from cpu_usage import merge
+
+    merge(_CPU, getattr(node, "workeroutput", {}).get("nifo_cpu", {}))
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    import time
+
+    from cpu_usage import summary_lines
+
+    if not _CPU or not _SESSION_START or hasattr(config, "workeroutput"):
+        return
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    terminalreporter.write_sep("-", "CPU per test file (tests/cpu_usage.py)")
+    for line in summary_lines(_CPU, time.monotonic() - _SESSION_START[0], cores):
+        terminalreporter.write_line(line)
