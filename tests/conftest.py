@@ -65,6 +65,10 @@ def sigint_deliverable():
 #: ``python tests/durations.py LOG``). Used only to hand the longest files out first: ``./test.sh`` runs the files on
 #: every core (pytest-xdist, ``--dist loadfile``: a file's module fixtures are built once), and a long file taken
 #: last would leave the other cores idle while it runs.
+#: The order also decides what runs beside test_kill.py, a quarter of the suite's CPU. A refresh of 2026-11-28 put
+#: test_fleet_cluster.py (its Dask workers) fourth in line, where test_f16_loop.py was: the run took 616 s instead of
+#: 570 s and test_kill.py 264 CPU-s instead of 199 (one run each; the host's own spread is ±30 s). Compare whole runs
+#: before keeping a refresh (the CPU table at the end of each: tests/cpu_usage.py).
 _DURATIONS = Path(__file__).with_name("durations.json")
 
 
