@@ -65,7 +65,7 @@ def sigint_deliverable():
 #: ``python tests/durations.py LOG``). Used only to hand the longest files out first: ``./test.sh`` runs the files on
 #: every core (pytest-xdist, ``--dist loadfile``: a file's module fixtures are built once), and a long file taken
 #: last would leave the other cores idle while it runs.
-#: The order also decides what runs beside test_kill.py, a quarter of the suite's CPU. A refresh of 2026-11-28 put
+#: The order also decides what runs beside test_kill.py, a fifth to a quarter of the suite's CPU. A refresh of 2026-11-28 put
 #: test_fleet_cluster.py (its Dask workers) fourth in line, where test_f16_loop.py was: the run took 616 s instead of
 #: 570 s and test_kill.py 264 CPU-s instead of 199 (one run each; the host's own spread is ±30 s). Compare whole runs
 #: before keeping a refresh (the CPU table at the end of each: tests/cpu_usage.py).
@@ -133,7 +133,8 @@ def pytest_sessionstart(session):
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
-    """The test's setup, call and teardown (its module's fixtures with its first and last test) read around."""
+    """CPU and wall clock read before and after the test's setup, call and teardown (so a module's fixtures count
+    with its first and last test), added to its file's row."""
     from cpu_usage import add, usage
 
     before = usage()
