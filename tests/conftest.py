@@ -65,11 +65,16 @@ def sigint_deliverable():
 #: ``python tests/durations.py LOG``). Used only to hand the longest files out first: ``./test.sh`` runs the files on
 #: every core (pytest-xdist, ``--dist loadfile``: a file's module fixtures are built once), and a long file taken
 #: last would leave the other cores idle while it runs.
-#: The order also decides what runs beside test_kill.py, a fifth to a quarter of the suite's CPU. A refresh of 2026-11-28 put
-#: test_fleet_cluster.py (its Dask workers) fourth in line, where test_f16_loop.py was: the run took 616 s instead of
-#: 570 s and test_kill.py 264 CPU-s instead of 199 (one run each; the host's own spread is ±30 s). Compare whole runs
-#: before keeping a refresh (the CPU table at the end of each: tests/cpu_usage.py).
+#: The order also decides what runs beside test_kill.py, a fifth to a quarter of the suite's CPU. A refresh of
+#: 2026-11-28 put test_fleet_cluster.py (its Dask workers) fourth in line, where test_f16_loop.py was: the run took
+#: 616 s instead of 570 s and test_kill.py 264 CPU-s instead of 199 (one run each; the host's own spread is ±30 s).
+#: Compare whole runs before keeping a refresh (the CPU table at the end of each: tests/cpu_usage.py).
 _DURATIONS = Path(__file__).with_name("durations.json")
+
+
+def _file_of(nodeid: str) -> str:
+    """A test's file name, the key of durations.json and of the CPU table."""
+    return nodeid.split("::")[0].rsplit("/", 1)[-1]
 
 
 def pytest_collection_modifyitems(config, items):
@@ -81,8 +86,7 @@ def pytest_collection_modifyitems(config, items):
     typical = sorted(seconds.values())[len(seconds) // 2] if seconds else 0.0
     rank = {}
     for it in items:
-        f = it.nodeid.split("::")[0].rsplit("/", 1)[-1]
-        rank.setdefault(it.nodeid.split("::")[0], -seconds.get(f, typical))
+        rank.setdefault(it.nodeid.split("::")[0], -seconds.get(_file_of(it.nodeid), typical))
     items.sort(key=lambda it: rank[it.nodeid.split("::")[0]])   # stable: a file's tests keep their order
 
 
@@ -139,7 +143,7 @@ def pytest_runtest_protocol(item, nextitem):
 
     before = usage()
     yield
-    add(_CPU, item.nodeid.split("::")[0].rsplit("/", 1)[-1], before, usage())
+    add(_CPU, _file_of(item.nodeid), before, usage())
 
 
 def pytest_sessionfinish(session):

@@ -30,9 +30,7 @@ def usage() -> tuple[float, float, float]:
 
 def add(table: Table, key: str, before: tuple[float, float, float], after: tuple[float, float, float]) -> None:
     """Add the usage between two :func:`usage` readings to ``table[key]``."""
-    row = table.setdefault(key, [0.0, 0.0, 0.0])
-    for i in range(3):
-        row[i] += after[i] - before[i]
+    merge(table, {key: [a - b for a, b in zip(after, before)]})
 
 
 def merge(table: Table, other: Mapping[str, list[float]]) -> None:
