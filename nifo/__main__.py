@@ -23,12 +23,17 @@ def _keep_lost_interrupt(unraisable) -> None:
 sys.unraisablehook = _keep_lost_interrupt
 try:    # a Ctrl-C before nifo's handler is in (watch) arrives as Python's KeyboardInterrupt: here, not a traceback
     import atexit
+    import faulthandler
     import os
     import signal
     import threading
 
     from nifo.interrupt import by_interrupt, watch   # stdlib only: loaded before anything can be interrupted
 
+    try:   # a crash in native code (numba, LLVM, FreeType) says where: every thread's Python stack on stderr
+        faulthandler.enable()
+    except (AttributeError, ValueError, OSError):   # a stderr without a file descriptor (embedded): Python's default
+        pass
     if _lost_at_start:
         raise KeyboardInterrupt
 except KeyboardInterrupt:
