@@ -2,9 +2,11 @@
 
 Run: ``.venv/bin/python benchmarks/bench_predict.py [--duration S] [--fs HZ] [--oversample Q]``.
 Also a structure like the F-16's (rational order 30) with three plays, with constant coefficients and through
-feedback paths (:mod:`nifo_core.predict.feedback_paths`), the ratio printed; and, for these and the quarter car
-with every kind, the step as it runs (each row of the block-diagonal Φ two fixed products) against the same step
-looping over each row's band (the baseline, same run), bit for bit the same output; and for each quarter car,
+feedback paths (:mod:`nifo_core.predict.feedback_paths`), the ratio printed, and the path kernel with its
+number of terms compiled in against counted at run time (the baseline, same run), bit for bit; and, for these
+and the quarter car with every kind, the step as it runs (each row of the block-diagonal Φ two fixed products)
+against the same step looping over each row's band (the baseline, same run), bit for bit the same output; and
+for each quarter car,
 three models of one record (a forward-difference Jacobian's columns) marched together
 (:mod:`nifo_core.predict.timesim_lanes`) against one by one (the baseline, same run), bit for bit the same.
 Target: 300 s at 600 Hz predicted in less than 2 s after compilation (CPU
@@ -63,6 +65,34 @@ def _band_loop():
         yield
     finally:
         timesim._rows = rows
+
+
+@contextlib.contextmanager
+def _terms_at_run_time():
+    """Inside, the feedback-path kernel reads its number of terms at run time instead of having it compiled in
+    (:func:`nifo_core.predict.timesim._path_kernel`; the baseline)."""
+    from nifo_core.predict import timesim
+
+    unrolled = timesim.MAX_UNROLLED_TERMS
+    timesim.MAX_UNROLLED_TERMS = 0
+    try:
+        yield
+    finally:
+        timesim.MAX_UNROLLED_TERMS = unrolled
+
+
+def _against_terms_at_run_time(name: str, fn, repeats: int) -> None:
+    """CPU of ``fn`` (a prediction through feedback paths) as it runs and with the terms counted at run time, and
+    whether the outputs are identical."""
+    with _terms_at_run_time():
+        fn()                                   # compile or load that kernel: not timed
+        _, slow, ref = _timed(fn, repeats)
+    _, fast, out = _timed(fn, repeats)
+    same = all(np.array_equal(getattr(out, k), getattr(ref, k)) for k in ("z", "zdot", "body_accel"))
+    print(f"{name:<38} path kernel: terms compiled in {fast:6.3f} s CPU, counted at run time {slow:6.3f} s "
+          f"-> {slow / fast:.2f}x, output {'identical' if same else 'DIFFERENT'}")
+    if not same:
+        raise SystemExit(f"{name}: the two path kernels differ")
 
 
 def _against_band_loop(name: str, fn, repeats: int) -> None:
@@ -136,6 +166,8 @@ def _rational_cases(duration: float, fs: float, q, repeats: int):
     wp, cp, _ = _timed(lambda: predict_body(paths, a1, fs, oversample=q), repeats)
     _against_band_loop("rational order 30, constant γ", lambda: predict_body(const, a1, fs, oversample=q), repeats)
     _against_band_loop("rational order 30, feedback paths", lambda: predict_body(paths, a1, fs, oversample=q), repeats)
+    _against_terms_at_run_time("rational order 30, feedback paths", lambda: predict_body(paths, a1, fs, oversample=q),
+                               repeats)
     return wc, cc, wp, cp
 
 

@@ -266,9 +266,10 @@ MAX_UNROLLED_TERMS = 3
 def _path_kernel(paired: bool, terms: int):
     """The feedback-path step kernel for Φ's rows as two fixed products (``paired``) or their band's loop, with the
     number of terms a constant of the compiled code (``terms`` ≥ 1; 0: read from ``codes``), as ``paired`` is.
-    The loops over the terms inside the loops over the states are then unrolled: measured on the 17 path simulations
-    of ``nifo run`` on F-16 1/3/5/7 that a scratch script kept (22 states, one or two plays, 196 608 fine steps
-    each), 0.57-0.67 s → 0.39-0.41 s in all, every output the same to the last bit (the sums in the same order).
+    The loops over the terms inside the loops over the states are then unrolled, the sums in the same order: every
+    output the same to the last bit. Measured: on 17 path simulations that ``nifo run`` on F-16 1/3/5/7 ran (kept by
+    a scratch script; 22 states, one or two plays, 196 608 fine steps each) 0.50-0.63 s → 0.33-0.38 s in all;
+    ``benchmarks/bench_predict.py`` prints the ratio on a three-play model of rational order 30 (1.50 on 60 s).
     Made at first use: each count compiles (or loads from numba's cache) only where it runs."""
 
     @numba.njit(cache=True, nogil=True)
