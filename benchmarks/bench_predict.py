@@ -81,30 +81,29 @@ def _terms_at_run_time():
         timesim.MAX_UNROLLED_TERMS = unrolled
 
 
-def _against_terms_at_run_time(name: str, fn, repeats: int) -> None:
-    """CPU of ``fn`` (a prediction through feedback paths) as it runs and with the terms counted at run time, and
-    whether the outputs are identical."""
-    with _terms_at_run_time():
-        fn()                                   # compile or load that kernel: not timed
+def _against_baseline(name: str, fn, repeats: int, baseline, what: str, forms: tuple[str, str]) -> None:
+    """CPU of ``fn`` (a prediction) as it runs and inside the context ``baseline`` (the other form of ``what``), and
+    whether the outputs are identical: ``forms`` names the two."""
+    with baseline():
+        fn()                                   # compile or load the baseline's kernel: not timed
         _, slow, ref = _timed(fn, repeats)
     _, fast, out = _timed(fn, repeats)
     same = all(np.array_equal(getattr(out, k), getattr(ref, k)) for k in ("z", "zdot", "body_accel"))
-    print(f"{name:<38} path kernel: terms compiled in {fast:6.3f} s CPU, counted at run time {slow:6.3f} s "
+    print(f"{name:<38} {what}: {forms[0]} {fast:6.3f} s CPU, {forms[1]} {slow:6.3f} s "
           f"-> {slow / fast:.2f}x, output {'identical' if same else 'DIFFERENT'}")
     if not same:
-        raise SystemExit(f"{name}: the two path kernels differ")
+        raise SystemExit(f"{name}: the two forms of the {what} differ")
+
+
+def _against_terms_at_run_time(name: str, fn, repeats: int) -> None:
+    """A prediction through feedback paths with the path kernel's terms compiled in and counted at run time."""
+    _against_baseline(name, fn, repeats, _terms_at_run_time, "path kernel",
+                      ("terms compiled in", "counted at run time"))
 
 
 def _against_band_loop(name: str, fn, repeats: int) -> None:
-    """CPU of ``fn`` (a prediction) as it runs and with the band's loop, and whether the outputs are identical."""
-    _, fast, out = _timed(fn, repeats)
-    with _band_loop():
-        _, slow, ref = _timed(fn, repeats)
-    same = all(np.array_equal(getattr(out, k), getattr(ref, k)) for k in ("z", "zdot", "body_accel"))
-    print(f"{name:<38} step kernel: two products per row {fast:6.3f} s CPU, band loop {slow:6.3f} s "
-          f"-> {slow / fast:.2f}x, output {'identical' if same else 'DIFFERENT'}")
-    if not same:
-        raise SystemExit(f"{name}: the two step forms differ")
+    """A prediction with Φ's rows as two fixed products and as their band's loop."""
+    _against_baseline(name, fn, repeats, _band_loop, "step kernel", ("two products per row", "band loop"))
 
 
 def _columns(model: IdentifiedModel, lanes: int) -> list[IdentifiedModel]:

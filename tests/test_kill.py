@@ -239,17 +239,24 @@ sys.exit(entry())
 """
 
 
+def _identify_in_script(script: str, tmp: Path) -> tuple[subprocess.CompletedProcess, Path]:
+    """``nifo identify`` of the kill test's record with the damper-knee model, run by ``script`` (``python -c``) in a
+    process of its own; the finished process and the output folder it was given."""
+    data = _record(tmp)
+    model = tmp / "model.yaml"
+    model.write_text("nifo_model: 1\nnonlinearities:\n  - {kind: velocity_deadzone, params: {knee: 0.03}}\n")
+    out = tmp / "ident"
+    p = subprocess.run([sys.executable, "-c", script, "identify", str(data), "--model", str(model), "--out", str(out)],
+                       cwd=tmp, env=_env(), capture_output=True, text=True, timeout=300)
+    return p, out
+
+
 def test_a_crash_in_native_code_prints_where_every_thread_was(tmp_path):
     """A segmentation fault (a local suite run: nifo run exited -11 after a SIGTERM, stderr empty but for the
     resource tracker) says where it happened: nifo's entry enables faulthandler, which prints every thread's
     Python stack before the process dies of the signal. Here the process faults itself inside identify's reading
     of its data (a real command otherwise); without faulthandler its stderr holds nothing of it."""
-    data = _record(tmp_path)
-    model = tmp_path / "model.yaml"
-    model.write_text("nifo_model: 1\nnonlinearities:\n  - {kind: velocity_deadzone, params: {knee: 0.03}}\n")
-    out = tmp_path / "ident"
-    p = subprocess.run([sys.executable, "-c", _CRASH_WHILE_READING, "identify", str(data), "--model", str(model),
-                        "--out", str(out)], cwd=tmp_path, env=_env(), capture_output=True, text=True, timeout=300)
+    p, out = _identify_in_script(_CRASH_WHILE_READING, tmp_path)
     assert p.returncode == -signal.SIGSEGV, (p.returncode, p.stderr)
     assert "Fatal Python error: Segmentation fault" in p.stderr, p.stderr
     assert "(most recent call first)" in p.stderr and "in accumulate" in p.stderr, p.stderr
@@ -259,12 +266,7 @@ def test_a_crash_in_native_code_prints_where_every_thread_was(tmp_path):
 def test_identify_terminated_by_sigterm_exits_130_as_run_does(tmp_path):
     """Issue 26: nifo identify killed with SIGTERM while computing exited -15 (run: 130). The signal is sent by
     the process itself while it reads its data (a real identify otherwise), so the point is deterministic."""
-    data = _record(tmp_path)
-    model = tmp_path / "model.yaml"
-    model.write_text("nifo_model: 1\nnonlinearities:\n  - {kind: velocity_deadzone, params: {knee: 0.03}}\n")
-    out = tmp_path / "ident"
-    p = subprocess.run([sys.executable, "-c", _TERM_WHILE_READING, "identify", str(data), "--model", str(model),
-                        "--out", str(out)], cwd=tmp_path, env=_env(), capture_output=True, text=True, timeout=300)
+    p, out = _identify_in_script(_TERM_WHILE_READING, tmp_path)
     assert p.returncode == 130, (p.returncode, p.stderr)
     assert "interrupted; nothing was written" in p.stderr and "Traceback" not in p.stderr
     assert len(p.stderr.strip().splitlines()) == 1, p.stderr
