@@ -6,8 +6,7 @@ feedback paths (:mod:`nifo_core.predict.feedback_paths`), the ratio printed, and
 number of terms compiled in against counted at run time (the baseline, same run), bit for bit; and, for these
 and the quarter car with every kind, the step as it runs (each row of the block-diagonal Φ two fixed products)
 against the same step looping over each row's band (the baseline, same run), bit for bit the same output; and
-for each quarter car,
-three models of one record (a forward-difference Jacobian's columns) marched together
+for each quarter car, three models of one record (a forward-difference Jacobian's columns) marched together
 (:mod:`nifo_core.predict.timesim_lanes`) against one by one (the baseline, same run), bit for bit the same.
 Target: 300 s at 600 Hz predicted in less than 2 s after compilation (CPU
 time of the process; the wall time is printed beside it, with the load). Each

@@ -30,7 +30,7 @@ try:    # a Ctrl-C before nifo's handler is in (watch) arrives as Python's Keybo
 
     from nifo.interrupt import by_interrupt, watch   # stdlib only: loaded before anything can be interrupted
 
-    try:   # a crash in native code (numba, LLVM, FreeType) says where: every thread's Python stack on stderr
+    try:   # a crash in native code of this process (numba, LLVM) says where: every thread's Python stack on stderr
         faulthandler.enable()
     except (AttributeError, ValueError, OSError):   # a stderr without a file descriptor (embedded): Python's default
         pass
