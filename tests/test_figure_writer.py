@@ -295,3 +295,26 @@ def test_a_script_without_a_main_guard_is_not_run_again_by_the_helpers(tmp_path)
     assert p.stdout.strip() == "2"                                   # two helpers rendered
     assert len(runs.read_text().split()) == 1, runs.read_text()     # the script ran once (3 times before)
     assert (tmp_path / "fig.png").is_file() and (tmp_path / "fig.svg").is_file()
+
+
+_CRASH_IN_A_HELPER = """
+import faulthandler
+from concurrent.futures.process import BrokenProcessPool
+from nifo.plots import writer
+
+try:   # a fault in the helper's native code (Agg, FreeType, the PNG encoder), as a figure's rendering could have
+    writer._get_pool().submit(faulthandler._sigsegv).result(timeout=120)
+except BrokenProcessPool:
+    print("the pool is broken")
+"""
+
+
+def test_a_helper_that_crashes_in_native_code_prints_where_it_was():
+    """A helper that dies of SIGSEGV was only a broken pool (its figure rendered again by the step): its stderr,
+    which is the step's, now carries the crash and the helper's stack, as the step's own process does."""
+    env = {**os.environ, writer.WORKERS_ENV: "1", "PYTHONPATH": str(ROOT)}
+    p = subprocess.run([sys.executable, "-c", _CRASH_IN_A_HELPER], env=env, capture_output=True, text=True,
+                       timeout=180)
+    assert p.returncode == 0 and p.stdout.strip() == "the pool is broken", (p.returncode, p.stdout, p.stderr)
+    assert "Fatal Python error: Segmentation fault" in p.stderr, p.stderr
+    assert "_process_worker" in p.stderr, p.stderr     # the helper's stack: concurrent.futures' worker loop

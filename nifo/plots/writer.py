@@ -146,8 +146,10 @@ def _die_with_parent() -> None:
 
 
 def _helper_init(parent: int) -> None:
-    """A helper: Ctrl-C is the step's to handle; gone with its parent; matplotlib on Agg, imported now."""
+    """A helper: Ctrl-C is the step's to handle; gone with its parent; a crash says where; matplotlib on Agg,
+    imported now."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _crash_says_where()
     _die_with_parent()
     if os.getppid() != parent:       # the parent died before the line above
         os._exit(0)
@@ -155,6 +157,16 @@ def _helper_init(parent: int) -> None:
     from nifo.plots import pyplot
 
     pyplot()
+
+
+def _crash_says_where() -> None:
+    """A crash in this helper's native code (Agg, FreeType, the PNG encoder) prints its Python stack on the
+    stderr it shares with the step, as the step's own process does (``nifo.__main__``): without it a helper that
+    dies of SIGSEGV is only a broken pool, its figure rendered again by the step, and nobody learns where."""
+    import faulthandler
+
+    with contextlib.suppress(AttributeError, ValueError, OSError):   # a stderr without a file descriptor
+        faulthandler.enable()
 
 
 def _warm() -> None:
