@@ -23,17 +23,13 @@ def _keep_lost_interrupt(unraisable) -> None:
 sys.unraisablehook = _keep_lost_interrupt
 try:    # a Ctrl-C before nifo's handler is in (watch) arrives as Python's KeyboardInterrupt: here, not a traceback
     import atexit
-    import faulthandler
     import os
     import signal
     import threading
 
-    from nifo.interrupt import by_interrupt, watch   # stdlib only: loaded before anything can be interrupted
+    from nifo.interrupt import by_interrupt, crash_stacks, watch   # stdlib only: loaded before anything can be cut
 
-    try:   # a crash in native code of this process (numba, LLVM) says where: every thread's Python stack on stderr
-        faulthandler.enable()
-    except (AttributeError, ValueError, OSError):   # a stderr without a file descriptor (embedded): Python's default
-        pass
+    crash_stacks()   # a crash in native code of this process (numba, LLVM) says where
     if _lost_at_start:
         raise KeyboardInterrupt
 except KeyboardInterrupt:

@@ -4,6 +4,8 @@
   process remembers that it was signalled.
 - :func:`term_as_interrupt` (around a command, around an output's writing): SIGTERM ends the work as Ctrl-C does.
 - :func:`signals_held` (around what must not be cut in the middle): SIGINT and SIGTERM wait until the block is done.
+- :func:`crash_stacks` (start of the command's process and of each figure helper): a crash in native code (numba,
+  LLVM, Agg, FreeType) prints every thread's Python stack on stderr before the process dies of the signal.
 - :func:`by_interrupt`: whether an error is an interruption. An interrupt that lands inside a library can
   surface as another error raised from it: matplotlib's savefig (AttributeError in restore_bbox), or a class
   being created during an import (dataclasses' ``__set_name__``: RuntimeError, with the KeyboardInterrupt as its
@@ -24,7 +26,7 @@ import signal
 import threading
 from collections.abc import Iterator   # loaded with the interpreter; typing is not (4 ms of start-up)
 
-__all__ = ["watch", "term_as_interrupt", "signals_held", "by_interrupt"]
+__all__ = ["watch", "term_as_interrupt", "signals_held", "by_interrupt", "crash_stacks"]
 
 _signalled = False
 
@@ -37,6 +39,16 @@ def _note() -> None:
 def _on_int(signum, frame):  # noqa: ARG001
     _note()
     raise KeyboardInterrupt
+
+
+def crash_stacks() -> None:
+    """A segmentation fault (or another fatal signal) in native code prints every thread's Python stack on stderr,
+    then the process dies of it as before (:mod:`faulthandler`). A stderr without a file descriptor (embedded use)
+    keeps Python's default."""
+    import faulthandler
+
+    with contextlib.suppress(AttributeError, ValueError, OSError):
+        faulthandler.enable()
 
 
 def watch() -> None:

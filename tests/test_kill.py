@@ -39,6 +39,8 @@ KILLS = int(os.environ.get("NIFO_KILLS", 20))   # the acceptance: 20 kills of ea
 #: how Python reports an interrupt while it is still starting up (importing site), before it runs any module
 INTERPRETER_STARTING = "Fatal Python error: init_import_site"
 SEED = 14
+#: the preset's strut (paper Fig. 12a): a damper knee
+KNEE_MODEL = "nifo_model: 1\nnonlinearities:\n  - {kind: velocity_deadzone, params: {knee: 0.03}}\n"
 
 
 def _env() -> dict:
@@ -140,8 +142,8 @@ def test_run_and_identify_killed_at_random_points_leave_old_new_or_marked_output
     from concurrent.futures import ThreadPoolExecutor
 
     data = _record(tmp_path)
-    model = tmp_path / "model.yaml"   # the preset's strut: a damper knee (paper Fig. 12a)
-    model.write_text("nifo_model: 1\nnonlinearities:\n  - {kind: velocity_deadzone, params: {knee: 0.03}}\n")
+    model = tmp_path / "model.yaml"
+    model.write_text(KNEE_MODEL)
     # one record, without the loop and the refinement (their writing is the same atomic swap as the steps left):
     # the kills spread over a run of ~15 s rather than a minute
     run_argv = ["run", str(data), "--no-loop", "--no-refine", "--no-recording", "--out", str(tmp_path / "res")]
@@ -207,7 +209,7 @@ def test_a_command_that_returns_ends_without_the_interpreter_teardown_interrupte
     itself (``--version``) exits as Python does, its module globals finalized."""
     data = _record(tmp_path)
     model = tmp_path / "model.yaml"
-    model.write_text("nifo_model: 1\nnonlinearities:\n  - {kind: velocity_deadzone, params: {knee: 0.03}}\n")
+    model.write_text(KNEE_MODEL)
 
     def nifo(*argv: str) -> subprocess.CompletedProcess:
         return subprocess.run([sys.executable, "-c", _TEARDOWN, *argv], cwd=tmp_path, env=_env(), capture_output=True,
@@ -244,7 +246,7 @@ def _identify_in_script(script: str, tmp: Path) -> tuple[subprocess.CompletedPro
     process of its own; the finished process and the output folder it was given."""
     data = _record(tmp)
     model = tmp / "model.yaml"
-    model.write_text("nifo_model: 1\nnonlinearities:\n  - {kind: velocity_deadzone, params: {knee: 0.03}}\n")
+    model.write_text(KNEE_MODEL)
     out = tmp / "ident"
     p = subprocess.run([sys.executable, "-c", script, "identify", str(data), "--model", str(model), "--out", str(out)],
                        cwd=tmp, env=_env(), capture_output=True, text=True, timeout=300)

@@ -42,7 +42,7 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Iterator, Sequence
 
-from nifo.interrupt import by_interrupt, signals_held
+from nifo.interrupt import by_interrupt, crash_stacks, signals_held
 
 __all__ = ["figure_batch", "deferred_figures", "wait_figures", "submit_figure", "write_files", "figure_workers",
            "start_helpers", "abandon_helpers"]
@@ -149,7 +149,7 @@ def _helper_init(parent: int) -> None:
     """A helper: Ctrl-C is the step's to handle; gone with its parent; a crash says where; matplotlib on Agg,
     imported now."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _crash_says_where()
+    crash_stacks()   # Agg, FreeType, the PNG encoder: the stack on the stderr it shares with the step
     _die_with_parent()
     if os.getppid() != parent:       # the parent died before the line above
         os._exit(0)
@@ -157,16 +157,6 @@ def _helper_init(parent: int) -> None:
     from nifo.plots import pyplot
 
     pyplot()
-
-
-def _crash_says_where() -> None:
-    """A crash in this helper's native code (Agg, FreeType, the PNG encoder) prints its Python stack on the
-    stderr it shares with the step, as the step's own process does (``nifo.__main__``): without it a helper that
-    dies of SIGSEGV is only a broken pool, its figure rendered again by the step, and nobody learns where."""
-    import faulthandler
-
-    with contextlib.suppress(AttributeError, ValueError, OSError):   # a stderr without a file descriptor
-        faulthandler.enable()
 
 
 def _warm() -> None:
