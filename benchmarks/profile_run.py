@@ -150,6 +150,7 @@ class FloorProfile:
 
     def __init__(self) -> None:
         self.profiles: dict[int, cProfile.Profile] = {}
+        self.profile: cProfile.Profile | None = None   # this thread's, once entered
         self.rendering_s = 0.0
         self._lock = threading.Lock()
         self._real_write = None
