@@ -33,7 +33,7 @@ import threading
 import time
 from pathlib import Path
 
-from profile_run import F16_COLUMNS, F16_DIR, F16_LEVELS
+from profile_run import F16_COLUMNS, cores, job_options
 
 ROOT = Path(__file__).resolve().parents[1]
 _TICK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
@@ -62,7 +62,7 @@ def _command(args: argparse.Namespace) -> list[str]:
     if args.nifo:
         return [*base, *args.nifo]
     if args.f16:
-        data = [str(F16_DIR.resolve() / f"F16Data_FullMSine_Level{k}.mat") for k in F16_LEVELS]
+        data = [str(p) for p in job_options(f16=True, out=args.out).data]
         return [*base, "run", *data, "--columns", F16_COLUMNS, "--out", str(args.out)]
     return [*base, "run", "--out", str(args.out)]
 
@@ -130,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     if not Path("/proc/self/stat").exists():
         print("cpu_timeline: needs Linux's /proc", file=sys.stderr)
         return 2
-    cores = len(os.sched_getaffinity(0))
+    n_cores = cores()
     rows, marks, code = timeline(_command(args), args.interval)
     mi = 0
     for t, own, hel in rows:
@@ -141,10 +141,10 @@ def main(argv: list[str] | None = None) -> int:
     for t, text in marks[mi:]:
         print(f"        {t:6.1f} s  {text[:90]}")
     end = rows[-1][0] if rows else 0.0
-    print(f"\n{cores} core(s); exit code {code}")
+    print(f"\n{n_cores} core(s); exit code {code}")
     print(f"{'step':<62} {'wall s':>7} {'CPU s':>7} {'idle core-s':>11}")
     total = [0.0, 0.0, 0.0]
-    for name, wall, cpu, idle in _steps(rows, marks, cores, end):
+    for name, wall, cpu, idle in _steps(rows, marks, n_cores, end):
         print(f"{name:<62} {wall:7.1f} {cpu:7.1f} {idle:11.1f}")
         total = [total[0] + wall, total[1] + cpu, total[2] + idle]
     print(f"{'all':<62} {total[0]:7.1f} {total[1]:7.1f} {total[2]:11.1f}")

@@ -55,6 +55,11 @@ F16_LEVELS = (1, 3, 5, 7)
 F16_COLUMNS = "spindle_accel=Acceleration[1],body_accel=Acceleration[2],fs=Fs"
 
 
+def cores() -> int:
+    """The cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def job_options(*, f16: bool, out: Path) -> RunOptions:
     """The main job's options: the bundled sample, or the F-16 multisine levels 1/3/5/7."""
     if not f16:
@@ -215,9 +220,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--save", type=Path, help="write the raw profile here")
     ap.add_argument("--floor", action="store_true",
                     help="one thread, figures in this process; own time by what runs and the floor on this machine")
-    argv = sys.argv[1:] if argv is None else list(argv)
-    command = argv[argv.index("--") + 1:] if "--" in argv else None
-    args = ap.parse_args(argv[:argv.index("--")] if command is not None else argv)
+    ap.add_argument("nifo", nargs="*", help="after --: any nifo command line instead (e.g. -- loop A B --out D)")
+    args = ap.parse_args(argv)
+    command = args.nifo or None
     floor = FloorProfile() if args.floor else None
     if floor is not None:
         os.environ.update({"NIFO_THREADS": "1", "NIFO_FIGURE_WORKERS": "0"})
@@ -249,9 +254,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\ntop {args.top} by cumulative time (this thread):\n" + _table(prof, "cumulative", args.top))
     print(f"top {args.top} by own time (this thread):\n" + _table(prof, "tottime", args.top))
     if floor is not None:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
         kinds = own_time_by_kind(floor.stats(), numba_kernels(), floor.rendering_s)
-        print("\n".join(floor_lines(kinds, cores)))
+        print("\n".join(floor_lines(kinds, cores())))
     if args.save:
         (floor.stats() if floor is not None else pstats.Stats(prof)).dump_stats(str(args.save))   # every thread's
         print(f"profile written to {args.save}")
