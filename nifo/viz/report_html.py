@@ -294,16 +294,22 @@ def _predict(r: ResultDir) -> tuple[dict, list]:
     rows, glance = [], []
     for rec in r.doc.get("records", []):
         m, li = rec.get("model", {}), rec.get("linear", {})
-        nm = _num(m.get("nmse_percent"), ".2f") + " %"
-        better = (m.get("nmse_percent") is not None and li.get("nmse_percent") is not None
-                  and m["nmse_percent"] < li["nmse_percent"])
+        wm, wl = (x.get("whole_signal") or {} for x in (m, li))
+        unit = (rec.get("output") or {}).get("unit", "")
+        rm = _num(wm.get("rms_error"), ".4g") + f" {unit}"
+        nm = _num(wm.get("nmse_percent"), ".3g") + " %"
+        better = (wm.get("rms_error") is not None and wl.get("rms_error") is not None
+                  and wm["rms_error"] < wl["rms_error"])
+        name = rec.get("name")
+        if (rec.get("validity") or {}).get("outside"):
+            name = Markup('{}<br><small>not validated: {}</small>').format(name, rec["validity"].get("message", ""))
         bm, bl = (x.get("band_nmse") or {} for x in (m, li))
         pb = m.get("parameter_bounds") or {}
         band = _num(bm.get("percent"), ".3g") + " %" if bm.get("percent") is not None else "not computed"
         if pb.get("available") and bm.get("percent") is not None:
             band += f" ± {_num(pb.get('band_nmse_half_width_pct'), '.2g')}"
-        rows.append([rec.get("name"), Markup('<span class="good">{}</span>').format(nm) if better else nm,
-                     _num(li.get("nmse_percent"), ".2f") + " %", band,
+        rows.append([name, Markup('<span class="good">{}</span>').format(rm) if better else rm,
+                     _num(wl.get("rms_error"), ".4g") + f" {unit}", nm, _num(wl.get("nmse_percent"), ".3g") + " %", band,
                      _num(bl.get("percent"), ".3g") + " %" if bl.get("percent") is not None else "not computed",
                      _pct((m.get("transmissibility_error") or {}).get("median")),
                      _pct((li.get("transmissibility_error") or {}).get("median")),
