@@ -24,7 +24,8 @@
     provenance: data files, model file, identify settings; files without
     ``linear_part`` are read with the body as linear part), plus ``linear_h1``: the plain-H1 model at the
     identification level (the equivalent linearisation) that ``nifo predict``
-    compares against. :func:`read_model` returns both.
+    compares against. :func:`read_model` returns both. ``validity.strut_range``: the lowest and highest deflection
+    [m] and velocity [m/s] of the identification records (the force law's measured range).
 """
 
 from __future__ import annotations
@@ -175,19 +176,24 @@ def read_identify(path: str | os.PathLike) -> tuple[NifoResult, dict]:
         raise err.with_context(source=str(p)) from None
 
 
-def model_document(model: IdentifiedModel, *, linear: IdentifiedModel | None = None) -> dict:
-    """``model.json``: the model's dict plus the plain-H1 ``linear_h1`` model to compare against."""
+def model_document(model: IdentifiedModel, *, linear: IdentifiedModel | None = None,
+                   strut_range: Mapping | None = None) -> dict:
+    """``model.json``: the model's dict plus the plain-H1 ``linear_h1`` model to compare against, and the strut's
+    measured range (``validity.strut_range``: deflection [m] and velocity [m/s], lowest and highest, from
+    :func:`nifo_core.predict.force_law.motion_range`) where the writer measured it."""
     doc = model.to_dict()
     doc["nifo_version"] = __version__
     if linear is not None:
         doc["linear_h1"] = linear.to_dict()
+    if strut_range is not None:
+        doc["validity"] = {**(doc.get("validity") or {}), "strut_range": dict(strut_range)}
     return doc
 
 
 def write_model(path: str | os.PathLike, model: IdentifiedModel, *, linear: IdentifiedModel | None = None,
-                atomic: bool = True) -> Path:
+                atomic: bool = True, strut_range: Mapping | None = None) -> Path:
     """Write ``model.json`` (see :func:`model_document`)."""
-    return write_json(path, model_document(model, linear=linear), atomic=atomic)
+    return write_json(path, model_document(model, linear=linear, strut_range=strut_range), atomic=atomic)
 
 
 # -----------------------------------------------------------------------------

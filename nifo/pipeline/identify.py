@@ -28,6 +28,7 @@ from nifo_core.errors import (ConfigError, IllConditionedError, InputError, Nifo
                               SampleRateError)
 from nifo_core.signal.frf import h1
 from nifo_core.signal.integrate import default_band
+from nifo_core.predict.force_law import motion_range
 from nifo_core.predict.linear_part import RecordLines
 from nifo_core.predict.model import IdentifiedModel
 from nifo_core.nifo.identify import IllConditionedWarning, StreamingNifo, identify_two_step
@@ -403,7 +404,7 @@ def run_identify(args: IdentifyOptions) -> dict:
                     linear = linear_refinement.model
             if linear_refinement is not None:
                 summary["refinement"]["linear"] = linear_refinement.to_dict()
-    prov = {"data": data, "model_file": str(args.model), "settings": _settings_doc(cfg, res)}
+    prov = {"data": data, "model_file": str(args.model), "settings": _settings_doc(cfg, res), "system": system_of(args)}
     settings_doc = _settings_doc(cfg, res)
     model_file = {"path": str(args.model), "steps": [{"name": s.name, "terms": [t.to_dict() for t in s.terms]}
                                                     for s in spec.steps]}
@@ -413,12 +414,13 @@ def run_identify(args: IdentifyOptions) -> dict:
                                                          system=system_of(args))
         doc = identify_document(res, data=data, summary=summary, warnings=warn, settings=settings_doc,
                                 model_file=model_file, figures=figures)
-        doc.update(input=input_provenance(args), system=system_of(args), noise=_noise_doc(data, opts))
+        noise, strut = _record_facts(data, opts, res.band)
+        doc.update(input=input_provenance(args), system=system_of(args), noise=noise)
         write_json(tmp / IDENTIFY_JSON, doc, atomic=False)
         if model is not None:
             model = replace(model, provenance={**dict(model.provenance), **prov})
             linear = replace(linear, provenance={**dict(linear.provenance), **prov})
-            write_model(tmp / MODEL_JSON, model, linear=linear, atomic=False)
+            write_model(tmp / MODEL_JSON, model, linear=linear, atomic=False, strut_range=strut)
     print(format_summary(summary, warn, out=args.out, files=files, model_written=model is not None))
     _print_fits(paths, refinement, summary, check if refinement is not None else None)
     return {"out": str(args.out), "model_written": model is not None, "figures": figures, "warnings": warn,
@@ -444,19 +446,32 @@ def _print_fits(paths, refinement, summary: dict, check) -> None:
         print(check.message)
 
 
-def _noise_doc(data, opts) -> list[dict]:
+def _record_facts(data, opts, band) -> tuple[list[dict], dict | None]:
     """Each record's sensor noise per channel (:mod:`nifo_core.signal.noise`): what may bias the fit (errors in
-    variables), read off its spectra. A file that cannot be read again gives its reason."""
+    variables), read off its spectra; and the strut's measured range over the records (model.json's
+    ``validity.strut_range``: :func:`~nifo_core.predict.force_law.motion_range`), from one read of each file. A file
+    that cannot be read again gives its reason."""
     from nifo.io.loader import load_record
     from nifo_core.signal.noise import estimate_noise
 
-    out = []
-    for d in _entries(data):
-        try:
-            out.append(estimate_noise(load_record(d["path"], **opts)).to_dict())
-        except NifoError as err:
-            out.append({"source": d.get("name"), "available": False, "unavailable": err.message, "channels": []})
-    return out
+    noise = []
+
+    def records():
+        for d in _entries(data):
+            try:
+                rec = load_record(d["path"], **opts)
+                noise.append(estimate_noise(rec).to_dict())
+            except NifoError as err:
+                noise.append({"source": d.get("name"), "available": False, "unavailable": err.message,
+                              "channels": []})
+                continue
+            yield rec
+
+    try:
+        strut = motion_range(records(), band)
+    except NifoError:
+        strut = None
+    return noise, strut
 
 
 def _entries(data) -> list[dict]:
