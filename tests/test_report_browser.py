@@ -162,6 +162,7 @@ def test_the_check_for_repeated_tables_finds_a_table_printed_twice(chromium, sam
     table = html[html.index("<table>", noise):html.index("</table>", noise) + len("</table>")]
     doubled = tmp_path / "doubled.html"
     doubled.write_text(html.replace(table, table + table, 1))
+    (tmp_path / "r").mkdir()
     seen, _ = _render(chromium, doubled, tmp_path / "r")
     assert [b for b in repeated(seen["blocks"]) if "% of its RMS" in b or "%" in b]
 
