@@ -27,7 +27,8 @@
     provenance: data files, model file, identify settings; files without
     ``linear_part`` are read with the body as linear part), plus ``linear_h1``: the plain-H1 model at the
     identification level (the equivalent linearisation) that ``nifo predict``
-    compares against. :func:`read_model` returns both.
+    compares against. :func:`read_model` returns both. ``validity.strut_range``: the lowest and highest deflection
+    [m] and velocity [m/s] of the identification records (the force law's measured range).
 """
 
 from __future__ import annotations

@@ -407,7 +407,7 @@ def run_identify(args: IdentifyOptions) -> dict:
         model, linear = with_scope(model, linear, opts, [d["path"] for d in _entries(data)])
         summary["prediction_band"] = model.prediction_band.to_dict()
         summary["offsets"] = model.offsets.to_dict()
-    prov = {"data": data, "model_file": str(args.model), "settings": _settings_doc(cfg, res)}
+    prov = {"data": data, "model_file": str(args.model), "settings": _settings_doc(cfg, res), "system": system_of(args)}
     settings_doc = _settings_doc(cfg, res)
     model_file = {"path": str(args.model), "steps": [{"name": s.name, "terms": [t.to_dict() for t in s.terms]}
                                                     for s in spec.steps]}

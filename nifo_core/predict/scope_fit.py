@@ -10,7 +10,8 @@
    NMSE by at least :data:`BAND_GAIN` — a limit costs what the data show outside the band, so it has to earn its place;
 3. the output offset from the whole records (after their transients) with the band chosen: ȳ - ȳ_dynamics (the
    body acceleration's common mode, the spindle's mean, passes one to one and is not part of it);
-4. the validity: the analysis band and the driving input's RMS and peak over the records.
+4. the validity: the analysis band and the driving input's RMS and peak over the records, and the strut's measured
+   range of deflection and velocity (:func:`~nifo_core.predict.force_law.motion_range`).
 
 Two simulations of every record.
 """
@@ -22,6 +23,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import NifoError
+from .force_law import motion_range
 from .heldout import HeldOut
 from .model import IdentifiedModel, predict_body, record_inputs
 from .output_signal import common_mode, dynamic_output, measured_output, output_name
@@ -127,7 +129,10 @@ def fit_scope(model: IdentifiedModel, held: HeldOut, *, choose_band: bool = True
     drive = input_name(recs[0], model.force_gain)
     inputs = [(np.asarray(r.force if drive == "force" else r.spindle_accel, float))[s:]
               for r, s in zip(recs, held.skip)]
-    validity = Validity.of_inputs(inputs, [r.fs_hz for r in recs], band, input_name=drive,
-                                  strut_range=model.validity.strut_range if model.validity is not None else None)
+    try:
+        strut = motion_range([r.slice(s, r.n) for r, s in zip(recs, held.skip)], model.band)
+    except NifoError:     # no record longer than the integrator's start-up edges: no measured range to state
+        strut = None
+    validity = Validity.of_inputs(inputs, [r.fs_hz for r in recs], band, input_name=drive, strut_range=strut)
     return replace(base, offsets=Offsets(force=u0, output=y0, output_name=name, how=how), prediction_band=pb,
                    validity=validity)
