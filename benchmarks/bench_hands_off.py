@@ -168,7 +168,7 @@ def figure(doc: dict, path: Path) -> None:
                                               ("linear", "linear, same levels and settings", "C7"),
                                               ("expert_linear", "linear, an expert's settings", "C1")]):
         ax.bar(x + (i - 1) * 0.27, [v[key] for _, v in cases], 0.27, label=label, color=colour)
-    ax.set_xticks(x, [c for c, _ in cases], fontsize=7)
+    ax.set_xticks(x, [c for c, _ in cases], fontsize=7, rotation=35, ha="right")
     ax.set_yscale("log")
     ax.set_ylabel("held-out band NMSE of ẍ₂ [%]")
     ax.set_title("F-16 GVT: band NMSE, held-out level")
@@ -177,7 +177,7 @@ def figure(doc: dict, path: Path) -> None:
     for i, (key, label, colour) in enumerate([("rms_model", "nifo run (final model)", "C0"),
                                               ("rms_linear", "linear, same levels and settings", "C7")]):
         wx.bar(x + (i - 0.5) * 0.4, [v[key] for _, v in cases], 0.4, label=label, color=colour)
-    wx.set_xticks(x, [c for c, _ in cases], fontsize=7)
+    wx.set_xticks(x, [c for c, _ in cases], fontsize=7, rotation=35, ha="right")
     wx.set_yscale("log")
     wx.set_ylabel("held-out RMS error of ẍ₂, all frequencies [m/s²]")
     wx.set_title("F-16 GVT: the whole signal, offset included")
@@ -190,6 +190,7 @@ def figure(doc: dict, path: Path) -> None:
         bx.plot([run["level"]], [1e3 * run["predicted"][next(n for n in run["predicted"] if _mv(n) == run["level"])]
                 ["rms_model"]], "s", color=f"C{k}", ms=9, mfc="none")
     bx.set_xscale("log")
+    bx.set_yscale("log")
     bx.set_xlabel("level predicted [mV RMS input]")
     bx.set_ylabel("raw RMS error of y, offset included [mV]")
     bx.set_title("Silverbox: every level from one (□ identified)")
