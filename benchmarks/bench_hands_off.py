@@ -164,25 +164,23 @@ def figure(doc: dict, path: Path) -> None:
     sbs = doc["silverbox"] if isinstance(doc["silverbox"], list) else [doc["silverbox"]]
     fig, (ax, wx, bx) = plt.subplots(1, 3, figsize=(15, 4.4), gridspec_kw={"width_ratios": [len(cases), len(cases), 6]})
     x = np.arange(len(cases))
-    for i, (key, label, colour) in enumerate([("model", "nifo run (final model)", "C0"),
-                                              ("linear", "linear, same levels and settings", "C7"),
-                                              ("expert_linear", "linear, an expert's settings", "C1")]):
-        ax.bar(x + (i - 1) * 0.27, [v[key] for _, v in cases], 0.27, label=label, color=colour)
-    ax.set_xticks(x, [c for c, _ in cases], fontsize=7, rotation=35, ha="right")
-    ax.set_yscale("log")
-    ax.set_ylabel("held-out band NMSE of ẍ₂ [%]")
-    ax.set_title("F-16 GVT: band NMSE, held-out level")
-    ax.legend(fontsize=7, loc="upper left")
-    ax.grid(axis="y", which="both", alpha=0.3)
-    for i, (key, label, colour) in enumerate([("rms_model", "nifo run (final model)", "C0"),
-                                              ("rms_linear", "linear, same levels and settings", "C7")]):
-        wx.bar(x + (i - 0.5) * 0.4, [v[key] for _, v in cases], 0.4, label=label, color=colour)
-    wx.set_xticks(x, [c for c, _ in cases], fontsize=7, rotation=35, ha="right")
-    wx.set_yscale("log")
-    wx.set_ylabel("held-out RMS error of ẍ₂, all frequencies [m/s²]")
-    wx.set_title("F-16 GVT: the whole signal, offset included")
-    wx.legend(fontsize=7, loc="upper left")
-    wx.grid(axis="y", which="both", alpha=0.3)
+    def bars(axis, series, ylabel, title):
+        width = 0.8 / len(series)
+        for i, (key, label, colour) in enumerate(series):
+            axis.bar(x + (i - (len(series) - 1) / 2) * width, [v[key] for _, v in cases], width, label=label,
+                     color=colour)
+        axis.set_xticks(x, [c for c, _ in cases], fontsize=7, rotation=35, ha="right")
+        axis.set_yscale("log")
+        axis.set_ylabel(ylabel)
+        axis.set_title(title)
+        axis.legend(fontsize=7, loc="upper left")
+        axis.grid(axis="y", which="both", alpha=0.3)
+
+    final, same = ("nifo run (final model)", "C0"), ("linear, same levels and settings", "C7")
+    bars(ax, [("model", *final), ("linear", *same), ("expert_linear", "linear, an expert's settings", "C1")],
+         "held-out band NMSE of ẍ₂ [%]", "F-16 GVT: band NMSE, held-out level")
+    bars(wx, [("rms_model", *final), ("rms_linear", *same)], "held-out RMS error of ẍ₂, all frequencies [m/s²]",
+         "F-16 GVT: the whole signal, offset included")
     for k, run in enumerate(sbs):
         pts = sorted(run["predicted"].items(), key=lambda kv: _mv(kv[0]))
         bx.plot([_mv(n) for n, _ in pts], [1e3 * v["rms_model"] for _, v in pts], "o-", color=f"C{k}",
