@@ -111,6 +111,8 @@ def _loop_facts(loop: ResultDir | None) -> str:
         text += "; nothing significant is missing"
     elif verdict.startswith("The model class"):
         text += "; " + verdict.split(":")[0]
+    elif not d.get("nothing_missing", True):     # the verdict names what these data cannot pin or tell apart
+        text += "; not everything could be told apart (see the loop's verdict)"
     return text + "."
 
 
