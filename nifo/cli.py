@@ -97,7 +97,7 @@ def build_parser(only: str | None = None, *, summary: bool = False) -> argparse.
                             formatter_class=argparse.RawDescriptionHelpFormatter)
         mod.add_arguments(sp)
         add_common_arguments(sp)
-        sp.set_defaults(_run=mod.run)
+        sp.set_defaults(_run=mod.run, _output=getattr(mod, "OUTPUT", None))
     return p
 
 
@@ -146,6 +146,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "_run", None):
         parser.print_help()
         return 0
+    from nifo.io.lock import output_lock
     from nifo.io.ownership import set_invocation
     from nifo.progress import configure
 
@@ -154,8 +155,11 @@ def main(argv: list[str] | None = None) -> int:
     # --json: stdout carries the JSON document only (the commands' text goes to stderr); --quiet: no text
     target = io.StringIO() if args.quiet else (sys.stderr if args.json else None)
     summary, err, code = None, None, 0
+    # one writer per output: the output is locked for the whole command, so a second command on it is refused at
+    # once (nifo.io.lock) rather than after its work
+    output = getattr(args, args._output, None) if getattr(args, "_output", None) else None
     try:
-        with term_as_interrupt(), \
+        with term_as_interrupt(), output_lock(output), \
                 contextlib.redirect_stdout(target) if target is not None else contextlib.nullcontext():
             result = args._run(args)
         if isinstance(result, dict):

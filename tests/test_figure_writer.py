@@ -14,6 +14,7 @@ import pytest
 
 from nifo.plots import pyplot, save_figure
 from nifo.plots import writer
+from nifo.io.results import write_json
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -162,7 +163,7 @@ def test_inside_a_run_a_step_does_not_wait_for_its_figures_and_the_run_lists_the
             t = time.monotonic()
         assert time.monotonic() - t < 1.0 and not (run / "step" / "slow.svg").exists()   # still rendering
         with staged_dir(run / "next") as here:
-            (here / "result.json").write_text("{}")
+            write_json(here / "result.json", {}, atomic=False)
         writer.wait_figures()
         assert (run / "step" / "slow.png").stat().st_size > 1000 and (run / "step" / "slow.svg").is_file()
     assert foreign_entries(out / "step") == [] and foreign_entries(out) == []

@@ -10,7 +10,7 @@ import sys
 import pytest
 
 from nifo.io import atomic
-from nifo.io.atomic import INCOMPLETE, MARKER, check_output, clean_leftovers, staged_dir, staged_file, staged_run
+from nifo.io.atomic import INCOMPLETE, MARKER, check_output, claim, clean_leftovers, staged_dir, staged_file, staged_run
 from nifo.io.ownership import write_marker
 from nifo_core.errors import OutputError
 
@@ -153,11 +153,14 @@ def test_a_marked_folder_answers_for_its_entries_and_marked_sub_folders_for_thei
     out = tmp_path / "res"
     with staged_run(out) as d:
         with staged_dir(d / "identify") as i:
+            claim(i / "identify.json")   # what every writer of a step does (write_json, the figures, ...)
             (i / "identify.json").write_text("{}")
         (d / "loop").mkdir()
+        claim(d / "loop" / "loop.json")
         (d / "loop" / "loop.json").write_text("{}")
     marker = json.loads((out / MARKER).read_text())
-    assert marker["entries"] == ["identify", f"identify/{MARKER}", "identify/identify.json", "loop", "loop/loop.json"]
+    assert marker["entries"] == ["identify", "loop", "loop/loop.json"] and marker["complete"]
+    assert json.loads((out / "identify" / MARKER).read_text())["entries"] == ["identify.json"]
     with staged_dir(out / "identify") as i:        # nifo identify --out res/identify: other files than before
         (i / "coefficients.png").write_bytes(b"png")
     assert check_output(out) == out                 # the sub-folder's own marker answers for it

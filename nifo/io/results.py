@@ -43,7 +43,7 @@ from nifo_core.predict.model import IdentifiedModel
 from nifo_core.nifo.identify import NifoResult
 from nifo_core.signal.record import Record
 
-from .atomic import staged_file
+from .atomic import claim, staged_file
 from .modelfile import TermSpec, validation_error
 
 __all__ = ["data_entry", "identify_document", "write_json", "read_json", "read_identify", "model_document",
@@ -93,6 +93,7 @@ def write_json(path: str | os.PathLike, doc: Mapping, *, atomic: bool = True, in
         text = json.dumps(_nan_to_none(doc), default=_default, allow_nan=False, indent=indent, separators=seps) + "\n"
     p = Path(path)
     if not atomic:
+        claim(p)     # inside nifo run's folder: listed in its marker before it is written
         p.write_text(text)
         return p
     with staged_file(p) as tmp:

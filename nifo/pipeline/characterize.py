@@ -45,7 +45,7 @@ def run_characterize(args: CharacterizeOptions, *, echo: Callable[[str], None] =
                      show_progress: bool = True) -> dict:
     """The step (module docstring); what it reports goes to ``echo`` (``nifo run`` collects the lines of steps it
     runs side by side and prints them in order), its progress bar only with ``show_progress``."""
-    check_output(args.out)   # refuse a file or a foreign directory before any work
+    check_output(args.out, reads=args.data)   # refuse a file, a foreign folder or one holding an input before any work
     settings = resolve([Path(p) for p in args.data], args, opts=input_options(args))
     opts = loader_options(input_options(args), settings)
     records = [load_record(p, **opts) for p in args.data]

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import yaml
 
-from nifo.io.atomic import staged_run
+from nifo.io.atomic import check_output, claim, staged_run
 from nifo.io.loader import input_options
 from nifo.io.memo import reuse_reads
 from nifo.plots.writer import deferred_figures, start_helpers, wait_figures
@@ -107,6 +107,7 @@ def _two_step_model(ordered: list[Path], char_dir: Path, given: RunOptions) -> t
                       "nonlinearities": [t.to_dict() for t in high],
                       "data": [str(p.resolve()) for p in ordered[1:]]}]}
     path = base / "two_step_model.yaml"
+    claim(path)
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     text = (f"step 1: {' + '.join(t.label for t in low)} on {ordered[0].name} (the lowest level); step 2: "
             f"{' + '.join(t.label for t in high)} on {', '.join(p.name for p in ordered[1:])}")
@@ -133,6 +134,7 @@ def loop_available() -> bool:
 def run_job(args: RunOptions) -> dict:
     """The whole job on ``args.data`` into ``args.out`` (module docstring); a summary of what was written."""
     data = [Path(p) for p in args.data]
+    check_output(args.out, reads=data)   # a file, a foreign folder or one holding a record: refused before any work
     start_helpers()      # the figure helpers import matplotlib while the settings are chosen
     # all old or all new: the old --out is kept aside until the run succeeds (INCOMPLETE marks a killed run)
     # the steps read the same files: each file is probed and read once (nifo.io.memo); a step's figures render

@@ -292,7 +292,7 @@ def _linear_part(model):
 
 
 def run_predict(args: PredictOptions) -> dict:
-    check_output(args.out)   # refuse a file or a foreign directory before any work
+    check_output(args.out, reads=[*args.data, args.model])   # refuse a file, a foreign folder or one holding an input before any work
 
     model, linear = read_model(args.model)
     if linear is None:

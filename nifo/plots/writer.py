@@ -44,7 +44,7 @@ from typing import Iterator, Sequence
 
 from nifo.interrupt import by_interrupt, crash_stacks, signals_held
 
-__all__ = ["figure_batch", "deferred_figures", "wait_figures", "submit_figure", "write_files", "figure_workers",
+__all__ = ["figure_batch", "deferred_figures", "wait_figures", "submit_figure", "write_files", "figure_paths", "figure_workers",
            "start_helpers", "abandon_helpers"]
 
 #: environment variable: helper processes for figures (0: write them in the calling process)
@@ -76,7 +76,7 @@ def figure_workers() -> int:
 def write_files(fig, path: str | Path, dpi: int, tight_rect: tuple | None = None, *, vector: bool = True) -> None:
     """The PNG at ``path`` and (``vector``) the vector files beside it (:data:`nifo.plots.VECTOR_SUFFIXES`), laid
     out first (``tight_rect``: see :func:`nifo.plots.save_figure`); the caller closes ``fig``."""
-    _write(fig, _targets(path, vector), dpi, tight_rect)
+    _write(fig, figure_paths(path, vector), dpi, tight_rect)
 
 
 def _write(fig, paths: Sequence[str | Path], dpi: int, tight_rect: tuple | None) -> None:
@@ -87,7 +87,8 @@ def _write(fig, paths: Sequence[str | Path], dpi: int, tight_rect: tuple | None)
         _render(fig, Path(path), dpi)
 
 
-def _targets(path: str | Path, vector: bool = True) -> list[Path]:
+def figure_paths(path: str | Path, vector: bool = True) -> list[Path]:
+    """The files of a figure saved at ``path``: the PNG and (``vector``) the vector files beside it."""
     from nifo.plots import VECTOR_SUFFIXES
 
     p = Path(path)
@@ -327,7 +328,7 @@ def submit_figure(fig, path: str | Path, dpi: int, tight_rect: tuple | None = No
     if pool is None:
         return False
     blob = pickle.dumps(fig, protocol=pickle.HIGHEST_PROTOCOL)
-    paths = [str(p) for p in _targets(path, vector)]
+    paths = [str(p) for p in figure_paths(path, vector)]
     try:
         fut = pool.submit(_render_pickled, blob, paths, dpi, tight_rect)
     except (BrokenProcessPool, RuntimeError):
