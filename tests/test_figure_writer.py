@@ -182,7 +182,7 @@ def test_a_run_that_fails_after_a_step_leaves_the_old_output_and_nothing_written
     monkeypatch.setattr(nifo.interrupt, "_signalled", False)   # this process was not signalled
     out = tmp_path / "res"
     with staged_run(out) as run:
-        (run / "old.json").write_text("{}")
+        write_json(run / "old.json", {}, atomic=False)
     before = sorted(p.name for p in out.iterdir())
     with pytest.raises(error):
         with staged_run(out) as run, writer.deferred_figures():

@@ -19,9 +19,10 @@ nifo did not write, and files it wrote that were changed since — those are the
 user's now). A sub-folder with its own marker answers for itself. A marker
 whose digest does not match (edited, damaged, forged by hand) is no marker.
 
-Format 1 (nifo before 0.9: ``entries`` only, no sizes or hashes, ``null``
-entries for a killed run) is still honoured: a listed file modified after the
-marker was written is the user's.
+Format 1 (an older nifo: ``entries`` only, no sizes or hashes) is read but does
+not answer for a folder: such a folder is recognised by its result documents
+alone (:mod:`nifo.io.ownership`), so a copied or hand-written marker never
+makes a user's file nifo's.
 """
 
 from __future__ import annotations
@@ -84,7 +85,9 @@ def _digest(doc: dict) -> str:
 
 
 def _marked(p: Path) -> bool:
-    return (p / MARKER).is_file() and not (p / MARKER).is_symlink()
+    """Whether folder ``p`` answers for itself (a marker of this format)."""
+    doc = read_marker(p)
+    return doc is not None and doc.get("nifo_output") == MARKER_FORMAT
 
 
 def tree(d: Path) -> list[str]:
@@ -180,10 +183,8 @@ def read_marker(d: str | os.PathLike) -> dict | None:
     if not isinstance(doc, dict):
         return None
     entries = doc.get("entries")
-    if doc.get("nifo_output") == 1:
-        if entries is not None and not (isinstance(entries, list) and all(map(_rel_ok, entries))):
-            return None
-        return {**doc, "_mtime_ns": st.st_mtime_ns}
+    if doc.get("nifo_output") == 1:      # an older nifo's: read, but it answers for nothing (module docstring)
+        return doc
     if doc.get("nifo_output") != MARKER_FORMAT or doc.get("digest") != _digest(doc):
         return None
     content = doc.get("content")
@@ -206,10 +207,8 @@ def _skipped(name: str, top: bool) -> bool:
 
 
 def unowned_in_marked(d: Path, doc: dict, limit: int) -> list[Unowned]:
-    """Entries of folder ``d``, marked with ``doc`` (:func:`read_marker`), that are not nifo's to replace (at most
-    ``limit``): not listed, or listed and changed since."""
-    if doc.get("nifo_output") == 1:
-        return _unowned_v1(d, doc, limit)
+    """Entries of folder ``d``, marked with ``doc`` (:func:`read_marker`, this format), that are not nifo's to
+    replace (at most ``limit``): not listed, or listed and changed since."""
     listed, content = set(doc["entries"]), doc["content"]
     found: list[Unowned] = []
 
@@ -224,7 +223,7 @@ def unowned_in_marked(d: Path, doc: dict, limit: int) -> list[Unowned]:
                 found.append(Unowned(r))
             elif e.is_dir():
                 sub = read_marker(e.path)
-                if sub is not None:
+                if sub is not None and sub.get("nifo_output") == MARKER_FORMAT:
                     found.extend(Unowned(f"{r}/{x.path}", x.changed)
                                  for x in unowned_in_marked(Path(e.path), sub, limit - len(found)))
                 else:
@@ -243,50 +242,3 @@ def _same_content(p: Path, recorded: list) -> bool:
         return p.stat().st_size == recorded[0] and file_hash(p) == recorded[1]
     except OSError:
         return False
-
-
-def _unowned_v1(d: Path, doc: dict, limit: int) -> list[Unowned]:
-    """A format-1 marker (nifo before 0.9): every entry listed; a listed file modified after the marker is the
-    user's. A killed run's marker (no list, INCOMPLETE beside it) answers only for sub-folders that answer for
-    themselves (they were marked when each step ended)."""
-    found: list[Unowned] = []
-    if doc.get("entries") is None:
-        if not (d / INCOMPLETE).is_file():
-            return [Unowned(e.name) for e in _scan(d) if e.name != MARKER][:limit]
-        for e in _scan(d):
-            if _skipped(e.name, True):
-                continue
-            sub = read_marker(e.path) if e.is_dir() and not e.is_symlink() else None
-            if sub is None:
-                found.append(Unowned(e.name))
-            else:
-                found.extend(Unowned(f"{e.name}/{x.path}", x.changed)
-                             for x in unowned_in_marked(Path(e.path), sub, limit - len(found)))
-        return found[:limit]
-    listed, written_ns = set(doc["entries"]), doc["_mtime_ns"]
-
-    def walk(cur: Path, rel: str) -> None:
-        for e in _scan(cur):
-            if len(found) >= limit:
-                return
-            r = rel + e.name
-            if _skipped(e.name, not rel):
-                continue
-            if e.is_symlink():
-                found.append(Unowned(r))
-            elif e.is_dir():
-                sub = read_marker(e.path)
-                if sub is not None:
-                    found.extend(Unowned(f"{r}/{x.path}", x.changed)
-                                 for x in unowned_in_marked(Path(e.path), sub, limit - len(found)))
-                elif r not in listed:
-                    found.append(Unowned(r))
-                else:
-                    walk(Path(e.path), r + "/")
-            elif r not in listed or not e.is_file(follow_symlinks=False):
-                found.append(Unowned(r))
-            elif e.stat(follow_symlinks=False).st_mtime_ns > written_ns:
-                found.append(Unowned(r, changed=True))
-
-    walk(d, "")
-    return found

@@ -37,8 +37,8 @@ import re
 import stat
 from pathlib import Path
 
-from .marker import INCOMPLETE, LEFTOVER, LOCK, MARKER, Unowned, command_line, read_marker, set_invocation
-from .marker import unowned_in_marked, write_marker
+from .marker import INCOMPLETE, LEFTOVER, LOCK, MARKER, MARKER_FORMAT, Unowned, command_line, read_marker
+from .marker import set_invocation, unowned_in_marked, write_marker
 
 __all__ = ["MARKER", "INCOMPLETE", "LEFTOVER", "LOCK", "set_invocation", "command_line", "write_marker", "read_marker",
            "foreign_entries", "unowned", "Unowned", "nifo_wrote_file", "why_not_nifos", "nifo_bag_dir",
@@ -66,14 +66,22 @@ def unowned(d: str | os.PathLike, *, limit: int = 3) -> list[Unowned]:
     entries = [e for e in _scan(d) if not (LEFTOVER.match(e.name) or LOCK.match(e.name))]
     if not entries:
         return []
-    doc = read_marker(d)
+    doc = _marker(d)
     if doc is not None:
         return unowned_in_marked(d, doc, limit)
-    for recognise in (_legacy_unexpected, _legacy_run_unexpected):   # an old nifo result: name what is extra
+    # an old nifo result (none, or an older nifo's marker, which lists no contents: recognised by its result
+    # documents alone, so a copied or hand-written marker never makes a user's file nifo's): name what is extra
+    for recognise in (_legacy_unexpected, _legacy_run_unexpected):
         kind, unexpected = recognise(d)
         if kind is not None:
             return [Unowned(x) for x in unexpected[:limit]]
     return [Unowned(e.name) for e in entries][:limit]
+
+
+def _marker(d: Path) -> dict | None:
+    """The marker of folder ``d`` when it is one that answers for the folder (this format: sizes, hashes, digest)."""
+    doc = read_marker(d)
+    return doc if doc is not None and doc.get("nifo_output") == MARKER_FORMAT else None
 
 
 def foreign_entries(d: str | os.PathLike, *, limit: int = 3) -> list[str]:
@@ -105,13 +113,14 @@ def _small_json(p: Path):
 
 
 def _figure_names(doc, depth: int = 0) -> set[str]:
-    """Every name in a ``figures`` list anywhere in a result document (predict lists them per record)."""
+    """Every name in a ``figures`` or ``signals`` list anywhere in a result document (predict lists them per
+    record)."""
     out: set[str] = set()
     if depth > 4:
         return out
     if isinstance(doc, dict):
         for k, v in doc.items():
-            if k == "figures" and isinstance(v, list):
+            if k in ("figures", "signals") and isinstance(v, list):
                 out |= {f for f in v if isinstance(f, str) and "/" not in f}
             elif isinstance(v, (dict, list)):
                 out |= _figure_names(v, depth + 1)
@@ -122,10 +131,12 @@ def _figure_names(doc, depth: int = 0) -> set[str]:
 
 
 def _legacy_unexpected(d: Path) -> tuple[str | None, list[str]]:
-    """(kind, entries beyond what it wrote) of an old nifo result folder (no marker); (None, []): not one."""
-    if read_marker(d) is not None:
-        return "marked", []
-    names = {e.name: e for e in _scan(d)}
+    """(kind, entries beyond what it wrote) of an old nifo result folder (no marker, or an older nifo's); (None,
+    []): not one. A folder with this nifo's marker is "marked": its marker names what is not nifo's."""
+    doc = _marker(d)
+    if doc is not None:
+        return "marked", [u.path for u in unowned_in_marked(d, doc, 3)]
+    names = {e.name: e for e in _scan(d) if e.name != MARKER and not LEFTOVER.match(e.name)}
     docs = [n for n in _LEGACY if n in names]
     if len(docs) != 1:
         return None, []
@@ -137,8 +148,22 @@ def _legacy_unexpected(d: Path) -> tuple[str | None, list[str]]:
     figures = _figure_names(doc)
     vectors = {str(Path(f).with_suffix(".svg")) for f in figures if f.endswith(".png")}   # nifo.plots.save_figure
     allowed = {name, *fixed, *figures, *vectors}
-    return name.removesuffix(".json"), [n for n, e in names.items()
-                                        if n not in allowed or e.is_symlink() or not e.is_file()]
+    unexpected = [n for n, e in names.items() if n not in allowed or e.is_symlink() or not e.is_file()]
+    marked_ns = _older_marker_ns(d)     # an older nifo's marker, written after its files: a file newer is edited
+    if marked_ns is not None:
+        unexpected += [n for n, e in names.items() if n not in unexpected and e.stat().st_mtime_ns > marked_ns]
+    return name.removesuffix(".json"), unexpected
+
+
+def _older_marker_ns(d: Path) -> int | None:
+    """The modification time of an older nifo's marker in ``d`` (format 1), if there is one."""
+    doc = read_marker(d)
+    if doc is None or doc.get("nifo_output") != 1:
+        return None
+    try:
+        return (d / MARKER).stat().st_mtime_ns
+    except OSError:
+        return None
 
 
 def _legacy_result(d: Path) -> str | None:
@@ -155,7 +180,7 @@ def _legacy_run(d: Path) -> bool:
 
 def _legacy_run_unexpected(d: Path) -> tuple[str | None, list[str]]:
     """("run", entries beyond what it wrote) of an old ``nifo run`` folder; (None, []): not one."""
-    names = {e.name: e for e in _scan(d) if not LEFTOVER.match(e.name)}
+    names = {e.name: e for e in _scan(d) if not LEFTOVER.match(e.name) and e.name != MARKER}
     incomplete = names.pop(INCOMPLETE, None)
     if incomplete is not None:
         if not _head(Path(incomplete.path), 64).startswith(b"nifo run (process "):
