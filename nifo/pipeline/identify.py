@@ -17,6 +17,7 @@ import numpy as np
 from nifo.io.atomic import check_output, staged_dir
 from nifo.plots.writer import figure_batch
 from nifo.io.loader import input_options, iter_record_chunks, load_records
+from nifo.io.names import record_labels
 from nifo.io.modelfile import load_model_spec
 from nifo.io.provenance import input_provenance, system_of, true_t21
 from nifo.io.results import IDENTIFY_JSON, MODEL_JSON, data_entry, identify_document, write_json, write_model
@@ -85,7 +86,7 @@ def accumulate(paths: list[Path], terms, cfg: AnalysisSettings, *, opts: dict, c
     total, data, per_file, lines = None, [], [], []
     # progress only for long work (a minute of data streams in well under a second)
     with Progress(float(sum(totals)), "identify", enabled=not quiet and sum(totals) / fs > 600) as bar:
-        for p, first, gen in zip(paths, firsts, iters):
+        for p, first, gen, label in zip(paths, firsts, iters, record_labels(paths)):
             one = fresh()
             n = 0
             meta = dict(first.meta)
@@ -100,9 +101,9 @@ def accumulate(paths: list[Path], terms, cfg: AnalysisSettings, *, opts: dict, c
                     f"{one.delay_samples} integrator edge samples at each end for f_lo={band.f_lo_hz:g} Hz), "
                     f"which needs {one.min_samples}", source=str(p), hint="record longer, or choose a smaller --block")
             meta.pop("chunk", None)
-            data.append(data_entry(p, fs_hz=fs, n_samples=n, meta=meta))
+            data.append({**data_entry(p, fs_hz=fs, n_samples=n, meta=meta), "name": label})
             spec = one.spectra()
-            per_file.append((p.name, spec.freq_hz, h1(spec, 0, 1)))
+            per_file.append((label, spec.freq_hz, h1(spec, 0, 1)))
             lines.append(None if (has_force or spindle_fixed) else RecordLines.from_spectra(
                 spec.freq_hz, spec.G[:, 0, 0], spec.G[:, 0, 1], spec.G[:, 1, 1], cfg.analysis_band_hz))
             total = one if total is None else total.merge(one)

@@ -35,7 +35,6 @@ data, the model's nominal T21 is also compared with the true linear T21.
 from __future__ import annotations
 
 import json
-import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -44,6 +43,7 @@ import numpy as np
 from nifo.io.atomic import check_output, staged_dir
 from nifo.plots.writer import figure_batch
 from nifo.io.loader import input_options, load_record
+from nifo.io.names import file_stems, record_labels
 from nifo.io.provenance import input_provenance, system_of
 from nifo.io.results import PREDICT_JSON, read_model, write_json
 from nifo.io.signals import write_signals
@@ -239,11 +239,7 @@ def _truth_comparison(tp: Path, model, f: np.ndarray, t_meas: np.ndarray, mask: 
             "t21": {"re": t_true.real.tolist(), "im": t_true.imag.tolist()}}
 
 
-def _safe(name: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._") or "record"
-
-
-def _figures(out: Path, name: str, arr: dict, band_hz, model, *, system: dict | None = None) -> list[str]:
+def _figures(out: Path, name: str, stem: str, arr: dict, band_hz, model, *, system: dict | None = None) -> list[str]:
     from nifo.plots.nifo import plot_time_excerpt, plot_transmissibility
 
     f = arr["f"]
@@ -256,7 +252,6 @@ def _figures(out: Path, name: str, arr: dict, band_hz, model, *, system: dict | 
                                                                                        "ls": ":"})]
     if "t_true" in arr:
         curves.append(("true nominal linear T21", f, arr["t_true"], {"color": "C2", "lw": 0.9, "alpha": 0.8}))
-    stem = _safe(name)
     names = [f"{stem}_transmissibility.png", f"{stem}_time.png"]
     plot_transmissibility(out / names[0], curves, band_hz=tuple(band_hz),
                           title=f"{name}: predicted vs measured transmissibility")
@@ -306,9 +301,10 @@ def run_predict(args: PredictOptions) -> dict:
     if spectral:    # the transmissibilities on other blocks than the model's
         model = replace(model, settings=replace(model.settings, **{k: getattr(args, k) for k in spectral}))
     results, failed, figures, tables = [], [], [], []
+    labels = record_labels(args.data)     # the file's name, told apart from a record of the same name elsewhere
     with staged_dir(args.out) as tmp, figure_batch():   # figures rendered by helpers, all written before the commit
-        for p in args.data:   # every record it can do is written; the others are named at the end
-            path = Path(p)
+        for p, label, stem in zip(args.data, labels, file_stems(labels)):   # every record it can do is written; the
+            path = Path(p)                                                    # others are named at the end
             try:
                 try:                                                           # its period and transient
                     st = resolve([path], given=given, opts=input_options(args))
@@ -325,12 +321,13 @@ def run_predict(args: PredictOptions) -> dict:
                 continue
             numbers["settings"] = {k: c.to_dict() for k, c in st.choices.items()
                                    if k in ("period_samples", "skip_periods", "skip_seconds")}
-            numbers["signals"] = write_signals(tmp, _safe(path.name), arrays["signals"],
+            numbers["name"] = label
+            numbers["signals"] = write_signals(tmp, stem, arrays["signals"],
                                                meta={"record": str(path), "model": str(args.model),
                                                      "output_unit": numbers["output"]["unit"]})
             tables += numbers["signals"]
             if not args.no_plots:
-                numbers["figures"] = _figures(tmp, path.name, arrays, (lo, hi), model, system=system_of(args))
+                numbers["figures"] = _figures(tmp, label, stem, arrays, (lo, hi), model, system=system_of(args))
                 figures += numbers["figures"]
             results.append(numbers)
         doc = {"nifo_predict": 1, "model": str(args.model), "model_terms": [t.to_dict() for t in model.terms],
