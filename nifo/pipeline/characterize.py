@@ -49,7 +49,7 @@ def run_characterize(args: CharacterizeOptions, *, echo: Callable[[str], None] =
     check_output(args.out, reads=args.data)   # refuse a file, a foreign folder or one holding an input before any work
     settings = resolve([Path(p) for p in args.data], args, opts=input_options(args))
     opts = loader_options(input_options(args), settings)
-    records = [load_record(p, **opts) for p in args.data]
+    records = [load_record(p, **opts, centred=True) for p in args.data]   # offsets of any size alike
     rates = {r.fs_hz for r in records}
     band = band_for_records(settings.band or suggest_band(records).band, records)
     kinds = tuple(k.strip() for k in args.kinds.split(",")) if args.kinds else DEFAULT_KINDS

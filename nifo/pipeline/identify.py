@@ -34,6 +34,7 @@ from nifo_core.predict.model import IdentifiedModel
 from nifo_core.nifo.identify import IllConditionedWarning, StreamingNifo, identify_two_step
 from nifo_core.settings import AnalysisSettings
 from nifo_core.signal.spectral import cross_spectra
+from nifo_core.signal.record import acceleration_means
 
 __all__ = ["CHUNK_SAMPLES", "accumulate", "check_usable", "summarize", "format_summary", "write_figures", "run_identify"]
 
@@ -90,7 +91,9 @@ def accumulate(paths: list[Path], terms, cfg: AnalysisSettings, *, opts: dict, c
             one = fresh()
             n = 0
             meta = dict(first.meta)
+            means = acceleration_means(first)   # removed from every chunk in float64: offsets of any size alike
             for chunk in _chain(first, gen):
+                chunk = chunk.centred(means)
                 one.push(chunk.spindle_accel, chunk.body_accel, chunk.tire_patch_disp if has_tp else None,
                          chunk.force if has_force else None)
                 n += chunk.n
@@ -308,7 +311,7 @@ def _step_paths(args, spec) -> list[list[Path]]:
 
 def _two_step(args, spec, cfg, opts):
     paths = _step_paths(args, spec)
-    recs = [load_records(ps, **opts) for ps in paths]
+    recs = [load_records(ps, **opts, centred=True) for ps in paths]   # offsets of any size alike
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         res = identify_two_step(recs[0], spec.steps[0].terms, recs[1], spec.steps[1].terms,
@@ -454,7 +457,7 @@ def _noise_doc(data, opts) -> list[dict]:
     out = []
     for d in _entries(data):
         try:
-            out.append(estimate_noise(load_record(d["path"], **opts)).to_dict())
+            out.append(estimate_noise(load_record(d["path"], **opts, centred=True)).to_dict())
         except NifoError as err:
             out.append({"source": d.get("name"), "available": False, "unavailable": err.message, "channels": []})
     return out

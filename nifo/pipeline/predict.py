@@ -50,7 +50,7 @@ from nifo.io.signals import write_signals
 from nifo.io.truth import truth_for
 from nifo.pipeline.options import PredictOptions
 from nifo.settings import loader_options, resolve
-from nifo_core.errors import ConfigError, InputError, NifoError
+from nifo_core.errors import ConfigError, InputError, MissingChannelError, NifoError, RecordTooShortError
 from nifo_core.signal.frf import coherence, h1
 from nifo_core.predict.model import predict_body, record_inputs
 from nifo_core.predict.prediction_bounds import Z95, half_width, line_spread, prediction_spread
@@ -80,7 +80,15 @@ def _interp(f_new: np.ndarray, f: np.ndarray, h: np.ndarray) -> np.ndarray:
 
 
 def _drive(record, model) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray, str]:
-    """(spindle acceleration or None, force or None, the signal the transmissibility is taken from, its name)."""
+    """(spindle acceleration or None, force or None, the signal the transmissibility is taken from, its name).
+
+    A model identified with a measured force needs the force: driven by the spindle alone it predicts nothing of
+    what the force did (issue 56: exit 0, band NMSE 52 % for model and linear alike)."""
+    if model.force_gain > 0 and record.force is None:
+        raise MissingChannelError("the model was identified with a measured force on the body, and this record has "
+                                  "no force channel", channel="force",
+                                  hint="give the force (--columns force=NAME, or the bag's /nifo/force topic), or "
+                                       "predict with a model identified without a force")
     a1, force = record_inputs(record, model)
     if a1 is None:
         return a1, force, force, "force"
@@ -136,6 +144,10 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
                              hint=f"give --freq-range LO HI with HI below {0.5 * fs:g} Hz")
         rate_note = (f"predicted at the record's rate, {fs:g} Hz; the model was identified at {model.fs_hz:g} Hz "
                      f"(its parameters are continuous-time)")
+    if record.n < model.settings.block:    # the transmissibility needs one block of the model's settings
+        raise RecordTooShortError(f"the record has {record.n} samples ({record.duration_s:.3g} s), fewer than one "
+                                  f"spectral block of the model ({model.settings.block} samples)", source=str(path),
+                                  hint="predict a longer record, or give a smaller --block")
     a1, force, drive, drive_name = _drive(record, model)
     if a1 is None and force is None:
         raise InputError("the spindle is fixed and the model has no force input: nothing drives the model",
@@ -292,8 +304,8 @@ def run_predict(args: PredictOptions) -> dict:
     model, linear = read_model(args.model)
     if linear is None:
         linear = _linear_part(model)
-    lo, hi = args.freq_range if args.freq_range is not None else model.analysis_band_hz
-    if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):
+    lo, hi = args.freq_range if args.freq_range is not None else model.analysis_band_hz   # the model's: checked
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):                         # by read_model
         raise ConfigError(f"--freq-range {lo:g} {hi:g} must satisfy 0 <= LO < HI", channel="--freq-range")
     given = GivenSettings(period_samples=args.period_samples, skip_periods=args.skip_periods,
                           skip_seconds=args.skip_seconds, analysis_band_hz=(lo, hi))

@@ -19,7 +19,7 @@ def from_start(opts: dict, paths: list) -> list[tuple]:
     load_opts = {k: v for k, v in opts.items() if k not in ("skip_periods", "skip_seconds")}
     out = []
     for path in paths:
-        rec = load_record(path, **load_opts)
+        rec = load_record(path, **load_opts, centred=True)   # offsets of any size alike
         out.append((rec, int(opts.get("skip_periods") or 0) * int(period or 0)
                     or int(round(float(opts.get("skip_seconds") or 0.0) * rec.fs_hz))))
     return out

@@ -37,6 +37,7 @@ import signal
 import sys
 import threading
 import time
+import warnings
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
@@ -150,6 +151,7 @@ def _helper_init(parent: int) -> None:
     """A helper: Ctrl-C is the step's to handle; gone with its parent; a crash says where; matplotlib on Agg,
     imported now."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    warnings.simplefilter("ignore")   # a library's warning while rendering is not the user's to read (issue 56)
     crash_stacks()   # Agg, FreeType, the PNG encoder: the stack on the stderr it shares with the step
     _die_with_parent()
     if os.getppid() != parent:       # the parent died before the line above
