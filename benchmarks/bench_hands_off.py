@@ -58,7 +58,7 @@ def predicted(out: Path) -> dict:
     """Per record of a predict.json: band NMSE of the model and of the linear model, and the RMS errors."""
     doc = json.loads((out / "predict.json").read_text())
     return {r["name"]: {"model": r["model"]["band_nmse"]["percent"], "linear": r["linear"]["band_nmse"]["percent"],
-                        "rms_model": r["model"]["rms_error"]["value"], "rms_linear": r["linear"]["rms_error"]["value"],
+                        "rms_model": r["model"]["whole_signal"]["rms_error"], "rms_linear": r["linear"]["whole_signal"]["rms_error"],
                         "band_hz": [repr(float(x)) for x in r["model"]["band_nmse"]["band_hz"]],
                         "unit": r["output"]["unit"]} for r in doc["records"]}
 

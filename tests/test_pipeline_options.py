@@ -10,7 +10,7 @@ from nifo.cli import build_parser
 from nifo.pipeline import options as o
 
 STEPS = {"characterize": o.CharacterizeOptions, "identify": o.IdentifyOptions, "loop": o.LoopOptions,
-         "predict": o.PredictOptions, "run": o.RunOptions}
+         "predict": o.PredictOptions, "run": o.RunOptions, "export": o.ExportOptions}
 
 
 def _command_parser(name: str) -> argparse.ArgumentParser:

@@ -51,7 +51,7 @@ def test_predict_takes_the_directory_a_loop_wrote_and_predicts_every_sample_reco
     doc = json.loads((tmp_path / "p" / "predict.json").read_text())
     assert [r["name"] for r in doc["records"]] == ["road_1mm", "road_2p5mm"] and doc["failed"] == []
     for r in doc["records"]:     # the true backlash + dead zone: far better than the linear part alone
-        assert r["model"]["nmse_percent"] < 0.1 * r["linear"]["nmse_percent"]
+        assert r["model"]["whole_signal"]["nmse_percent"] < 0.1 * r["linear"]["whole_signal"]["nmse_percent"]
         band = r["model"]["band_nmse"]          # the band-limited metric beside it, on the same footing
         assert band["band_hz"] == [2.0, 30.0] and "start-up edge" in band["how"]
         assert band["percent"] < 0.1 * r["linear"]["band_nmse"]["percent"]

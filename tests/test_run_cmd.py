@@ -69,7 +69,7 @@ def test_run_identifies_on_every_level_and_predicts_each_with_the_final_model(ra
     # the settings were chosen once from the data and say why
     assert doc["settings"]["choices"]["analysis_band_hz"]["source"] == "data"
     for r in pred["records"]:    # the predicted signals, in the output's unit, for any metric a user prefers
-        assert (out / "predict" / r["signals"][0]).is_file() and r["model"]["rms_error"]["value"] > 0
+        assert (out / "predict" / r["signals"][0]).is_file() and r["model"]["whole_signal"]["rms_error"] > 0
 
 
 def test_the_runs_marker_lists_every_file_it_wrote_with_its_content(ran):

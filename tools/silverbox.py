@@ -102,7 +102,7 @@ def predict(data: Path, model_dir: Path, work: Path) -> dict[int, float]:
         "--skip-periods", SKIP, "--period-samples", PERIOD, "--no-plots", "--freq-range", 5, 250)
     doc = json.loads((out / "predict.json").read_text())
     by_name = {r["name"]: r for r in doc["records"]}
-    return {lv: float(by_name[ym_file(data, lv).name]["model"]["nmse_percent"]) for lv in LEVELS}
+    return {lv: float(by_name[ym_file(data, lv).name]["model"]["whole_signal"]["nmse_percent"]) for lv in LEVELS}
 
 
 def displacement(rec: Record) -> np.ndarray:

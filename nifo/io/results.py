@@ -17,14 +17,18 @@
 
 ``model.json`` (``nifo_identified_model: 1``; read through :class:`ModelDocument`)
     :meth:`IdentifiedModel.to_dict` (T21, B_i, terms, pooled c_i/M2, the
-    one-mass body model or null, ``linear_part``: the linear part predictions
+    one-mass body model or null, ``offsets`` (the static part the prediction adds),
+    ``prediction_band`` (the band the prediction covers, chosen by held-out whole-signal
+    error) and ``validity`` (the band and input amplitudes identified on;
+    :mod:`nifo_core.predict.scope`), ``linear_part``: the linear part predictions
     use — ``kind`` body or rational, ``order``, ``fit_rms``, ``stable``,
     ``physical``, ``reason`` it was chosen, the ``candidates`` tried, and for a
     rational one its ``poles``/``residues`` —, ``force_gain`` 1/M2, settings,
     provenance: data files, model file, identify settings; files without
     ``linear_part`` are read with the body as linear part), plus ``linear_h1``: the plain-H1 model at the
     identification level (the equivalent linearisation) that ``nifo predict``
-    compares against. :func:`read_model` returns both.
+    compares against. :func:`read_model` returns both. ``validity.strut_range``: the lowest and highest deflection
+    [m] and velocity [m/s] of the identification records (the force law's measured range).
 """
 
 from __future__ import annotations
@@ -271,6 +275,40 @@ class _SpectralDoc(_Doc):
     detrend: str = "constant"
 
 
+class _OffsetsDoc(_Doc):
+    force: _Nullable = None
+    output: _Finite = 0.0
+    output_name: Literal["body_accel", "body_disp"] = "body_accel"
+    how: str = ""
+
+
+class _Banded(_Doc):
+    band_hz: _Pair
+
+    @field_validator("band_hz")
+    @classmethod
+    def _band(cls, v: list[float]) -> list[float]:
+        if not v[0] < v[1]:
+            raise ValueError(f"band_hz {v[0]:g}-{v[1]:g} must have its lower value first")
+        return v
+
+
+class _PredictionBandDoc(_Banded):
+    policy: Literal["whole", "band"]
+    reason: str = ""
+    held_out: dict[str, Any] | None = None
+
+
+class _ValidityDoc(_Banded):
+    input: Literal["spindle_accel", "force"]
+    unit: str = ""
+    rms: _Pair
+    peak: _Pair
+    outside_band_fraction: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = 0.0
+    n_records: Annotated[int, Field(ge=0)] = 0
+    strut_range: dict[str, Any] | None = None
+
+
 class ModelDocument(_Doc):
     """``model.json`` as :func:`read_model` accepts it: every field prediction uses, of the right type and
     finite (null only where NaN is a value nifo writes: T21 and B lines, fit errors)."""
@@ -290,6 +328,9 @@ class ModelDocument(_Doc):
     band: _BandDoc
     source: str = "static"
     provenance: dict[str, Any] | None = None
+    offsets: _OffsetsDoc | None = None
+    prediction_band: _PredictionBandDoc | None = None
+    validity: _ValidityDoc | None = None
     linear_h1: "ModelDocument | None" = None
 
     @field_validator("nifo_identified_model", mode="before")

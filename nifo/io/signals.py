@@ -21,7 +21,7 @@ import pyarrow.parquet as pq
 
 from .atomic import claim
 
-__all__ = ["write_signals"]
+__all__ = ["write_signals", "read_signals"]
 
 
 def write_signals(out: Path, stem: str, columns: Mapping[str, np.ndarray], *, meta: Mapping | None = None
@@ -35,3 +35,9 @@ def write_signals(out: Path, stem: str, columns: Mapping[str, np.ndarray], *, me
     pq.write_table(table, out / names[0])
     pacsv.write_csv(table, out / names[1])
     return names
+
+
+def read_signals(path: str | Path, columns: list[str] | None = None) -> dict[str, np.ndarray]:
+    """The columns of a ``<record>_signals.parquet`` (all, or ``columns``) as arrays."""
+    table = pq.read_table(path, columns=columns)
+    return {name: table.column(name).to_numpy() for name in table.column_names}

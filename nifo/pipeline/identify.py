@@ -22,7 +22,7 @@ from nifo.io.modelfile import load_model_spec
 from nifo.io.provenance import input_provenance, system_of, true_t21
 from nifo.io.results import IDENTIFY_JSON, MODEL_JSON, data_entry, identify_document, write_json, write_model
 from nifo.pipeline.options import CHUNK_SAMPLES, IdentifyOptions
-from nifo.pipeline.refine import fit_feedback_paths, refine
+from nifo.pipeline.refine import fit_feedback_paths, refine, with_scope
 from nifo.progress import Progress
 from nifo.settings import loader_options, resolve
 from nifo_core.errors import (ConfigError, IllConditionedError, InputError, NifoError, RecordTooShortError,
@@ -407,7 +407,11 @@ def run_identify(args: IdentifyOptions) -> dict:
                     linear = linear_refinement.model
             if linear_refinement is not None:
                 summary["refinement"]["linear"] = linear_refinement.to_dict()
-    prov = {"data": data, "model_file": str(args.model), "settings": _settings_doc(cfg, res)}
+    if model is not None:
+        model, linear = with_scope(model, linear, opts, [d["path"] for d in _entries(data)])
+        summary["prediction_band"] = model.prediction_band.to_dict()
+        summary["offsets"] = model.offsets.to_dict()
+    prov = {"data": data, "model_file": str(args.model), "settings": _settings_doc(cfg, res), "system": system_of(args)}
     settings_doc = _settings_doc(cfg, res)
     model_file = {"path": str(args.model), "steps": [{"name": s.name, "terms": [t.to_dict() for t in s.terms]}
                                                     for s in spec.steps]}

@@ -31,7 +31,7 @@ from nifo.plots.writer import figure_batch, start_helpers
 from nifo.io.loader import input_options, load_record
 from nifo.io.modelfile import load_model_spec, write_model_spec
 from nifo.io.provenance import input_provenance, system_of
-from nifo.io.results import MODEL_JSON, write_json, write_model
+from nifo.io.results import MODEL_JSON, data_entry, write_json, write_model
 from nifo.pipeline.options import LoopOptions
 from nifo.progress import Progress
 from nifo.settings import loader_options, resolve
@@ -84,8 +84,11 @@ def run_loop(args: LoopOptions) -> dict:
         write_model_spec(tmp / "refined_model.yaml", res.terms, settings=model_settings,
                          note=_note(res), suggested_by=f"nifo loop {__version__}")
         written = ["loop.json", "refined_model.yaml", *figures]
-        if res.model is not None:
-            write_model(tmp / MODEL_JSON, res.model, linear=res.linear_model, atomic=False)
+        if res.model is not None:   # with the data and words it was identified on (nifo export, nifo.api)
+            prov = {**dict(res.model.provenance), "data": [data_entry(p, r) for p, r in zip(args.data, records)],
+                    "system": doc["system"]}
+            write_model(tmp / MODEL_JSON, replace(res.model, provenance=prov), linear=res.linear_model,
+                        atomic=False)
             written.insert(1, MODEL_JSON)
     print(res.report())
     if res.model is None:

@@ -53,6 +53,8 @@ from nifo.settings import loader_options, resolve
 from nifo_core.errors import ConfigError, InputError, MissingChannelError, NifoError, RecordTooShortError
 from nifo_core.signal.frf import coherence, h1
 from nifo_core.predict.model import predict_body, record_inputs
+from nifo_core.predict.output_signal import measured_output, predicted_output
+from nifo_core.predict.whole_signal import distortion_error, whole_signal_error
 from nifo_core.predict.prediction_bounds import Z95, half_width, line_spread, prediction_spread
 from nifo_core.predict.prediction_error import band_nmse, band_spectra
 from nifo_core.settings import GivenSettings
@@ -60,11 +62,6 @@ from nifo_core.signal.spectral import cross_spectra
 from nifo_core.simulate.vehicle import QuarterCar
 
 EXCERPT_S = 4.0
-
-
-def _nmse(y: np.ndarray, yhat: np.ndarray) -> float:
-    """Worden & Tomlinson's normalised mean-square error [%]."""
-    return float(100 * np.sum((y - yhat) ** 2) / (y.size * np.var(y)))
 
 
 def _rel(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> dict:
@@ -113,19 +110,22 @@ def _band_nmse(a2, pred, fs: float, band_hz, period_samples: int | None, transie
         return {"percent": None, "band_hz": list(band_hz), "how": how, "not_computed": err.message}
 
 
-def _output(record, pred) -> tuple[str, str, np.ndarray, np.ndarray]:
-    """(name, unit, measured, predicted) of the output in the unit it was measured in: the body displacement when a
-    displacement was recorded on a single mass driven by a force (the prediction's z is then x2), else the body
-    acceleration."""
-    if record.body_disp is not None and record.spindle_fixed:
-        return "body_disp", "unit of the measured displacement", np.asarray(record.body_disp), np.asarray(pred.z)
-    return "body_accel", "m/s²", np.asarray(record.body_accel), np.asarray(pred.body_accel)
+def _whole(y: np.ndarray, yhat: np.ndarray, skip: int) -> dict:
+    """The raw predicted signal's error over all frequencies, offset included, or why it could not be computed."""
+    try:
+        return whole_signal_error(y, yhat, skip=skip).to_dict()
+    except InputError as err:
+        return {"rms_error": None, "nmse_percent": None, "after_samples": int(skip), "not_computed": err.message}
 
 
-def _rms_error(y: np.ndarray, yhat: np.ndarray, skip: int) -> dict:
-    e = np.asarray(y)[skip:] - np.asarray(yhat)[skip:]
-    return {"value": float(np.sqrt(np.mean(e ** 2))) if e.size else None,
-            "dc_removed": float(np.std(e)) if e.size else None, "after_samples": int(skip)}
+def _distortion(y: np.ndarray, yhat: np.ndarray, u: np.ndarray, fs: float, band_hz, period_samples: int,
+                skip: int) -> dict:
+    """The prediction on the lines the periodic input did not excite, or why it could not be computed."""
+    try:
+        return distortion_error(y, yhat, u, fs, period_samples=period_samples, band_hz=tuple(band_hz),
+                                skip=skip).to_dict()
+    except InputError as err:
+        return {"percent_of_none": None, "not_computed": err.message}
 
 
 def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
@@ -164,31 +164,38 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
     t_meas, t_model, t_lin = h1(spec, 0, 1), h1(spec, 0, 2), h1(spec, 0, 3)
     f = spec.freq_hz
     mask = (f >= band_hz[0]) & (f <= band_hz[1])
-    y = a2[valid]
+    measured = measured_output(record)
+    y_model, y_lin = predicted_output(model, record, pm), predicted_output(linear, record, pl)
     out = {
         "path": str(path), "name": path.name, "fs_hz": fs, "n_samples": record.n, "duration_s": record.duration_s,
         "valid_samples": [valid.start, valid.stop], "n_avg": int(spec.n_avg), "transmissibility_from": drive_name,
-        "model": {"nmse_percent": _nmse(y, pm.body_accel[valid]),
+        "output": {"name": measured.name, "unit": measured.unit},
+        "model": {"whole_signal": _whole(measured.values, y_model, skip),
                   "band_nmse": _band_nmse(a2, pm, fs, band_hz, period_samples, transient),
                   "transmissibility_error": _rel(t_model, t_meas, mask), "engine": pm.method,
                   "iterations": pm.iterations, "residual": pm.residual},
-        "linear": {"nmse_percent": _nmse(y, pl.body_accel[valid]),
+        "linear": {"whole_signal": _whole(measured.values, y_lin, skip),
                    "band_nmse": _band_nmse(a2, pl, fs, band_hz, period_samples, transient),
                    "transmissibility_error": _rel(t_lin, t_meas, mask), "source": linear.source,
                    "engine": pl.method},
         "coherence_measured_median": float(np.median(coherence(spec, 0, 1)[mask])),
     }
-    out_name, out_unit, y_meas, y_model = _output(record, pm)
-    y_lin = _output(record, pl)[3]
-    out["output"] = {"name": out_name, "unit": out_unit}
-    out["model"]["rms_error"] = _rms_error(y_meas, y_model, skip)
-    out["linear"]["rms_error"] = _rms_error(y_meas, y_lin, skip)
+    raw_drive = np.asarray(record.force if drive_name == "force" else record.spindle_accel, float)
+    if period_samples:
+        for key, yh in (("model", y_model), ("linear", y_lin)):
+            out[key]["distortion"] = _distortion(measured.values, yh, raw_drive, fs, band_hz, period_samples,
+                                                 skip)
+    for key, m in (("model", model), ("linear", linear)):
+        if m.prediction_band is not None:
+            out[key]["prediction_band"] = m.prediction_band.describe()
+    if model.validity is not None:
+        out["validity"] = model.validity.check(raw_drive[transient:], fs).to_dict()
     drive_col = "force" if drive_name == "force" else "spindle_accel_m_s2"
     arrays = {"f": f, "t_meas": t_meas, "t_model": t_model, "t_linear": t_lin, "mask": mask,
               "a2": a2, "a2_model": pm.body_accel, "a2_linear": pl.body_accel, "valid": valid, "fs": fs,
-              "signals": {"time_s": np.arange(record.n) / fs, drive_col: np.asarray(drive, float),
-                          f"{out_name}_measured": y_meas, f"{out_name}_model": y_model,
-                          f"{out_name}_linear": y_lin}}
+              "signals": {"time_s": np.arange(record.n) / fs, drive_col: raw_drive,
+                          f"{measured.name}_measured": measured.values, f"{measured.name}_model": y_model,
+                          f"{measured.name}_linear": y_lin}}
     out["model"]["parameter_bounds"], eps = _parameter_bounds(
         model, lambda m: predict_body(m, a1, fs, force=force, method=method, label=str(path)).body_accel,
         a2=a2, drive=drive, valid=valid, t_model=t_model, fs=fs, band_hz=band_hz, period_samples=period_samples,
@@ -366,12 +373,19 @@ def _pct(x) -> str:
     return "-" if x is None else f"{100 * x:.1f} %"
 
 
+def _num(x, fmt: str) -> str:
+    return "-" if x is None else format(x, fmt)
+
+
 def _summary(results: list[dict], band, out: Path) -> str:
     w = max([24] + [len(r["name"]) for r in results])     # the whole name: records often differ at its end
-    # the band NMSE first: the metric of --freq-range; the whole-signal NMSE also counts energy outside the band,
-    # where the model was not identified (on the F-16 at levels 5-7 it is 30-60 % where the band NMSE is 0.3 %)
-    lines = [f"{'record':<{w}} band NMSE {band[0]:.4g}-{band[1]:.4g} Hz model | linear   RMS error model | linear   "
-             f"NMSE all frequencies model | linear   |T| error model (median/max) | linear (median/max)"]
+    # the whole signal first: what the field scores (the raw predicted signal over all frequencies, offset
+    # included); the band NMSE beside it is the diagnosis over --freq-range
+    periodic = any("distortion" in r["model"] for r in results)
+    lines = [f"{'record':<{w}} RMS error model | linear   NMSE all frequencies model | linear   "
+             f"band NMSE {band[0]:.4g}-{band[1]:.4g} Hz model | linear   "
+             + ("distortion (non-excited lines, 100 % = none predicted) model | linear   " if periodic else "")
+             + "|T| error model (median/max) | linear (median/max)"]
     for r in results:
         m, li = r["model"], r["linear"]
         bm, bl = (x["band_nmse"]["percent"] for x in (m, li))
@@ -379,12 +393,23 @@ def _summary(results: list[dict], band, out: Path) -> str:
         pm_txt = f" ± {pb['band_nmse_half_width_pct']:.2g}" if pb.get("available") else ""
         band_txt = ("not computed: " + m["band_nmse"].get("not_computed", "") if bm is None
                     else f"{bm:.3f}%{pm_txt} | {bl:.3f}%")
-        rm, rl = m["rms_error"]["value"], li["rms_error"]["value"]
+        wm, wl = m["whole_signal"], li["whole_signal"]
         unit = "m/s²" if r["output"]["name"] == "body_accel" else "(displacement unit)"
-        rms_txt = f"{rm:.4g} | {rl:.4g} {unit}"
-        lines.append(f"{r['name']:<{w}} {band_txt}   {rms_txt}   {m['nmse_percent']:.2f}% | {li['nmse_percent']:.2f}%   "
+        rms_txt = f"{_num(wm['rms_error'], '.4g')} | {_num(wl['rms_error'], '.4g')} {unit}"
+        nmse_txt = f"{_num(wm['nmse_percent'], '.3g')}% | {_num(wl['nmse_percent'], '.3g')}%"
+        dist_txt = ""
+        if periodic:
+            dm, dl = (x.get("distortion") or {} for x in (m, li))
+            dist_txt = (f"{_num(dm.get('percent_of_none'), '.3g')}% | {_num(dl.get('percent_of_none'), '.3g')}%"
+                        f" of {_num(dm.get('share_percent'), '.2g')}% of the output   ")
+        lines.append(f"{r['name']:<{w}} {rms_txt}   {nmse_txt}   {band_txt}   {dist_txt}"
                      f"{_pct(m['transmissibility_error']['median'])} / {_pct(m['transmissibility_error']['max'])}"
                      f" | {_pct(li['transmissibility_error']['median'])} / {_pct(li['transmissibility_error']['max'])}")
+        v = r.get("validity") or {}
+        if v.get("outside"):
+            lines.append(f"  NOT VALIDATED: {v['message']}")
+        for note in v.get("notes") or ():
+            lines.append(f"  note: {note}")
         if "truth" in r and "model_nominal_t21_vs_true" in r["truth"]:
             tr = r["truth"]
             lines.append(f"  truth ({tr['file']}): vs the true linear T21, median: model's linear part "
@@ -393,5 +418,14 @@ def _summary(results: list[dict], band, out: Path) -> str:
                          f"{_pct(tr['measured_h1_vs_true']['median'])}")
         if r.get("note"):
             lines.append(f"  note: {r['note']}")
+    if results:
+        r = results[0]
+        after = r["model"]["whole_signal"].get("after_samples")
+        lines.append(f"whole signal: the raw predicted {r['output']['name']} against the measured one, offset "
+                     f"included, after the first {after} samples (start-up from rest)"
+                     + (f"; the model's prediction covers {r['model']['prediction_band']}"
+                        if r["model"].get("prediction_band") else "")
+                     + (f"; the linear model's {r['linear']['prediction_band']}"
+                        if r["linear"].get("prediction_band") else ""))
     lines.append(f"wrote {out}/predict.json")
     return "\n".join(lines)

@@ -10,6 +10,7 @@ from nifo.progress import Progress
 from nifo_core.predict.heldout import Scores, split_records
 from nifo_core.predict.model_fit import joint_paths
 from nifo_core.predict.refine import refine_jointly, refine_model, start_up_samples
+from nifo_core.predict.scope_fit import fit_scope
 
 
 def from_start(opts: dict, paths: list) -> list[tuple]:
@@ -87,6 +88,16 @@ def refine(args, model, linear, opts: dict, paths: list):
     before, after = held.score(model), held.score(out[0].model)
     check = HeldOutCheck(after.mean <= before.mean, before, after, tuple(float(r.duration_s) for r in records))
     return (*out, check)
+
+
+def with_scope(model, linear, opts: dict, paths: list):
+    """``model`` and ``linear`` with their offsets, prediction band and validity from the identification records
+    (:func:`nifo_core.predict.scope_fit.fit_scope`: held-out parts as the refinement's check splits them)."""
+    loaded = from_start(opts, paths)
+    held = split_records([rec for rec, _ in loaded], skip_samples=max(skip for _, skip in loaded),
+                         period_samples=opts.get("period_samples"), band_hz=model.analysis_band_hz)
+    with Progress(None, "the static part and the band the prediction covers", enabled=True):
+        return fit_scope(model, held), None if linear is None else fit_scope(linear, held)
 
 
 def _refine(args, model, linear, records, skips, period, refine_jointly, refine_model):

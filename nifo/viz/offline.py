@@ -148,8 +148,9 @@ def _summary(results: Sequence[ResultDir], notes: list[str]) -> str:
             lines.append(f"- settings: `{json.dumps(d.get('settings', {}))}`")
         elif r.kind == "predict":
             for rec in d.get("records", []):
-                lines.append(f"- {rec.get('name')}: NMSE model {rec['model']['nmse_percent']:.2f} %, "
-                             f"linear {rec['linear']['nmse_percent']:.2f} %")
+                wm, wl = (rec[k].get("whole_signal") or {} for k in ("model", "linear"))
+                lines.append(f"- {rec.get('name')}: whole-signal NMSE model {wm.get('nmse_percent', float('nan')):.3g} %, "
+                             f"linear {wl.get('nmse_percent', float('nan')):.3g} %")
         lines.append("")
     lines += ["## data", *notes]
     return "\n".join(lines)

@@ -109,13 +109,15 @@ from ..characterize.result import Candidate
 from ..characterize.score import score_candidate
 from ..predict.feedback_paths import PATH_KINDS
 from ..predict.heldout import HeldOut, split_records
+from ..predict.scope_fit import fit_scope
 from .residual import _design, _Evaluator, _evidence, _g, _retune, _static_candidate, _tire_check
 from ..predict.model_fit import RATIONAL_MARGIN, Fitted, LinearChoice, choose_linear_form, fit_model
 from ..settings import AnalysisSettings
 from .results import (NOTHING_MISSING, RESIDUAL_BANDS_HZ, Errors, Evidence, LoopRefinement, LoopResult,
                       LoopSettings, Round, Trial, _nothing_text, _round_text, before_after_text,
                       unconfirmed_text)
-from .gates import heldout_failures, one_of_kind_alternatives, one_of_kind_failures, prediction_failures
+from .gates import (heldout_failures, one_of_kind_alternatives, one_of_kind_failures, prediction_failures,
+                    whole_signal_failures)
 from .refine import refine_final
 from ..signal.record import Record
 from ..characterize.restoring import suggest_band
@@ -238,6 +240,7 @@ def _errors(ev: _Evaluator, pred: _Predictor, terms: Sequence[Term]) -> Errors:
     eq = ev.equation(terms)
     notes: list[str] = []
     pred_nmse, per, trans, bands, unavailable, fitted = None, (), (), None, None, None
+    whole = (None, (), "")
     if pred.off:
         unavailable = "prediction switched off (prediction='none')"
     else:
@@ -250,6 +253,7 @@ def _errors(ev: _Evaluator, pred: _Predictor, terms: Sequence[Term]) -> Errors:
                 unavailable = fitted.scores.unavailable
             else:
                 pred_nmse, per = fitted.score, fitted.scores.per_record
+                whole = (fitted.scores.whole_mean, fitted.scores.whole, fitted.scores.whole_policy)
                 bands, trans = ev.band_numbers(fitted.scores.predictions)
         if unavailable is not None:
             notes.append(f"no held-out prediction for this model ({unavailable}); equation error only")
@@ -262,7 +266,8 @@ def _errors(ev: _Evaluator, pred: _Predictor, terms: Sequence[Term]) -> Errors:
                   equation_band_residual_db=eq["equation_band_residual_db"],
                   transmissibility_error_pct=tuple(trans), prediction_unavailable=unavailable, notes=tuple(notes),
                   structure="" if fitted is None else fitted.structure,
-                  model_note="" if fitted is None else fitted.note, fitted=fitted)
+                  model_note="" if fitted is None else fitted.note, fitted=fitted, whole_nmse_pct=whole[0],
+                  whole_nmse_per_record_pct=tuple(whole[1]), whole_policy=whole[2])
 
 
 #: a term whose describing function the linear columns z, ż explain to this R² on the fit parts acts linearly there
@@ -455,7 +460,7 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
                 eq_failed, pred_failed = [], prediction_failures(current, after, s, twin, floor)
             else:
                 eq_failed, pred_failed = heldout_failures(current, after, s)
-            failed += eq_failed + pred_failed
+            failed += eq_failed + pred_failed + whole_signal_failures(current, after, s)
             if not failed and not pred.flexible:   # one term of a kind already present must not do as well
                 alts = [(k, a, _errors(ev, pred, [*terms[:k], a, *terms[k + 1:]]))
                         for k, a in one_of_kind_alternatives(terms, c.term, [r.term for r in ranked], ev.static)]
@@ -545,6 +550,10 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
     final_score = current.prediction_nmse_pct
     if refinement is not None and refinement.kept and refinement.heldout_after_pct is not None:
         final_score = refinement.heldout_after_pct
+    if model is not None:   # what the model carries besides its dynamics: offsets, the band it covers, its range
+        say(0.99, "the static part and the band the prediction covers")
+        model = fit_scope(model, held)
+        linear = None if linear is None else fit_scope(linear, held)
     floor_note = _floors(final_score, pred, terms)
     if floor_note:
         verdict = floor_note + " " + verdict.replace(NOTHING_MISSING, "").replace(
