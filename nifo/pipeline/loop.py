@@ -52,7 +52,7 @@ def run_loop(args: LoopOptions) -> dict:
         print("settings:\n  " + "\n  ".join(data.describe()))
     opts = loader_options(input_options(args), data)
     opts.update(skip_periods=None, skip_seconds=None)   # whole records: simulated from rest, the transient not scored
-    records = [load_record(p, **opts, centred=True) for p in args.data]   # offsets of any size alike
+    records = [load_record(p, **opts) for p in args.data]   # as measured: the loop removes the offsets itself
     if data.band is not None:   # an edge too low for the shortest record: refused before any work, naming it
         data = replace(data, band=band_for_records(data.band, records))
     kinds = tuple(k.strip() for k in args.kinds.split(",")) if args.kinds else DEFAULT_KINDS
