@@ -194,25 +194,27 @@ def test_a_held_lock_names_its_process_and_a_dead_ones_is_taken_over(tmp_path):
     assert not lock_path(out).exists() and not out.exists()    # released: nothing left, the folder made for it gone
 
 
+def _refused_while(holder: subprocess.Popen, match: str, block) -> None:
+    """``block()`` raises OutputBusyError matching ``match`` while ``holder`` runs; then ``holder`` is ended."""
+    try:
+        with pytest.raises(OutputBusyError, match=match):
+            block()
+    finally:
+        holder.kill()
+        holder.wait()
+
+
 def test_a_folder_being_written_refuses_writers_inside_it_and_a_writer_of_it_refuses_one_inside(tmp_path):
+    def write(out):
+        with staged_dir(out):
+            pass
+
     run = tmp_path / "R"
-    holder = _holding(run, tmp_path)
-    try:
-        with pytest.raises(OutputBusyError, match=r"R/identify: lies in .*R, which another nifo command is writing"):
-            with staged_dir(run / "identify"):
-                pass
-    finally:
-        holder.kill()
-        holder.wait()
+    _refused_while(_holding(run, tmp_path), r"R/identify: lies in .*R, which another nifo command is writing",
+                   lambda: write(run / "identify"))
     run.mkdir(exist_ok=True)
-    holder = _holding(run / "identify", tmp_path)
-    try:
-        with pytest.raises(OutputBusyError, match=r"R: holds .*identify, which another nifo command is writing"):
-            with output_lock(run):
-                pass
-    finally:
-        holder.kill()
-        holder.wait()
+    _refused_while(_holding(run / "identify", tmp_path), r"R: holds .*identify, which another nifo command is writing",
+                   lambda: write(run))
 
 
 def test_in_one_process_the_lock_is_reentrant_and_a_step_of_a_run_takes_none_of_its_own(tmp_path):
@@ -241,12 +243,11 @@ def test_without_flock_the_lock_file_is_created_exclusively_and_a_dead_processes
         assert json.loads(lock_path(out).read_text())["pid"] == os.getpid()
     assert not lock_path(out).exists()
     alive = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
-    try:
-        lock_path(out).write_text(json.dumps({"pid": alive.pid, "host": lock.socket.gethostname(),
-                                              "command": "nifo run --out res"}))
-        with pytest.raises(OutputBusyError, match=rf"process {alive.pid}: nifo run --out res"):
-            with output_lock(out):
-                pass
-    finally:
-        alive.kill()
-        alive.wait()
+    lock_path(out).write_text(json.dumps({"pid": alive.pid, "host": lock.socket.gethostname(),
+                                          "command": "nifo run --out res"}))
+
+    def take():
+        with output_lock(out):
+            pass
+
+    _refused_while(alive, rf"process {alive.pid}: nifo run --out res", take)

@@ -69,7 +69,7 @@ from typing import Iterable, Iterator
 from nifo_core.errors import OutputError
 from nifo.interrupt import signals_held, term_as_interrupt
 
-from .lock import output_lock
+from .lock import alive, output_lock
 from .marker import read_marker
 from .ownership import INCOMPLETE, LEFTOVER as _LEFTOVER, MARKER, nifo_bag_dir, nifo_wrote_file, unowned
 from .ownership import why_not_nifos, write_marker
@@ -263,18 +263,6 @@ def _listing(names: list[str]) -> str:
     return ", ".join(shown) + (", ..." if len(names) > 3 else "")
 
 
-def _alive(pid: int) -> bool:
-    if pid == os.getpid():
-        return True
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
 def _remove(p: Path) -> None:
     if p.is_dir() and not p.is_symlink():
         shutil.rmtree(p, ignore_errors=True)
@@ -296,7 +284,7 @@ def clean_leftovers(final: str | os.PathLike) -> list[Path]:
         return removed
     for p in entries:
         m = _LEFTOVER.match(p.name)
-        if m and m["name"] == final.name and not _alive(int(m["pid"])):
+        if m and m["name"] == final.name and not alive(int(m["pid"])):
             _remove(p)
             removed.append(p)
     return removed
@@ -527,7 +515,7 @@ def _put_back_old(final: Path) -> bool:
         return False
     pid = _writer_pid(final)
     old = final.with_name(f".{final.name}.old-{pid}") if pid else None
-    if old is None or pid == os.getpid() or _alive(pid) or not old.is_dir() or old.is_symlink():
+    if old is None or pid == os.getpid() or alive(pid) or not old.is_dir() or old.is_symlink():
         return False
     with signals_held():
         _remove(final)

@@ -43,7 +43,7 @@ from nifo_core.errors import OutputBusyError
 
 from .marker import LOCK, command_line
 
-__all__ = ["output_lock", "lock_path", "holds"]
+__all__ = ["output_lock", "lock_path", "holds", "alive"]
 #: the errors of a file system that has no flock
 _NO_FLOCK = {errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL}
 #: folders below an output searched for a lock held inside it
@@ -220,10 +220,10 @@ def _acquire_without_flock(final: Path, given: Path, path: Path, created: list[P
     raise OSError(errno.EAGAIN, "the lock file kept changing", str(path))
 
 
-def _holder_alive(holder: dict) -> bool:
-    pid = holder.get("pid")
-    if not isinstance(pid, int) or holder.get("host") not in (None, socket.gethostname()):
-        return True     # unknown, or another machine's process: it may well be running
+def alive(pid: int) -> bool:
+    """Whether process ``pid`` of this machine is running (this one is)."""
+    if pid == os.getpid():
+        return True
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -231,6 +231,13 @@ def _holder_alive(holder: dict) -> bool:
     except PermissionError:
         return True
     return True
+
+
+def _holder_alive(holder: dict) -> bool:
+    pid = holder.get("pid")
+    if not isinstance(pid, int) or holder.get("host") not in (None, socket.gethostname()):
+        return True     # unknown, or another machine's process: it may well be running
+    return alive(pid)
 
 
 def _release(held: _Held) -> None:
