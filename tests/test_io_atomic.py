@@ -277,3 +277,16 @@ def test_a_forged_or_damaged_marker_makes_nothing_nifos(tmp_path):
         with pytest.raises(OutputError, match=r"notes\.txt"):
             check_output(out)
         assert (out / "notes.txt").read_text() == "mine"
+
+
+def test_a_run_folder_removed_by_someone_else_while_written_is_one_line_not_a_traceback(tmp_path):
+    """Before issue 56 a run whose folder vanished under it ended in FileNotFoundError (…/INCOMPLETE) in staged_run."""
+    import shutil
+
+    out = tmp_path / "res"
+    with pytest.raises(OutputError, match=r"res: the output folder was removed or replaced while nifo run wrote it"):
+        with staged_run(out) as d:
+            claim(d / "a.json")
+            (d / "a.json").write_text("{}")
+            shutil.rmtree(out)
+    assert not out.exists()

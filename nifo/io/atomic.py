@@ -575,18 +575,21 @@ def _run_in_place(final: Path) -> Iterator[Path]:
                 if step.path.is_dir():
                     step.seal()
             if not (final / INCOMPLETE).is_file():
-                raise OutputError("the output folder was removed or replaced while nifo run wrote it",
-                                  source=str(final), hint="run again, and leave the folder to nifo until it is done")
+                raise FileNotFoundError(errno.ENOENT, "the run's folder is gone", str(final / INCOMPLETE))
             run.seal()
             (final / INCOMPLETE).unlink()
             _state["committed"][start:] = [str(final)]
     except BaseException as err:
+        gone = isinstance(err, FileNotFoundError) and not (final / INCOMPLETE).is_file()
         with signals_held():
             _remove(final)
             if had_old and old.is_dir():
                 os.replace(old, final)
                 _state["restored"].append(str(final))
             del _state["committed"][start:]
+        if gone:      # something else removed the folder while the run wrote into it: not a bug of nifo's
+            raise OutputError("the output folder was removed or replaced while nifo run wrote it", source=str(final),
+                              hint="run again, and leave the folder to nifo until it is done") from err
         if _is_output_oserror(err):
             raise output_error(err, final) from err
         raise
