@@ -24,7 +24,7 @@ def _dead_pid() -> int:
 
 
 def test_staged_run_restores_the_old_output_on_error_and_replaces_it_on_success(tmp_path, monkeypatch):
-    monkeypatch.setattr(atomic, "_state", {"committed": [], "restored": []})   # as in a fresh nifo process
+    monkeypatch.setattr(atomic, "_state", {"committed": [], "restored": [], "kept": []})   # a fresh nifo process
     out = tmp_path / "res"
     (out / "identify").mkdir(parents=True)
     (out / "identify" / "identify.json").write_text("old")
@@ -32,6 +32,7 @@ def test_staged_run_restores_the_old_output_on_error_and_replaces_it_on_success(
     with pytest.raises(KeyboardInterrupt):
         with staged_run(out) as d:
             assert d == out and (out / INCOMPLETE).is_file() and not (out / "identify").exists()
+            claim(out / "characterize")
             (out / "characterize").mkdir()
             raise KeyboardInterrupt
     assert sorted(p.name for p in out.iterdir()) == [MARKER, "identify"]
@@ -235,7 +236,7 @@ def test_a_killed_runs_folder_is_nifos_only_where_it_wrote_and_the_old_result_co
     """The issue's case: nifo run killed (SIGKILL), the user saves a notebook into its folder and a script into a
     step's folder; the next run must not delete them (before: exit 0, both gone). It refuses naming them; once they
     are moved out, the killed run's previous result is put back and replaced (or restored if this run fails too)."""
-    monkeypatch.setattr(atomic, "_state", {"committed": [], "restored": []})
+    monkeypatch.setattr(atomic, "_state", {"committed": [], "restored": [], "kept": []})
     out = tmp_path / "R"
     with staged_run(out) as d:
         claim(d / "a.json")
@@ -290,3 +291,22 @@ def test_a_run_folder_removed_by_someone_else_while_written_is_one_line_not_a_tr
             (d / "a.json").write_text("{}")
             shutil.rmtree(out)
     assert not out.exists()
+
+
+def test_a_file_put_into_a_run_folder_while_it_is_written_survives_the_run_failing(tmp_path, monkeypatch):
+    """The run's new folder goes when the run fails, but not a file the user saved into it meanwhile: the folder is
+    kept beside (OUT.kept-PID) and the earlier result is back in place."""
+    monkeypatch.setattr(atomic, "_state", {"committed": [], "restored": [], "kept": []})
+    out = tmp_path / "R"
+    with staged_run(out) as d:
+        claim(d / "a.json")
+        (d / "a.json").write_text("old")
+    with pytest.raises(KeyboardInterrupt):
+        with staged_run(out) as d:
+            claim(d / "b.json")
+            (d / "b.json").write_text("new")
+            (d / "notebook.ipynb").write_text("mine")      # the user, while the run goes on
+            raise KeyboardInterrupt
+    kept = tmp_path / f"R.kept-{os.getpid()}"
+    assert (out / "a.json").read_text() == "old" and (kept / "notebook.ipynb").read_text() == "mine"
+    assert "kept in" in atomic.interrupt_note() and str(kept) in atomic.interrupt_note()

@@ -82,7 +82,7 @@ __all__ = ["staged_dir", "staged_file", "staged_run", "check_output", "clean_lef
 SCRATCH_CHARS = len(".") + len(".partial-") + 7 + len("-") + 8
 
 #: what this process has committed, and what an interrupted run restored (for :func:`interrupt_note`)
-_state: dict[str, list[str]] = {"committed": [], "restored": []}
+_state: dict[str, list[str]] = {"committed": [], "restored": [], "kept": []}
 #: the :func:`staged_run` folders being written (innermost last), each with the step folders written in place
 _runs: list["_Run"] = []
 #: guards the claims of the folders written in place (steps run on threads)
@@ -582,7 +582,7 @@ def _run_in_place(final: Path) -> Iterator[Path]:
     except BaseException as err:
         gone = isinstance(err, FileNotFoundError) and not (final / INCOMPLETE).is_file()
         with signals_held():
-            _remove(final)
+            _drop_new(final)
             if had_old and old.is_dir():
                 os.replace(old, final)
                 _state["restored"].append(str(final))
@@ -599,11 +599,29 @@ def _run_in_place(final: Path) -> Iterator[Path]:
     _remove(old)
 
 
+def _drop_new(final: Path) -> None:
+    """A failed run's new folder goes — unless something nifo did not claim was put into it while it ran (a user's
+    file): then the folder is kept whole beside, as ``<final>.kept-<pid>``, with what nifo wrote listed in its
+    marker, rather than deleted with it."""
+    try:
+        mine = final.is_dir() and bool(unowned(final))
+    except OSError:
+        mine = False
+    if not mine:
+        _remove(final)
+        return
+    kept = final.with_name(f"{final.name}.kept-{os.getpid()}")
+    os.replace(final, kept)
+    _state["kept"].append(str(kept))
+
+
 def interrupt_note() -> str:
     """What an interrupted command left on disk, for its one-line message."""
-    done, restored = _state["committed"], _state["restored"]
+    done, restored, kept = _state["committed"], _state["restored"], _state.get("kept", [])
+    also = ("; files put into the new folder while it was written are kept in " + ", ".join(kept)) if kept else ""
     if done:
-        return "interrupted after writing " + ", ".join(done) + "; nothing else was written"
+        return "interrupted after writing " + ", ".join(done) + "; nothing else was written" + also
     if restored:
-        return "interrupted; nothing was written (the earlier results in " + ", ".join(restored) + " were kept)"
-    return "interrupted; nothing was written"
+        return ("interrupted; nothing was written (the earlier results in " + ", ".join(restored) + " were kept)"
+                + also)
+    return "interrupted; nothing was written" + also
