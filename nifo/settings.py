@@ -240,6 +240,7 @@ def resolve(paths: Sequence[Path], args: argparse.Namespace | None = None, *, fi
         for p, read in zip(paths, reads):
             ex, fs_p, dur, rec = _probe(Path(p), opts, merged, read)
             if ex is None and merged.analysis_band_hz is None:
+                _too_short_to_tell(Path(p), rec)
                 why = rec.meta.get("settings_not_from_data", "")
                 raise IllConditionedError(
                     f"no excited band found in the data ({why}): the analysis band cannot be chosen from them",
@@ -270,6 +271,19 @@ def resolve(paths: Sequence[Path], args: argparse.Namespace | None = None, *, fi
     st = replace(st, inputs=inputs, notes=tuple(notes))
     _step.set((st, [str(p) for p in paths]))
     return st
+
+
+#: fewer samples than this many of the paper's blocks (10.24 s) say nothing about a band: the record is too short
+_FEWEST_BLOCKS = 2
+
+
+def _too_short_to_tell(path: Path, rec) -> None:
+    """A record too short for any band to be found in it is refused as too short, not as unexcited."""
+    need = int(_FEWEST_BLOCKS * 6144 * rec.fs_hz / 600.0)
+    if rec.n < need:
+        raise RecordTooShortError(f"{rec.n} samples ({rec.duration_s:.3g} s) are too few to tell the excited band "
+                                  f"(at least {need}, {need / rec.fs_hz:.3g} s)", source=str(path),
+                                  hint="record longer, or give the band yourself: --freq-range LO HI")
 
 
 class _Origins:
@@ -306,8 +320,11 @@ def in_context(err: NifoError, settings, *, source: str | None = None) -> NifoEr
                 channel = None if channel in (flag, name, words) else channel
                 said = "given in the model file" if where == "model file" else f"{where}, not given"
                 msg = msg.replace(flag, words, 1) + f" (the {words} was {said})"
-            hint = (f"correct it in the model file's settings, or give {flag} LO HI" if where == "model file" else
-                    f"give {flag} LO HI where the data are excited" + (f"; or {hint}" if hint else ""))
+            if where == "model file":
+                hint = (f"{hint}, in the model file's settings (or give {flag} LO HI)" if hint else
+                        f"correct it in the model file's settings, or give {flag} LO HI")
+            else:
+                hint = f"give {flag} LO HI where the data are excited" + (f"; or {hint}" if hint else "")
         break
     if (msg, channel, hint) == (err.message, err.channel, err.hint) and (err.source or not source):
         return err

@@ -604,7 +604,7 @@ def _drop_new(final: Path) -> None:
     file): then the folder is kept whole beside, as ``<final>.kept-<pid>``, with what nifo wrote listed in its
     marker, rather than deleted with it."""
     try:
-        mine = final.is_dir() and bool(unowned(final))
+        mine = final.is_dir() and bool(unowned(final, contents=False))     # an interrupt waits for no hashing
     except OSError:
         mine = False
     if not mine:

@@ -137,8 +137,8 @@ def command_line() -> str:
 
 def write_marker(d: str | os.PathLike, *, entries: Iterable[str] | None = None, complete: bool = True) -> Path:
     """Write ``d/.nifo-output`` (replacing it whole): ``entries`` (relative paths nifo wrote into ``d``; None:
-    everything now in it, :func:`tree`) with each file's size and content hash (``null`` for one not there yet:
-    being written), ``complete`` False while a run is still writing."""
+    everything now in it, :func:`tree`) with each file's size and content hash; ``complete`` False while a run is
+    still writing: then every file is ``null`` (being written; hashed once, when the folder is sealed)."""
     d = Path(d)
     listed = tree(d) if entries is None else _with_parents(entries)
     content: dict[str, list | None] = {}
@@ -150,7 +150,7 @@ def write_marker(d: str | os.PathLike, *, entries: Iterable[str] | None = None, 
             content[r] = None
             continue
         if stat.S_ISREG(st.st_mode):
-            content[r] = [int(st.st_size), file_hash(p)]
+            content[r] = [int(st.st_size), file_hash(p)] if complete else None
     doc = {"nifo_output": MARKER_FORMAT, "nifo_version": __version__, "command": command_line(),
            "written": _dt.datetime.now().astimezone().isoformat(timespec="seconds"), "pid": os.getpid(),
            "complete": bool(complete), "note": _NOTE, "entries": listed, "content": content}
@@ -206,9 +206,9 @@ def _skipped(name: str, top: bool) -> bool:
     return (top and name in (MARKER, INCOMPLETE)) or bool(LEFTOVER.match(name)) or bool(LOCK.match(name))
 
 
-def unowned_in_marked(d: Path, doc: dict, limit: int) -> list[Unowned]:
+def unowned_in_marked(d: Path, doc: dict, limit: int, *, contents: bool = True) -> list[Unowned]:
     """Entries of folder ``d``, marked with ``doc`` (:func:`read_marker`, this format), that are not nifo's to
-    replace (at most ``limit``): not listed, or listed and changed since."""
+    replace (at most ``limit``): not listed, or listed and changed since (``contents=False``: not read)."""
     listed, content = set(doc["entries"]), doc["content"]
     found: list[Unowned] = []
 
@@ -225,12 +225,12 @@ def unowned_in_marked(d: Path, doc: dict, limit: int) -> list[Unowned]:
                 sub = read_marker(e.path)
                 if sub is not None and sub.get("nifo_output") == MARKER_FORMAT:
                     found.extend(Unowned(f"{r}/{x.path}", x.changed)
-                                 for x in unowned_in_marked(Path(e.path), sub, limit - len(found)))
+                                 for x in unowned_in_marked(Path(e.path), sub, limit - len(found), contents=contents))
                 else:
                     walk(Path(e.path), r + "/")
             elif not e.is_file(follow_symlinks=False):
                 found.append(Unowned(r))
-            elif content.get(r) is not None and not _same_content(Path(e.path), content[r]):
+            elif contents and content.get(r) is not None and not _same_content(Path(e.path), content[r]):
                 found.append(Unowned(r, changed=True))
 
     walk(d, "")

@@ -59,16 +59,17 @@ def _scan(d: Path) -> list[os.DirEntry]:
     return sorted(os.scandir(d), key=lambda e: e.name)
 
 
-def unowned(d: str | os.PathLike, *, limit: int = 3) -> list[Unowned]:
+def unowned(d: str | os.PathLike, *, limit: int = 3, contents: bool = True) -> list[Unowned]:
     """Entries of folder ``d`` that are not nifo's to replace (at most ``limit``): what it did not write, and what
-    it wrote that was changed since (:mod:`nifo.io.marker`); ``[]``: nifo may replace ``d``."""
+    it wrote that was changed since (:mod:`nifo.io.marker`; ``contents=False``: what it did not write only, no file
+    read); ``[]``: nifo may replace ``d``."""
     d = Path(d)
     entries = [e for e in _scan(d) if not (LEFTOVER.match(e.name) or LOCK.match(e.name))]
     if not entries:
         return []
     doc = _marker(d)
     if doc is not None:
-        return unowned_in_marked(d, doc, limit)
+        return unowned_in_marked(d, doc, limit, contents=contents)
     # an old nifo result (none, or an older nifo's marker, which lists no contents: recognised by its result
     # documents alone, so a copied or hand-written marker never makes a user's file nifo's): name what is extra
     for recognise in (_legacy_unexpected, _legacy_run_unexpected):
