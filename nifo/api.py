@@ -6,7 +6,7 @@
 
     model = nifo.Model.load("results")                # a folder nifo run / loop / identify wrote, or a model.json
     rec = nifo.load_record("bags/sample/road_1mm")    # bag, MCAP, CSV or MAT (the CLI's options: columns=..., ...)
-    sim = model.predict(rec)                          # as nifo predict drives it: body acceleration, z, ż
+    sim = model.predict(rec)                          # as nifo predict drives it: sim.output, body acceleration, z, ż
     sim = model.simulate(rec.spindle_accel, fs_hz=rec.fs_hz)   # any input signal, at any sample rate
     law = model.force_law()                           # force against deflection and velocity, each term, total
     t21 = model.transmissibility([2.0, 5.0, 10.0])    # nominal linear spindle→body transmissibility
@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -36,6 +36,7 @@ from nifo.plots.restoring import term_words
 from nifo_core.errors import ConfigError, DataFileError
 from nifo_core.predict.force_law import (Characteristic, characteristic, force_law_bounds, strut_law, truth_law)
 from nifo_core.predict.model import IdentifiedModel, predict_body, record_inputs
+from nifo_core.predict.output_signal import output_name, predicted_output
 from nifo_core.signal.record import Record
 
 __all__ = ["Model", "Simulation", "ForceLaw", "Curve", "load_record", "find_model"]
@@ -60,13 +61,19 @@ def find_model(path: str | os.PathLike) -> Path:
 @dataclass(frozen=True, eq=False)
 class Simulation:
     """A model's response to an input signal: body acceleration [m/s²], deflection z [m], velocity ż [m/s] on the
-    input's samples; ``valid`` leaves out the start-up edges (the record's past is unknown)."""
+    input's samples (the deviation about the model's operating point); ``valid`` leaves out the start-up edges (the
+    record's past is unknown). :meth:`Model.predict` also gives ``output``: the predicted signal as the record
+    measured it (``output_name``: 'body_accel', or 'body_disp' for a displacement recorded on a force-driven mass),
+    with the model's static part (offsets) and limited to the model's band when its prediction is — what
+    ``nifo predict`` writes as ``<output>_model``."""
 
     fs_hz: float
     body_accel: np.ndarray
     z: np.ndarray
     zdot: np.ndarray
     valid: slice
+    output: np.ndarray | None = None
+    output_name: str | None = None
 
     @property
     def time_s(self) -> np.ndarray:
@@ -232,9 +239,11 @@ class Model:
         return Simulation(float(fs_hz), pred.body_accel, pred.z, pred.zdot, pred.valid)
 
     def predict(self, record: Record) -> Simulation:
-        """:meth:`simulate` driven by a record's measured inputs (as ``nifo predict`` drives it)."""
+        """:meth:`simulate` driven by a record's measured inputs about the model's operating point, and the predicted
+        signal as measured (``output``: offsets included, as ``nifo predict`` writes it)."""
         a1, force = record_inputs(record, self.identified)
-        return self.simulate(a1, record.fs_hz, force=force)
+        sim = self.simulate(a1, record.fs_hz, force=force)
+        return replace(sim, output=predicted_output(self.identified, record, sim), output_name=output_name(record))
 
     def transmissibility(self, freq_hz) -> np.ndarray:
         """The nominal linear spindle→body transmissibility T21(jω) of the model's linear part (complex)."""

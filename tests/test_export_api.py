@@ -134,7 +134,7 @@ def test_readme_python_example_runs_as_written_and_reproduces_nifo_predict(run_o
     assert "damper knee" in printed and "deflection_m" in printed
     sim = scope["sim"]
     pred = read_signals(run_out / "predict" / "road_1mm_signals.parquet")
-    np.testing.assert_allclose(sim.body_accel, pred["body_accel_model"], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(sim.output, pred["body_accel_model"], rtol=0, atol=1e-12)
     np.testing.assert_array_equal(scope["rec"].body_accel, pred["body_accel_measured"])
 
 

@@ -13,7 +13,7 @@
 4. the validity: the analysis band and the driving input's RMS and peak over the records, and the strut's measured
    range of deflection and velocity (:func:`~nifo_core.predict.force_law.motion_range`).
 
-Two simulations of every record.
+One simulation of every record.
 """
 
 from __future__ import annotations
@@ -57,13 +57,16 @@ def _static_residue(model, held: HeldOut, i: int, dyn: np.ndarray, lo: int, hi: 
     return float(np.mean(y[lo:hi] - cm - dyn[lo:hi])), hi - lo
 
 
-def _simulate(model: IdentifiedModel, held: HeldOut) -> list[np.ndarray]:
-    """The predicted deviation of every record's output, simulated from its first sample."""
-    out = []
+def _simulate(model: IdentifiedModel, held: HeldOut, policies: tuple[str, ...]) -> dict[str, list[np.ndarray]]:
+    """Per policy, the predicted deviation of every record's output, simulated from its first sample: one simulation
+    a record (the model is driven by the whole input under either policy; only its output is limited)."""
+    out: dict[str, list[np.ndarray]] = {p: [] for p in policies}
     for r in held.records:
         a1, force = record_inputs(r, model)
         pred = predict_body(model, a1, r.fs_hz, force=force, label=r.source)
-        out.append(dynamic_output(model, r, pred))
+        for p in policies:
+            out[p].append(dynamic_output(replace(model, prediction_band=PredictionBand(p, model.analysis_band_hz)),
+                                         r, pred))
     return out
 
 
@@ -99,10 +102,8 @@ def fit_scope(model: IdentifiedModel, held: HeldOut, *, choose_band: bool = True
     policies = ("whole", "band") if choose_band else ("whole",)
     sims, scores = {}, {}
     try:
-        for p in policies:
-            m = replace(base, prediction_band=PredictionBand(p, band))
-            sims[p] = _simulate(m, held)
-            scores[p] = _held_out_nmse(m, held, sims[p])
+        sims = _simulate(base, held, policies)
+        scores = {p: _held_out_nmse(base, held, sims[p]) for p in policies}
     except (NifoError, np.linalg.LinAlgError) as err:
         sims, why = {}, f"not simulated on the identification records ({err}): the output offset from their means"
     if "band" in scores and scores["band"] <= (1 - BAND_GAIN) * scores["whole"]:

@@ -38,5 +38,5 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
     "uncertainty": ["CoefficientBounds", "coefficient_bounds", "effective_samples"],
     "excitation": ["Excitation", "analyse_excitation", "combine_excitations", "detect_period"],
     "noise": ["NoiseEstimate", "estimate_noise"],
-    "band": ["band_taper", "band_limit", "edge_width_hz", "fraction_outside"],
+    "band": ["band_taper", "band_limit", "edge_width_hz", "fraction_outside", "prediction_taper", "PREDICTION_EDGE"],
 })
