@@ -42,7 +42,7 @@ from nifo_core.signal.clipping import REFUSE_FRACTION, ClippingWarning, clipping
 from nifo_core.signal.record import acceleration_means, concatenate
 from nifo_core.signal.excitation import Excitation, analyse_excitation, combine_excitations
 from nifo_core.characterize.restoring import suggest_band
-from nifo_core.settings import AnalysisSettings, GivenSettings, merge_given, resolve_settings
+from nifo_core.settings import PAPER_BLOCK_S, AnalysisSettings, GivenSettings, merge_given, resolve_settings
 
 __all__ = ["add_settings_arguments", "given_from_args", "given_from_file", "resolve", "loader_options",
            "check_record", "in_context", "explain", "PROBE_SAMPLES"]
@@ -203,12 +203,6 @@ def check_record(path: Path, rec) -> tuple[dict, list[str]]:
     return {"offsets_m_s2": means, "clipping": {k: c.to_dict() for k, c in clipped.items()}}, notes
 
 
-#: the options nifo run fills in for its steps: option name -> the settings' name (``Inputs.setting_sources``)
-GIVEN_NAMES = {"freq_range": "analysis_band_hz", "band": "band_hz", "block": "block", "overlap": "overlap",
-               "window": "window", "period_samples": "period_samples", "skip_periods": "skip_periods",
-               "skip_seconds": "skip_seconds", "cond_limit": "cond_limit"}
-
-
 def resolve(paths: Sequence[Path], args: argparse.Namespace | None = None, *, file_settings=None,
             opts: dict | None = None, given: GivenSettings | None = None,
             from_data: bool = True) -> AnalysisSettings:
@@ -279,7 +273,7 @@ _FEWEST_BLOCKS = 2
 
 def _too_short_to_tell(path: Path, rec) -> None:
     """A record too short for any band to be found in it is refused as too short, not as unexcited."""
-    need = int(_FEWEST_BLOCKS * 6144 * rec.fs_hz / 600.0)
+    need = int(_FEWEST_BLOCKS * PAPER_BLOCK_S * rec.fs_hz)
     if rec.n < need:
         raise RecordTooShortError(f"{rec.n} samples ({rec.duration_s:.3g} s) are too few to tell the excited band "
                                   f"(at least {need}, {need / rec.fs_hz:.3g} s)", source=str(path),

@@ -45,7 +45,7 @@ from .signal.integrate import IntegrationBand, default_band, lowest_edge_hz
 from .signal.spectral import SpectralSettings
 
 __all__ = ["Choice", "GivenSettings", "AnalysisSettings", "DEFAULT_ANALYSIS_BAND_HZ", "DEFAULT_COND_LIMIT",
-           "resolve_settings", "merge_given"]
+           "PAPER_BLOCK_S", "resolve_settings", "merge_given"]
 
 #: the analysis band when nothing else says (the paper's figures: 2-30 Hz)
 DEFAULT_ANALYSIS_BAND_HZ = (2.0, 30.0)
@@ -53,6 +53,8 @@ DEFAULT_ANALYSIS_BAND_HZ = (2.0, 30.0)
 DEFAULT_COND_LIMIT = 1e4
 #: random data: at least this many spectral averages before the paper's block is shortened
 MIN_AVERAGES = 8
+#: the paper's spectral block for random data [s] (Table 2: 6144 samples at 600 Hz)
+PAPER_BLOCK_S = 6144 / 600.0
 #: the integrator is exact (within 0.2 %) from this multiple of its lower edge
 EXACT_FROM = 1.5
 #: the integration band reaches this multiple of the top of the excited band (a play's or clearance's harmonics)
@@ -210,7 +212,7 @@ def _fmt(v) -> str:
 
 def _random_block(fs_hz: float, n_samples: int, lowest_hz: float, overlap: float) -> tuple[int, str]:
     """The paper's 10.24 s block, shortened for ≥ MIN_AVERAGES averages, never below 4 cycles of ``lowest_hz``."""
-    block = int(round(6144 * fs_hz / 600.0))
+    block = int(round(PAPER_BLOCK_S * fs_hz))
     need = int(np.ceil(4 * fs_hz / max(lowest_hz, 1e-9)))
     step = 1.0 - overlap
 

@@ -281,7 +281,7 @@ def test_a_forged_or_damaged_marker_makes_nothing_nifos(tmp_path):
 
 
 def test_a_run_folder_removed_by_someone_else_while_written_is_one_line_not_a_traceback(tmp_path):
-    """Before issue 56 a run whose folder vanished under it ended in FileNotFoundError (…/INCOMPLETE) in staged_run."""
+    """Before issue 56 a run whose folder vanished under it ended in FileNotFoundError (INCOMPLETE) in staged_run."""
     import shutil
 
     out = tmp_path / "res"

@@ -46,7 +46,8 @@ def run_characterize(args: CharacterizeOptions, *, echo: Callable[[str], None] =
                      show_progress: bool = True) -> dict:
     """The step (module docstring); what it reports goes to ``echo`` (``nifo run`` collects the lines of steps it
     runs side by side and prints them in order), its progress bar only with ``show_progress``."""
-    check_output(args.out, reads=args.data)   # refuse a file, a foreign folder or one holding an input before any work
+    # before any work: a file, a foreign folder or one holding an input of the command is refused
+    check_output(args.out, reads=args.data)
     settings = resolve([Path(p) for p in args.data], args, opts=input_options(args))
     opts = loader_options(input_options(args), settings)
     records = [load_record(p, **opts, centred=True) for p in args.data]   # offsets of any size alike

@@ -330,7 +330,8 @@ def _two_step(args, spec, cfg, opts):
 def run_identify(args: IdentifyOptions) -> dict:
     """``nifo identify`` (module docstring): writes identify.json, model.json and the figures into ``args.out``,
     prints the summary; the command's summary dict."""
-    check_output(args.out, reads=[*args.data, args.model])   # refuse a file, a foreign folder or one holding an input before any work
+    # before any work: a file, a foreign folder or one holding an input of the command is refused
+    check_output(args.out, reads=[*args.data, args.model])
     if getattr(args, "feedback_paths", False) and (getattr(args, "refine", False)
                                                    or getattr(args, "refine_linear", False)):
         raise ConfigError("--feedback-paths and --refine/--refine-linear are two different fits of the terms",

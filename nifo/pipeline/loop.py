@@ -42,7 +42,8 @@ from nifo_core.loop.closing import LoopResult, LoopSettings, close_loop
 
 
 def run_loop(args: LoopOptions) -> dict:
-    check_output(args.out, reads=[*args.data, args.model])   # refuse a file, a foreign folder or one holding an input before any work
+    # before any work: a file, a foreign folder or one holding an input of the command is refused
+    check_output(args.out, reads=[*args.data, args.model])
     start_helpers()          # the figure helpers import matplotlib while the records are read (one core busy)
     spec = load_model_spec(args.model) if args.model else None
     declared = list(spec.terms) if spec else []

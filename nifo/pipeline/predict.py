@@ -306,7 +306,8 @@ def _linear_part(model):
 
 
 def run_predict(args: PredictOptions) -> dict:
-    check_output(args.out, reads=[*args.data, args.model])   # refuse a file, a foreign folder or one holding an input before any work
+    # before any work: a file, a foreign folder or one holding an input of the command is refused
+    check_output(args.out, reads=[*args.data, args.model])
 
     model, linear = read_model(args.model)
     if linear is None:

@@ -45,8 +45,8 @@ from typing import Iterator, Sequence
 
 from nifo.interrupt import by_interrupt, crash_stacks, signals_held
 
-__all__ = ["figure_batch", "deferred_figures", "wait_figures", "submit_figure", "write_files", "figure_paths", "figure_workers",
-           "start_helpers", "abandon_helpers"]
+__all__ = ["figure_batch", "deferred_figures", "wait_figures", "submit_figure", "write_files", "figure_paths",
+           "figure_workers", "start_helpers", "abandon_helpers"]
 
 #: environment variable: helper processes for figures (0: write them in the calling process)
 WORKERS_ENV = "NIFO_FIGURE_WORKERS"
