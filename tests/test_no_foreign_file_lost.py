@@ -170,7 +170,7 @@ def test_each_command_replaces_its_own_output_and_refuses_once_a_user_file_is_ad
             code, _, err = cli(argv)
             assert code == 0, (name, err)
     marker = json.loads((tmp_path / "c" / MARKER).read_text())
-    assert marker["nifo_output"] == 1 and marker["command"].startswith("nifo characterize") and \
+    assert marker["nifo_output"] == 2 and marker["command"].startswith("nifo characterize") and \
         "characterize.json" in marker["entries"] and marker["nifo_version"]
     (tmp_path / "c" / "notes.txt").write_text("mine")
     (tmp_path / "bag" / "thesis.docx").write_text("mine")

@@ -15,6 +15,8 @@ from nifo.pipeline.export import run_export
 from nifo.pipeline.options import ExportOptions
 
 HELP = SUMMARIES["export"]
+#: the argument naming what this command writes: locked for the whole command (nifo.io.lock)
+OUTPUT = "out"
 DESCRIPTION = _step.__doc__.split("\n", 1)[1].strip() if _step.__doc__ else HELP
 
 

@@ -34,6 +34,7 @@ from nifo_core.kinds.describing import Term
 from nifo_core.errors import NifoError, RecordTooShortError
 from nifo_core.fleet import interval_halfwidth, standard_error
 from nifo_core.signal.integrate import IntegrationBand, default_band
+from nifo_core.signal.record import acceleration_means
 from nifo_core.predict.linear_part import BODY_FIT_LIMIT, nominal_linear_part
 from nifo_core.loop.closing import LoopSettings, close_loop
 from nifo_core.predict.model import IdentifiedModel
@@ -152,6 +153,8 @@ def _accumulate(chunks, path: str, setup: GroupSetup):
             one = StreamingNifo(chunk.fs_hz, setup.terms, settings=setup.spectral, band=setup.band,
                                 with_tire_patch=setup.with_tire_patch, analysis_band_hz=setup.analysis_band_hz,
                                 on_ill_conditioned="warn", cond_limit=setup.cond_limit)
+            means = acceleration_means(chunk)   # as nifo identify: the first chunk's offsets off every chunk
+        chunk = chunk.centred(means)
         one.push(chunk.spindle_accel, chunk.body_accel, chunk.tire_patch_disp if setup.with_tire_patch else None)
         n += chunk.n
     if one is None:

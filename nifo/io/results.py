@@ -47,7 +47,7 @@ from nifo_core.predict.model import IdentifiedModel
 from nifo_core.nifo.identify import NifoResult
 from nifo_core.signal.record import Record
 
-from .atomic import staged_file
+from .atomic import claim, staged_file
 from .modelfile import TermSpec, validation_error
 
 __all__ = ["data_entry", "identify_document", "write_json", "read_json", "read_identify", "model_document",
@@ -97,6 +97,7 @@ def write_json(path: str | os.PathLike, doc: Mapping, *, atomic: bool = True, in
         text = json.dumps(_nan_to_none(doc), default=_default, allow_nan=False, indent=indent, separators=seps) + "\n"
     p = Path(path)
     if not atomic:
+        claim(p)     # inside nifo run's folder: listed in its marker before it is written
         p.write_text(text)
         return p
     with staged_file(p) as tmp:
@@ -390,4 +391,21 @@ def read_model(path: str | os.PathLike) -> tuple[IdentifiedModel, IdentifiedMode
         linear = None if lin is None else IdentifiedModel.from_dict(_nan(lin))
     except ConfigError as err:
         raise err.with_context(source=str(p)) from None
+    for m, where in ((model, ""), (linear, "linear_h1: ")):
+        if m is not None:
+            _check_model(m, str(p), where)
     return model, linear
+
+
+def _check_model(model: IdentifiedModel, source: str, where: str) -> None:
+    """What the schema cannot say about a model.json: its analysis band ordered, its linear part stable (a model
+    that cannot be simulated is the file's fault, named as such rather than after the data it was given)."""
+    lo, hi = model.analysis_band_hz
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):
+        raise ConfigError(f"{where}analysis_band_hz {lo:g} {hi:g} must satisfy 0 <= LO < HI", source=source,
+                          channel="analysis_band_hz", hint=_MODEL_FIX)
+    if not model.linear.stable:
+        poles = np.round(model.linear.all_poles(), 4).tolist()
+        raise ConfigError(f"{where}the linear part is not stable (poles {poles} 1/s): it cannot be simulated",
+                          source=source, channel="linear_part", hint=_MODEL_FIX)
+

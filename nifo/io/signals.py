@@ -19,6 +19,8 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
+from .atomic import claim
+
 __all__ = ["write_signals", "read_signals"]
 
 
@@ -28,6 +30,8 @@ def write_signals(out: Path, stem: str, columns: Mapping[str, np.ndarray], *, me
     table = pa.table({k: pa.array(np.asarray(v, float)) for k, v in columns.items()})
     table = table.replace_schema_metadata({"nifo": json.dumps(dict(meta or {}), default=str)})
     names = [f"{stem}_signals.parquet", f"{stem}_signals.csv"]
+    for name in names:
+        claim(out / name)
     pq.write_table(table, out / names[0])
     pacsv.write_csv(table, out / names[1])
     return names

@@ -138,7 +138,7 @@ def _summary_doc(model: Model, law: ForceLaw, args: ExportOptions) -> dict:
 
 def run_export(args: ExportOptions) -> dict:
     """``nifo export`` (module docstring): the files in ``args.out``; the command's summary."""
-    check_output(args.out)   # refuse a file or a foreign directory before any work
+    check_output(args.out, reads=[args.model])   # refuse a file, a foreign folder or one holding the model first
     model = Model.load(args.model)
     law = model.force_law(points=args.points, mass_kg=args.m2)
     doc = _summary_doc(model, law, args)

@@ -42,7 +42,8 @@ from nifo_core.loop.closing import LoopResult, LoopSettings, close_loop
 
 
 def run_loop(args: LoopOptions) -> dict:
-    check_output(args.out)   # refuse a file or a foreign directory before any work
+    # before any work: a file, a foreign folder or one holding an input of the command is refused
+    check_output(args.out, reads=[*args.data, args.model])
     start_helpers()          # the figure helpers import matplotlib while the records are read (one core busy)
     spec = load_model_spec(args.model) if args.model else None
     declared = list(spec.terms) if spec else []
@@ -52,7 +53,7 @@ def run_loop(args: LoopOptions) -> dict:
         print("settings:\n  " + "\n  ".join(data.describe()))
     opts = loader_options(input_options(args), data)
     opts.update(skip_periods=None, skip_seconds=None)   # whole records: simulated from rest, the transient not scored
-    records = [load_record(p, **opts) for p in args.data]
+    records = [load_record(p, **opts) for p in args.data]   # as measured: the loop removes the offsets itself
     if data.band is not None:   # an edge too low for the shortest record: refused before any work, naming it
         data = replace(data, band=band_for_records(data.band, records))
     kinds = tuple(k.strip() for k in args.kinds.split(",")) if args.kinds else DEFAULT_KINDS

@@ -27,6 +27,7 @@ import numpy as np
 from jinja2 import ChainableUndefined, Environment, PackageLoader, Undefined, pass_context, select_autoescape
 from markupsafe import Markup
 
+from nifo.io.names import record_labels
 from nifo_core import __version__
 from nifo_core.errors import NifoError
 
@@ -215,10 +216,12 @@ def _characterize(r: ResultDir, system: Mapping) -> dict:
         cands.append([_term_text(c, system), coef, _num(c.get("err"), ".3f"), _num(c.get("p_value"), ".1e"),
                       status, c.get("meaning", "")])
         classes.append("suggested" if c.get("status") == "suggested" else "")
-    levels = [[Path(x.get("path", x.get("source", ""))).name, _num(x.get("duration_s"), ".1f"),
+    recs = d.get("records", [])
+    names = record_labels([str(x.get("path", x.get("source", ""))) for x in recs])   # two rec.csv told apart
+    levels = [[name, _num(x.get("duration_s"), ".1f"),
                _num(None if x.get("z_rms_m") is None else zs * x["z_rms_m"], ".3g"),
                _num(None if x.get("zdot_rms_m_s") is None else vs * x["zdot_rms_m_s"], ".3g"),
-               _num(x.get("linear_r2"), ".4f")] for x in d.get("records", [])]
+               _num(x.get("linear_r2"), ".4f")] for x, name in zip(recs, names)]
     sug = d.get("suggested") or []
     return {"candidates": cands, "candidate_classes": classes, "levels": levels, "z_unit": zu, "v_unit": vu,
             "suggested": [f"{_term_text(x, system)}: {x.get('meaning', '')}" for x in sug]}
@@ -493,13 +496,13 @@ def levels_figure(results: Sequence[ResultDir], out_png: Path) -> Path | None:
             if q is not None and q.resolve() not in [x.resolve() for x, _ in found]:
                 found.append((q, r))
     curves, truth = [], None
-    for p, r in found:
+    for (p, r), name in zip(found, record_labels([p for p, _ in found])):
         rec = _record(p, r)
         if abs(rec.fs_hz - res.fs_hz) > 1e-6 * res.fs_hz:
             continue
         spec = cross_spectra(np.stack([rec.spindle_accel, rec.body_accel]), rec.fs_hz, res.settings)
         rms = float(np.std(rec.spindle_accel))
-        curves.append((f"measured H1, {p.name} ({words['input']} RMS {rms:.2g} {units})", spec.freq_hz,
+        curves.append((f"measured H1, {name} ({words['input']} RMS {rms:.2g} {units})", spec.freq_hz,
                        h1(spec, 0, 1), {"lw": 1.0, "alpha": 0.85}))
         if truth is None and (t := true_t21(p, spec.freq_hz)) is not None:
             truth = (spec.freq_hz, t)

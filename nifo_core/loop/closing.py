@@ -376,9 +376,12 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
     -------
     LoopResult
     """
-    recs = [records] if isinstance(records, Record) else list(records)
-    if not recs:
+    raw = [records] if isinstance(records, Record) else list(records)
+    if not raw:
         raise InputError("no records to run the loop on")
+    # every analysis on the records without their accelerations' constant offsets (removed in float64: offsets of
+    # any size give the same loop); the model's static part is fitted on the records as measured (fit_scope)
+    recs = [r.centred() for r in raw]
     if m2_kg is not None and not (np.isfinite(m2_kg) and m2_kg > 0):
         raise ConfigError(f"m2_kg={m2_kg!r} must be a positive mass [kg]")
     rates = sorted({r.fs_hz for r in recs})
@@ -552,8 +555,9 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
         final_score = refinement.heldout_after_pct
     if model is not None:   # what the model carries besides its dynamics: offsets, the band it covers, its range
         say(0.99, "the static part and the band the prediction covers")
-        model = fit_scope(model, held)
-        linear = None if linear is None else fit_scope(linear, held)
+        held_raw = replace(held, records=tuple(raw))
+        model = fit_scope(model, held_raw)
+        linear = None if linear is None else fit_scope(linear, held_raw)
     floor_note = _floors(final_score, pred, terms)
     if floor_note:
         verdict = floor_note + " " + verdict.replace(NOTHING_MISSING, "").replace(
