@@ -16,6 +16,9 @@ trees' paths are replaced by placeholders and the timing keys are dropped: ident
 
     PYTHONPATH=. .venv/bin/python benchmarks/compare_versions.py BASE [--runs 3] -- COMMAND ARGS...
 
+``--runs 0``: no timing, one run of each version and the comparison of what they wrote (a refactoring's "behaviour
+unchanged", e.g. ``compare_versions.py main --runs 0 -- run`` for every JSON of the sample's ``nifo run``).
+
 for example, the F-16 main job against the commit before a change (the tool gives each run its ``--out``)::
 
     PYTHONPATH=. .venv/bin/python benchmarks/compare_versions.py HEAD~1 -- run \\
@@ -129,11 +132,12 @@ def main(argv: list[str] | None = None) -> int:
     cut = argv.index("--") if "--" in argv else len(argv)
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("base", help="the earlier commit (any git revision)")
-    p.add_argument("--runs", type=int, default=3, help="timed runs of each version (default 3)")
+    p.add_argument("--runs", type=int, default=3,
+                   help="timed runs of each version (default 3; 0: one untimed run of each, outputs compared)")
     opts = p.parse_args(argv[:cut])
     args = _absolute(argv[cut + 1:])
-    if opts.runs < 1:
-        p.error("--runs must be at least 1")
+    if opts.runs < 0:
+        p.error("--runs must be 0 (outputs only) or more")
     if not args or "--out" in args:
         p.error("give the nifo command after --, without --out (each run gets its own)")
     with tempfile.TemporaryDirectory(prefix="nifo-compare-") as tmp:
@@ -148,6 +152,10 @@ def main(argv: list[str] | None = None) -> int:
                 _check_imports(tree, cwd)
                 print(f"{name}: {tree} (warm-up run)", flush=True)
                 _run(tree, cwd, args, tmp / f"warm_{name}")
+            if not opts.runs:
+                print("outputs (JSON, paths and clocks aside):")
+                print("\n".join(compare_outputs(tmp / "warm_old", tmp / "warm_new", trees)))
+                return 0
             times: dict[str, list[tuple[float, float]]] = {"old": [], "new": []}
             for k in range(opts.runs):
                 for name, tree in trees.items():

@@ -60,8 +60,8 @@ from .common import (IDENTIFIER_BLOCK_DEPTH, TOPICS, Diagnostics, Param, block_q
                      run_node)
 from .integrator import ACCEL_CHANNELS
 from .messages import block_from_msg
-from .results import (StreamStats, coefficients_msg, conditioning, msg_types, state_of, status_msg,
-                      transmissibility_msg, write_result_file)
+from .results import (StreamStats, coefficients_msg, msg_types, state_of, status_msg, transmissibility_msg,
+                      write_result_file)
 
 __all__ = ["IdentifierNode", "main", "load_checkpoint", "save_checkpoint"]
 
@@ -267,16 +267,20 @@ class IdentifierNode(Node):
         return tuple(terms), resolve_settings(self._given, fs_hz=None).spectral
 
     def _new_nifo(self, fs_hz: float):
+        """The accumulator, built by the identification engine every shell uses
+        (:class:`~nifo_core.nifo.engine.IdentifySetup`: the conditioning limit included). The live stream carries
+        the two accelerations only (:data:`ACCEL_CHANNELS`)."""
+        from nifo_core.nifo.engine import IdentifySetup
         from nifo_core.signal.integrate import IntegrationBand
-        from nifo_core.nifo.identify import StreamingNifo
         from nifo_core.settings import resolve_settings
 
         st = resolve_settings(self._given, fs_hz=fs_hz)
         lo, hi = self._band_edges       # one edge given as a parameter, the other the default of this rate
         band = IntegrationBand(lo or st.band.f_lo_hz, hi or st.band.f_hi_hz) if (lo or hi) and not (lo and hi) \
             else st.band
-        return StreamingNifo(fs_hz, self._terms, settings=st.spectral, band=band,
-                             analysis_band_hz=st.analysis_band_hz, on_ill_conditioned="ignore")
+        setup = IdentifySetup(fs_hz=fs_hz, terms=self._terms, spectral=st.spectral, band=band,
+                              analysis_band_hz=st.analysis_band_hz, cond_limit=self._cond_limit)
+        return setup.accumulator(on_ill_conditioned="ignore")
 
     def _resume(self) -> None:
         nifo, next_ns, stream = load_checkpoint(self._ckpt)
@@ -383,8 +387,8 @@ class IdentifierNode(Node):
         values = {"state": state, "blocks_received": self._blocks, **st.as_dict(),
                   "n_avg": r.n_avg if r is not None else 0, "samples_used": r.n_samples if r is not None else 0}
         if r is not None:
-            med, mx, ill = conditioning(r, self._cond_limit)
-            values.update(cond_median=med, cond_max=mx, ill_conditioned_fraction=ill)
+            cond = r.conditioning(self._cond_limit)
+            values.update(cond_median=cond.median, cond_max=cond.max, ill_conditioned_fraction=cond.ill_fraction)
         level = Diagnostics.OK
         if st.gaps:
             level = Diagnostics.WARN

@@ -72,19 +72,12 @@ def _f(a) -> list:
     return np.ascontiguousarray(a, np.float64).tolist()
 
 
-def conditioning(r, cond_limit: float) -> tuple[float, float, float]:
-    """(median, max, share above ``cond_limit``) of cond(G_UU) over the analysis band."""
-    c = np.asarray(r.cond)[r.in_band]
-    if c.size == 0:
-        return float("nan"), float("nan"), 1.0
-    return float(np.median(c)), float(np.max(c)), float(np.mean(~(c <= cond_limit)))
-
-
 def state_of(r, cond_limit: float) -> tuple[str, str]:
     """``(state, one-line message)`` for a result (``None``: nothing averaged yet)."""
     if r is None:
         return "waiting", "no spectral block averaged yet"
-    med, mx, ill = conditioning(r, cond_limit)
+    cond = r.conditioning(cond_limit)     # the summary nifo identify reports (NifoResult.conditioning)
+    med, ill = cond.median, cond.ill_fraction
     if ill > 0.5:
         return "ill_conditioned", (f"cond(G_UU) above {cond_limit:g} on {100 * ill:.0f} % of the analysis band: "
                                    "the terms cannot be separated at this level (more amplitude or fewer terms)")
@@ -136,7 +129,8 @@ def status_msg(r, *, stamp_ns: int, frame_id: str, stream: StreamStats, cond_lim
     m.samples_used = 0
     if r is not None:
         m.n_avg, m.samples_used = int(r.n_avg), int(r.n_samples)
-        m.cond_median, m.cond_max, m.ill_conditioned_fraction = conditioning(r, cond_limit)
+        cond = r.conditioning(cond_limit)
+        m.cond_median, m.cond_max, m.ill_conditioned_fraction = cond.median, cond.max, cond.ill_fraction
     else:
         m.cond_median = m.cond_max = float("nan")
         m.ill_conditioned_fraction = 0.0

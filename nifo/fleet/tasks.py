@@ -11,33 +11,35 @@ Every function is module-level and picklable. A bag that cannot be used
 gets ``{"ok": False, "reason": one line}`` instead of raising, so one bad
 bag never stops its batch or the fleet.
 
-The per-bag accumulation is the one ``nifo identify`` does per file (same
-StreamingNifo set-up, same chunk length, merged in file order), so a group's
-merged partial equals identify's merged accumulators and its coefficients
-agree to rounding.
+The per-bag accumulation is the one ``nifo identify`` does per file: the core's engine
+(:mod:`nifo_core.nifo.engine`: the same set-up decision from the bags' probes, the same accumulator, the same
+channels pushed — a measured force and a fixed spindle included), the same chunk length, merged in file order;
+so a group's merged partial equals identify's merged accumulators and its coefficients agree to rounding.
 """
 
 from __future__ import annotations
 
 import time
 import warnings
+from collections import Counter
 from dataclasses import dataclass, field, replace
+from itertools import chain
 
 import numpy as np
 
 from nifo.fleet.cache import (cache_key, content_hash, load_note, load_partial, settings_hash, store_note,
                               store_partial)
 from nifo.io.loader import detect_format, iter_record_chunks, load_record
-from nifo.pipeline.identify import check_usable, summarize
+from nifo.pipeline.identify import summarize
 from nifo_core.characterize.automatic import characterize
 from nifo_core.kinds.describing import Term
 from nifo_core.errors import NifoError, RecordTooShortError
 from nifo_core.fleet import interval_halfwidth, standard_error
 from nifo_core.signal.integrate import IntegrationBand, default_band
-from nifo_core.signal.record import acceleration_means
 from nifo_core.predict.linear_part import BODY_FIT_LIMIT, nominal_linear_part
 from nifo_core.loop.closing import LoopSettings, close_loop
 from nifo_core.predict.model import IdentifiedModel
+from nifo_core.nifo.engine import IdentifySetup, RecordProbe, accumulate_record
 from nifo_core.nifo.identify import StreamingNifo, nifo_from_spectra, static_fits
 from nifo_core.signal.spectral import SpectralSettings
 
@@ -57,15 +59,27 @@ class GroupSetup:
     chunk_samples: int
     opts: dict = field(default_factory=dict)
     band_from_model: bool = False
+    with_force: bool | None = None         # None: each bag's own until the group's is known
+    spindle_fixed: bool | None = None      # None: each bag's own until the group's is known
 
     def cache_settings(self) -> dict:
-        """What shapes a partial (the cache key's settings part)."""
+        """What shapes a partial (the cache key's settings part). The force and the fixed spindle appear only
+        when taken, so the partials of bags without them keep their keys (and a cached partial of a force-driven
+        bag accumulated without its force, before the fleet took it, is never read)."""
         opts = {k: (None if v is None else (v if isinstance(v, (str, int, float)) else repr(v)))
                 for k, v in self.opts.items()}
         return {"terms": [t.to_dict() for t in self.terms], "spectral": self.spectral.to_dict(),
                 "band": None if self.band is None else self.band.to_dict(), "with_tire_patch": self.with_tire_patch,
                 "analysis_band_hz": list(self.analysis_band_hz), "cond_limit": self.cond_limit,
-                "chunk_samples": self.chunk_samples, "opts": opts}
+                "chunk_samples": self.chunk_samples, "opts": opts,
+                **{k: True for k in ("with_force", "spindle_fixed") if getattr(self, k)}}
+
+    def engine(self, fs_hz: float) -> IdentifySetup:
+        """The core's set-up of a bag accumulated with this (complete) set-up at ``fs_hz``."""
+        return IdentifySetup(fs_hz=fs_hz, terms=self.terms, spectral=self.spectral, band=self.band,
+                             analysis_band_hz=self.analysis_band_hz, cond_limit=self.cond_limit,
+                             with_tire_patch=bool(self.with_tire_patch), with_force=bool(self.with_force),
+                             spindle_fixed=bool(self.spindle_fixed))
 
 
 def coefficient_specs(terms, *, si: bool = False) -> list[tuple[str, str, str]]:
@@ -133,37 +147,30 @@ def _coefficients(res, *, body_first: bool = False) -> dict[str, float]:
 # per bag
 # ---------------------------------------------------------------------------------------------
 def bag_setup(base: GroupSetup, probe: dict) -> GroupSetup:
-    """The set-up a bag is accumulated with: the group's band and tire patch where fixed, else its own.
+    """The set-up a bag is accumulated with: the group's band and channels where fixed, else its own
+    (:meth:`IdentifySetup.for_probes` of this bag alone: its force, its spindle, its tire patch).
 
     Own band: ``default_band(fs, this bag's length)`` (``nifo identify`` uses the
     group's shortest bag; equal whenever every bag is longer than 64 s, else the
     client recomputes the bags that differ).
     """
-    fs = probe["fs_hz"]
-    band = base.band or default_band(fs, probe["n_samples"] / fs)
-    tp = probe["has_tire_patch"] if base.with_tire_patch is None else base.with_tire_patch
-    return replace(base, band=band.validate(fs, n_samples=probe["n_samples"]), with_tire_patch=bool(tp))
+    own = RecordProbe.from_dict(probe)
+    force = own.has_force if base.with_force is None else base.with_force
+    tp = own.has_tire_patch if base.with_tire_patch is None else base.with_tire_patch
+    setup = IdentifySetup.for_probes([own], base.terms, spectral=base.spectral, band=base.band,
+                                     analysis_band_hz=base.analysis_band_hz, cond_limit=base.cond_limit,
+                                     input_measured=bool(tp) and not force, use_force=bool(force))
+    return replace(base, band=setup.band, with_tire_patch=setup.with_tire_patch, with_force=setup.with_force,
+                   spindle_fixed=setup.spindle_fixed)
 
 
 def _accumulate(chunks, path: str, setup: GroupSetup):
-    one = None
-    n = 0
-    for chunk in chunks:
-        if one is None:   # the StreamingNifo nifo identify builds for each file (commands/identify.py)
-            one = StreamingNifo(chunk.fs_hz, setup.terms, settings=setup.spectral, band=setup.band,
-                                with_tire_patch=setup.with_tire_patch, analysis_band_hz=setup.analysis_band_hz,
-                                on_ill_conditioned="warn", cond_limit=setup.cond_limit)
-            means = acceleration_means(chunk)   # as nifo identify: the first chunk's offsets off every chunk
-        chunk = chunk.centred(means)
-        one.push(chunk.spindle_accel, chunk.body_accel, chunk.tire_patch_disp if setup.with_tire_patch else None)
-        n += chunk.n
-    if one is None:
+    """One bag into its accumulator, as ``nifo identify`` accumulates a file (:func:`accumulate_record`)."""
+    chunks = iter(chunks)
+    first = next(chunks, None)
+    if first is None:
         raise RecordTooShortError("the file holds no samples", source=path)
-    if one.n_avg == 0:
-        raise RecordTooShortError(f"{n} samples ({n / one.fs_hz:.1f} s) is too short for NIFO (needs "
-                                  f"{one.min_samples} with block={one.settings.block})", source=path,
-                                  hint="record longer, or choose a smaller block")
-    return one, n
+    return accumulate_record(chain([first], chunks), setup.engine(first.fs_hz), source=path)
 
 
 def _band_spectra(one, setup: GroupSetup):
@@ -180,7 +187,8 @@ def _coefficients_alone(spec, setup: GroupSetup) -> dict[str, float]:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             res = nifo_from_spectra(spec, setup.terms, band=setup.band, analysis_band_hz=setup.analysis_band_hz,
-                                    on_ill_conditioned="ignore", cond_limit=setup.cond_limit)
+                                    on_ill_conditioned="ignore", cond_limit=setup.cond_limit,
+                                    with_force=bool(setup.with_force), spindle_fixed=bool(setup.spindle_fixed))
         return _coefficients(res, body_first=True)
     except NifoError:
         return {n: float("nan") for n, _, _ in coefficient_specs(setup.terms)}
@@ -199,6 +207,8 @@ def bag_coefficients(specs: list, setup: GroupSetup) -> list[dict[str, float]]:
     if not specs:
         return []
     names = [n for n, _, _ in coefficient_specs(setup.terms)]
+    if setup.with_force:        # the batch static fit takes [a1, a2, g..] only: each bag's full solve
+        return [_coefficients_alone(sp, setup) for sp in specs]
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -224,21 +234,28 @@ def bag_coefficients(specs: list, setup: GroupSetup) -> list[dict[str, float]]:
 
 
 def group_setup(base: GroupSetup, probes: dict[int, dict], *, label: str) -> tuple[GroupSetup | None, dict[int, str]]:
-    """The group's set-up from its bags' rates, lengths and channels, as ``nifo identify`` chooses it.
+    """The group's set-up from its bags' rates, lengths and channels, as ``nifo identify`` chooses it
+    (:meth:`IdentifySetup.for_probes`: the force when every bag has one, the tire patch when every bag has it and
+    no force is taken, the band of the shortest bag).
 
-    Returns the set-up (None when no bag is left) and the reason for every bag left out (another rate).
+    Where ``nifo identify`` refuses files that cannot be identified together, the fleet leaves out the bags that
+    differ from most of the group (another rate; a fixed spindle among moving ones or the reverse) with their
+    reason, and goes on. Returns the set-up (None when no bag is left) and the reason for every bag left out.
     """
-    from collections import Counter
-
-
     if not probes:
         return None, {}
     fs = Counter(p["fs_hz"] for p in probes.values()).most_common(1)[0][0]
     left = {i: f"sample rate {p['fs_hz']:g} Hz differs from the other bags of {label} ({fs:g} Hz); resample it"
             for i, p in probes.items() if p["fs_hz"] != fs}
-    ok = [p for i, p in probes.items() if i not in left]
-    band = base.band or default_band(fs, min(p["n_samples"] for p in ok) / fs)
-    return replace(base, band=band, with_tire_patch=all(p["has_tire_patch"] for p in ok)), left
+    fixed = Counter(bool(p["spindle_fixed"]) for i, p in probes.items() if i not in left).most_common(1)[0][0]
+    left.update({i: ("its spindle is fixed" if p["spindle_fixed"] else "its spindle moves")
+                 + f", unlike the other bags of {label}; identify it with bags of its kind"
+                 for i, p in probes.items() if i not in left and bool(p["spindle_fixed"]) != fixed})
+    ok = [RecordProbe.from_dict(p) for i, p in probes.items() if i not in left]
+    band = base.band or default_band(fs, min(p.n_samples for p in ok) / fs)
+    force = all(p.has_force for p in ok)
+    return replace(base, band=band, with_tire_patch=all(p.has_tire_patch for p in ok) and not force,
+                   with_force=force, spindle_fixed=fixed), left
 
 
 def _open(path: str, base: GroupSetup):
@@ -251,17 +268,22 @@ def _open(path: str, base: GroupSetup):
     except BaseException:
         raw.close()
         raise
-    probe = {"fs_hz": float(first.fs_hz), "has_tire_patch": bool(first.has_tire_patch),
-             "n_samples": int(first.meta.get("chunk", {}).get("total_samples", first.n))}
-    return raw, first, probe
+    return raw, first, RecordProbe.of(first).to_dict()
 
 
 def _group_note(note) -> dict[str, dict]:
     """A whole group's note ({content hash: probe}); anything else (absent, foreign) reads as empty."""
     if not isinstance(note, dict):
         return {}
-    return {k: v for k, v in note.items()
-            if isinstance(v, dict) and {"fs_hz", "has_tire_patch", "n_samples"} <= set(v)}
+    return {k: v for k, v in note.items() if _probe_note(v) is not None}
+
+
+def _probe_note(note) -> dict | None:
+    """A bag's probe from its note; None for anything else (absent, foreign, or a note written before the probes
+    told the force and the spindle apart: the bag is opened again)."""
+    if isinstance(note, dict) and set(RecordProbe.__dataclass_fields__) <= set(note):
+        return note
+    return None
 
 
 def _group_bags(group: tuple, base: GroupSetup, bags: list[tuple[int, str]], whole: bool, cache_dir: str | None):
@@ -297,7 +319,7 @@ def _group_bags(group: tuple, base: GroupSetup, bags: list[tuple[int, str]], who
             try:
                 digest = digests[index]
                 note_key = cache_key(digest, opts_hash)
-                probe, opened = known.get(digest) or load_note(cache_dir, note_key), None
+                probe, opened = known.get(digest) or _probe_note(load_note(cache_dir, note_key)), None
                 if probe is None:
                     raw, first, probe = _open(path, base)
                     opened = (raw, first)
@@ -348,9 +370,6 @@ def _group_bags(group: tuple, base: GroupSetup, bags: list[tuple[int, str]], who
 
 def _partial(b: dict, setup: GroupSetup, cache_dir: str | None):
     """(StreamingNifo, status) of one opened or recalled bag with its set-up: from the cache, else accumulated."""
-    from itertools import chain
-
-
     setup_hash = settings_hash(setup.cache_settings())
     key = cache_key(b["hash"], setup_hash)
     common = {"ok": True, "hash": b["hash"], "key": key, "probe": b["probe"], "setup_hash": setup_hash,
@@ -495,7 +514,7 @@ def solve_group(outcome: dict, *, freqs_hz: tuple[float, ...], plot_max_hz: floa
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             res = acc.result()
-        check_usable(res, acc.cond_limit)
+        res.check_usable(acc.cond_limit)
         summary, warn = summarize(res, acc.cond_limit)
     except Exception as err:  # noqa: BLE001 - a group that cannot be solved is reported, not fatal
         return {"ok": False, "reason": _one_line(err), "bags": bags}

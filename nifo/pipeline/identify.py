@@ -25,18 +25,16 @@ from nifo.pipeline.options import CHUNK_SAMPLES, IdentifyOptions
 from nifo.pipeline.refine import fit_feedback_paths, refine, with_scope
 from nifo.progress import Progress
 from nifo.settings import loader_options, resolve
-from nifo_core.errors import (ConfigError, IllConditionedError, InputError, NifoError, RecordTooShortError,
-                              SampleRateError)
+from nifo_core.errors import ConfigError, IllConditionedError, InputError, NifoError, RecordTooShortError
 from nifo_core.signal.frf import h1
-from nifo_core.signal.integrate import default_band
 from nifo_core.predict.linear_part import RecordLines
 from nifo_core.predict.model import IdentifiedModel
-from nifo_core.nifo.identify import IllConditionedWarning, StreamingNifo, identify_two_step
+from nifo_core.nifo.engine import IdentifySetup, RecordProbe, accumulate_record
+from nifo_core.nifo.identify import IllConditionedWarning, identify_two_step
 from nifo_core.settings import AnalysisSettings
 from nifo_core.signal.spectral import cross_spectra
-from nifo_core.signal.record import acceleration_means
 
-__all__ = ["CHUNK_SAMPLES", "accumulate", "check_usable", "summarize", "format_summary", "write_figures", "run_identify"]
+__all__ = ["CHUNK_SAMPLES", "accumulate", "summarize", "format_summary", "write_figures", "run_identify"]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -44,7 +42,8 @@ __all__ = ["CHUNK_SAMPLES", "accumulate", "check_usable", "summarize", "format_s
 # ---------------------------------------------------------------------------------------------
 def accumulate(paths: list[Path], terms, cfg: AnalysisSettings, *, opts: dict, chunk_samples: int = CHUNK_SAMPLES,
                quiet: bool = False):
-    """Stream every file into its own StreamingNifo and merge them.
+    """Stream every file into its own accumulator and merge them, through the core's engine
+    (:mod:`nifo_core.nifo.engine`, which the fleet, the node and the viewer use too).
 
     Returns (merged StreamingNifo, [data provenance entries], [(name, freq, plain H1) per file], each file's
     :class:`~nifo_core.predict.linear_part.RecordLines` (None for records driven by a measured force)).
@@ -61,53 +60,23 @@ def accumulate(paths: list[Path], terms, cfg: AnalysisSettings, *, opts: dict, c
             raise RecordTooShortError("the file holds no samples", source=str(p)) from None
         iters.append(gen)
         firsts.append(first_chunk)
-    rates = sorted({c.fs_hz for c in firsts})
-    if len(rates) > 1:
-        names = ", ".join(f"{p.name} {c.fs_hz:g} Hz" for p, c in zip(paths, firsts))
-        raise SampleRateError(f"the files have different sample rates ({names})", hint="resample to one rate first")
-    fs = rates[0]
-    totals = [int(c.meta.get("chunk", {}).get("total_samples", c.n)) for c in firsts]
-    has_force = all(c.has_force for c in firsts)   # a measured force on the body: one more input
-    fixed_sp = {c.spindle_fixed for c in firsts}
-    if len(fixed_sp) > 1:
-        raise ConfigError("some files have a fixed spindle and some a measured one",
-                          hint="identify files of one kind together")
-    spindle_fixed = fixed_sp.pop()
-    has_tp = all(c.has_tire_patch for c in firsts) and not has_force
-    try:
-        band = (cfg.band or default_band(fs, min(totals) / fs)).validate(fs, n_samples=min(totals))
-    except NifoError as err:   # name the record that is too short
-        raise err.with_context(source=str(paths[int(np.argmin(totals))])) from None
-
-    def fresh() -> StreamingNifo:
-        return StreamingNifo(fs, terms, settings=cfg.spectral, band=band, with_tire_patch=has_tp,
-                             analysis_band_hz=cfg.analysis_band_hz, on_ill_conditioned="warn",
-                             cond_limit=cfg.cond_limit, with_force=has_force, spindle_fixed=spindle_fixed)
-
+    probes = [RecordProbe.of(c) for c in firsts]
+    setup = IdentifySetup.for_probes(probes, terms, spectral=cfg.spectral, band=cfg.band,
+                                     analysis_band_hz=cfg.analysis_band_hz, cond_limit=cfg.cond_limit,
+                                     sources=[str(p) for p in paths])
     total, data, per_file, lines = None, [], [], []
+    n_total = float(sum(p.n_samples for p in probes))
     # progress only for long work (a minute of data streams in well under a second)
-    with Progress(float(sum(totals)), "identify", enabled=not quiet and sum(totals) / fs > 600) as bar:
+    with Progress(n_total, "identify", enabled=not quiet and n_total / setup.fs_hz > 600) as bar:
         for p, first, gen, label in zip(paths, firsts, iters, record_labels(paths)):
-            one = fresh()
-            n = 0
+            one, n = accumulate_record(_chain(first, gen), setup, source=str(p),
+                                       on_chunk=lambda _acc, chunk: bar.advance(chunk.n))
             meta = dict(first.meta)
-            means = acceleration_means(first)   # removed from every chunk in float64: offsets of any size alike
-            for chunk in _chain(first, gen):
-                chunk = chunk.centred(means)
-                one.push(chunk.spindle_accel, chunk.body_accel, chunk.tire_patch_disp if has_tp else None,
-                         chunk.force if has_force else None)
-                n += chunk.n
-                bar.advance(chunk.n)
-            if one.n_avg == 0:
-                raise RecordTooShortError(
-                    f"{n} samples ({n / fs:.1f} s) is too short for NIFO (block={one.settings.block} plus "
-                    f"{one.delay_samples} integrator edge samples at each end for f_lo={band.f_lo_hz:g} Hz), "
-                    f"which needs {one.min_samples}", source=str(p), hint="record longer, or choose a smaller --block")
             meta.pop("chunk", None)
-            data.append({**data_entry(p, fs_hz=fs, n_samples=n, meta=meta), "name": label})
+            data.append({**data_entry(p, fs_hz=setup.fs_hz, n_samples=n, meta=meta), "name": label})
             spec = one.spectra()
             per_file.append((label, spec.freq_hz, h1(spec, 0, 1)))
-            lines.append(None if (has_force or spindle_fixed) else RecordLines.from_spectra(
+            lines.append(None if (setup.with_force or setup.spindle_fixed) else RecordLines.from_spectra(
                 spec.freq_hz, spec.G[:, 0, 0], spec.G[:, 0, 1], spec.G[:, 1, 1], cfg.analysis_band_hz))
             total = one if total is None else total.merge(one)
     return total, data, per_file, (None if any(x is None for x in lines) else lines)
@@ -121,38 +90,6 @@ def _chain(first, gen):
 # ---------------------------------------------------------------------------------------------
 # checks and summary
 # ---------------------------------------------------------------------------------------------
-def _ill_fraction(res, cond_limit: float) -> float:
-    c = res.cond[res.in_band]
-    return float(np.mean(~(c <= cond_limit))) if c.size else 1.0
-
-
-def check_usable(res, cond_limit: float, *, periodic: bool = False) -> None:
-    """Refuse (IllConditionedError) only when nothing usable is left.
-
-    ``periodic``: one period of a periodic excitation per block — every block is the same period, so the per-line
-    G_UU of several inputs is singular by construction and only the pooled fit determines the terms (refused only
-    when that is not finite)."""
-    m = res.in_band
-    st = res.static
-    free = [i for i, f in enumerate(res.fixed) if not f]
-    if not np.all(np.isfinite(st.c_over_m2)):
-        raise IllConditionedError(f"the pooled coefficients c/M2 are not finite ({st.c_over_m2.tolist()}): the "
-                                  "declared describing functions are linearly dependent on the data",
-                                  hint="drop a duplicated or redundant term, or identify them in two steps")
-    ok_static = np.isfinite(st.t21[m]) & (np.abs(st.t21[m]) > 0)
-    if ok_static.mean() < 0.5:
-        raise IllConditionedError(f"the pooled T21 is undefined on {1 - ok_static.mean():.0%} of the analysis band",
-                                  hint="check the data (coherence) and the analysis band")
-    if free and not periodic and not np.any(res.cond[m] <= cond_limit):
-        worst = res.cond[m]
-        raise IllConditionedError(
-            f"G_UU is ill-conditioned on every line of the analysis band {res.analysis_band_hz[0]:g}-"
-            f"{res.analysis_band_hz[1]:g} Hz (median scaled cond {np.nanmedian(worst):.3g} > {cond_limit:.3g}): "
-            "the declared terms cannot be told apart in these data",
-            hint="drop a term, identify correlated terms in two steps (steps: in the model file), "
-                 "or use data with more amplitude range")
-
-
 def _unit(term) -> str:
     u = term.spec.coef_unit
     return f"({u})/kg" if u else "1/kg"
@@ -176,7 +113,8 @@ def summarize(res, cond_limit: float) -> tuple[dict, list[str]]:
     with np.errstate(divide="ignore", invalid="ignore"):
         d_h1 = np.abs(st.t21[m] / res.t21_h1[m] - 1)
         d_free = np.abs(res.t21[m] / st.t21[m] - 1)
-    frac = _ill_fraction(res, cond_limit)
+    cond = res.conditioning(cond_limit)
+    frac = cond.ill_fraction
     summary = {
         "analysis_band_hz": [lo, hi], "integration_band_hz": [res.band.f_lo_hz, res.band.f_hi_hz],
         "n_avg": int(res.n_avg), "n_samples": int(res.n_samples), "duration_used_s": res.n_samples / res.fs_hz,
@@ -184,8 +122,7 @@ def summarize(res, cond_limit: float) -> tuple[dict, list[str]]:
         "t21_static_vs_h1_rel_diff": {"median": float(np.nanmedian(d_h1)), "max": float(np.nanmax(d_h1))},
         "t21_free_vs_static_rel_diff": {"median": float(np.nanmedian(d_free)), "max": float(np.nanmax(d_free))},
         "coherence_h1_median": float(np.nanmedian(res.coherence_h1[m])),
-        "cond_median": float(np.nanmedian(res.cond[m])), "cond_max": float(np.nanmax(res.cond[m])),
-        "ill_conditioned_fraction": frac, "cond_limit": cond_limit,
+        **cond.to_dict(),
     }
     if st.one_mass is not None:   # a measured force: the body mass and the coefficients in physical units
         m2, k2, c2, misfit = (float(v) for v in st.one_mass)
@@ -362,8 +299,8 @@ def run_identify(args: IdentifyOptions) -> dict:
         res = replace(res, provenance={**dict(res.provenance), "sources": [d["name"] for d in data]})
         files = len(data)
     try:
-        check_usable(res, cfg.cond_limit,
-                     periodic=bool(cfg.period_samples) and cfg.spectral.block == cfg.period_samples)
+        res.check_usable(cfg.cond_limit,
+                         periodic=bool(cfg.period_samples) and cfg.spectral.block == cfg.period_samples)
     except IllConditionedError as err:   # name the data it was identified on
         raise err.with_context(source=", ".join(str(d["path"]) for d in _entries(data))) from None
     summary, warn = summarize(res, cfg.cond_limit)

@@ -3,20 +3,25 @@
 :func:`log_results` reads result directories (:mod:`nifo.viz.results`) and,
 when the data named in their provenance are reachable, the data themselves:
 accelerations and restoring-force points at the samples' stamps, and the
-identification replayed through :class:`nifo_core.nifo.identify.StreamingNifo` (the
-engine the identifier node runs) so the estimate converges along the timeline
-exactly as it did live. :func:`save_recording` writes a ``.rrd``.
+identification replayed through the identification engine every shell uses
+(:mod:`nifo_core.nifo.engine`: the settings, conditioning limit and channels of the result) so the estimate
+converges along the timeline as it did live. :func:`save_recording` writes a ``.rrd``.
 """
 
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
 from nifo.io.names import file_stems, record_labels
+from nifo.io.results import read_identify
+from nifo_core.errors import NifoError, RecordTooShortError
+from nifo_core.nifo.engine import IdentifySetup, RecordProbe, accumulate_record
+from nifo_core.nifo.result import DEFAULT_COND_LIMIT
 
 from . import rerun_log as rl
 from .results import ResultDir, data_paths, resolve_data
@@ -75,38 +80,49 @@ def _log_data(records, band, *, recording, notes: list[str]) -> None:
                      f"restoring force in band {rf.band.f_lo_hz:g}-{rf.band.f_hi_hz:g} Hz")
 
 
+def _replay_setup(res, doc: dict, recs):
+    """The engine's set-up of the identification being replayed (its settings, its conditioning limit, the
+    channels it took), or None when these records cannot give it (another rate, a channel missing)."""
+    summary, settings = doc.get("summary") or {}, doc.get("settings") or {}
+    limit = summary.get("cond_limit", settings.get("cond_limit", DEFAULT_COND_LIMIT))
+    try:
+        return IdentifySetup.for_probes([RecordProbe.of(rec, whole=True) for rec in recs], res.terms,
+                                        spectral=res.settings, band=res.band, analysis_band_hz=res.analysis_band_hz,
+                                        cond_limit=float(limit), use_force=res.t2f is not None,
+                                        input_measured=res.input_measured is not None)
+    except (NifoError, TypeError, ValueError):
+        return None
+
+
 def _log_identify(r: ResultDir, records, *, recording) -> str:
-    """Replay the identification when its data files are reachable (each file streamed in turn, the estimate of every
+    """Replay the identification when its data files are reachable (each file streamed in turn through the
+    identification engine every shell uses, :func:`nifo_core.nifo.engine.accumulate_record`, the estimate of every
     file so far logged along its stamps), else log the final estimate."""
-    import warnings
-
-    from nifo.io.results import read_identify
-    from nifo_core.nifo.identify import StreamingNifo
-
     res, doc = read_identify(r.path)
     paths = [resolve_data(p, r) for p in data_paths(r)]
     recs = [rec for p in paths if p is not None for q, rec in records if q.resolve() == p.resolve()]
-    if recs and len(recs) == len(paths) and all(rec.fs_hz == res.fs_hz for rec in recs) and not any(res.fixed) \
-            and not any(rec.has_force or rec.spindle_fixed for rec in recs):
+    setup = _replay_setup(res, doc, recs) if recs and len(recs) == len(paths) and not any(res.fixed) else None
+    if setup is not None and setup.fs_hz == res.fs_hz:
         done = None
+
+        def log(acc, chunk) -> None:
+            if acc.n_avg:
+                now = acc if done is None else done.merge(acc)
+                rl.log_nifo_result(int(chunk.t0_ns + round((chunk.n - 1) * 1e9 / chunk.fs_hz)), now.result(),
+                                   recording=recording)
+
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             for rec in recs:
-                s = StreamingNifo(rec.fs_hz, res.terms, settings=res.settings, band=res.band,
-                                  analysis_band_hz=res.analysis_band_hz, on_ill_conditioned="warn")
                 step = max(int(REPLAY_STEP_S * rec.fs_hz), 1)
-                for i in range(0, rec.n, step):
-                    j = min(i + step, rec.n)
-                    s.push(rec.spindle_accel[i:j], rec.body_accel[i:j])
-                    if s.n_avg == 0:
-                        continue
-                    now = s if done is None else done.merge(s)
-                    rl.log_nifo_result(int(rec.t0_ns + round((j - 1) * 1e9 / rec.fs_hz)), now.result(),
-                                       recording=recording)
-                if s.n_avg:
-                    done = s if done is None else done.merge(s)
-        return (f"replayed through StreamingNifo in {REPLAY_STEP_S:g} s steps, file after file (scrub the timeline "
-                f"to see it converge)")
+                chunks = (rec.slice(i, i + step) for i in range(0, rec.n, step))
+                try:
+                    one, _ = accumulate_record(chunks, setup, source=rec.source, on_chunk=log)
+                except RecordTooShortError:     # no block in this file: nothing of it in the estimate
+                    continue
+                done = one if done is None else done.merge(one)
+        return (f"replayed through the identification engine in {REPLAY_STEP_S:g} s steps, file after file (scrub "
+                f"the timeline to see it converge)")
     data = doc.get("data") or []
     n = max((e.get("n_samples") or 0 for e in data if isinstance(e, dict)), default=0)
     rl.log_nifo_result(int(round(n * 1e9 / res.fs_hz)) if n else 0, res, recording=recording)

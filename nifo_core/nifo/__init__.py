@@ -5,7 +5,10 @@ Modules:
 - :mod:`nifo_core.nifo.identify`  ``identify_nifo``, ``identify_two_step``: NIFO on records
 - :mod:`nifo_core.nifo.stream`  ``StreamingNifo``: the accumulators, fed chunk by chunk, merged exactly
 - :mod:`nifo_core.nifo.estimate`  ``nifo_from_spectra``: the estimates from the cross-spectral matrix
-- :mod:`nifo_core.nifo.result`  ``NifoResult``: T21, the coefficient functions, their bounds
+- :mod:`nifo_core.nifo.result`  ``NifoResult``: T21, the coefficient functions, their bounds, its conditioning
+  and usability
+- :mod:`nifo_core.nifo.engine`  ``IdentifySetup``, ``accumulate_record``: how every shell (CLI, fleet, node,
+  viewer) feeds records into the accumulators — one set-up decision, one constructor, one push
 
 Layer: it imports :mod:`nifo_core.signal` and :mod:`nifo_core.kinds` (``.importlinter``). The names below are its
 front door; the modules' private (``_``) names stay inside the package.
@@ -20,5 +23,6 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
     "identify": ["IllConditionedWarning", "InputMeasured", "StaticFit", "NifoResult", "FixedTerms", "StreamingNifo",
                  "identify_nifo", "identify_two_step", "nifo_from_spectra", "static_fits",
                  "DEFAULT_ANALYSIS_BAND_HZ", "DEFAULT_COND_LIMIT"],
-    "result": ["ILL_FRACTION", "OnIll"],
+    "result": ["ILL_FRACTION", "OnIll", "Conditioning"],
+    "engine": ["RecordProbe", "IdentifySetup", "accumulate_record"],
 })

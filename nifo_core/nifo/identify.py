@@ -73,10 +73,11 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..kinds.describing import Term
-from ..errors import ConfigError, InputError, NifoError, SampleRateError
-from ..signal.integrate import IntegrationBand, default_band
+from ..errors import ConfigError, InputError
+from ..signal.integrate import IntegrationBand
+from .engine import IdentifySetup, RecordProbe
 from .estimate import nifo_from_spectra, static_fits
-from .result import (A1, DEFAULT_ANALYSIS_BAND_HZ, DEFAULT_COND_LIMIT, FORCE, XB, FixedTerms,
+from .result import (DEFAULT_ANALYSIS_BAND_HZ, DEFAULT_COND_LIMIT, FixedTerms,
                           IllConditionedWarning, InputMeasured, NifoResult, OnIll, StaticFit)
 from .stream import StreamingNifo, _as_terms
 from ..signal.record import Record
@@ -137,50 +138,20 @@ def identify_nifo(records: Sequence[Record] | Record, terms: Sequence[Term], *,
     recs = [records] if isinstance(records, Record) else list(records)
     if not recs:
         raise InputError("no records given", hint="pass at least one Record")
-    fs = recs[0].fs_hz
-    rates = sorted({r.fs_hz for r in recs})
-    if len(rates) > 1:
-        raise SampleRateError(f"records have different sample rates {rates} Hz", hint="resample to one rate first")
-    has_tp = all(r.has_tire_patch for r in recs)
-    if input_measured is None:
-        input_measured = has_tp
-    if input_measured and not has_tp:
-        missing = [r.source or f"record {i}" for i, r in enumerate(recs) if not r.has_tire_patch]
-        raise InputError(f"input-measured NIFO needs the tire patch, missing in {missing}", channel=XB,
-                         hint="drop input_measured or use records with tire_patch_disp")
-    has_force = all(r.has_force for r in recs)
-    if use_force is None:
-        use_force = has_force
-    fixed_sp = {r.spindle_fixed for r in recs}
-    if use_force and not has_force:
-        missing = [r.source or f"record {i}" for i, r in enumerate(recs) if not r.has_force]
-        raise InputError(f"NIFO with force needs the force in every record, missing in {missing}", channel=FORCE,
-                         hint="give the force channel of every record (--columns force=NAME), or none")
-    if len(fixed_sp) > 1:
-        raise InputError("some records have a fixed spindle and some a measured one", channel=A1,
-                         hint="identify records of one kind together")
-    spindle_fixed = fixed_sp.pop()
-    if spindle_fixed and not use_force:
-        raise InputError("records with a fixed spindle need their measured force as the input", channel=FORCE,
-                         hint="give the force channel (--columns force=NAME)")
-    if use_force:
-        input_measured = False
-    try:
-        band = (band or default_band(fs, min(r.duration_s for r in recs))).validate(fs, n_samples=min(r.n for r in recs))
-    except NifoError as err:   # name the record that is too short
-        raise err.with_context(source=min(recs, key=lambda r: r.duration_s).source) from None
-    proto = StreamingNifo(fs, terms, settings=settings, band=band, fixed=fixed, with_tire_patch=input_measured,
-                          spindle_noise_psd=spindle_noise_psd, analysis_band_hz=analysis_band_hz,
-                          on_ill_conditioned=on_ill_conditioned,
-                          cond_limit=cond_limit, with_force=use_force, spindle_fixed=spindle_fixed)
+    setup = IdentifySetup.for_probes([RecordProbe.of(r, whole=True) for r in recs], terms, spectral=settings, band=band,
+                                     analysis_band_hz=analysis_band_hz, cond_limit=cond_limit,
+                                     sources=[r.source or f"record {i}" for i, r in enumerate(recs)],
+                                     input_measured=input_measured, use_force=use_force)
+    band = setup.band
+    proto = setup.accumulator(fixed=fixed, spindle_noise_psd=spindle_noise_psd,
+                              on_ill_conditioned=on_ill_conditioned)
     total = None
     for r in recs:
         r.require_samples(proto.min_samples, what=(
             f"NIFO (block={proto.settings.block} plus {proto.delay_samples} integrator edge samples at each "
             f"end for f_lo={band.f_lo_hz:g} Hz)"))
         one = proto._like()
-        one.push(r.spindle_accel, r.body_accel, r.tire_patch_disp if input_measured else None,
-                 r.force if use_force else None)
+        setup.push(one, r)
         total = one if total is None else total.merge(one)
     res = total.result()
     prov = dict(res.provenance)

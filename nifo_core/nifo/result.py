@@ -15,12 +15,12 @@ from typing import Literal, Mapping
 import numpy as np
 
 from ..kinds.describing import Term, make_term
-from ..errors import ConfigError, InputError
+from ..errors import ConfigError, IllConditionedError, InputError
 from ..signal.frf import bound_factor
 from ..signal.integrate import IntegrationBand
 from ..signal.spectral import SpectralSettings
 
-__all__ = ["IllConditionedWarning", "InputMeasured", "StaticFit", "NifoResult", "FixedTerms",
+__all__ = ["IllConditionedWarning", "InputMeasured", "StaticFit", "NifoResult", "FixedTerms", "Conditioning",
            "DEFAULT_ANALYSIS_BAND_HZ", "DEFAULT_COND_LIMIT", "ILL_FRACTION", "OnIll"]
 
 #: the paper's analysis range (§4: 2-30 Hz)
@@ -210,6 +210,24 @@ class StaticFit:
                    **opt)
 
 
+@dataclass(frozen=True)
+class Conditioning:
+    """How well-posed the per-line fit was over the analysis band (:meth:`NifoResult.conditioning`).
+
+    ``median``, ``max``: scaled cond(G_UU) over the analysis band's lines (NaN lines ignored; NaN with no line);
+    ``ill_fraction``: share of those lines above ``limit`` (NaN and infinite count as above; 1 with no line).
+    """
+
+    median: float
+    max: float
+    ill_fraction: float
+    limit: float
+
+    def to_dict(self) -> dict:
+        return {"cond_median": self.median, "cond_max": self.max, "ill_conditioned_fraction": self.ill_fraction,
+                "cond_limit": self.limit}
+
+
 @dataclass(frozen=True, eq=False)
 class NifoResult:
     """What output-only NIFO identified, per frequency line (paper Eq. 8-9).
@@ -358,6 +376,44 @@ class NifoResult:
             h, e = self.b[i], self.random_error[1 + i]
         m = np.abs(h)
         return m * np.maximum(1 - k * e, 0), m * (1 + k * e)
+
+    def conditioning(self, cond_limit: float = DEFAULT_COND_LIMIT) -> Conditioning:
+        """The conditioning summary of the analysis band against ``cond_limit`` (what every shell reports)."""
+        c = np.asarray(self.cond)[self.in_band]
+        if c.size == 0:
+            return Conditioning(float("nan"), float("nan"), 1.0, float(cond_limit))
+        with np.errstate(invalid="ignore"):
+            ill = float(np.mean(~(c <= cond_limit)))
+        if np.isnan(c).all():
+            return Conditioning(float("nan"), float("nan"), ill, float(cond_limit))
+        return Conditioning(float(np.nanmedian(c)), float(np.nanmax(c)), ill, float(cond_limit))
+
+    def check_usable(self, cond_limit: float = DEFAULT_COND_LIMIT, *, periodic: bool = False) -> None:
+        """Refuse (:class:`IllConditionedError`) only when nothing usable is left.
+
+        The pooled coefficients must be finite, the pooled T21 defined on at least half the analysis band, and
+        (with free terms) some line of the band conditioned within ``cond_limit``. ``periodic``: one period of a
+        periodic excitation per block — every block is the same period, so the per-line G_UU of several inputs is
+        singular by construction and only the pooled fit determines the terms (refused only when that is not
+        finite)."""
+        m = self.in_band
+        st = self.static
+        free = [i for i, f in enumerate(self.fixed) if not f]
+        if not np.all(np.isfinite(st.c_over_m2)):
+            raise IllConditionedError(f"the pooled coefficients c/M2 are not finite ({st.c_over_m2.tolist()}): the "
+                                      "declared describing functions are linearly dependent on the data",
+                                      hint="drop a duplicated or redundant term, or identify them in two steps")
+        ok_static = np.isfinite(st.t21[m]) & (np.abs(st.t21[m]) > 0)
+        if ok_static.mean() < 0.5:
+            raise IllConditionedError(f"the pooled T21 is undefined on {1 - ok_static.mean():.0%} of the analysis "
+                                      "band", hint="check the data (coherence) and the analysis band")
+        if free and not periodic and not np.any(self.cond[m] <= cond_limit):
+            raise IllConditionedError(
+                f"G_UU is ill-conditioned on every line of the analysis band {self.analysis_band_hz[0]:g}-"
+                f"{self.analysis_band_hz[1]:g} Hz (median scaled cond {np.nanmedian(self.cond[m]):.3g} > "
+                f"{cond_limit:.3g}): the declared terms cannot be told apart in these data",
+                hint="drop a term, identify correlated terms in two steps (steps: in the model file), "
+                     "or use data with more amplitude range")
 
     def band_average(self, x: np.ndarray) -> np.ndarray:
         """Mean of per-line quantities (shape (..., nf)) over the analysis band's lines."""
