@@ -15,7 +15,7 @@ Prints both times and the ratio; exits 1 if the ratio is below ``--min-ratio``
 The cost of the chunk CRC-32 check: the same bag with every chunk CRC (and
 the summary CRC) zeroed — "not recorded", so nothing is verified — is read
 by :func:`read_bag` in the same run; the ratio with/without is printed, with
-the time :func:`nifo.io.mcap_chunks.write_chunk_crcs` adds to writing. Usage::
+the time :func:`nifo.io.bag.write_chunk_crcs` adds to writing. Usage::
 
     .venv/bin/python benchmarks/bench_bag_read.py [--minutes 10] [--fs 600] [--repeat 3]
 """
@@ -98,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"in {time.perf_counter() - t:.2f} s")
         t_fast, rec_back = best_of(args.repeat, read_bag, path)
         t_generic, (stamps, values) = best_of(args.repeat, generic_read, path)
-        from nifo.io.mcap_chunks import write_chunk_crcs
+        from nifo.io.bag import write_chunk_crcs
 
         plain = without_crcs(path, Path(tmp) / "nocrc") if path.is_dir() else None
         t_plain = None

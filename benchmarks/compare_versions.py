@@ -75,8 +75,8 @@ def _run(tree: Path, cwd: Path, args: list[str], out: Path) -> tuple[float, floa
 
 
 def _normalised(x, replace: dict[str, str]):
-    if isinstance(x, dict):
-        return {k: _normalised(v, replace) for k, v in x.items() if k not in VOLATILE}
+    if isinstance(x, dict):   # keys too: a record's path can be a key (the settings' sources per input)
+        return {_normalised(k, replace): _normalised(v, replace) for k, v in x.items() if k not in VOLATILE}
     if isinstance(x, list):
         return [_normalised(v, replace) for v in x]
     if isinstance(x, str):

@@ -94,7 +94,7 @@ BAGS = Path(__file__).resolve().parents[1] / "bags"
 
 def _zero_crcs(path: Path) -> None:
     """Make ``path`` look like a bag from a writer without CRCs: every chunk's and the summary's CRC set to 0."""
-    from nifo.io.mcap_chunks import _summary
+    from nifo.io.bag._mcap import _summary
 
     with path.open("r+b") as f:
         for ci in _summary(f).chunk_indexes:
@@ -105,7 +105,7 @@ def _zero_crcs(path: Path) -> None:
 
 
 def test_every_bag_in_bags_has_chunk_crcs():
-    from nifo.io.mcap_chunks import chunk_crc_status
+    from nifo.io.bag import chunk_crc_status
 
     mcaps = sorted(BAGS.rglob("*.mcap"))
     assert len(mcaps) >= 3

@@ -19,3 +19,31 @@ def test_lint_imports_keeps_every_contract():
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=env, capture_output=True, text=True)
     assert out.returncode == 0, out.stdout[-4000:] + out.stderr[-2000:]
     assert "BROKEN" not in out.stdout and " kept, 0 broken." in out.stdout, out.stdout[-4000:]
+
+
+def _private_names_across_packages() -> list[str]:
+    """Every ``from X import _name`` whose module X lies outside the importing module's own package."""
+    import ast
+
+    found = []
+    for top in ("nifo", "nifo_core", "nifo_nodes"):
+        for path in sorted((REPO / top).rglob("*.py")):
+            parts = list(path.relative_to(REPO).with_suffix("").parts)
+            package = ".".join(parts[:-1])          # of a package's __init__ too: the package itself
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if not isinstance(node, ast.ImportFrom):
+                    continue
+                base = package.split(".")[: len(package.split(".")) - max(node.level - 1, 0)] if node.level else []
+                source = ".".join(base + ([node.module] if node.module else [])) if node.level else node.module
+                inside = source == package or source.startswith(package + ".")
+                found += [f"{'.'.join(parts)}: from {source} import {a.name}" for a in node.names
+                          if a.name.startswith("_") and not a.name.startswith("__") and not inside]
+    return found
+
+
+def test_private_names_stay_inside_their_package():
+    """STYLE.md, subpackages with a front door: modules inside a package share private helpers freely, other
+    packages use its public names only (the private *modules* are the import-linter contract ``private_modules``;
+    this is the same rule for names). The one exception is the import-linter contract's own."""
+    allowed = {"nifo.fleet.preload: from nifo_core.signal import _block_products"}   # numba cache warm-up
+    assert set(_private_names_across_packages()) <= allowed

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 import yaml
 
-from nifo.io.bag import (IMU, POINT_STAMPED, BagTopics, TopicData, _decode, read_bag, resolve_topics,
-                         write_bag, write_channels)
+from nifo.io.bag import (IMU, POINT_STAMPED, BagTopics, TopicData, read_bag, resolve_topics, write_bag,
+                         write_channels)
+from nifo.io.bag._mcap import _decode    # the decoder itself, tested inside its package
 from nifo.io.loader import load_record, save_record
 from nifo_core.errors import DataFileError, MissingChannelError
 from nifo_core.signal.record import Record
@@ -158,7 +159,7 @@ def test_rclpy_deserializes_our_messages(tmp_path):
 def test_payloads_equal_rosbags_serializer():
     from rosbags.typesys import Stores, get_typestore
 
-    from nifo.io.bag import _payloads
+    from nifo.io.bag.cdr import payloads as _payloads
 
     ts = get_typestore(Stores.ROS2_JAZZY)
     T = ts.types
@@ -268,7 +269,7 @@ def test_zero_header_stamps_fall_back_to_receive_time(tmp_path):
     from rosbags.rosbag2.enums import StoragePlugin
     from rosbags.typesys import Stores, get_typestore
 
-    from nifo.io.bag import _payloads
+    from nifo.io.bag.cdr import payloads as _payloads
 
     ts = get_typestore(Stores.ROS2_JAZZY)
     n = 120
@@ -313,7 +314,7 @@ def test_compressed_bags_read_the_same(tmp_path, mode):
     from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
     from rosbags.typesys import Stores, get_typestore
 
-    from nifo.io.bag import _payloads
+    from nifo.io.bag.cdr import payloads as _payloads
 
     ts = get_typestore(Stores.ROS2_JAZZY)
     rec = make_record(n=5000, tire=False)
@@ -334,7 +335,7 @@ def test_indexed_mcap_path_agrees_with_rosbags_iteration(tmp_path):
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_typestore
 
-    from nifo.io.bag_read import _iterate, _read_mcap_indexed
+    from nifo.io.bag._read import _iterate, _read_mcap_indexed
 
     ts = get_typestore(Stores.ROS2_JAZZY)
     n = 3000  # several 1 MiB chunks

@@ -363,7 +363,7 @@ def test_failed_file_write_leaves_nothing_and_keeps_the_old_file(tmp_path, monke
 
 
 def test_failed_bag_write_keeps_the_old_bag(tmp_path, monkeypatch):
-    from nifo.io import bag_write as bag_mod
+    from nifo.io.bag import _write as bag_mod
 
     path = save_record(tmp_path / "run", good_record(40))
     real, fail = bag_mod._payloads, _fail_after(1, RuntimeError("boom"))

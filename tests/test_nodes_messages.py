@@ -17,7 +17,7 @@ from nifo_nodes.messages import (Block, ImuEncoder, PointEncoder, block_from_msg
 
 @pytest.mark.parametrize("frame_id", ["", "spindle", "body", "a_longer_frame_id"])
 def test_imu_encoder_matches_rclpy_and_the_bag_writer_and_decodes_back(frame_id):
-    from nifo.io.bag import IMU, _payloads
+    from nifo.io.bag.cdr import IMU, payloads as _payloads
     from sensor_msgs.msg import Imu
 
     stamp = 1_700_000_123_456_789_012

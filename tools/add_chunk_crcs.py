@@ -5,7 +5,7 @@
 
 For each bag (a rosbag2 directory or a lone ``.mcap``): the record is read,
 the MCAP file is copied, the copy's chunk CRCs and summary CRC are computed
-(:func:`nifo.io.mcap_chunks.write_chunk_crcs`, as ``nifo simulate`` does for
+(:func:`nifo.io.bag.write_chunk_crcs`, as ``nifo simulate`` does for
 every bag it writes), the copy is read again and must give exactly the same
 arrays, rate and start time, and only then replaces the original. The bytes
 that differ are counted: they must all lie in CRC fields (4 bytes per chunk,
@@ -31,7 +31,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from nifo.io.loader import load_record  # noqa: E402
-from nifo.io.mcap_chunks import _summary, write_chunk_crcs  # noqa: E402
+from nifo.io.bag import write_chunk_crcs  # noqa: E402
+from nifo.io.bag._mcap import _summary  # noqa: E402  (a tool reading the summary section itself)
 
 
 def _mcap_of(bag: Path) -> Path:

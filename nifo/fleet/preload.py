@@ -36,8 +36,8 @@ TASK_MODULES = ("nifo.fleet.tasks",)
 
 #: what a bag task imports inside functions (found by diffing ``sys.modules`` around a first bag; kept
 #: in step by ``tests/test_fleet_preload.py``, which checks that a warmed worker's first bag imports nothing)
-LAZY_MODULES = ("nifo.io.bag", "nifo.io.bag_read", "nifo.io.bag_stream", "nifo.io.bag_topics", "nifo.io.mcap_chunks",
-                "nifo.io.cdr", "rosbags.interfaces", "rosbags.rosbag2", "rosbags.typesys", "mcap.reader",
+LAZY_MODULES = ("nifo.io.bag", "nifo.io.bag._read", "nifo.io.bag._stream", "nifo.io.bag._topics", "nifo.io.bag._mcap",
+                "nifo.io.bag.cdr", "rosbags.interfaces", "rosbags.rosbag2", "rosbags.typesys", "mcap.reader",
                 "mcap.data_stream", "mcap.records", "zstandard", "lz4.frame", "yaml", "ruamel.yaml")
 
 
@@ -79,7 +79,7 @@ def warm() -> dict:
     try:
         from rosbags.typesys import Stores, get_typestore
 
-        get_typestore(Stores.ROS2_JAZZY)          # what every bag read builds first (bag_stream, bag_read)
+        get_typestore(Stores.ROS2_JAZZY)          # what every bag read builds first (nifo.io.bag's _stream, _read)
     except Exception as err:  # noqa: BLE001
         failed.append(f"typestore: {type(err).__name__}: {err}")
     t2 = time.perf_counter()

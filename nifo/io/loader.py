@@ -1,10 +1,11 @@
 """One entry point from data files to :class:`~nifo_core.signal.record.Record` and back.
 
-``load_record(path)`` picks the reader from the path: a directory, ``*.mcap``
-or ``*.db3`` is a rosbag2 bag (:mod:`nifo.io.bag`), ``*.csv``/``*.tsv``/``*.txt``
-a CSV table (:mod:`nifo.io.tabular`), ``*.mat`` a MATLAB file
-(:mod:`nifo.io.matfile`); other names are recognised by their first bytes.
-``save_record(path, record)`` writes by suffix, atomically.
+``load_record(path)`` picks the reader from the path through one table, :data:`READERS` (suffix → format, as
+rosbags' ``STORAGE_PLUGINS``): a directory, ``*.mcap`` or ``*.db3`` is a rosbag2 bag (:mod:`nifo.io.bag`),
+``*.csv``/``*.tsv``/``*.txt`` a CSV table (:mod:`nifo.io.tabular`), ``*.mat`` a MATLAB file
+(:mod:`nifo.io.matfile`); other names are recognised by their first bytes (each format's ``magic``).
+``save_record(path, record)`` writes by suffix, atomically. A new format is a reader module and a row of
+:data:`READERS`.
 
 The readers share :func:`assemble_record`: per-channel time stamps in, one
 uniformly sampled :class:`Record` out, or a :class:`~nifo_core.errors.NifoError`
@@ -48,26 +49,28 @@ from __future__ import annotations
 import argparse
 import os
 import re
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import Literal
 
 import numpy as np
 
 from nifo_core.errors import ConfigError, DataFileError
 from nifo_core.signal.record import Record
 
-from .assemble import FIXED, READ_ROLES, Assembly, Skip, _check_declared_rate, assemble_record  # noqa: F401
+from . import bag   # a lazy front door: rosbags and mcap are imported when a bag is first read or written
+from .assemble import FIXED, READ_ROLES, Assembly, Skip, check_declared_rate, assemble_record  # noqa: F401
+from .atomic import check_output
 from .inputs import regular_input
+from .matfile import read_mat, write_mat
 from .memo import remembered
+from .tabular import read_csv, write_csv
 
-if TYPE_CHECKING:
-    from .bag import BagTopics
+__all__ = ["load_record", "save_record", "check_record_output", "load_records", "iter_record_chunks", "detect_format",
+           "assemble_record", "parse_columns", "add_input_arguments", "input_options", "COLUMN_KEYS", "READ_ROLES",
+           "Assembly", "Skip", "FileFormat", "READERS"]
 
-__all__ = ["load_record", "save_record", "check_record_output", "load_records", "iter_record_chunks", "detect_format", "assemble_record",
-           "parse_columns", "add_input_arguments", "input_options", "COLUMN_KEYS", "READ_ROLES", "Assembly", "Skip"]
-
-Format = Literal["bag", "csv", "mat"]
 Axis = Literal["x", "y", "z"]
 
 #: keys of a ``columns`` mapping (CSV column names / MAT keys), with accepted aliases
@@ -75,9 +78,44 @@ COLUMN_KEYS = ("time", *READ_ROLES, "fs", "t0_ns")
 _COLUMN_ALIASES = {"t": "time", "spindle": "spindle_accel", "body": "body_accel",
                    "tire_patch": "tire_patch_disp", "fs_hz": "fs"}
 
-_BAG_SUFFIXES = {".mcap", ".db3"}
-_CSV_SUFFIXES = {".csv", ".tsv", ".txt"}
-_MAT_SUFFIXES = {".mat"}
+
+# =============================================================================
+# the reader table
+# =============================================================================
+
+@dataclass(frozen=True)
+class FileFormat:
+    """One data format: how nifo reads it, writes it and tells it by its first bytes (a row of :data:`READERS`).
+
+    ``tables``: read through ``--columns`` (CSV columns, MAT keys: a channel may come from another such file);
+    otherwise a bag, read through ``--topics``/``--axis``. ``read_table(path, columns=, fs_hz=, assembly=)`` reads a
+    table format; ``write(path, record, topics=, axis=)`` writes one (None: nifo reads the format, does not write
+    it); ``output``: what :func:`nifo.io.atomic.check_output` guards, a file or a bag directory.
+    """
+
+    name: Literal["bag", "csv", "mat"]
+    tables: bool
+    magic: tuple[bytes, ...] = ()
+    read_table: Callable[..., Record] | None = None
+    write: Callable[..., Path] | None = None
+    output: Literal["file", "bag"] = "file"
+
+
+def _write_bag(path, record, *, topics=None, axis="z") -> Path:
+    return bag.write_bag(path, record, topics=topics, axis=axis)
+
+
+BAG = FileFormat("bag", tables=False, magic=(b"\x89MCAP",), write=_write_bag, output="file")
+SQLITE_BAG = FileFormat("bag", tables=False)
+CSV = FileFormat("csv", tables=True, read_table=read_csv, write=lambda path, record, **_: write_csv(path, record))
+MAT = FileFormat("mat", tables=True, magic=(b"MATLAB", b"\x89HDF\r\n\x1a\n"), read_table=read_mat,
+                 write=lambda path, record, **_: write_mat(path, record))
+#: suffix → format, as rosbags' ``STORAGE_PLUGINS``: a new format is a row here (and its reader module), nothing else
+READERS: dict[str, FileFormat] = {".mcap": BAG, ".db3": SQLITE_BAG, ".csv": CSV, ".tsv": CSV, ".txt": CSV,
+                                  ".mat": MAT}
+#: a directory (or a name without a suffix, to write) is a rosbag2 bag directory
+BAG_DIRECTORY = FileFormat("bag", tables=False, write=_write_bag, output="bag")
+Format = Literal["bag", "csv", "mat"]
 
 
 # =============================================================================
@@ -86,34 +124,34 @@ _MAT_SUFFIXES = {".mat"}
 
 def detect_format(path: str | os.PathLike) -> Format:
     """``"bag"``, ``"csv"`` or ``"mat"`` for an existing ``path``, else :class:`DataFileError`."""
+    return file_format(path).name
+
+
+def file_format(path: str | os.PathLike) -> FileFormat:
+    """The row of :data:`READERS` for an existing ``path``: a directory is a bag, else by suffix, else by the
+    first bytes (any printable text is a CSV table); else :class:`DataFileError`."""
     p = Path(path)
     regular_input(p)   # missing, FIFO, device: one line, never a reader blocked forever
     if p.is_dir():
-        return "bag"
-    suffix = p.suffix.lower()
-    if suffix in _BAG_SUFFIXES:
-        return "bag"
-    if suffix in _CSV_SUFFIXES:
-        return "csv"
-    if suffix in _MAT_SUFFIXES:
-        return "mat"
+        return BAG_DIRECTORY
+    if p.suffix.lower() in READERS:
+        return READERS[p.suffix.lower()]
     try:
         with p.open("rb") as f:
             head = f.read(128)
     except OSError as err:
         raise DataFileError(f"cannot read the file ({err.strerror or err})", source=str(p),
                             hint="check the path and the file's permissions") from err
-    if head.startswith(b"\x89MCAP"):
-        return "bag"
-    if head.startswith(b"MATLAB") or head[:8] == b"\x89HDF\r\n\x1a\n":
-        return "mat"
+    for fmt in dict.fromkeys(READERS.values()):
+        if any(head.startswith(m) for m in fmt.magic):
+            return fmt
     if head and all(32 <= c < 127 or c in b"\t\r\n" for c in head.lstrip(b"\xef\xbb\xbf")):
-        return "csv"
+        return CSV
     raise DataFileError("unknown data format", source=str(p),
                         hint="give a rosbag2 bag (directory or .mcap), a .csv or a .mat file")
 
 
-def load_record(path: str | os.PathLike, *, topics: "BagTopics | None" = None,
+def load_record(path: str | os.PathLike, *, topics: "bag.BagTopics | None" = None,
                 columns: Mapping[str, str] | None = None, fs_hz: float | None = None,
                 axis: Axis = "z", skip_seconds: float | None = None, skip_periods: int | None = None,
                 period_samples: int | None = None, centred: bool = False) -> Record:
@@ -161,13 +199,12 @@ def load_record(path: str | os.PathLike, *, topics: "BagTopics | None" = None,
 
 
 def _load(path, *, topics, columns, fs_hz, axis, skip_seconds, skip_periods, period_samples) -> Record:
-    fmt = detect_format(path)
+    fmt = file_format(path)
     skip = _skip(skip_seconds, skip_periods, period_samples, source=str(path))
-    if fmt == "bag":
-        from .bag import read_bag
-        rec = read_bag(path, topics=topics, axis=axis)
+    if not fmt.tables:
+        rec = bag.read_bag(path, topics=topics, axis=axis)
         if fs_hz is not None:
-            _check_declared_rate(rec.fs_hz, fs_hz, source=str(path))
+            check_declared_rate(rec.fs_hz, fs_hz, source=str(path))
         if skip.active:
             k = skip.samples(rec.fs_hz, rec.n, source=str(path))
             rec = rec.slice(k, rec.n)
@@ -176,22 +213,10 @@ def _load(path, *, topics, columns, fs_hz, axis, skip_seconds, skip_periods, per
     cols, asm = _plan(path, _normalise_columns(columns), fs_hz=fs_hz, skip=skip)
     if fs_hz is None:   # a file without a rate takes the rate of a channel combined from another file
         fs_hz = next((f for _, _, f in asm.extra.values() if f is not None), None)
-    return _read_tabular(fmt, path, cols, fs_hz, asm)
-
-
-def _read_tabular(fmt: str, path, cols: Mapping[str, str], fs_hz: float | None, asm: Assembly):
-    if fmt == "csv":
-        from .tabular import read_csv
-        return read_csv(path, columns=cols, fs_hz=fs_hz, assembly=asm)
-    if fmt == "mat":
-        from .matfile import read_mat
-        return read_mat(path, columns=cols, fs_hz=fs_hz, assembly=asm)
-    raise DataFileError("a channel from another file must come from a CSV or MAT file", source=str(path),
-                        hint="give NAME@FILE with a .csv or .mat file")
+    return fmt.read_table(path, columns=cols, fs_hz=fs_hz, assembly=asm)
 
 
 def _with_meta(rec: Record, **items) -> Record:
-    from dataclasses import replace
     return replace(rec, meta={**dict(rec.meta), **items})
 
 
@@ -274,17 +299,17 @@ def _plan(path, cols: dict[str, str], *, fs_hz: float | None, skip: Skip) -> tup
 def _read_external(base, path: Path, key: str, role: str,
                    fs_hz: float | None) -> tuple[np.ndarray, str, float | None]:
     """One channel (CSV column or MAT key ``key``) of another file, for ``role``."""
-    fmt = detect_format(path)
-    if fmt == "bag":
+    fmt = file_format(path)
+    if not fmt.tables:
         raise DataFileError("a channel from another file must come from a CSV or MAT file", source=str(base),
                             channel=role, hint=f"convert {path.name} to CSV or MAT, or use a bag with all topics")
-    cols = {role: key}
-    got = _read_tabular(fmt, path, cols, fs_hz, Assembly(required=frozenset({role}), collect=True))
+    got = fmt.read_table(path, columns={role: key}, fs_hz=fs_hz,
+                         assembly=Assembly(required=frozenset({role}), collect=True))
     values, fs_file = got
     return values, f"{key}@{path.name}", fs_file
 
 
-def iter_record_chunks(path: str | os.PathLike, *, chunk_samples: int, topics: "BagTopics | None" = None,
+def iter_record_chunks(path: str | os.PathLike, *, chunk_samples: int, topics: "bag.BagTopics | None" = None,
                        columns: Mapping[str, str] | None = None, fs_hz: float | None = None,
                        axis: Axis = "z", skip_seconds: float | None = None, skip_periods: int | None = None,
                        period_samples: int | None = None) -> Iterator[Record]:
@@ -292,28 +317,23 @@ def iter_record_chunks(path: str | os.PathLike, *, chunk_samples: int, topics: "
 
     Bags (single indexed MCAP) are decoded chunk by chunk with the same numpy
     decoder (:func:`nifo.io.bag.iter_bag_chunks`), so memory does not grow
-    with the recording's length; CSV and MAT files are read whole and sliced.
+    with the recording's length; CSV and MAT files are read whole and sliced (:meth:`Record.chunks`).
     Every chunk's ``meta["chunk"]`` holds ``index``, ``start`` (sample) and
     ``total_samples`` (expected for the whole file). Pushing the chunks in
     order into a streaming estimator gives what the whole record would.
     A skipped start (``skip_*``, see :func:`load_record`) is dropped before the first chunk.
     """
-    fmt = detect_format(path)
-    if fmt != "bag":
-        from .bag import _record_chunks
-        yield from _record_chunks(load_record(path, topics=topics, columns=columns, fs_hz=fs_hz, axis=axis,
-                                              skip_seconds=skip_seconds, skip_periods=skip_periods,
-                                              period_samples=period_samples), int(chunk_samples))
+    if file_format(path).tables:
+        yield from load_record(path, topics=topics, columns=columns, fs_hz=fs_hz, axis=axis,
+                               skip_seconds=skip_seconds, skip_periods=skip_periods,
+                               period_samples=period_samples).chunks(int(chunk_samples))
         return
-    from dataclasses import replace
-
-    from .bag import iter_bag_chunks
     skip = _skip(skip_seconds, skip_periods, period_samples, source=str(path))
     first, left = True, 0
-    for rec in iter_bag_chunks(path, chunk_samples=chunk_samples, topics=topics, axis=axis):
+    for rec in bag.iter_bag_chunks(path, chunk_samples=chunk_samples, topics=topics, axis=axis):
         if first:
             if fs_hz is not None:
-                _check_declared_rate(rec.fs_hz, fs_hz, source=str(path))
+                check_declared_rate(rec.fs_hz, fs_hz, source=str(path))
             total = int(rec.meta.get("chunk", {}).get("total_samples", rec.n))
             left = skip.samples(rec.fs_hz, total, source=str(path)) if skip.active else 0
         first = False
@@ -334,6 +354,17 @@ def load_records(paths: Iterable[str | os.PathLike], **kw) -> list[Record]:
     return [load_record(p, **kw) for p in paths]
 
 
+def _output_format(path: Path) -> FileFormat:
+    """The row of :data:`READERS` that writes ``path`` (a directory or a name without a suffix: a bag directory)."""
+    if not path.suffix or path.is_dir():
+        return BAG_DIRECTORY
+    fmt = READERS.get(path.suffix.lower())
+    if fmt is None or fmt.write is None:
+        raise DataFileError(f"cannot tell the output format from the suffix {path.suffix!r}", source=str(path),
+                            hint="name the output *.mcap, *.csv, *.mat, or a directory (rosbag2 bag)")
+    return fmt
+
+
 def check_record_output(path: str | os.PathLike) -> Path:
     """Refuse ``path`` before any work when :func:`save_record` would refuse to write there.
 
@@ -341,21 +372,13 @@ def check_record_output(path: str | os.PathLike) -> Path:
     it); an existing ``.mcap`` file or bag directory only when nifo wrote it
     (:mod:`nifo.io.ownership`).
     """
-    from .atomic import check_output
-
     p = Path(path)
-    suffix = p.suffix.lower()
-    if suffix in _CSV_SUFFIXES or suffix in _MAT_SUFFIXES or suffix == ".mcap":
-        return check_output(p, kind="file")
-    if not suffix or p.is_dir():
-        return check_output(p, kind="bag")
-    raise DataFileError(f"cannot tell the output format from the suffix {p.suffix!r}", source=str(p),
-                        hint="name the output *.mcap, *.csv, *.mat, or a directory (rosbag2 bag)")
+    return check_output(p, kind=_output_format(p).output)
 
 
-def save_record(path: str | os.PathLike, record: Record, *, topics: "BagTopics | None" = None,
+def save_record(path: str | os.PathLike, record: Record, *, topics: "bag.BagTopics | None" = None,
                 axis: Axis = "z") -> Path:
-    """Write ``record`` in the format given by the suffix; returns the path written.
+    """Write ``record`` in the format given by the suffix (:data:`READERS`); returns the path written.
 
     ``.csv`` → CSV (``time,spindle_accel,body_accel[,tire_patch_disp]``, '%.17g');
     ``.mat`` → MAT v5; ``.mcap`` → one rosbag2 MCAP file; a directory name
@@ -363,18 +386,7 @@ def save_record(path: str | os.PathLike, record: Record, *, topics: "BagTopics |
     Atomic: on any failure nothing is left at ``path`` (an existing file is kept).
     """
     p = Path(path)
-    suffix = p.suffix.lower()
-    if suffix in _CSV_SUFFIXES:
-        from .tabular import write_csv
-        return write_csv(p, record)
-    if suffix in _MAT_SUFFIXES:
-        from .matfile import write_mat
-        return write_mat(p, record)
-    if suffix == ".mcap" or not suffix or p.is_dir():
-        from .bag import write_bag
-        return write_bag(p, record, topics=topics, axis=axis)
-    raise DataFileError(f"cannot tell the output format from the suffix {p.suffix!r}", source=str(p),
-                        hint="name the output *.mcap, *.csv, *.mat, or a directory (rosbag2 bag)")
+    return _output_format(p).write(p, record, topics=topics, axis=axis)
 
 
 # =============================================================================
@@ -432,11 +444,9 @@ def add_input_arguments(parser: argparse.ArgumentParser) -> None:
 
 def input_options(args: argparse.Namespace) -> dict:
     """Keyword arguments for :func:`load_record` from arguments added by :func:`add_input_arguments`."""
-    from .bag import BagTopics
-
     topics = getattr(args, "topics", None)
     columns = getattr(args, "columns", None)
-    return {"topics": BagTopics.parse(topics) if topics else None,
+    return {"topics": bag.BagTopics.parse(topics) if topics else None,
             "columns": parse_columns(columns) if columns else None,
             "fs_hz": getattr(args, "fs_hz", None),
             "axis": getattr(args, "axis", "z") or "z",

@@ -246,7 +246,7 @@ def _mcap_generator(p: Path) -> str | None:
     """``custom_data.generator`` of the rosbag2 metadata inside MCAP file ``p`` (None if absent or unreadable)."""
     import yaml
 
-    from .mcap_chunks import check_structure
+    from .mcap_structure import check_structure
 
     try:
         check_structure(p)   # lengths and offsets sane before a reader trusts them

@@ -21,7 +21,8 @@ from ..signal.integrate import IntegrationBand
 from ..signal.spectral import SpectralSettings
 
 __all__ = ["IllConditionedWarning", "InputMeasured", "StaticFit", "NifoResult", "FixedTerms", "Conditioning",
-           "DEFAULT_ANALYSIS_BAND_HZ", "DEFAULT_COND_LIMIT", "ILL_FRACTION", "OnIll"]
+           "DEFAULT_ANALYSIS_BAND_HZ", "DEFAULT_COND_LIMIT", "ILL_FRACTION", "OnIll", "read_only", "complex_json",
+           "complex_from_json"]
 
 #: the paper's analysis range (§4: 2-30 Hz)
 DEFAULT_ANALYSIS_BAND_HZ = (2.0, 30.0)
@@ -46,18 +47,20 @@ class IllConditionedWarning(UserWarning):
 # ---------------------------------------------------------------------------------------------
 # results
 # ---------------------------------------------------------------------------------------------
-def _ro(a) -> np.ndarray:
+def read_only(a) -> np.ndarray:
+    """A read-only copy of ``a`` (what a frozen result holds)."""
     a = np.array(a)
     a.flags.writeable = False
     return a
 
 
-def _cplx(a: np.ndarray) -> dict:
+def complex_json(a: np.ndarray) -> dict:
+    """A complex array as JSON: ``{"re": [...], "im": [...]}`` (read back by :func:`complex_from_json`)."""
     a = np.asarray(a)
     return {"re": np.real(a).tolist(), "im": np.imag(a).tolist()}
 
 
-def _uncplx(d: Mapping) -> np.ndarray:
+def complex_from_json(d: Mapping) -> np.ndarray:
     return np.asarray(d["re"], float) + 1j * np.asarray(d["im"], float)
 
 
@@ -104,23 +107,23 @@ class InputMeasured:
         for k in ("t1b", "e", "t1b_h1", "coherence_h1", "multiple_coherence", "cond", "random_error",
                   "t1b_nominal", "tire_over_m2"):
             if getattr(self, k) is not None:
-                object.__setattr__(self, k, _ro(getattr(self, k)))
+                object.__setattr__(self, k, read_only(getattr(self, k)))
 
     def to_dict(self) -> dict:
-        return {"t1b": _cplx(self.t1b), "e": [_cplx(x) for x in self.e], "t1b_h1": _cplx(self.t1b_h1),
+        return {"t1b": complex_json(self.t1b), "e": [complex_json(x) for x in self.e], "t1b_h1": complex_json(self.t1b_h1),
                 "coherence_h1": _floats(self.coherence_h1), "multiple_coherence": _floats(self.multiple_coherence),
                 "cond": _floats(self.cond), "random_error": _floats(self.random_error),
-                "t1b_nominal": None if self.t1b_nominal is None else _cplx(self.t1b_nominal),
+                "t1b_nominal": None if self.t1b_nominal is None else complex_json(self.t1b_nominal),
                 "tire_over_m2": None if self.tire_over_m2 is None else _floats(self.tire_over_m2)}
 
     @classmethod
     def from_dict(cls, d: Mapping) -> "InputMeasured":
         nf = len(d["t1b"]["re"])   # e is (0, nf) with no terms
-        return cls(t1b=_uncplx(d["t1b"]), e=np.array([_uncplx(x) for x in d["e"]], complex).reshape(len(d["e"]), nf),
-                   t1b_h1=_uncplx(d["t1b_h1"]), coherence_h1=np.asarray(d["coherence_h1"], float),
+        return cls(t1b=complex_from_json(d["t1b"]), e=np.array([complex_from_json(x) for x in d["e"]], complex).reshape(len(d["e"]), nf),
+                   t1b_h1=complex_from_json(d["t1b_h1"]), coherence_h1=np.asarray(d["coherence_h1"], float),
                    multiple_coherence=np.asarray(d["multiple_coherence"], float),
                    cond=np.asarray(d["cond"], float), random_error=np.asarray(d["random_error"], float),
-                   t1b_nominal=None if d.get("t1b_nominal") is None else _uncplx(d["t1b_nominal"]),
+                   t1b_nominal=None if d.get("t1b_nominal") is None else complex_from_json(d["t1b_nominal"]),
                    tire_over_m2=None if d.get("tire_over_m2") is None else np.asarray(d["tire_over_m2"], float))
 
 
@@ -180,7 +183,7 @@ class StaticFit:
     def __post_init__(self) -> None:
         for k in ("c_over_m2", "t21", "b", "mu_over_k2", "coherence", "random_error", "t2f", "c", "one_mass"):
             if getattr(self, k) is not None:
-                object.__setattr__(self, k, _ro(getattr(self, k)))
+                object.__setattr__(self, k, read_only(getattr(self, k)))
 
     @property
     def m2(self) -> float | None:
@@ -188,11 +191,11 @@ class StaticFit:
         return None if self.one_mass is None else float(self.one_mass[0])
 
     def to_dict(self) -> dict:
-        out = {"c_over_m2": _floats(self.c_over_m2), "t21": _cplx(self.t21), "b": [_cplx(x) for x in self.b],
-               "mu_over_k2": [_cplx(x) for x in self.mu_over_k2], "coherence": _floats(self.coherence),
+        out = {"c_over_m2": _floats(self.c_over_m2), "t21": complex_json(self.t21), "b": [complex_json(x) for x in self.b],
+               "mu_over_k2": [complex_json(x) for x in self.mu_over_k2], "coherence": _floats(self.coherence),
                "random_error": _floats(self.random_error)}
         if self.t2f is not None:
-            out.update(t2f=_cplx(self.t2f), c=_floats(self.c), one_mass=_floats(self.one_mass))
+            out.update(t2f=complex_json(self.t2f), c=_floats(self.c), one_mass=_floats(self.one_mass))
         return out
 
     @classmethod
@@ -200,12 +203,12 @@ class StaticFit:
         nt = len(d["c_over_m2"])
         opt = {}
         if d.get("t2f") is not None:
-            opt = {"t2f": _uncplx(d["t2f"]), "c": np.asarray(d["c"], float),
+            opt = {"t2f": complex_from_json(d["t2f"]), "c": np.asarray(d["c"], float),
                    "one_mass": np.asarray(d["one_mass"], float)}
-        t21 = _uncplx(d["t21"])
+        t21 = complex_from_json(d["t21"])
         return cls(c_over_m2=np.asarray(d["c_over_m2"], float), t21=t21,   # (0, nf) with no terms
-                   b=np.array([_uncplx(x) for x in d["b"]], complex).reshape(nt, t21.size),
-                   mu_over_k2=np.array([_uncplx(x) for x in d["mu_over_k2"]], complex).reshape(nt, t21.size),
+                   b=np.array([complex_from_json(x) for x in d["b"]], complex).reshape(nt, t21.size),
+                   mu_over_k2=np.array([complex_from_json(x) for x in d["mu_over_k2"]], complex).reshape(nt, t21.size),
                    coherence=np.asarray(d["coherence"], float), random_error=np.asarray(d["random_error"], float),
                    **opt)
 
@@ -329,9 +332,9 @@ class NifoResult:
     def __post_init__(self) -> None:
         for k in ("freq_hz", "t21", "b", "mu_over_k2", "c_over_m2", "t21_h1", "coherence_h1",
                   "multiple_coherence", "partial_coherence", "cond", "random_error"):
-            object.__setattr__(self, k, _ro(getattr(self, k)))
+            object.__setattr__(self, k, read_only(getattr(self, k)))
         if self.t2f is not None:
-            object.__setattr__(self, "t2f", _ro(self.t2f))
+            object.__setattr__(self, "t2f", read_only(self.t2f))
         object.__setattr__(self, "spindle_fixed", bool(self.spindle_fixed))
         object.__setattr__(self, "terms", tuple(self.terms))
         object.__setattr__(self, "fixed", tuple(bool(f) for f in self.fixed))
@@ -424,10 +427,10 @@ class NifoResult:
         """Plain JSON types (complex arrays as ``{"re": [...], "im": [...]}``)."""
         return {
             "nifo_result": 1,
-            "freq_hz": _floats(self.freq_hz), "t21": _cplx(self.t21),
-            "b": [_cplx(x) for x in self.b], "mu_over_k2": [_cplx(x) for x in self.mu_over_k2],
-            "c_over_m2": [_cplx(x) for x in self.c_over_m2],
-            "t21_h1": _cplx(self.t21_h1), "coherence_h1": _floats(self.coherence_h1),
+            "freq_hz": _floats(self.freq_hz), "t21": complex_json(self.t21),
+            "b": [complex_json(x) for x in self.b], "mu_over_k2": [complex_json(x) for x in self.mu_over_k2],
+            "c_over_m2": [complex_json(x) for x in self.c_over_m2],
+            "t21_h1": complex_json(self.t21_h1), "coherence_h1": _floats(self.coherence_h1),
             "multiple_coherence": _floats(self.multiple_coherence),
             "partial_coherence": _floats(self.partial_coherence), "cond": _floats(self.cond),
             "random_error": _floats(self.random_error), "n_avg": int(self.n_avg), "n_samples": int(self.n_samples),
@@ -438,7 +441,7 @@ class NifoResult:
             "static": None if self.static is None else self.static.to_dict(),
             "spindle_noise_psd": self.spindle_noise_psd,
             "provenance": json.loads(json.dumps(dict(self.provenance), default=str)),
-            "t2f": None if self.t2f is None else _cplx(self.t2f), "spindle_fixed": self.spindle_fixed,
+            "t2f": None if self.t2f is None else complex_json(self.t2f), "spindle_fixed": self.spindle_fixed,
         }
 
     @classmethod
@@ -449,11 +452,11 @@ class NifoResult:
             nf = len(d["freq_hz"])
 
             def mat(key):
-                return np.array([_uncplx(x) for x in d[key]]).reshape(nt, nf)
+                return np.array([complex_from_json(x) for x in d[key]]).reshape(nt, nf)
             im = d.get("input_measured")
             return cls(
-                freq_hz=np.asarray(d["freq_hz"], float), t21=_uncplx(d["t21"]), b=mat("b"),
-                mu_over_k2=mat("mu_over_k2"), c_over_m2=mat("c_over_m2"), t21_h1=_uncplx(d["t21_h1"]),
+                freq_hz=np.asarray(d["freq_hz"], float), t21=complex_from_json(d["t21"]), b=mat("b"),
+                mu_over_k2=mat("mu_over_k2"), c_over_m2=mat("c_over_m2"), t21_h1=complex_from_json(d["t21_h1"]),
                 coherence_h1=np.asarray(d["coherence_h1"], float),
                 multiple_coherence=np.asarray(d["multiple_coherence"], float),
                 partial_coherence=np.asarray(d["partial_coherence"], float).reshape(nt + 1, nf),
@@ -467,7 +470,7 @@ class NifoResult:
                 static=None if d.get("static") is None else StaticFit.from_dict(d["static"]),
                 spindle_noise_psd=d.get("spindle_noise_psd"),
                 provenance=dict(d.get("provenance") or {}),
-                t2f=None if d.get("t2f") is None else _uncplx(d["t2f"]),
+                t2f=None if d.get("t2f") is None else complex_from_json(d["t2f"]),
                 spindle_fixed=bool(d.get("spindle_fixed", False)))
         except (KeyError, TypeError, ValueError) as err:
             raise ConfigError(f"cannot read NIFO result: {err!r}", hint="pass what NifoResult.to_dict() wrote") \
@@ -488,7 +491,7 @@ class FixedTerms:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "terms", tuple(make_term(t) for t in self.terms))
-        object.__setattr__(self, "c_over_m2", _ro(np.asarray(self.c_over_m2, float).reshape(-1)))
+        object.__setattr__(self, "c_over_m2", read_only(np.asarray(self.c_over_m2, float).reshape(-1)))
         if self.c_over_m2.size != len(self.terms) or not np.all(np.isfinite(self.c_over_m2)):
             raise ConfigError(f"fixed terms need one finite c/M2 per term, got {self.c_over_m2.tolist()} "
                               f"for {[t.label for t in self.terms]}")

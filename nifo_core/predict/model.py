@@ -48,7 +48,7 @@ from .fixed_point import contraction_bound, fixed_point_solve
 from ..signal.integrate import IntegrationBand
 from .linear_part import BodyModel, LinearPart, absorbed_rates, fit_body_model, nominal_linear_part, select_linear_part
 from ..nifo.identify import NifoResult
-from ..nifo.result import _cplx, _ro, _uncplx  # one home for the JSON forms of complex arrays
+from ..nifo.result import complex_from_json, complex_json, read_only  # one home for the JSON forms of complex arrays
 from ..signal.band import band_taper
 from .scope import Offsets, PredictionBand, Validity
 from ..signal.frf import coherence, h1
@@ -130,7 +130,7 @@ class IdentifiedModel:
 
     def __post_init__(self) -> None:
         for k in ("freq_hz", "t21", "b", "c_over_m2"):
-            object.__setattr__(self, k, _ro(getattr(self, k)))
+            object.__setattr__(self, k, read_only(getattr(self, k)))
         object.__setattr__(self, "terms", tuple(self.terms))
         object.__setattr__(self, "analysis_band_hz", (float(self.analysis_band_hz[0]),
                                                       float(self.analysis_band_hz[1])))
@@ -214,8 +214,8 @@ class IdentifiedModel:
 
     def to_dict(self) -> dict:
         """Plain JSON types (complex arrays as ``{"re": [...], "im": [...]}``)."""
-        return {"nifo_identified_model": 1, "freq_hz": self.freq_hz.tolist(), "t21": _cplx(self.t21),
-                "b": [_cplx(x) for x in self.b], "terms": [t.to_dict() for t in self.terms],
+        return {"nifo_identified_model": 1, "freq_hz": self.freq_hz.tolist(), "t21": complex_json(self.t21),
+                "b": [complex_json(x) for x in self.b], "terms": [t.to_dict() for t in self.terms],
                 "c_over_m2": self.c_over_m2.tolist(), "body": None if self.body is None else self.body.to_dict(),
                 "linear_part": self.linear.to_dict(), "force_gain": self.force_gain,
                 "analysis_band_hz": list(self.analysis_band_hz), "fs_hz": self.fs_hz,
@@ -232,8 +232,8 @@ class IdentifiedModel:
             nf = len(d["freq_hz"])
             body = None if d["body"] is None else BodyModel.from_dict(d["body"])
             lin = LinearPart.from_dict(d["linear_part"]) if d.get("linear_part") else None
-            return cls(freq_hz=np.asarray(d["freq_hz"], float), t21=_uncplx(d["t21"]),
-                       b=np.array([_uncplx(x) for x in d["b"]], complex).reshape(len(terms), nf), terms=terms,
+            return cls(freq_hz=np.asarray(d["freq_hz"], float), t21=complex_from_json(d["t21"]),
+                       b=np.array([complex_from_json(x) for x in d["b"]], complex).reshape(len(terms), nf), terms=terms,
                        c_over_m2=np.asarray(d["c_over_m2"], float), body=body,
                        analysis_band_hz=tuple(d["analysis_band_hz"]), fs_hz=float(d["fs_hz"]),
                        settings=SpectralSettings.from_dict(d["settings"]), band=IntegrationBand(**d["band"]),
@@ -409,7 +409,7 @@ class PredictedTransmissibility:
 
     def __post_init__(self) -> None:
         for k in ("freq_hz", "t21", "coherence"):
-            object.__setattr__(self, k, _ro(getattr(self, k)))
+            object.__setattr__(self, k, read_only(getattr(self, k)))
 
 
 def predict_transmissibility(model: IdentifiedModel, spindle_accel: np.ndarray, fs_hz: float, *,

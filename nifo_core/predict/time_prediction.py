@@ -21,7 +21,7 @@ import scipy.fft
 
 from ..errors import ConfigError, IllConditionedError, InputError
 from ..kinds.describing import Term
-from ..nifo.result import _ro
+from ..nifo.result import read_only
 from ..signal.integrate import integrate
 from ..signal.memo import ArrayMemo
 from .linear_part import LinearPart
@@ -82,7 +82,7 @@ class Prediction:
 
     def __post_init__(self) -> None:
         for k in ("body_accel", "z", "zdot"):
-            object.__setattr__(self, k, _ro(getattr(self, k)))
+            object.__setattr__(self, k, read_only(getattr(self, k)))
 
     @property
     def valid(self) -> slice:

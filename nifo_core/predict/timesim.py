@@ -47,7 +47,7 @@ from scipy import signal
 from ..kinds.describing import Term, path_slopes
 from ..errors import ConfigError
 from .linear_part import LinearPart
-from ..simulate.quarter_car import _antialias_taps, decimate
+from ..simulate.quarter_car import antialias_taps, decimate
 from ..kinds.strut_forces import PLAY, g_one, strut_arrays, strut_force
 from ..signal.memo import ArrayMemo
 
@@ -419,17 +419,17 @@ def lookahead_samples(q: int) -> int:
     """How many samples of later input a simulated sample depends on, at ``q`` fine steps per sample.
 
     The march itself is causal; the interpolation of the input to the fine rate and the decimation of z̈ back are
-    zero-phase FIR filters (:func:`~nifo_core.simulate.quarter_car._antialias_taps`), each reaching half its length
+    zero-phase FIR filters (:func:`~nifo_core.simulate.quarter_car.antialias_taps`), each reaching half its length
     ahead. So the first k samples of a response are the same (to rounding: the filters' FFT blocks differ) whether
     the input stops at sample k + ``lookahead_samples(q)`` or goes on."""
     if q <= 1:
         return 0
-    half = _antialias_taps(q).size // 2
+    half = antialias_taps(q).size // 2
     return 2 * (-(-half // q)) + 1
 
 
 def _up(x: np.ndarray, q: int) -> np.ndarray:
-    return x.copy() if q == 1 else signal.resample_poly(x, q, 1, window=_antialias_taps(q))
+    return x.copy() if q == 1 else signal.resample_poly(x, q, 1, window=antialias_taps(q))
 
 
 def _down(x: np.ndarray, q: int) -> np.ndarray:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
-from typing import Mapping
+from typing import Iterator, Mapping
 
 import numpy as np
 
@@ -157,6 +157,13 @@ class Record:
         return replace(self, spindle_accel=None if self.spindle_fixed else self.spindle_accel[start:stop],
                        body_accel=self.body_accel[start:stop], tire_patch_disp=tp, force=fo, body_disp=bd,
                        t0_ns=self.t0_ns + int(round(start * 1e9 / self.fs_hz)))
+
+    def chunks(self, chunk_samples: int) -> "Iterator[Record]":
+        """Consecutive slices of ``chunk_samples`` samples (the last may be shorter), each with
+        ``meta["chunk"] = {"index", "start", "total_samples"}``: what a file streamed chunk by chunk hands out."""
+        for i, start in enumerate(range(0, self.n, chunk_samples)):
+            part = self.slice(start, start + chunk_samples)
+            yield replace(part, meta={**dict(self.meta), "chunk": {"index": i, "start": start, "total_samples": self.n}})
 
     def centred(self, means: Mapping[str, float] | None = None) -> "Record":
         """This record with the constant offsets of its accelerations removed: ``means`` (default its own,

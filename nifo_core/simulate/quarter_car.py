@@ -48,7 +48,7 @@ from ..kinds.strut_forces import strut_force as _strut_force
 from .vehicle import QuarterCar
 
 __all__ = ["StrutForce", "RandomRoad", "ChirpRoad", "SensorNoise", "SimConfig", "Simulation", "Truth",
-           "simulate", "preset", "PRESETS", "decimate"]
+           "simulate", "preset", "PRESETS", "decimate", "antialias_taps"]
 
 #: seconds simulated before the record starts (the input fades in over the first FADE_S)
 WARMUP_S = 8.0
@@ -528,7 +528,7 @@ def _integrate(cfg: SimConfig, xb, xbd, n_steps: int, rec: tuple[int, int],
 
 
 @lru_cache(maxsize=8)
-def _antialias_taps(q: int) -> np.ndarray:
+def antialias_taps(q: int) -> np.ndarray:
     """Odd-length Kaiser FIR: flat (±1e-5) to PASSBAND_FRACTION of the new Nyquist, -100 dB from it."""
     width = (1 - PASSBAND_FRACTION) / q  # transition band, relative to the integration Nyquist
     n, beta = signal.kaiserord(STOPBAND_DB, width)
@@ -538,7 +538,7 @@ def _antialias_taps(q: int) -> np.ndarray:
 
 
 def decimate(x: np.ndarray, q: int) -> np.ndarray:
-    """Anti-alias (zero-phase FIR, :func:`_antialias_taps`) and keep every q-th sample: output k is at input k·q.
+    """Anti-alias (zero-phase FIR, :func:`antialias_taps`) and keep every q-th sample: output k is at input k·q.
 
     The same numbers as ``scipy.signal.resample_poly(x, 1, q, window=taps)`` (zeros beyond the ends; measured
     2e-15 relative) by an overlap-add convolution at the fine rate: 2.3× faster for q = 8 and 515 taps on
@@ -548,7 +548,7 @@ def decimate(x: np.ndarray, q: int) -> np.ndarray:
     """
     if q == 1:
         return np.array(x, float)
-    return signal.oaconvolve(np.asarray(x, float), _antialias_taps(q), mode="same")[::q].copy()
+    return signal.oaconvolve(np.asarray(x, float), antialias_taps(q), mode="same")[::q].copy()
 
 
 def _add_noise(x: np.ndarray, noise: SensorNoise, rng: np.random.Generator, *, absolute: float) -> np.ndarray:

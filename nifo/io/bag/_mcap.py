@@ -17,6 +17,7 @@ import numpy as np
 
 from nifo_core.errors import CorruptDataError, DataFileError, TimestampError
 
+from ..mcap_structure import FOOTER_OP, MCAP_MAGIC, check_structure
 from .cdr import AXES as _AXES, CDR_LE as _CDR_LE, IMU
 from .cdr import LAYOUT as _LAYOUT, POINT_STAMPED, Axis
 
@@ -125,12 +126,6 @@ def _corrupt(path: Path, offset: int, what: str) -> CorruptDataError:
                                  "recording; 'mcap recover' can salvage the intact chunks")
 
 
-def _damaged(path: Path, offset: int, what: str, *, cls: type[DataFileError] = CorruptDataError) -> DataFileError:
-    return cls(f"cannot read the bag (byte offset {offset}: {what}); the file is damaged or truncated",
-               source=str(path), hint="re-copy the bag; a recording cut short can often be repaired with "
-                                      "'ros2 bag reindex' (directory) or 'mcap recover' (.mcap file)")
-
-
 def _read_chunk(f: BinaryIO, path: Path, offset: int) -> bytes | None:
     """The uncompressed records of the chunk at ``offset``, CRC and size checked; None: cannot decompress."""
     from mcap.data_stream import ReadDataStream
@@ -200,7 +195,7 @@ def _writer(f: BinaryIO) -> str:
     f.seek(0)
     head = f.read(8 + 9 + 4 + 256 + 4 + 256)
     try:
-        if head[:8] != _MAGIC or head[8] != 0x01:
+        if head[:8] != MCAP_MAGIC or head[8] != 0x01:
             return ""
         pos = 17
         n = struct.unpack_from("<I", head, pos)[0]
@@ -319,63 +314,12 @@ def _iter_mcap_indexed(path: Path, wanted: Mapping[str, tuple[str, str]], *, axi
             yield out
 
 
-_MAGIC = b"\x89MCAP0\r\n"
-_FOOTER = 0x02
-_DATA_END = 0x0F
-
-
-def check_structure(path: Path) -> None:
-    """Walk the MCAP file's top-level records before any library reads it.
-
-    Every record must fit in the file (a damaged length would make a reader
-    allocate gigabytes or run off the end), the footer must sit at the end
-    and point inside the file, and the summary section's CRC must match when
-    recorded. Raises :class:`CorruptDataError` naming the byte offset.
-    """
-    size = path.stat().st_size
-    with path.open("rb") as f:
-        if f.read(8) != _MAGIC:
-            raise _damaged(path, 0, "no MCAP magic at the start: not an MCAP file", cls=DataFileError)
-        f.seek(size - 8)
-        if size < 8 + 8 + 9 + 20 or f.read(8) != _MAGIC:
-            raise _damaged(path, max(size - 8, 0), "no MCAP magic at the end: the file was cut short",
-                          cls=DataFileError)
-        pos = 8
-        end = size - 8
-        footer = None
-        while pos < end:
-            f.seek(pos)
-            head = f.read(9)
-            if len(head) < 9:
-                raise _damaged(path, pos, "record header cut short")
-            op, length = struct.unpack("<BQ", head)
-            if length > end - pos - 9:
-                raise _damaged(path, pos, f"record 0x{op:02x} claims {length} bytes, past the end of the file")
-            if op == _FOOTER:
-                footer = pos
-                if pos + 9 + length != end:
-                    raise _damaged(path, pos, "the footer is not at the end of the file")
-                break
-            pos += 9 + length
-        if footer is None:
-            raise _damaged(path, pos, "no footer record")
-        f.seek(footer + 9)
-        summary_start, offset_start, crc = struct.unpack("<QQI", f.read(20))
-        if summary_start > footer or offset_start > footer:
-            raise _damaged(path, footer, "the footer points outside the file")
-        if crc and summary_start:
-            f.seek(summary_start)
-            got = zlib.crc32(f.read(footer + 1 + 8 + 16 - summary_start))
-            if got != crc:
-                raise _damaged(path, summary_start, f"summary CRC-32 {got:08x} does not match the recorded {crc:08x}")
-
-
 def _fill_summary_crc(f: BinaryIO, size: int) -> None:
     """Fill in the footer's summary CRC (covers the summary up to the footer's summary_offset_start)."""
     footer = size - 8 - 20 - 9
     f.seek(footer)
     op, length = struct.unpack("<BQ", f.read(9))
-    if op != _FOOTER or length != 20:
+    if op != FOOTER_OP or length != 20:
         return
     summary_start, _ = struct.unpack("<QQ", f.read(16))
     if not summary_start:

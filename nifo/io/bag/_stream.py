@@ -10,14 +10,14 @@ import numpy as np
 from nifo_core.errors import ConfigError, DataFileError, NifoError, RecordTooShortError, TimestampError
 from nifo_core.signal.record import Record
 
-from .assemble import check_rate_range, check_values, nominal_rate
-from .bag_read import _CHANNEL_OF_ROLE, _is_sqlite, _mcap_file, _open_checked, integrity_meta, read_bag
-from .bag_topics import BagTopics, _topic_table, resolve_topics
+from ..assemble import check_rate_range, check_values, nominal_rate
+from ._read import _CHANNEL_OF_ROLE, _is_sqlite, _mcap_file, _open_checked, integrity_meta, read_bag
+from ._topics import BagTopics, _topic_table, resolve_topics
 from .cdr import Axis
-from .mcap_chunks import (_Decoded, _iter_mcap_indexed, _NoUsableIndex, check_metadata_topics, check_structure,
-                          indexed_counts, receive_stamps)
+from ._mcap import (_iter_mcap_indexed, _NoUsableIndex, check_metadata_topics, check_structure,
+                    indexed_counts, receive_stamps)
 
-__all__ = ["iter_bag_chunks", "record_chunks"]
+__all__ = ["iter_bag_chunks"]
 
 class _ChunkAssembler:
     """Turns per-role message streams into aligned, uniformly sampled :class:`Record` chunks.
@@ -146,15 +146,6 @@ class _ChunkAssembler:
                                     hint="check the channel mapping (--topics/--columns/--axis) and the sensor")
 
 
-def record_chunks(rec: Record, chunk_samples: int) -> "Iterator[Record]":
-    """Slices of a whole record, with the chunk metadata of :func:`iter_bag_chunks`."""
-    from dataclasses import replace
-
-    for i, start in enumerate(range(0, rec.n, chunk_samples)):
-        part = rec.slice(start, start + chunk_samples)
-        yield replace(part, meta={**dict(rec.meta), "chunk": {"index": i, "start": start, "total_samples": rec.n}})
-
-
 def iter_bag_chunks(path: str | os.PathLike, *, chunk_samples: int, topics: BagTopics | None = None,
                     axis: Axis = "z") -> "Iterator[Record]":
     """Read a bag as consecutive :class:`Record` chunks of ``chunk_samples`` samples (the last may be shorter).
@@ -178,7 +169,7 @@ def iter_bag_chunks(path: str | os.PathLike, *, chunk_samples: int, topics: BagT
         except Exception:  # unreadable metadata: read_bag reports it properly
             mcap_file = None
     if mcap_file is None:
-        yield from record_chunks(read_bag(path, topics=topics, axis=axis), chunk_samples)
+        yield from read_bag(path, topics=topics, axis=axis).chunks(chunk_samples)
         return
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_typestore
@@ -235,7 +226,7 @@ def iter_bag_chunks(path: str | os.PathLike, *, chunk_samples: int, topics: BagT
             if asm.index or asm.emitted:
                 raise DataFileError(f"cannot read the bag chunk by chunk ({err})", source=src,
                                     hint="read it whole (nifo.io.loader.load_record)") from err
-            yield from record_chunks(read_bag(path, topics=topics, axis=axis), chunk_samples)
+            yield from read_bag(path, topics=topics, axis=axis).chunks(chunk_samples)
             return
         except NifoError:
             raise

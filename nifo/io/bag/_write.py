@@ -13,11 +13,11 @@ import numpy as np
 from nifo_core.errors import ConfigError, DataFileError, NifoError
 from nifo_core.signal.record import Record
 
-from .atomic import staged_file
-from .bag_topics import _DEFAULT_TOPICS, BagTopics
+from ..atomic import staged_file
+from ._topics import _DEFAULT_TOPICS, BagTopics
 from .cdr import AXES as _AXES, IMU, LAYOUT as _LAYOUT, POINT_STAMPED, WRENCH_STAMPED, Axis
-from .cdr import payloads as _payloads  # the message layout lives in nifo.io.cdr
-from .mcap_chunks import write_chunk_crcs
+from .cdr import payloads as _payloads  # the message layout lives in nifo.io.bag.cdr
+from ._mcap import write_chunk_crcs
 
 __all__ = ["TopicData", "write_bag", "write_channels", "BAG_VERSION"]
 

@@ -64,17 +64,25 @@ layout) goes through rosbags' generic ``deserialize_cdr``. See
 
 Stamps come from ``header.stamp``; only when those are all zero is the bag's
 receive (log) time used, and ``meta["stamps"]`` says so.
+
+Modules
+-------
+The package (issue 57: the bag I/O as a subpackage, as rosbags keeps ``rosbag2/``): private modules, each one
+concern — ``_read`` (a whole bag), ``_stream`` (a bag chunk by chunk), ``_topics`` (which topic is which role),
+``_write`` (writing), ``_mcap`` (MCAP chunks straight into numpy, CRCs, structure) — and one public module,
+:mod:`nifo.io.bag.cdr` (the CDR layout of the three message types, shared with the ROS nodes). Other packages use
+the names below only: the import-linter contract ``private_modules`` keeps the ``_`` modules inside
+(``.importlinter``). The front door is lazy (``lazy_loader``, as :mod:`nifo_core.signal`'s): rosbags and mcap are
+imported when a bag is first read or written, not by every command that imports the loader.
 """
 
-from __future__ import annotations
+import lazy_loader
 
-from .bag_read import read_bag
-from .bag_stream import iter_bag_chunks, record_chunks as _record_chunks
-from .bag_topics import BagTopics, resolve_topics
-from .bag_write import BAG_VERSION, TopicData, write_bag, write_channels
-from .cdr import IMU, POINT_STAMPED, WRENCH_STAMPED
-from .cdr import payloads as _payloads
-from .mcap_chunks import _decode
-
-__all__ = ["BagTopics", "TopicData", "read_bag", "iter_bag_chunks", "write_bag", "write_channels",
-           "resolve_topics", "IMU", "POINT_STAMPED", "WRENCH_STAMPED", "BAG_VERSION"]
+__getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submodules=["cdr"], submod_attrs={
+    "_read": ["read_bag"],
+    "_stream": ["iter_bag_chunks"],
+    "_topics": ["BagTopics", "resolve_topics"],
+    "_write": ["BAG_VERSION", "TopicData", "write_bag", "write_channels"],
+    "_mcap": ["check_structure", "write_chunk_crcs", "chunk_crc_status"],
+    "cdr": ["IMU", "POINT_STAMPED", "WRENCH_STAMPED"],
+})

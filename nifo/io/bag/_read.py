@@ -13,11 +13,11 @@ import numpy as np
 from nifo_core.errors import ConfigError, DataFileError, NifoError
 from nifo_core.signal.record import Record
 
-from .assemble import assemble_record
-from .bag_topics import BagTopics, _topic_table, resolve_topics
+from ..assemble import assemble_record
+from ._topics import BagTopics, _topic_table, resolve_topics
 from .cdr import AXES as _AXES, Axis
-from .inputs import regular_input
-from .mcap_chunks import (_decode, _Decoded, _iter_mcap_indexed, _NoUsableIndex, check_metadata_topics,
+from ..inputs import regular_input
+from ._mcap import (_decode, _Decoded, _iter_mcap_indexed, _NoUsableIndex, check_metadata_topics,
                           check_structure, chunk_crc_status, crc_note, receive_stamps)
 
 if TYPE_CHECKING:
