@@ -17,7 +17,9 @@ trees' paths are replaced by placeholders and the timing keys are dropped: ident
     PYTHONPATH=. .venv/bin/python benchmarks/compare_versions.py BASE [--runs 3] -- COMMAND ARGS...
 
 ``--runs 0``: no timing, one run of each version and the comparison of what they wrote (a refactoring's "behaviour
-unchanged", e.g. ``compare_versions.py main --runs 0 -- run`` for every JSON of the sample's ``nifo run``).
+unchanged", e.g. ``compare_versions.py main --runs 0 -- run`` for every JSON of the sample's ``nifo run``). CSV
+tables are compared too (row by row, as text: floats written with ``repr`` compare exactly); ``--ignore KEY``
+(repeatable) drops further clock keys and columns, e.g. ``--ignore seconds`` for ``nifo fleet``'s per-bag time.
 
 for example, the F-16 main job against the commit before a change (the tool gives each run its ``--out``)::
 
@@ -29,6 +31,7 @@ for example, the F-16 main job against the commit before a change (the tool give
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import os
 import resource
@@ -74,11 +77,11 @@ def _run(tree: Path, cwd: Path, args: list[str], out: Path) -> tuple[float, floa
     return wall, (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime)
 
 
-def _normalised(x, replace: dict[str, str]):
+def _normalised(x, replace: dict[str, str], volatile: frozenset = VOLATILE):
     if isinstance(x, dict):   # keys too: a record's path can be a key (the settings' sources per input)
-        return {_normalised(k, replace): _normalised(v, replace) for k, v in x.items() if k not in VOLATILE}
+        return {_normalised(k, replace): _normalised(v, replace, volatile) for k, v in x.items() if k not in volatile}
     if isinstance(x, list):
-        return [_normalised(v, replace) for v in x]
+        return [_normalised(v, replace, volatile) for v in x]
     if isinstance(x, str):
         for old, new in replace.items():
             x = x.replace(old, new)
@@ -108,11 +111,18 @@ def _first_difference(a, b, where: str = "") -> str | None:
     return None if a == b else f"{where}: {a!r} != {b!r}"
 
 
-def compare_outputs(old: Path, new: Path, trees: dict[str, Path]) -> list[str]:
-    """One line per JSON file written by either version: identical, or its first difference."""
+def _read_output(path: Path):
+    """A JSON document, or a CSV table as a list of rows (dicts of the cells' text)."""
+    if path.suffix == ".csv":
+        with path.open(newline="") as f:
+            return list(csv.DictReader(f))
+    return json.loads(path.read_text())
+
+
+def compare_outputs(old: Path, new: Path, trees: dict[str, Path], *, ignore: frozenset = frozenset()) -> list[str]:
+    """One line per JSON or CSV file written by either version: identical, or its first difference."""
     lines = []
-    names = sorted({p.relative_to(old) for p in old.rglob("*.json")}
-                   | {p.relative_to(new) for p in new.rglob("*.json")})
+    names = sorted({p.relative_to(d) for d in (old, new) for pattern in ("*.json", "*.csv") for p in d.rglob(pattern)})
     for name in names:
         a, b = old / name, new / name
         if not (a.is_file() and b.is_file()):
@@ -121,7 +131,7 @@ def compare_outputs(old: Path, new: Path, trees: dict[str, Path]) -> list[str]:
         docs = []
         for path, out in ((a, old), (b, new)):
             repl = {str(out.resolve()): "<out>", str(out): "<out>", **{str(t): "<tree>" for t in trees.values()}}
-            docs.append(_normalised(json.loads(path.read_text()), repl))
+            docs.append(_normalised(_read_output(path), repl, VOLATILE | ignore))
         diff = _first_difference(*docs)
         lines.append(f"  {name}: " + ("identical" if diff is None else f"differs at {diff[:300]}"))
     return lines
@@ -134,6 +144,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("base", help="the earlier commit (any git revision)")
     p.add_argument("--runs", type=int, default=3,
                    help="timed runs of each version (default 3; 0: one untimed run of each, outputs compared)")
+    p.add_argument("--ignore", action="append", default=[], metavar="KEY",
+                   help="a further clock key (JSON) or column (CSV) left out of the comparison; repeatable")
     opts = p.parse_args(argv[:cut])
     args = _absolute(argv[cut + 1:])
     if opts.runs < 0:
@@ -154,7 +166,8 @@ def main(argv: list[str] | None = None) -> int:
                 _run(tree, cwd, args, tmp / f"warm_{name}")
             if not opts.runs:
                 print("outputs (JSON, paths and clocks aside):")
-                print("\n".join(compare_outputs(tmp / "warm_old", tmp / "warm_new", trees)))
+                print("\n".join(compare_outputs(tmp / "warm_old", tmp / "warm_new", trees,
+                                                 ignore=frozenset(opts.ignore))))
                 return 0
             times: dict[str, list[tuple[float, float]]] = {"old": [], "new": []}
             for k in range(opts.runs):
@@ -169,7 +182,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"new (this checkout): mean {mean['new'][0]:.2f} s wall, {mean['new'][1]:.2f} s CPU")
             print(f"new/old: wall {mean['new'][0] / mean['old'][0]:.3f}, CPU {mean['new'][1] / mean['old'][1]:.3f}")
             print("outputs of the last runs (JSON, paths and clocks aside):")
-            print("\n".join(compare_outputs(tmp / f"old_{opts.runs - 1}", tmp / f"new_{opts.runs - 1}", trees)))
+            print("\n".join(compare_outputs(tmp / f"old_{opts.runs - 1}", tmp / f"new_{opts.runs - 1}", trees,
+                                             ignore=frozenset(opts.ignore))))
         finally:
             subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(old_tree)], check=False)
     return 0

@@ -33,6 +33,21 @@ def test_outputs_that_differ_only_in_their_folder_and_clocks_are_identical_and_a
                      "  predict/predict.json: written by new only"]
 
 
+def test_paths_in_keys_csv_tables_and_ignored_clock_columns_are_compared_as_the_user_expects(tmp_path):
+    old, new = tmp_path / "old", tmp_path / "new"
+    for out, took, k2 in ((old, "0.35", "64.46982577918239"), (new, "0.19", "64.46982577918239")):
+        _write(out, "run/settings.json", {"inputs": {f"{out}/bags/road_1mm": "from the data"}})
+        (out / "fleet").mkdir()
+        (out / "fleet" / "bags.csv").write_text(f"vehicle,seconds,k2\nv00,{took},{k2}\n")
+    (new / "fleet" / "fleet.csv").write_text("vehicle,k2\nv00,1\n")
+    (old / "fleet" / "fleet.csv").write_text("vehicle,k2\nv00,1.0000000000000002\n")
+    lines = cv.compare_outputs(old, new, {"new": REPO}, ignore=frozenset({"seconds"}))
+    assert lines == ["  fleet/bags.csv: identical",
+                     "  fleet/fleet.csv: differs at [0]/k2: '1.0000000000000002' != '1'",
+                     "  run/settings.json: identical"]
+    assert "differs at [0]/seconds" in cv.compare_outputs(old, new, {"new": REPO})[0]
+
+
 def test_a_version_that_imports_another_trees_code_is_refused(tmp_path):
     # started from a checkout, `python -m nifo` imports that checkout whatever PYTHONPATH says: the trap the tool
     # avoids by an empty working directory, and checks
