@@ -37,6 +37,7 @@ import numpy as np
 
 from nifo.io.loader import iter_record_chunks
 from nifo.io.memo import nbytes, remembered
+from nifo_core.defaults import DEFAULT_COND_LIMIT
 from nifo_core.errors import ClippedSignalError, IllConditionedError, InputError, NifoError, RecordTooShortError
 from nifo_core.signal.clipping import REFUSE_FRACTION, ClippingWarning, clipping
 from nifo_core.signal.record import acceleration_means, concatenate
@@ -73,7 +74,7 @@ def add_settings_arguments(p: argparse.ArgumentParser, *, cond_limit: bool = Tru
                             "excited band)")
     if cond_limit:
         g.add_argument("--cond-limit", type=float, metavar="C",
-                       help="scaled cond(G_UU) counted as ill-conditioned (default 1e4)")
+                       help=f"scaled cond(G_UU) counted as ill-conditioned (default {DEFAULT_COND_LIMIT:g})")
     g.add_argument("--no-settings-from-data", action="store_true", dest="no_settings_from_data",
                    help="settings not given take the defaults (paper Table 2, 2-30 Hz, 0.5-200 Hz), not choices read "
                         "off the data: what nifo fleet and the identifier node use")

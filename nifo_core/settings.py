@@ -39,6 +39,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from .defaults import DEFAULT_ANALYSIS_BAND_HZ, DEFAULT_COND_LIMIT
 from .errors import ConfigError
 from .signal.excitation import Excitation
 from .signal.integrate import IntegrationBand, default_band, lowest_edge_hz
@@ -47,10 +48,6 @@ from .signal.spectral import SpectralSettings
 __all__ = ["Choice", "GivenSettings", "AnalysisSettings", "DEFAULT_ANALYSIS_BAND_HZ", "DEFAULT_COND_LIMIT",
            "PAPER_BLOCK_S", "resolve_settings", "merge_given"]
 
-#: the analysis band when nothing else says (the paper's figures: 2-30 Hz)
-DEFAULT_ANALYSIS_BAND_HZ = (2.0, 30.0)
-#: scaled cond(G_UU) counted as ill-conditioned
-DEFAULT_COND_LIMIT = 1e4
 #: random data: at least this many spectral averages before the paper's block is shortened
 MIN_AVERAGES = 8
 #: the paper's spectral block for random data [s] (Table 2: 6144 samples at 600 Hz)

@@ -54,6 +54,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nifo_core.defaults import DEFAULT_ANALYSIS_BAND_HZ, DEFAULT_COND_LIMIT
 from nifo_core.errors import ConfigError, NifoError
 
 from .common import (IDENTIFIER_BLOCK_DEPTH, TOPICS, Diagnostics, Param, block_qos, declare_parameters, result_qos,
@@ -142,9 +143,9 @@ PARAMS = {
     "window": Param("", "spectral window; '': model file, else flattop", read_only=True),
     "f_lo_hz": Param(0.0, "integration band low edge for z, zdot [Hz]; 0: default 0.5 Hz", 0.0, 1e5, read_only=True),
     "f_hi_hz": Param(0.0, "integration band high edge [Hz]; 0: default min(200, fs/2.5)", 0.0, 1e5, read_only=True),
-    "analysis_band_hz": Param([2.0, 30.0], "[lo, hi] band of the pooled fit, conditioning and summary [Hz]",
+    "analysis_band_hz": Param(list(DEFAULT_ANALYSIS_BAND_HZ), "[lo, hi] band of the pooled fit, conditioning and summary [Hz]",
                               read_only=True),
-    "cond_limit": Param(1e4, "scaled cond(G_UU) counted as ill-conditioned [-]", 1.0, 1e300, read_only=True),
+    "cond_limit": Param(DEFAULT_COND_LIMIT, "scaled cond(G_UU) counted as ill-conditioned [-]", 1.0, 1e300, read_only=True),
     "publish_period_s": Param(2.0, "how often the estimate is published when it changed [s]", 0.01, 3600.0),
     "checkpoint_file": Param("", "checkpoint (.npz) resumed at start-up and written periodically; '': none",
                              read_only=True),

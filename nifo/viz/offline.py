@@ -21,7 +21,7 @@ from nifo.io.names import file_stems, record_labels
 from nifo.io.results import read_identify
 from nifo_core.errors import NifoError, RecordTooShortError
 from nifo_core.nifo.engine import IdentifySetup, RecordProbe, accumulate_record
-from nifo_core.nifo.result import DEFAULT_COND_LIMIT
+from nifo_core.defaults import DEFAULT_COND_LIMIT
 
 from . import rerun_log as rl
 from .results import ResultDir, data_paths, resolve_data

@@ -14,6 +14,7 @@ from typing import Literal, Mapping
 
 import numpy as np
 
+from ..defaults import DEFAULT_ANALYSIS_BAND_HZ, DEFAULT_COND_LIMIT
 from ..kinds.describing import Term, make_term
 from ..errors import ConfigError, IllConditionedError, InputError
 from ..signal.frf import bound_factor
@@ -24,10 +25,6 @@ __all__ = ["IllConditionedWarning", "InputMeasured", "StaticFit", "NifoResult", 
            "DEFAULT_ANALYSIS_BAND_HZ", "DEFAULT_COND_LIMIT", "ILL_FRACTION", "OnIll", "read_only", "complex_json",
            "complex_from_json"]
 
-#: the paper's analysis range (§4: 2-30 Hz)
-DEFAULT_ANALYSIS_BAND_HZ = (2.0, 30.0)
-#: scaled condition number of G_UU above which a line counts as ill-conditioned
-DEFAULT_COND_LIMIT = 1e4
 #: fraction of the analysis band's lines allowed above the limit before warning/refusing
 ILL_FRACTION = 0.1
 

@@ -39,6 +39,7 @@ from typing import Literal, Mapping, Sequence
 import numpy as np
 import scipy.linalg
 
+from ..defaults import DEFAULT_ANALYSIS_BAND_HZ
 from ..kinds.describing import KINDS
 from ..errors import ConfigError
 from ..signal.parallel import max_threads, thread_map
@@ -116,7 +117,7 @@ def _usable(freq_hz, t21, band_hz, weights):
     return f, t, m
 
 
-def fit_body_model(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[float, float] = (2.0, 30.0),
+def fit_body_model(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[float, float] = DEFAULT_ANALYSIS_BAND_HZ,
                    fit_k3: bool = False, weights: np.ndarray | None = None,
                    require_physical: bool = True) -> BodyModel:
     """Fit k = K2/M2, c = C2/M2 (and k3 = K3/M2) to a nominal T21 (docs/method.md §4).

@@ -42,6 +42,7 @@ from typing import Literal, Mapping
 import numpy as np
 import scipy.fft
 
+from ..defaults import DEFAULT_ANALYSIS_BAND_HZ
 from ..kinds.describing import Term, make_term
 from ..errors import ConfigError, InputError
 from .fixed_point import contraction_bound, fixed_point_solve
@@ -151,7 +152,7 @@ class IdentifiedModel:
     @classmethod
     def from_body(cls, body: BodyModel, terms=(), gammas=(), *, fs_hz: float,
                   settings: SpectralSettings | None = None, band: IntegrationBand | None = None,
-                  analysis_band_hz: tuple[float, float] = (2.0, 30.0), source: str = "static",
+                  analysis_band_hz: tuple[float, float] = DEFAULT_ANALYSIS_BAND_HZ, source: str = "static",
                   provenance: Mapping | None = None) -> "IdentifiedModel":
         """A model from known physical parameters: a one-mass body and constant coefficients γ_i = c_i/M2.
 
