@@ -132,6 +132,9 @@ def _abandon_helpers() -> None:
 def _run_explained(args):
     """The command; an error of its names the data it is about and where the setting it concerns came from
     (:func:`nifo.settings.explain`), when the command got as far as choosing its settings."""
+    settings = sys.modules.get("nifo.settings")
+    if settings is not None:      # settings chosen before this command (a caller's own, in this process) are not its
+        settings.forget_step()
     try:
         return args._run(args)
     except NifoError as err:

@@ -45,7 +45,7 @@ from nifo_core.signal.excitation import Excitation, analyse_excitation, combine_
 from nifo_core.characterize.restoring import suggest_band
 from nifo_core.settings import PAPER_BLOCK_S, AnalysisSettings, GivenSettings, merge_given, resolve_settings
 
-__all__ = ["add_settings_arguments", "given_from_args", "given_from_file", "resolve", "loader_options",
+__all__ = ["add_settings_arguments", "forget_step", "given_from_args", "given_from_file", "resolve", "loader_options",
            "check_record", "in_context", "explain", "PROBE_SAMPLES"]
 
 #: samples of each file read to choose settings from the data (58 min at 600 Hz: a whole sweep or road test; the
@@ -324,6 +324,11 @@ def in_context(err: NifoError, settings, *, source: str | None = None) -> NifoEr
     if (msg, channel, hint) == (err.message, err.channel, err.hint) and (err.source or not source):
         return err
     return type(err)(msg, source=err.source or source, channel=channel, hint=hint)
+
+
+def forget_step() -> None:
+    """Forget the settings a step chose in this context (a new command starts: :func:`explain` names its own)."""
+    _step.set(None)
 
 
 def explain(err: NifoError) -> NifoError:

@@ -101,3 +101,28 @@ def test_a_band_nifo_chose_is_never_reported_as_the_users_flag():
                               "LO HI")
     given = in_context(flag, _Origins({"analysis_band_hz": "command line"}), source="rec.csv")
     assert "--freq-range 47.75 4.39" in str(given)
+
+
+def test_a_command_does_not_take_the_settings_chosen_before_it_in_this_process(inputs, tmp_path):
+    """A caller's own steps in this process (a notebook, a test) chose an analysis band from the data: a command run
+    after them names a bad band in its model.json as the model file's, not as a band chosen from the data with a
+    "give --freq-range" fix (the suite saw it once, after other tests in the same worker)."""
+    import json
+
+    from nifo import settings
+    from nifo.settings import _Origins
+
+    ident = tmp_path / "ident"
+    assert cli(["identify", str(inputs.rec), "--model", str(inputs.model), "--out", str(ident), "--no-plots",
+                "-q"])[0] == 0
+    doc = json.loads((ident / "model.json").read_text())
+    doc["analysis_band_hz"] = [47.75, 4.39]
+    (tmp_path / "bad").mkdir()
+    (tmp_path / "bad" / "model.json").write_text(json.dumps(doc))
+    token = settings._step.set((_Origins({}), ["earlier.csv"]))      # the band "chosen from the data" before
+    try:
+        code, _, err = cli(["predict", str(inputs.rec), "--model", str(tmp_path / "bad" / "model.json"),
+                            "--no-plots", "--out", str(tmp_path / "out")])
+    finally:
+        settings._step.reset(token)
+    assert code == 9 and "model.json" in err and "--freq-range" not in err and "earlier.csv" not in err, err
