@@ -3,7 +3,7 @@
 Everything is measured in this run, on this machine, against a baseline measured in the same run:
 
 1. serial baseline: ``nifo identify``'s own work on every vehicle's bags (its
-   ``accumulate``, ``result``, ``NifoResult.check_usable``, ``summarize`` and body model, the
+   ``accumulate``, ``result``, ``NifoResult.check_usable``, ``nifo_core.nifo.summary.summarize`` and body model, the
    library calls ``nifo identify`` makes), in this process, no Dask;
 2. ``run_fleet`` (what ``nifo fleet`` runs) on an embedded LocalCluster of 1 and on
    one of 2 single-threaded worker processes (``nifo.fleet.cluster.fleet_client``),
@@ -119,7 +119,8 @@ def identify_alone(entries) -> dict:
     """``nifo identify``'s work per vehicle (accumulate; solve, summarize, body model), in this process."""
     import warnings
 
-    from nifo.pipeline.identify import accumulate, summarize
+    from nifo.pipeline.identify import accumulate
+    from nifo_core.nifo.summary import summarize
     from nifo.settings import resolve
     from nifo.io.modelfile import load_model_spec
     from nifo_core.predict.model import IdentifiedModel

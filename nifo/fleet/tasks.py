@@ -30,7 +30,6 @@ import numpy as np
 from nifo.fleet.cache import (cache_key, content_hash, load_note, load_partial, settings_hash, store_note,
                               store_partial)
 from nifo.io.loader import detect_format, iter_record_chunks, load_record
-from nifo.pipeline.identify import summarize
 from nifo_core.characterize.automatic import characterize
 from nifo_core.kinds.describing import Term
 from nifo_core.errors import NifoError, RecordTooShortError
@@ -41,6 +40,7 @@ from nifo_core.loop.closing import LoopSettings, close_loop
 from nifo_core.predict.model import IdentifiedModel
 from nifo_core.nifo.engine import IdentifySetup, RecordProbe, accumulate_record
 from nifo_core.nifo.identify import StreamingNifo, nifo_from_spectra, static_fits
+from nifo_core.nifo.summary import summarize
 from nifo_core.signal.spectral import SpectralSettings
 
 __all__ = ["GroupSetup", "coefficient_specs", "bag_setup", "group_setup", "bag_coefficients", "compute_batch",

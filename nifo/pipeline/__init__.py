@@ -6,7 +6,7 @@ it; nothing but the CLI imports a command (the import-linter contract in ``.impo
 - :mod:`nifo.pipeline.characterize`  ``run_characterize``: restoring-force plots, ranking, the suggested model;
 - :mod:`nifo.pipeline.identify`      ``run_identify``, and its parts: stream records into NIFO accumulators and
   merge them (``accumulate``), refuse when nothing usable is left (``NifoResult.check_usable``), the printed numbers and
-  warnings (``summarize``);
+  warnings (:func:`nifo_core.nifo.summary.summarize`);
 - :mod:`nifo.pipeline.refine`        identify's output-error refinement and feedback-path fit, kept only when a
   held-out part is predicted no worse;
 - :mod:`nifo.pipeline.loop`          ``run_loop``: the residual loop;
@@ -23,6 +23,6 @@ is first used, so importing one module of the package does not import the others
 import lazy_loader
 
 __getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
-    "identify": ["CHUNK_SAMPLES", "accumulate", "summarize"],
+    "identify": ["CHUNK_SAMPLES", "accumulate"],
     "options": ["CharacterizeOptions", "IdentifyOptions", "Inputs", "LoopOptions", "PredictOptions", "RunOptions"],
 })

@@ -9,6 +9,7 @@ Modules:
   and usability
 - :mod:`nifo_core.nifo.engine`  ``IdentifySetup``, ``accumulate_record``: how every shell (CLI, fleet, node,
   viewer) feeds records into the accumulators — one set-up decision, one constructor, one push
+- :mod:`nifo_core.nifo.summary`  ``summarize``: the numbers and warnings every shell reports
 
 Layer: it imports :mod:`nifo_core.signal` and :mod:`nifo_core.kinds` (``.importlinter``). The names below are its
 front door; the modules' private (``_``) names stay inside the package.
@@ -25,4 +26,5 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
                  "DEFAULT_ANALYSIS_BAND_HZ", "DEFAULT_COND_LIMIT"],
     "result": ["ILL_FRACTION", "OnIll", "Conditioning"],
     "engine": ["RecordProbe", "IdentifySetup", "accumulate_record"],
+    "summary": ["summarize"],
 })
