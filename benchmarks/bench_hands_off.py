@@ -11,12 +11,15 @@ from the data; ``nifo.settings``):
   final model (``loop/model.json``). The baseline printed beside it, measured in the same run, is the linear
   model of the same three levels that ``nifo predict`` reports from the same model.json (identified on the same
   records with the same settings). Also: ``nifo loop`` on level 1 alone (practically linear) must add nothing.
-- **Silverbox** (Noël & Schoukens, IJC 2018; ``../shared/data/silverbox_multilevel``): ``nifo run`` on one level
-  (force and displacement columns), then ``nifo predict`` of every other level: the final model against the
-  linear model of the same record, and the RMS error in volts of the output as measured (the displacement).
+- **Silverbox** (Noël & Schoukens, IJC 2018; ``../shared/data/silverbox_multilevel``): ``nifo run`` on each level in
+  turn (force and displacement columns), then ``nifo predict`` of every level: the raw RMS error in mV of the output
+  as measured (the displacement, offset included), and the final model against the linear model of the same record.
+
+Beside the band NMSE every prediction is scored as the field scores a model: the raw predicted signal over all
+frequencies, offset included (``whole_signal`` in predict.json).
 
 Prints one table per structure, writes ``--json`` and, with ``--img DIR``, the figure of docs/f16_loop.md
-(``hands_off.png``; ``--replot out.json`` redraws it from a saved run). About 10 minutes on two cores.
+(``hands_off.png``; ``--replot out.json`` redraws it from a saved run). About 20 minutes on two idle cores.
 
     python benchmarks/bench_hands_off.py [--data ../shared/data] [--json out.json] [--img docs/img] [--f16-sets 3/5/7 ...]
 """
@@ -55,10 +58,16 @@ def cli(*args) -> int:
 
 
 def predicted(out: Path) -> dict:
-    """Per record of a predict.json: band NMSE of the model and of the linear model, and the RMS errors."""
+    """Per record of a predict.json: band NMSE of the model and of the linear model, and the whole signal (the raw
+    predicted output over all frequencies, offset included): RMS error, NMSE and offset error of each."""
     doc = json.loads((out / "predict.json").read_text())
     return {r["name"]: {"model": r["model"]["band_nmse"]["percent"], "linear": r["linear"]["band_nmse"]["percent"],
-                        "rms_model": r["model"]["rms_error"]["value"], "rms_linear": r["linear"]["rms_error"]["value"],
+                        "rms_model": r["model"]["whole_signal"]["rms_error"],
+                        "rms_linear": r["linear"]["whole_signal"]["rms_error"],
+                        "whole_nmse_model": r["model"]["whole_signal"]["nmse_percent"],
+                        "whole_nmse_linear": r["linear"]["whole_signal"]["nmse_percent"],
+                        "offset_model": r["model"]["whole_signal"]["offset_error"],
+                        "outside": (r.get("validity") or {}).get("outside", False),
                         "band_hz": [repr(float(x)) for x in r["model"]["band_nmse"]["band_hz"]],
                         "unit": r["output"]["unit"]} for r in doc["records"]}
 
@@ -95,7 +104,10 @@ def f16(data: Path, tmp: Path, sets: list[str]) -> list[dict]:
         print(f"F-16 {s:8} ({took:4.0f} s) added {', '.join(row['added']) or 'nothing'}", flush=True)
         for k, v in row["held_out"].items():
             verdict = "better" if v["model"] < v["linear"] else "NOT better"
-            print(f"    held out {k:13} band NMSE {v['model']:.4f} % | linear of the same levels {v['linear']:.4f} %"
+            whole = "better" if v["rms_model"] < v["rms_linear"] else "NOT better"
+            print(f"    held out {k:13} whole signal RMS error {v['rms_model']:.4g} | {v['rms_linear']:.4g} m/s² "
+                  f"(NMSE {v['whole_nmse_model']:.3g} | {v['whole_nmse_linear']:.3g} %, {whole}); band NMSE "
+                  f"{v['model']:.4f} % | linear of the same levels {v['linear']:.4f} %"
                   f"  ({v['linear'] / v['model']:.2f}×, {verdict}) | plain linear, expert settings "
                   f"{v['expert_linear']:.4f} % ({v['expert_linear'] / v['model']:.2f}×)", flush=True)
     return rows
@@ -127,9 +139,9 @@ def silverbox(data: Path, tmp: Path, level: int) -> dict:
     print(f"Silverbox nifo run at {level} mV ({took:.0f} s): added {', '.join(e['label'] for e in loop['effects_added'])}"
           , flush=True)
     for name, v in got.items():
-        print(f"    {name:28} band NMSE {v['model']:.4f} % | linear of the same record {v['linear']:.4f} % "
-              f"({v['linear'] / v['model']:.0f}×); RMS error {1e3 * v['rms_model']:.3f} mV | {1e3 * v['rms_linear']:.3f} "
-              f"mV", flush=True)
+        print(f"    {name:28} raw RMS error {1e3 * v['rms_model']:.3f} mV (offset {1e3 * v['offset_model']:+.3f} mV) | "
+              f"linear {1e3 * v['rms_linear']:.3f} mV; band NMSE {v['model']:.4f} % | linear of the same record "
+              f"{v['linear']:.4f} % ({v['linear'] / v['model']:.0f}×)", flush=True)
     return {"level": level, "exit_code": code, "seconds": took, "added": [e["label"] for e in loop["effects_added"]],
             "refinement": loop.get("refinement"), "predicted": got}
 
@@ -149,29 +161,39 @@ def figure(doc: dict, path: Path) -> None:
 
     cases = [(f"{k.split()[1]} {'multisine' if k.startswith('Full') else 'sweep'}\nfrom {row['set']}", v)
              for row in doc["f16"] for k, v in row["held_out"].items()]
-    sb = sorted(doc["silverbox"]["predicted"].items(), key=lambda kv: _mv(kv[0]))
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [len(cases), len(sb) * 0.8]})
+    sbs = doc["silverbox"] if isinstance(doc["silverbox"], list) else [doc["silverbox"]]
+    fig, (ax, wx, bx) = plt.subplots(1, 3, figsize=(15, 4.4), gridspec_kw={"width_ratios": [len(cases), len(cases), 6]})
     x = np.arange(len(cases))
-    for i, (key, label, colour) in enumerate([("model", "nifo run (final model)", "C0"),
-                                              ("linear", "linear, same levels and settings", "C7"),
-                                              ("expert_linear", "linear, an expert's settings", "C1")]):
-        ax.bar(x + (i - 1) * 0.27, [v[key] for _, v in cases], 0.27, label=label, color=colour)
-    ax.set_xticks(x, [c for c, _ in cases], fontsize=8)
-    ax.set_yscale("log")
-    ax.set_ylabel("held-out band NMSE of ẍ₂ [%]")
-    ax.set_title("F-16 GVT: held-out level, two excitations")
-    ax.legend(fontsize=8, loc="upper left")
-    ax.grid(axis="y", which="both", alpha=0.3)
-    y = np.arange(len(sb))
-    bx.bar(y - 0.2, [v["model"] for _, v in sb], 0.4, color="C0", label="nifo run at "
-           f"{doc['silverbox']['level']} mV")
-    bx.bar(y + 0.2, [v["linear"] for _, v in sb], 0.4, color="C7", label="linear, same record")
-    bx.set_xticks(y, [f"{_mv(n)} mV" for n, _ in sb], fontsize=8)
+    def bars(axis, series, ylabel, title):
+        width = 0.8 / len(series)
+        for i, (key, label, colour) in enumerate(series):
+            axis.bar(x + (i - (len(series) - 1) / 2) * width, [v[key] for _, v in cases], width, label=label,
+                     color=colour)
+        axis.set_xticks(x, [c for c, _ in cases], fontsize=7, rotation=35, ha="right")
+        axis.set_yscale("log")
+        axis.set_ylabel(ylabel)
+        axis.set_title(title)
+        axis.legend(fontsize=7, loc="upper left")
+        axis.grid(axis="y", which="both", alpha=0.3)
+
+    final, same = ("nifo run (final model)", "C0"), ("linear, same levels and settings", "C7")
+    bars(ax, [("model", *final), ("linear", *same), ("expert_linear", "linear, an expert's settings", "C1")],
+         "held-out band NMSE of ẍ₂ [%]", "F-16 GVT: band NMSE, held-out level")
+    bars(wx, [("rms_model", *final), ("rms_linear", *same)], "held-out RMS error of ẍ₂, all frequencies [m/s²]",
+         "F-16 GVT: the whole signal, offset included")
+    for k, run in enumerate(sbs):
+        pts = sorted(run["predicted"].items(), key=lambda kv: _mv(kv[0]))
+        bx.plot([_mv(n) for n, _ in pts], [1e3 * v["rms_model"] for _, v in pts], "o-", color=f"C{k}",
+                label=f"identified at {run['level']} mV")
+        bx.plot([run["level"]], [1e3 * run["predicted"][next(n for n in run["predicted"] if _mv(n) == run["level"])]
+                ["rms_model"]], "s", color=f"C{k}", ms=9, mfc="none")
+    bx.set_xscale("log")
     bx.set_yscale("log")
-    bx.set_ylabel("band NMSE of the displacement [%]")
-    bx.set_title("Silverbox: every level from one")
-    bx.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2)
-    bx.grid(axis="y", which="both", alpha=0.3)
+    bx.set_xlabel("level predicted [mV RMS input]")
+    bx.set_ylabel("raw RMS error of y, offset included [mV]")
+    bx.set_title("Silverbox: every level from one (□ identified)")
+    bx.legend(fontsize=7)
+    bx.grid(which="both", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=150)
     plt.close(fig)
@@ -184,7 +206,9 @@ def main() -> int:
     ap.add_argument("--img", type=Path, help="directory for hands_off.png")
     ap.add_argument("--replot", type=Path, help="a --json of an earlier run: redraw the figure only")
     ap.add_argument("--f16-sets", nargs="*", default=["3/5/7", "1/3/5", "1/3/7", "1/5/7"])
-    ap.add_argument("--silverbox-level", type=int, default=150)
+    ap.add_argument("--silverbox-levels", type=int, nargs="*", default=list(SB_LEVELS),
+                    help="identification levels [mV]: nifo run on each, every level predicted (the matrix of "
+                         "docs/silverbox.md)")
     args = ap.parse_args()
     if args.replot:
         figure(json.loads(args.replot.read_text()), (args.img or Path(".")) / "hands_off.png")
@@ -193,7 +217,7 @@ def main() -> int:
         tmp = Path(d)
         doc = {"f16": f16(args.data / "f16", tmp, args.f16_sets),
                "f16_level1_alone": f16_level1_alone(args.data / "f16", tmp),
-               "silverbox": silverbox(args.data / "silverbox_multilevel", tmp, args.silverbox_level)}
+               "silverbox": [silverbox(args.data / "silverbox_multilevel", tmp, lv) for lv in args.silverbox_levels]}
     if args.json:
         args.json.write_text(json.dumps(doc, indent=1, default=str))
     if args.img:

@@ -345,7 +345,8 @@ def coulomb_levels(root: Path) -> dict:
             return out
     rec = json.loads((d / "pred_0.5mm" / "predict.json").read_text())["records"][0]
     m = json.loads((d / "id_2.5mm" / "model.json").read_text())
-    out.update(band_nmse_pct=rec["model"]["band_nmse"]["percent"], nmse_pct=rec["model"]["nmse_percent"],
+    out.update(band_nmse_pct=rec["model"]["band_nmse"]["percent"],
+               nmse_pct=rec["model"]["whole_signal"]["nmse_percent"],
                linear_band_nmse_pct=rec["linear"]["band_nmse"]["percent"],
                terms=[(t["kind"], t["params"], c * case.corner["m2"]) for t, c in zip(m["terms"], m["c_over_m2"])])
     return out

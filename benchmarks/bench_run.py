@@ -115,7 +115,7 @@ def key_numbers(run_dir: Path) -> dict:
             v = r[which]["band_nmse"]["percent"]
             if v is not None:
                 nmse[f"predict {r['name']} {which} band NMSE"] = v
-        nmse[f"predict {r['name']} model NMSE"] = r["model"]["nmse_percent"]
+        nmse[f"predict {r['name']} model NMSE"] = r["model"]["whole_signal"]["nmse_percent"]
     return {"parameters": par, "nmse": nmse, "terms": terms}
 
 

@@ -24,6 +24,12 @@ timeouts); the identifier writes its checkpoint on the way out. With ``--bag`` a
 ``--linger S`` the pipeline stops by itself S seconds after the replay ended.
 Node logs go to ``--log-dir`` (default: the terminal).
 
+At the end it says what was identified and where the result is, in one short block on stdout: the
+identifier's estimate (averages, samples used and lost, each term's c/M2, the nominal T21's median
+coherence), its result file (``--result-file``; default beside the checkpoint, else
+``$ROS_HOME/nifo/identifier_result.json``), the recording (``--record``) and the Rerun file (``--rerun
+save=PATH``). ``--json``: the same as one JSON document on stdout (the nodes' and this script's lines on stderr).
+
 Exit code: 0 when every node ended cleanly; otherwise the first failure's code
 (a node that died — e.g. killed, -9 → 1 — or exited non-zero, or a failed
 replay), each named on stderr.
@@ -32,6 +38,7 @@ replay), each named on stderr.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import signal
 import subprocess
@@ -42,6 +49,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 
 from nifo_nodes.launcher import CONFIG_DIR, NodeSpec, dds_env, start, stop  # noqa: E402
+from nifo_nodes.identifier import default_result_file  # noqa: E402
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -66,6 +74,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--record", default=None, metavar="OUT.mcap",
                    help="record the identifier's results and /diagnostics into this bag (written on shutdown; "
                         "Foxglove opens it)")
+    p.add_argument("--result-file", default=None, metavar="PATH",
+                   help="the identifier's full result document (JSON; default: beside the checkpoint, else "
+                        "$ROS_HOME/nifo/identifier_result.json)")
+    p.add_argument("--json", action="store_true",
+                   help="end with what was identified and where as one JSON document on stdout")
     p.add_argument("--rerun", default=None, metavar="spawn|connect[=URL]|save=PATH",
                    help="also run the Rerun viewer node: spawn a viewer, connect to one (optionally at URL), "
                         "or save a .rrd recording")
@@ -122,7 +135,9 @@ def main(argv=None) -> int:
     if a.reliable and a.bag is None:
         raise SystemExit("run_pipeline: --reliable needs --bag (a live sensor stream stays best effort)")
     integ = {"input_reliability": "reliable"} if a.reliable else {}
-    specs = [spec("integrator", **integ), spec("identifier", model_file=a.model, checkpoint_file=a.checkpoint)]
+    result_file = Path(a.result_file or default_result_file(a.checkpoint)).resolve()
+    specs = [spec("integrator", **integ), spec("identifier", model_file=a.model, checkpoint_file=a.checkpoint,
+                                               result_file=str(result_file))]
     if a.rerun is not None:
         specs.append(NodeSpec("rerun_viewer", namespace=a.namespace, args=rerun_args(a.rerun)))
     if a.record is not None:  # first to stop (stop() signals in order): it still sees the last results
@@ -196,11 +211,55 @@ def main(argv=None) -> int:
         if names.get(p.pid) not in seen | {"replay"} and code not in (0, None):
             failures.append((names.get(p.pid, str(p.pid)), code))
             print(f"run_pipeline: node {names.get(p.pid)} ended badly: {_how(code)}", file=sys.stderr)
+    found = summary(result_file, record=a.record, rerun=a.rerun, failures=failures)
+    if a.json:
+        print(json.dumps(found))
+    else:
+        print("\n".join(found["lines"]))
     if failures:
         name, code = failures[0]
         print(f"run_pipeline: FAILED: {', '.join(f'{n} ({_how(c)})' for n, c in failures)}", file=sys.stderr)
         return code if code and code > 0 else 1
     return 0
+
+
+def summary(result_file: Path, *, record: str | None, rerun: str | None, failures) -> dict:
+    """What was identified and where it is: the identifier's last estimate read from its result file, the result
+    file, the recording; ``lines``: the same in words (a few lines)."""
+    out = {"ok": not failures, "result_file": str(result_file), "identified": None,
+           "recording": str(Path(record).resolve()) if record else None,
+           "rerun_file": str(Path(rerun.partition("=")[2]).resolve()) if rerun and rerun.startswith("save=") else None,
+           "failed": [{"node": n, "how": _how(c)} for n, c in failures]}
+    lines = ["nifo pipeline:"]
+    try:
+        doc = json.loads(result_file.read_text())
+    except (OSError, ValueError) as err:
+        why = "not written: the identifier made no estimate (too little data?)" if isinstance(err, OSError) else \
+            f"unreadable ({err})"
+        lines.append(f"  identified  nothing: the result file {result_file} is {why}")
+    else:
+        stream = doc.get("stream") or {}
+        terms = [(t.get("kind"), t.get("params") or {}) for t in doc.get("terms") or []]
+        coefs = (doc.get("static") or {}).get("c_over_m2") or []
+        coh = [c for c in doc.get("coherence_h1") or [] if c is not None]
+        found = {"n_avg": doc.get("n_avg"), "samples_used": stream.get("samples_used", doc.get("n_samples")),
+                 "samples_lost": stream.get("samples_lost"), "gaps": stream.get("gaps"),
+                 "terms": [{"kind": k, "params": p, "c_over_m2": c} for (k, p), c in zip(terms, coefs)],
+                 "stamp_ns": doc.get("stamp_ns")}
+        out["identified"] = found
+        what = "; ".join(f"{k}({', '.join(f'{n}={v:.4g}' for n, v in p.items() if isinstance(v, float))}): "
+                         f"c/M2 {c:.4g}" for (k, p), c in zip(terms, coefs)) or "the linear model (no terms declared)"
+        lines.append(f"  identified  {what}")
+        lines.append(f"              from {found['n_avg']} spectral averages over {found['samples_used']} samples "
+                     f"({found['samples_lost'] or 0} lost, {found['gaps'] or 0} gaps)"
+                     + (f"; median coherence {sorted(coh)[len(coh) // 2]:.3f}" if coh else ""))
+        lines.append(f"  result      {result_file}")
+    if out["recording"]:
+        lines.append(f"  recording   {out['recording']}   <- Foxglove, ros2 bag")
+    if out["rerun_file"]:
+        lines.append(f"  rerun       {out['rerun_file']}   <- rerun {out['rerun_file']}")
+    out["lines"] = lines
+    return out
 
 
 def _how(code: int | None) -> str:

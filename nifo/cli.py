@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import contextvars
 import importlib
 import io
 import json
@@ -98,7 +99,7 @@ def build_parser(only: str | None = None, *, summary: bool = False) -> argparse.
                             formatter_class=argparse.RawDescriptionHelpFormatter)
         mod.add_arguments(sp)
         add_common_arguments(sp)
-        sp.set_defaults(_run=mod.run)
+        sp.set_defaults(_run=mod.run, _output=getattr(mod, "OUTPUT", None))
     return p
 
 
@@ -131,6 +132,41 @@ def _abandon_helpers() -> None:
         writer.abandon_helpers()
 
 
+def _run_explained(args):
+    """The command; an error of its names the data it is about and where the setting it concerns came from
+    (:func:`nifo.settings.explain`), when the command got as far as choosing its settings."""
+    try:
+        return args._run(args)
+    except NifoError as err:
+        settings = sys.modules.get("nifo.settings")
+        if settings is None:
+            raise
+        raise settings.explain(err) from None
+
+
+@contextlib.contextmanager
+def _warnings_as_lines(command: str):
+    """A warning no step turned into its own text reaches the user as one line only when it is nifo's (a warning
+    class of nifo's raised from nifo's code); a library's (numpy's "All-NaN slice", a divide by zero) is kept for
+    ``--verbose`` (the debug log), not printed beside the command's output (issue 56)."""
+    import logging
+    import warnings
+
+    own = (os.path.dirname(os.path.abspath(__file__)),
+           os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "nifo_core"))
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        text = str(message).replace("\n", " ")
+        if issubclass(category, UserWarning) and os.path.abspath(filename).startswith(own):
+            print(f"nifo {command}: warning: {text}", file=sys.stderr)
+        else:
+            logging.getLogger("nifo").debug("%s: %s (%s:%s)", category.__name__, text, filename, lineno)
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        yield
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     first = next((a for a in argv if not a.startswith("-")), None)
@@ -149,6 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "_run", None):
         parser.print_help()
         return 0
+    from nifo.io.lock import output_lock
     from nifo.io.ownership import set_invocation
     from nifo.progress import configure
 
@@ -157,10 +194,15 @@ def main(argv: list[str] | None = None) -> int:
     # --json: stdout carries the JSON document only (the commands' text goes to stderr); --quiet: no text
     target = io.StringIO() if args.quiet else (sys.stderr if args.json else None)
     summary, err, code = None, None, 0
+    # one writer per output: the output is locked for the whole command, so a second command on it is refused at
+    # once (nifo.io.lock) rather than after its work
+    output = getattr(args, args._output, None) if getattr(args, "_output", None) else None
     try:
-        with term_as_interrupt(), \
+        with term_as_interrupt(), output_lock(output), _warnings_as_lines(args.command), \
                 contextlib.redirect_stdout(target) if target is not None else contextlib.nullcontext():
-            result = args._run(args)
+            # in a context of its own: what the command's steps record about themselves (the settings they chose,
+            # for the errors) ends with it
+            result = contextvars.copy_context().run(_run_explained, args)
         if isinstance(result, dict):
             summary = result
             code = int(result.get("exit_code", 0))

@@ -11,26 +11,41 @@ bounded memory whatever the recording's length) for a periodic excitation,
 its transient and the excited band (:mod:`nifo_core.signal.excitation`). It returns
 the :class:`~nifo_core.settings.AnalysisSettings` and the input options with
 the period and transient filled in, for the loaders.
+
+Before any setting is chosen, each record is checked for what would make any
+answer wrong (:func:`check_record`, on the same probed samples): a channel that
+clipped (flat runs at its extremes, :mod:`nifo_core.signal.clipping`: refused
+above :data:`~nifo_core.signal.clipping.REFUSE_FRACTION`, named below), a dead
+channel, the spindle and the body read from the same channel; the constant
+offsets of the accelerations are measured and reported (every step removes them
+before it computes). When the settings are to be read off the data and no
+excited band can be found, the command is refused (exit 10) rather than run on
+fixed defaults; ``--freq-range`` (and ``--band``) or ``--no-settings-from-data``
+say where to look instead.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextvars
 import warnings
 from dataclasses import replace
 from pathlib import Path
 from typing import Sequence
 
+import numpy as np
+
 from nifo.io.loader import iter_record_chunks
 from nifo.io.memo import nbytes, remembered
-from nifo_core.errors import NifoError, RecordTooShortError
-from nifo_core.signal.record import concatenate
+from nifo_core.errors import ClippedSignalError, IllConditionedError, InputError, NifoError, RecordTooShortError
+from nifo_core.signal.clipping import REFUSE_FRACTION, ClippingWarning, clipping
+from nifo_core.signal.record import acceleration_means, concatenate
 from nifo_core.signal.excitation import Excitation, analyse_excitation, combine_excitations
 from nifo_core.characterize.restoring import suggest_band
-from nifo_core.settings import AnalysisSettings, GivenSettings, merge_given, resolve_settings
+from nifo_core.settings import PAPER_BLOCK_S, AnalysisSettings, GivenSettings, merge_given, resolve_settings
 
 __all__ = ["add_settings_arguments", "given_from_args", "given_from_file", "resolve", "loader_options",
-           "PROBE_SAMPLES"]
+           "check_record", "in_context", "explain", "PROBE_SAMPLES"]
 
 #: samples of each file read to choose settings from the data (58 min at 600 Hz: a whole sweep or road test; the
 #: periods of a multisine), in chunks of PROBE_CHUNK (bags are decoded chunk by chunk)
@@ -85,16 +100,20 @@ def given_from_file(settings) -> GivenSettings:
 PROBE_MEMO_BYTES = 2 ** 27
 
 
-def _probe(path: Path, opts: dict, given: GivenSettings) -> tuple[Excitation, float, float, object]:
-    """(excitation, fs, duration [s], first chunk) of one file from its first PROBE_SAMPLES samples, whole from the
-    start (the transient is part of what is probed); inside :func:`nifo.io.memo.reuse_reads`, once per file."""
+def _load_options(opts: dict, given: GivenSettings) -> dict:
     load = {k: v for k, v in opts.items() if k not in ("skip_seconds", "skip_periods")}
     load["period_samples"] = given.period_samples
-    return remembered(path, load, lambda: _probe_file(path, load), kind="probe", max_bytes=PROBE_MEMO_BYTES,
-                      size=lambda got: nbytes(got[3]))
+    return load
 
 
-def _probe_file(path: Path, load: dict) -> tuple[Excitation, float, float, object]:
+def _probe_read(path: Path, load: dict) -> tuple[object, int]:
+    """(the first PROBE_SAMPLES samples of a file, whole from the start; the file's samples); inside
+    :func:`nifo.io.memo.reuse_reads`, once per file."""
+    return remembered(path, load, lambda: _read_first(path, load), kind="probe-read", max_bytes=PROBE_MEMO_BYTES,
+                      size=lambda got: nbytes(got[0]))
+
+
+def _read_first(path: Path, load: dict) -> tuple[object, int]:
     chunks = iter_record_chunks(path, chunk_samples=PROBE_CHUNK, **load)
     got = []
     try:
@@ -107,16 +126,81 @@ def _probe_file(path: Path, load: dict) -> tuple[Excitation, float, float, objec
     if not got:
         raise RecordTooShortError("the file holds no samples", source=str(path))
     total = int(got[0].meta.get("chunk", {}).get("total_samples", got[0].n))
-    rec = got[0] if len(got) == 1 else concatenate(got)
+    return (got[0] if len(got) == 1 else concatenate(got)), total
+
+
+def _probe(path: Path, opts: dict, given: GivenSettings, read: tuple[object, int]
+           ) -> tuple[Excitation | None, float, float, object]:
+    """(excitation, fs, duration [s], first chunk) of one file from its first PROBE_SAMPLES samples (``read``:
+    :func:`_probe_read`), whole from the start (the transient is part of what is probed); inside
+    :func:`nifo.io.memo.reuse_reads`, once per file."""
+    load = _load_options(opts, given)
+    return remembered(path, load, lambda: _probe_file(path, load, *read), kind="probe", max_bytes=PROBE_MEMO_BYTES,
+                      size=lambda got: nbytes(got[3]))
+
+
+def _probe_file(path: Path, load: dict, rec, total: int) -> tuple[Excitation | None, float, float, object]:
     u = rec.force if rec.spindle_fixed else rec.spindle_accel
     name = "force" if rec.spindle_fixed else "spindle acceleration"
+    means = acceleration_means(rec)      # removed in float64 before any spectrum: offsets of any size alike
+    if not rec.spindle_fixed:
+        u = u - means["spindle_accel"]
     try:
-        ex = analyse_excitation(u, rec.body_accel, rec.fs_hz, period_samples=load["period_samples"],
-                                input_name=name, source=str(path))
-    except NifoError as err:      # nothing to read off these data: the defaults, and why (the steps say what fails)
+        ex = analyse_excitation(u, rec.body_accel - means["body_accel"], rec.fs_hz,
+                                period_samples=load["period_samples"], input_name=name, source=str(path))
+    except NifoError as err:      # nothing to read off these data: the caller says so, or takes what is given
         ex = None
         rec = replace(rec, meta={**dict(rec.meta), "settings_not_from_data": err.message})
     return ex, rec.fs_hz, total / rec.fs_hz, rec
+
+
+#: a channel's constant offset is named when it is at least this fraction of the channel's RMS about its mean
+OFFSET_NOTED = 0.1
+
+
+def check_record(path: Path, rec) -> tuple[dict, list[str]]:
+    """What is found in record ``rec`` of file ``path`` (its probed samples) before any setting is chosen (module
+    docstring): ({"offsets_m_s2": ..., "clipping": ...}, notes to print). Raises for a clipped, dead or doubled
+    channel; warns of a little clipping."""
+    channels = {} if rec.spindle_fixed else {"spindle_accel": rec.spindle_accel}
+    if rec.body_disp is not None:
+        channels["body_disp"] = rec.body_disp
+    else:
+        channels["body_accel"] = rec.body_accel
+    if rec.force is not None:
+        channels["force"] = rec.force
+    for name, x in channels.items():
+        if x.size > 1 and not np.ptp(x) > 0:
+            raise InputError(f"the channel is constant ({float(x[0]):g} in all {x.size} samples): a dead sensor or "
+                             "an unplugged channel", source=str(path), channel=name,
+                             hint="check the sensor and the channel mapping (--columns/--topics)")
+    if not rec.spindle_fixed and np.array_equal(rec.spindle_accel, rec.body_accel):
+        raise InputError("the spindle and the body hold the same samples: there is no relative motion to identify",
+                         source=str(path), channel="body_accel",
+                         hint="check the channel mapping (--columns/--topics): one channel read twice?")
+    notes: list[str] = []
+    clipped = {name: clipping(x) for name, x in channels.items()}
+    for name, c in clipped.items():
+        if c.fraction > REFUSE_FRACTION:
+            raise ClippedSignalError(
+                f"{100 * c.fraction:.3g} % of the samples sit flat at the channel's extremes ({c.low:.6g} and "
+                f"{c.high:.6g}): the sensor or its amplifier clipped, which biases every estimate (nifo refuses "
+                f"above {100 * REFUSE_FRACTION:g} %)", source=str(path), channel=name,
+                hint="record again with more range (a less sensitive setting), or cut the record to a stretch "
+                     "without clipping")
+        if c.fraction > 0:   # printed once per command, on stderr even with --quiet (nifo.cli)
+            warnings.warn(f"{path}: {name}: {100 * c.fraction:.2g} % of the samples sit flat at the channel's "
+                          f"extremes (clipped?); nifo refuses above {100 * REFUSE_FRACTION:g} %: check the sensor's "
+                          "range", ClippingWarning, stacklevel=1)
+    means = acceleration_means(rec)
+    big = {k: m for k, m in means.items()
+           if abs(m) > OFFSET_NOTED * float(np.std(getattr(rec, k) - m)) and not (k == "spindle_accel" and
+                                                                                 rec.spindle_fixed)}
+    if big:
+        notes.append(f"{path}: constant offset removed before every step: "
+                     + ", ".join(f"{k} {m:.6g} m/s²" for k, m in big.items())
+                     + " (a constant acceleration carries no dynamics)")
+    return {"offsets_m_s2": means, "clipping": {k: c.to_dict() for k, c in clipped.items()}}, notes
 
 
 def resolve(paths: Sequence[Path], args: argparse.Namespace | None = None, *, file_settings=None,
@@ -124,19 +208,38 @@ def resolve(paths: Sequence[Path], args: argparse.Namespace | None = None, *, fi
             from_data: bool = True) -> AnalysisSettings:
     """The settings for ``paths``: command line (``args`` or ``given``) > model file > data > default.
 
-    ``from_data=False``: no probing (the merge of what is given with the defaults).
+    Every record is checked first (:func:`check_record`). ``from_data=False``: no probing for settings (the merge
+    of what is given with the defaults). ``args.setting_sources`` (``nifo run``'s steps): where the settings it
+    fills in really came from, so each step says so rather than "command line".
     """
     cli = given if given is not None else (given_from_args(args) if args is not None else GivenSettings())
     merged, origin = merge_given(cli, given_from_file(file_settings))
     origins = {k: ("command line", "model file")[i] for k, i in origin.items()}
+    reasons: dict[str, str] = {}
+    for k, (src, why) in dict(getattr(args, "setting_sources", None) or {}).items():
+        if origins.get(k) == "command line":
+            origins[k], reasons[k] = src, why
     opts = dict(opts or {})
+    inputs, notes, reads = {}, [], []
+    for p in paths:
+        reads.append(_probe_read(Path(p), _load_options(opts, merged)))
+        found, said = check_record(Path(p), reads[-1][0])
+        inputs[str(p)] = found
+        notes += said
     excitation, snr, fs, durations = None, None, None, []
     if args is not None and getattr(args, "no_settings_from_data", False):
         from_data = False
     if from_data and paths:
         parts, probes = [], []
-        for p in paths:
-            ex, fs_p, dur, rec = _probe(Path(p), opts, merged)
+        for p, read in zip(paths, reads):
+            ex, fs_p, dur, rec = _probe(Path(p), opts, merged, read)
+            if ex is None and merged.analysis_band_hz is None:
+                _too_short_to_tell(Path(p), rec)
+                why = rec.meta.get("settings_not_from_data", "")
+                raise IllConditionedError(
+                    f"no excited band found in the data ({why}): the analysis band cannot be chosen from them",
+                    source=str(p), hint="check the channels (--columns/--topics) and that the excitation was on; "
+                    "or give the band yourself: --freq-range LO HI (and --band LO HI)")
             parts.append(ex)
             durations.append(dur)
             fs = fs_p if fs is None else fs
@@ -147,18 +250,89 @@ def resolve(paths: Sequence[Path], args: argparse.Namespace | None = None, *, fi
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 try:
-                    snr = suggest_band(probes).band.f_lo_hz
+                    snr = suggest_band([r.centred() for r in probes]).band.f_lo_hz
                 except NifoError:
                     snr = None
     # without the data's choices the integration band stays open (None): each step takes its default for the
     # records it reads (default_band of the shortest, or characterize's noise edge), as before settings existed
     try:
-        return resolve_settings(merged, fs_hz=fs, durations_s=durations, excitation=excitation, snr_lo_hz=snr,
-                                origins=origins)
+        st = resolve_settings(merged, fs_hz=fs, durations_s=durations, excitation=excitation, snr_lo_hz=snr,
+                              origins=origins, reasons=reasons)
     except NifoError as err:     # a setting the data cannot take (e.g. a band edge too low): name the data
         shortest = paths[int(min(range(len(durations)), key=lambda i: durations[i]))] if durations else \
             (paths[0] if paths else None)
-        raise err.with_context(source=None if shortest is None else str(shortest)) from None
+        raise in_context(err, _Origins(origins), source=None if shortest is None else str(shortest)) from None
+    st = replace(st, inputs=inputs, notes=tuple(notes))
+    _step.set((st, [str(p) for p in paths]))
+    return st
+
+
+#: fewer samples than this many of the paper's blocks (10.24 s) say nothing about a band: the record is too short
+_FEWEST_BLOCKS = 2
+
+
+def _too_short_to_tell(path: Path, rec) -> None:
+    """A record too short for any band to be found in it is refused as too short, not as unexcited."""
+    need = int(_FEWEST_BLOCKS * PAPER_BLOCK_S * rec.fs_hz)
+    if rec.n < need:
+        raise RecordTooShortError(f"{rec.n} samples ({rec.duration_s:.3g} s) are too few to tell the excited band "
+                                  f"(at least {need}, {need / rec.fs_hz:.3g} s)", source=str(path),
+                                  hint="record longer, or give the band yourself: --freq-range LO HI")
+
+
+class _Origins:
+    """Where each setting came from, before the settings are whole (for :func:`in_context`)."""
+
+    def __init__(self, origins: dict[str, str]) -> None:
+        self.origins = origins
+
+    def source_of(self, name: str) -> str:
+        src = self.origins.get({"band": "band_hz"}.get(name, name))
+        return "chosen from the data" if src in (None, "data") else src
+
+
+#: the settings an error may be about: (its flag, its name in the settings' choices, the words for it)
+_SETTINGS_NAMED = (("--freq-range", "analysis_band_hz", "analysis band"), ("--band", "band", "integration band"))
+
+#: the settings of the step running in this context and the files it reads (:func:`explain`)
+_step: contextvars.ContextVar[tuple[object, list[str]] | None] = contextvars.ContextVar("nifo_step", default=None)
+
+
+def in_context(err: NifoError, settings, *, source: str | None = None) -> NifoError:
+    """``err`` naming ``source`` (the data it is about) when it names none, and a setting by where it really came
+    from: ``--freq-range`` only when the user gave that flag, else "analysis band (chosen from the data)" or "(model
+    file)", with a fix that fits (issue 56: a band nifo chose was reported as the user's flag, and no file named)."""
+    msg, channel, hint = err.message, err.channel, err.hint
+    for flag, name, words in _SETTINGS_NAMED:
+        if not (channel in (flag, name, words) or msg.startswith((flag, words))):
+            continue
+        where = settings.source_of(name)
+        if where != "command line":
+            if channel in (flag, name, words) and not msg.startswith((flag, words)):
+                channel = f"{words} ({where})"
+            else:        # the message names the setting: it says where it came from
+                channel = None if channel in (flag, name, words) else channel
+                said = "given in the model file" if where == "model file" else f"{where}, not given"
+                msg = msg.replace(flag, words, 1) + f" (the {words} was {said})"
+            if where == "model file":
+                hint = (f"{hint}, in the model file's settings (or give {flag} LO HI)" if hint else
+                        f"correct it in the model file's settings, or give {flag} LO HI")
+            else:
+                hint = f"give {flag} LO HI where the data are excited" + (f"; or {hint}" if hint else "")
+        break
+    if (msg, channel, hint) == (err.message, err.channel, err.hint) and (err.source or not source):
+        return err
+    return type(err)(msg, source=err.source or source, channel=channel, hint=hint)
+
+
+def explain(err: NifoError) -> NifoError:
+    """``err`` in the context of the step that raised it (:func:`in_context` with the settings :func:`resolve`
+    chose last in this context and the files they were chosen for)."""
+    step = _step.get()
+    if step is None:
+        return err
+    settings, paths = step
+    return in_context(err, settings, source=", ".join(paths[:3]) + (", ..." if len(paths) > 3 else "") or None)
 
 
 def loader_options(opts: dict, settings: AnalysisSettings) -> dict:

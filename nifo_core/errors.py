@@ -23,7 +23,9 @@ __all__ = [
     "ConfigError",
     "IllConditionedError",
     "OutputError",
+    "OutputBusyError",
     "CorruptDataError",
+    "ClippedSignalError",
     "EXIT_CODES",
     "USAGE_EXIT_CODE",
 ]
@@ -119,10 +121,22 @@ class OutputError(NifoError):
     exit_code = 13
 
 
+class OutputBusyError(OutputError):
+    """An output another nifo command is writing at this moment (its process is named): try again when it has ended."""
+
+    exit_code = 15
+
+
 class CorruptDataError(DataFileError):
     """A data file whose checksum or internal structure shows it was damaged (e.g. a bag chunk's CRC)."""
 
     exit_code = 14
+
+
+class ClippedSignalError(InputError):
+    """A channel that clipped: its samples sit flat at its extremes too often for any estimate to hold."""
+
+    exit_code = 16
 
 
 #: exit code of ``nifo`` for a command line argparse cannot parse (argparse's own)
@@ -135,7 +149,7 @@ EXIT_CODES: dict[str, tuple[int, str]] = {
     **{cls.__name__: (cls.exit_code, (cls.__doc__ or "").strip().splitlines()[0].split(". ")[0].rstrip("."))
        for cls in (NifoError, InputError, DataFileError, MissingChannelError, NonFiniteError, TimestampError,
                    SampleRateError, RecordTooShortError, ConfigError, IllConditionedError, OutputError,
-                   CorruptDataError)},
+                   OutputBusyError, CorruptDataError, ClippedSignalError)},
     "PredictionDivergedError": (12, "The model's prediction diverged for this input"),
     # the fleet's errors live in nifo.fleet.cluster (Dask is not imported for other commands)
     "ClusterError": (20, "The Dask cluster could not be started or reached"),

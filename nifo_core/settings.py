@@ -45,7 +45,7 @@ from .signal.integrate import IntegrationBand, default_band, lowest_edge_hz
 from .signal.spectral import SpectralSettings
 
 __all__ = ["Choice", "GivenSettings", "AnalysisSettings", "DEFAULT_ANALYSIS_BAND_HZ", "DEFAULT_COND_LIMIT",
-           "resolve_settings", "merge_given"]
+           "PAPER_BLOCK_S", "resolve_settings", "merge_given"]
 
 #: the analysis band when nothing else says (the paper's figures: 2-30 Hz)
 DEFAULT_ANALYSIS_BAND_HZ = (2.0, 30.0)
@@ -53,6 +53,8 @@ DEFAULT_ANALYSIS_BAND_HZ = (2.0, 30.0)
 DEFAULT_COND_LIMIT = 1e4
 #: random data: at least this many spectral averages before the paper's block is shortened
 MIN_AVERAGES = 8
+#: the paper's spectral block for random data [s] (Table 2: 6144 samples at 600 Hz)
+PAPER_BLOCK_S = 6144 / 600.0
 #: the integrator is exact (within 0.2 %) from this multiple of its lower edge
 EXACT_FROM = 1.5
 #: the integration band reaches this multiple of the top of the excited band (a play's or clearance's harmonics)
@@ -158,13 +160,24 @@ class AnalysisSettings:
     cond_limit: float = DEFAULT_COND_LIMIT
     excitation: Excitation | None = None
     choices: Mapping[str, Choice] = field(default_factory=dict)
+    #: what was found in each record before any setting was chosen (constant offsets removed, clipping), by file
+    inputs: Mapping[str, Mapping] = field(default_factory=dict)
+    #: one line each about the records (an offset removed, a channel that clipped a little), printed with the settings
+    notes: tuple[str, ...] = ()
 
     def describe(self) -> list[str]:
-        """One line per setting: value, source and reason (what a command prints once)."""
+        """One line per setting: value, source and reason (what a command prints once); then the notes."""
         out = []
         for name, c in self.choices.items():
             out.append(f"{_LABELS.get(name, name)}: {_fmt(c.value)} ({c.source}{': ' + c.reason if c.reason else ''})")
-        return out
+        return out + list(self.notes)
+
+    def source_of(self, name: str) -> str:
+        """Where setting ``name`` came from, in words ("command line", "model file", "chosen from the data", ...)."""
+        c = self.choices.get(name)
+        if c is None:
+            return "default"
+        return {"data": "chosen from the data", "default": "the default"}.get(c.source, c.source)
 
     def to_dict(self) -> dict:
         band = None if self.band is None else [self.band.f_lo_hz, self.band.f_hi_hz]
@@ -172,7 +185,8 @@ class AnalysisSettings:
                 "analysis_band_hz": list(self.analysis_band_hz), "period_samples": self.period_samples,
                 "skip_periods": self.skip_periods, "skip_seconds": self.skip_seconds, "cond_limit": self.cond_limit,
                 "excitation": None if self.excitation is None else self.excitation.to_dict(),
-                "choices": {k: c.to_dict() for k, c in self.choices.items()}}
+                "choices": {k: c.to_dict() for k, c in self.choices.items()},
+                "inputs": {k: dict(v) for k, v in self.inputs.items()}, "notes": list(self.notes)}
 
     def skip_samples(self, fs_hz: float) -> int:
         """Samples dropped from the start of a record (the transient)."""
@@ -198,7 +212,7 @@ def _fmt(v) -> str:
 
 def _random_block(fs_hz: float, n_samples: int, lowest_hz: float, overlap: float) -> tuple[int, str]:
     """The paper's 10.24 s block, shortened for ≥ MIN_AVERAGES averages, never below 4 cycles of ``lowest_hz``."""
-    block = int(round(6144 * fs_hz / 600.0))
+    block = int(round(PAPER_BLOCK_S * fs_hz))
     need = int(np.ceil(4 * fs_hz / max(lowest_hz, 1e-9)))
     step = 1.0 - overlap
 
@@ -206,6 +220,9 @@ def _random_block(fs_hz: float, n_samples: int, lowest_hz: float, overlap: float
         return int((n_samples - b) // max(int(round(b * step)), 1)) + 1 if n_samples >= b else 0
 
     why = f"the paper's {block / fs_hz:.4g} s blocks"
+    if block < need:     # a slow system sampled slowly (a 1 Hz record): the paper's seconds resolve none of its lines
+        block = 1 << int(np.ceil(np.log2(need)))
+        why = f"blocks of {block / fs_hz:.4g} s for 4 cycles of the lowest line"
     while averages(block) < MIN_AVERAGES and block // 2 >= max(need, 64):
         block //= 2
         why = f"blocks shortened to {block / fs_hz:.4g} s for {MIN_AVERAGES} averages"
@@ -214,7 +231,8 @@ def _random_block(fs_hz: float, n_samples: int, lowest_hz: float, overlap: float
 
 def resolve_settings(given: GivenSettings, *, fs_hz: float | None, durations_s: Sequence[float] = (),
                      excitation: Excitation | None = None, snr_lo_hz: float | None = None,
-                     origins: Mapping[str, str] | None = None) -> AnalysisSettings:
+                     origins: Mapping[str, str] | None = None,
+                     reasons: Mapping[str, str] | None = None) -> AnalysisSettings:
     """Merge ``given`` (already command line > model file, :func:`merge_given`) with the choices from the data.
 
     Long because it is the one place every setting is decided, each with the reason it is printed with: one
@@ -235,20 +253,25 @@ def resolve_settings(given: GivenSettings, *, fs_hz: float | None, durations_s: 
         Random data: where z rises out of the integrated accelerometer noise
         (:func:`nifo_core.characterize.restoring.suggest_band`): the integration band starts no lower.
     origins : mapping, optional
-        Setting name → 'command line' / 'model file' (for the record of choices).
+        Setting name → 'command line' / 'model file' (for the record of choices); or 'data' for a setting chosen
+        from the data by a caller that chose it once for several steps (``nifo run``), with its reason in ``reasons``.
     """
     origins = dict(origins or {})
+    reasons = dict(reasons or {})
     choices: dict[str, Choice] = {}
     g = given
 
     def from_user(name: str) -> str:
         return origins.get(name, "command line")
 
+    def given_choice(value, name: str) -> Choice:
+        return Choice(value, from_user(name), reasons.get(name, ""))
+
     ex = excitation
     period = g.period_samples
     periodic = period is not None or (ex is not None and ex.periodic)
     if period is not None:
-        choices["period_samples"] = Choice(int(period), from_user("period_samples"))
+        choices["period_samples"] = given_choice(int(period), "period_samples")
     elif ex is not None and ex.periodic:
         period = ex.period_samples
         choices["period_samples"] = Choice(int(period), "data", ex.reasons.get("period", ""))
@@ -257,9 +280,9 @@ def resolve_settings(given: GivenSettings, *, fs_hz: float | None, durations_s: 
     # the transient
     skip_periods, skip_seconds = g.skip_periods, g.skip_seconds
     if skip_periods is not None:
-        choices["skip_periods"] = Choice(int(skip_periods), from_user("skip_periods"))
+        choices["skip_periods"] = given_choice(int(skip_periods), "skip_periods")
     elif skip_seconds is not None:
-        choices["skip_seconds"] = Choice(float(skip_seconds), from_user("skip_seconds"))
+        choices["skip_seconds"] = given_choice(float(skip_seconds), "skip_seconds")
     elif ex is not None and ex.periodic and ex.period_samples == period:
         skip_periods = int(ex.transient_periods)
         choices["skip_periods"] = Choice(skip_periods, "data", ex.reasons.get("transient", ""))
@@ -291,7 +314,8 @@ def resolve_settings(given: GivenSettings, *, fs_hz: float | None, durations_s: 
     if given_spec:
         src = from_user(given_spec[0])
         choices["spectral"] = Choice(spec, src if len(given_spec) == 3 else f"{src} ({', '.join(given_spec)}), "
-                                     f"data (the rest)", "" if len(given_spec) == 3 else why)
+                                     f"data (the rest)", reasons.get(given_spec[0], "") if len(given_spec) == 3
+                                     else why)
     else:
         choices["spectral"] = Choice(spec, "data" if ex is not None else "default", why if ex is not None else
                                      "paper Table 2")
@@ -299,7 +323,7 @@ def resolve_settings(given: GivenSettings, *, fs_hz: float | None, durations_s: 
     top = fs_hz / 2.5 if fs_hz else float("inf")
     if g.analysis_band_hz is not None:
         analysis = g.analysis_band_hz
-        choices["analysis_band_hz"] = Choice(analysis, from_user("analysis_band_hz"))
+        choices["analysis_band_hz"] = given_choice(analysis, "analysis_band_hz")
     elif ex is not None:
         analysis = (float(ex.band_hz[0]), float(min(ex.band_hz[1], top)))
     else:
@@ -308,7 +332,7 @@ def resolve_settings(given: GivenSettings, *, fs_hz: float | None, durations_s: 
     floor = lowest_edge_hz(shortest) if shortest else 0.0
     if g.band_hz is not None:
         band = IntegrationBand(*g.band_hz)
-        choices["band"] = Choice(band, from_user("band_hz"))
+        choices["band"] = given_choice(band, "band_hz")
     elif ex is not None:
         lo = analysis[0] / EXACT_FROM
         why = [f"from 1/{EXACT_FROM:g} of the lowest analysed line"]
@@ -347,7 +371,7 @@ def resolve_settings(given: GivenSettings, *, fs_hz: float | None, durations_s: 
         choices["analysis_band_hz"] = Choice(analysis, "data", note)
     cond = float(g.cond_limit) if g.cond_limit is not None else DEFAULT_COND_LIMIT
     if g.cond_limit is not None:
-        choices["cond_limit"] = Choice(cond, from_user("cond_limit"))
+        choices["cond_limit"] = given_choice(cond, "cond_limit")
     return AnalysisSettings(spectral=spec, band=band, analysis_band_hz=(float(analysis[0]), float(analysis[1])),
                             period_samples=int(period) if period else None,
                             skip_periods=int(skip_periods) if skip_periods is not None else None,

@@ -124,7 +124,7 @@ def load_checkpoint(path: str | Path):
         raise bad(f"incomplete state: {type(err).__name__}: {err}") from None
 
 
-def _default_result_file(checkpoint: str) -> Path:
+def default_result_file(checkpoint: str) -> Path:
     if checkpoint:
         c = Path(checkpoint)
         return c.with_name(c.stem + ".result.json")
@@ -169,7 +169,7 @@ class IdentifierNode(Node):
         self._cond_limit = float(p["cond_limit"])
         self._frame_id = str(p["frame_id"])
         self._ckpt = Path(p["checkpoint_file"]) if p["checkpoint_file"] else None
-        self._result_file = Path(p["result_file"] or _default_result_file(p["checkpoint_file"]))
+        self._result_file = Path(p["result_file"] or default_result_file(p["checkpoint_file"]))
         self._nifo = None
         self._next_ns: int | None = None
         self._last_ns = 0

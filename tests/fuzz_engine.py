@@ -3,8 +3,10 @@
 Every case ends in one of: ``ok`` (and then the result must be right: equal
 to the truth the case knows), ``error`` (a :class:`NifoError` whose one line
 names the file and says ``Fix:``), ``traceback`` (any other exception),
-``hang`` (over the time limit) or ``wrong`` (success with a wrong result).
-The acceptance is 0 tracebacks, 0 hangs, 0 wrong, 0 unnamed errors.
+``hang`` (over the time limit), ``wrong`` (success with a wrong result) or
+``lost`` (a file nifo did not write, or changed since it wrote it, gone or
+replaced: ``tests/hostile_engine.py``). The acceptance is 0 tracebacks, 0
+hangs, 0 wrong, 0 unnamed errors, 0 lost.
 """
 
 from __future__ import annotations
@@ -31,6 +33,10 @@ class Hang(BaseException):
     """Raised by the alarm when a case runs over its time limit."""
 
 
+#: the outcomes that fail the acceptance
+_BAD = ("traceback", "hang", "wrong", "unnamed", "lost")
+
+
 @dataclass
 class Tally:
     """Counts per outcome and the first few failures (case, detail) for the report."""
@@ -41,17 +47,18 @@ class Tally:
     def add(self, outcome: str, case: str, detail: str = "") -> None:
         self.counts[outcome] += 1
         self.counts["cases"] += 1
-        if outcome in ("traceback", "hang", "wrong", "unnamed") and len(self.failures) < 20:
+        if outcome in _BAD and len(self.failures) < 20:
             self.failures.append((case, f"{outcome}: {detail}"[:500]))
 
     @property
     def bad(self) -> int:
-        return sum(self.counts[k] for k in ("traceback", "hang", "wrong", "unnamed"))
+        return sum(self.counts[k] for k in _BAD)
 
     def line(self) -> str:
         c = self.counts
         return (f"{c['cases']} cases: {c['ok']} ok, {c['error']} clear errors, {c['traceback']} tracebacks, "
-                f"{c['hang']} hangs, {c['wrong']} wrong-with-exit-0, {c['unnamed']} errors not naming file+fix")
+                f"{c['hang']} hangs, {c['wrong']} wrong-with-exit-0, {c['unnamed']} errors not naming file+fix"
+                + (f", {c['lost']} with files lost" if c["lost"] else ""))
 
 
 def _alarm(signum, frame):  # noqa: ARG001

@@ -100,6 +100,8 @@ def test_every_command_prints_one_json_document(ran, tmp_path):
         "report": (["report", str(ran / "identify"), "--out", str(tmp_path / "r.html"), "--no-levels"],
                    ("out", "size_bytes")),
         "view": (["view", str(ran / "identify"), "--save", str(tmp_path / "v.rrd"), "--no-data"], ("out",)),
+        "export": (["export", str(ran / "identify"), "--out", str(tmp_path / "e"), "--points", "21"],
+                   ("files", "measured_range", "forces")),
     }
     seen = set()
     for name, (argv, keys) in checks.items():

@@ -85,16 +85,34 @@ def f16_run_once(tmp_path_factory, f16) -> Path:
 def test_nifo_run_on_levels_3_5_7_predicts_the_held_out_level_1_better_than_linear_on_both_excitations(
         f16, tmp_path, tmp_path_factory):
     out = f16_run_once(tmp_path_factory, f16)
-    got = {}
+    got, whole = {}, {}
     for exc in ("FullMSine", "SineSw"):
         pred = tmp_path / exc
         assert _quietly(["predict", f16 / f"F16Data_{exc}_Level1.mat", *COLUMNS, "--model", out / "loop",
                          "--out", pred]) == 0
         r = json.loads((pred / "predict.json").read_text())["records"][0]
         got[exc] = (r["model"]["band_nmse"]["percent"], r["linear"]["band_nmse"]["percent"])
+        whole[exc] = (r["model"]["whole_signal"]["rms_error"], r["linear"]["whole_signal"]["rms_error"])
         assert (pred / r["signals"][0]).is_file() and r["output"]["name"] == "body_accel"
-    print(f"\nF-16 nifo run 3/5/7, held-out level 1 (band NMSE model | linear of 3/5/7): {got}")
+        assert not r["validity"]["outside"], r["validity"]
+    print(f"\nF-16 nifo run 3/5/7, held-out level 1 (band NMSE model | linear of 3/5/7): {got}; whole-signal RMS "
+          f"error [m/s²] model | linear: {whole}")
     for exc, (model, linear) in got.items():
         assert model < linear, exc
+    # the field's score: the raw predicted signal over all frequencies, offset included (issue 53: before, the final
+    # model was worse than its linear twin there on every held-out record: its gain outside 2-15 Hz is not fitted).
+    # The swept sine: below its linear twin. The multisine: within 1 % of it, not below (measured 0.01813 against
+    # 0.01803 m/s²): at excited lines the model is closer (0.0146 against 0.0176 m/s² in 2-15.2 Hz) but at this
+    # level its play makes its response non-periodic (0.009 m/s² in 2-15 Hz between the excited lines, the
+    # structure 0.001): docs/f16_loop.md "The whole signal"
+    model, linear = whole["SineSw"]
+    assert model < 0.8 * linear
+    model, linear = whole["FullMSine"]
+    assert model < 1.01 * linear
+    fitted = json.loads((out / "predict" / "predict.json").read_text())["records"]
+    for r in fitted:          # the identification levels, whole signal
+        assert r["model"]["whole_signal"]["rms_error"] < r["linear"]["whole_signal"]["rms_error"], r["name"]
+    model_doc = json.loads((out / "loop" / "model.json").read_text())
+    assert model_doc["prediction_band"]["policy"] == "band"     # limited to 2-15 Hz, chosen by held-out error
     report = (out / "report" / "report.html").read_text()
     assert "band NMSE" in report and "Nothing significant is missing" not in report.split("<h2")[0]

@@ -151,7 +151,7 @@ def test_inside_a_run_a_step_does_not_wait_for_its_figures_and_the_run_lists_the
     """nifo run (deferred_figures inside staged_run): a step's folder is written in place and its batch ends
     while its figures still render; the run's end waits for them and the step's marker lists them, so a later
     nifo may replace the folder."""
-    from nifo.io.atomic import staged_dir, staged_run
+    from nifo.io.atomic import claim, staged_dir, staged_run
     from nifo.io.ownership import foreign_entries
 
     out = tmp_path / "res"
@@ -162,6 +162,7 @@ def test_inside_a_run_a_step_does_not_wait_for_its_figures_and_the_run_lists_the
             t = time.monotonic()
         assert time.monotonic() - t < 1.0 and not (run / "step" / "slow.svg").exists()   # still rendering
         with staged_dir(run / "next") as here:
+            claim(here / "result.json")     # as every writer inside a run does (nifo.io.results.write_json)
             (here / "result.json").write_text("{}")
         writer.wait_figures()
         assert (run / "step" / "slow.png").stat().st_size > 1000 and (run / "step" / "slow.svg").is_file()
@@ -176,11 +177,12 @@ def test_a_run_that_fails_after_a_step_leaves_the_old_output_and_nothing_written
     end); another error waits for them and keeps the helpers. Either way the old output stays and nothing is
     written later."""
     import nifo.interrupt
-    from nifo.io.atomic import staged_dir, staged_run
+    from nifo.io.atomic import claim, staged_dir, staged_run
 
     monkeypatch.setattr(nifo.interrupt, "_signalled", False)   # this process was not signalled
     out = tmp_path / "res"
     with staged_run(out) as run:
+        claim(run / "old.json")
         (run / "old.json").write_text("{}")
     before = sorted(p.name for p in out.iterdir())
     with pytest.raises(error):

@@ -202,7 +202,7 @@ def test_predict_with_the_identified_model_beats_the_linear_model(identified, tm
     doc = json.loads((out / "predict.json").read_text())
     r = doc["records"][0]
     print(printed)
-    assert r["model"]["nmse_percent"] < r["linear"]["nmse_percent"]
+    assert r["model"]["whole_signal"]["nmse_percent"] < r["linear"]["whole_signal"]["nmse_percent"]
     assert r["model"]["transmissibility_error"]["median"] < 0.5 * r["linear"]["transmissibility_error"]["median"]
     # truth beside the bag: the NIFO nominal T21 is much nearer the true linear T21 than the measured H1
     tr = r["truth"]

@@ -204,7 +204,7 @@ def test_loop_command_writes_json_model_and_plots(scenario, tmp_path, capsys):
     pred = json.loads((tmp_path / "pred" / "predict.json").read_text())
     rec = pred["records"][0]
     assert [t["kind"] for t in json.loads((out / "model.json").read_text())["terms"]] == ["cubic_stiffness"]
-    assert rec["model"]["nmse_percent"] < rec["linear"]["nmse_percent"]
+    assert rec["model"]["whole_signal"]["nmse_percent"] < rec["linear"]["whole_signal"]["nmse_percent"]
 
 
 # --------------------------------------------------------------------------------------------

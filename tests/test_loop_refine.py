@@ -194,7 +194,14 @@ def test_bump_stop_beside_a_declared_knee_gap_from_static_and_nothing_spurious(b
     assert gap_ref == pytest.approx(GAP_M, rel=0.10)
     np.testing.assert_allclose(-np.array(stop.offsets), true_mean, atol=0.4e-3)
     _consistent(res)
-    assert ref.kept and knee["refined_times_m2"] == pytest.approx(-700.0, rel=0.10)
+    # at 5 and 7 mm nearly all motion is beyond the knee: the knee's coefficient and C2 share their signature there
+    # (each refined ± 1.8-2.0 kN·s/m, 95 %), what the data determine is the damping beyond the knee, C2 + c_knee
+    # (1400 - 700 N·s/m). Measured: -690 and C2 1406 N·s/m with the spindle's raw mean in the simulation, -628 and
+    # 1345 N·s/m with it removed (a bias must not deflect the strut): 716 and 717 N·s/m beyond the knee.
+    c2 = ref.parameter("c = C2/M2")["refined_times_m2"]
+    print(f"damping beyond the knee C2 + c_knee = {c2 + knee['refined_times_m2']:.0f} N·s/m (truth 700)")
+    assert ref.kept and c2 + knee["refined_times_m2"] == pytest.approx(700.0, rel=0.10)
+    assert abs(knee["refined_times_m2"] + 700.0) <= knee["refined_half_width_95_times_m2"]
 
 
 @pytest.mark.slow

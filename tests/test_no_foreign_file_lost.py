@@ -1,7 +1,7 @@
 """No command ever deletes or overwrites a file it did not write (issue 26).
 
 Every command that takes an output path (identify, loop, characterize,
-predict, run, fleet: ``--out DIR``; report, simulate: ``--out FILE``;
+predict, run, fleet, export: ``--out DIR``; report, simulate: ``--out FILE``;
 simulate: a bag folder; view: ``--save FILE``) is pointed at a folder or file
 holding a user's own files. It must exit 13 with one line naming the path and
 the fix, and leave every byte as it was. Beside each refusal a positive
@@ -80,6 +80,7 @@ def _commands(data: dict[str, Path], out: Path) -> dict[str, list[str]]:
         "run": ["run", rec, "--out", str(out)],
         "fleet": ["fleet", str(data["manifest"]), "--model", model, "--out", str(out)],
         "simulate": ["simulate", "--out", str(out), "--duration", "5"],   # a bag folder
+        "export": ["export", ident, "--out", str(out)],
     }
 
 
@@ -159,6 +160,7 @@ def test_each_command_replaces_its_own_output_and_refuses_once_a_user_file_is_ad
     runs = {"characterize": ["characterize", rec, "--out", str(tmp_path / "c"), "-q", *FAST_CHAR],
             "predict": ["predict", rec, "--model", ident, "--out", str(tmp_path / "p"), "--no-plots", "-q"],
             "report": ["report", ident, "--out", str(tmp_path / "r.html"), "--no-levels", "-q"],
+            "export": ["export", ident, "--out", str(tmp_path / "e"), "--points", "11", "-q"],
             "view": ["view", ident, "--save", str(tmp_path / "v.rrd"), "--no-data", "-q"],
             "simulate_bag": ["simulate", "--out", str(tmp_path / "bag"), "--duration", "5", "-q"],
             "simulate_mcap": ["simulate", "--out", str(tmp_path / "s.mcap"), "--duration", "5", "-q"],
@@ -168,7 +170,7 @@ def test_each_command_replaces_its_own_output_and_refuses_once_a_user_file_is_ad
             code, _, err = cli(argv)
             assert code == 0, (name, err)
     marker = json.loads((tmp_path / "c" / MARKER).read_text())
-    assert marker["nifo_output"] == 1 and marker["command"].startswith("nifo characterize") and \
+    assert marker["nifo_output"] == 2 and marker["command"].startswith("nifo characterize") and \
         "characterize.json" in marker["entries"] and marker["nifo_version"]
     (tmp_path / "c" / "notes.txt").write_text("mine")
     (tmp_path / "bag" / "thesis.docx").write_text("mine")

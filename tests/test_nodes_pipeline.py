@@ -404,9 +404,17 @@ def test_bundled_bag_replayed_reliably_with_a_cpu_hog_equals_nifo_identify(domai
         stack.callback(col.close)
         p = subprocess.run([sys.executable, str(REPO / "launch_scripts" / "run_pipeline.py"), "--bag", str(bag),
                             "--model", str(model), "--reliable", "--rate", "0", "--linger", "3", "--domain-id",
-                            str(dom), "--log-dir", str(tmp_path), "--checkpoint", str(tmp_path / "id.npz")],
+                            str(dom), "--log-dir", str(tmp_path), "--checkpoint", str(tmp_path / "id.npz"),
+                            "--record", str(tmp_path / "results.mcap"), "--json"],
                            env=env, capture_output=True, text=True, timeout=400)
         assert p.returncode == 0, p.stderr + logs(tmp_path)
+        # it ends saying what was identified and where the result is (--json: one document on stdout)
+        found = json.loads(p.stdout)
+        assert found["ok"] and found["result_file"] == str((tmp_path / "id.result.json").resolve())
+        assert found["recording"] == str((tmp_path / "results.mcap").resolve()) and found["identified"]
+        got = [t["c_over_m2"] for t in found["identified"]["terms"]]
+        np.testing.assert_allclose(got, ref.static.c_over_m2, rtol=1e-9)
+        assert found["identified"]["samples_lost"] == 0 and "identified  velocity_deadzone" in found["lines"][1]
         col.wait_for(lambda: col.done(ref), 20, lambda: f"the final estimate (got {col.got()})\n{p.stderr}\n{logs(tmp_path)}")
         assert_matches_batch(col.latest, ref)
         t = col.latest["transmissibility"]

@@ -10,7 +10,7 @@ from nifo.cli import build_parser
 from nifo.pipeline import options as o
 
 STEPS = {"characterize": o.CharacterizeOptions, "identify": o.IdentifyOptions, "loop": o.LoopOptions,
-         "predict": o.PredictOptions, "run": o.RunOptions}
+         "predict": o.PredictOptions, "run": o.RunOptions, "export": o.ExportOptions}
 
 
 def _command_parser(name: str) -> argparse.ArgumentParser:
@@ -22,7 +22,7 @@ def _command_parser(name: str) -> argparse.ArgumentParser:
 def test_step_options_have_the_command_lines_names_and_defaults(name):
     parser = _command_parser(name)
     dests = {a.dest: a for a in parser._actions if a.dest not in ("help", "json", "quiet", "verbose")}
-    mine = {f.name: f.default for f in fields(STEPS[name]) if f.name != "quiet"}
+    mine = {f.name: f.default for f in fields(STEPS[name]) if f.name not in o.NOT_FLAGS}
     assert set(mine) == set(dests)
     for dest, action in dests.items():
         if not action.required and not (action.nargs in ("*", "+") and action.default is None):

@@ -51,7 +51,7 @@ def test_predict_takes_the_directory_a_loop_wrote_and_predicts_every_sample_reco
     doc = json.loads((tmp_path / "p" / "predict.json").read_text())
     assert [r["name"] for r in doc["records"]] == ["road_1mm", "road_2p5mm"] and doc["failed"] == []
     for r in doc["records"]:     # the true backlash + dead zone: far better than the linear part alone
-        assert r["model"]["nmse_percent"] < 0.1 * r["linear"]["nmse_percent"]
+        assert r["model"]["whole_signal"]["nmse_percent"] < 0.1 * r["linear"]["whole_signal"]["nmse_percent"]
         band = r["model"]["band_nmse"]          # the band-limited metric beside it, on the same footing
         assert band["band_hz"] == [2.0, 30.0] and "start-up edge" in band["how"]
         assert band["percent"] < 0.1 * r["linear"]["band_nmse"]["percent"]
@@ -137,3 +137,26 @@ def test_identify_refine_linear_on_f16_level_5_refines_the_residues_and_the_mode
     rec = json.loads((tmp_path / "p" / "predict.json").read_text())["records"][0]
     print(capsys.readouterr().out[-400:], rec["model"]["band_nmse"]["percent"])
     assert rec["model"]["band_nmse"]["percent"] < rec["linear"]["band_nmse"]["percent"]
+
+
+def test_a_record_beyond_the_identified_amplitudes_is_named_and_never_called_validated(tmp_path, capsys):
+    """nifo identify on the 1 mm record alone, nifo predict of it and of the 2.5 mm record: the model.json records
+    the band and the input amplitudes it was identified on; the 2.5 mm record's input RMS is 2.9× the highest, so
+    predict.json marks it outside with one line saying why, the summary says NOT VALIDATED, and the 1 mm record is
+    inside."""
+    spec = tmp_path / "knee.yaml"
+    spec.write_text("nifo_model: 1\nnonlinearities:\n  - kind: velocity_deadzone\n    params: {knee: 0.03}\n")
+    assert _quietly(["identify", LOW, "--model", spec, "--out", tmp_path / "id", "--no-plots", "-q"]) == 0
+    model, _ = read_model(tmp_path / "id")
+    v = model.validity
+    assert v.input_name == "spindle_accel" and v.n_records == 1 and v.rms[0] == v.rms[1] > 0
+    assert v.band_hz == model.analysis_band_hz and model.offsets.output_name == "body_accel"
+    assert model.prediction_band.policy in ("whole", "band") and model.prediction_band.reason
+    capsys.readouterr()
+    assert _quietly(["predict", LOW, HIGH, "--model", tmp_path / "id", "--out", tmp_path / "p", "--no-plots"]) == 0
+    printed = capsys.readouterr().out
+    recs = {r["name"]: r for r in json.loads((tmp_path / "p" / "predict.json").read_text())["records"]}
+    assert not recs["road_1mm"]["validity"]["outside"]
+    high = recs["road_2p5mm"]["validity"]
+    assert high["outside"] and high["rms_ratio"] > 2 and "the highest identified" in high["message"]
+    assert printed.count("NOT VALIDATED") == 1 and high["message"] in printed

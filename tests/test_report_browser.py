@@ -31,9 +31,10 @@ CHROMIUM = shutil.which("chromium") or ("/usr/bin/chromium" if Path("/usr/bin/ch
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
          "--disable-background-networking", "--disable-component-update", "--disable-sync", "--hide-scrollbars"]
 
-HARNESS = """<!DOCTYPE html><html><head><meta charset="utf-8"><link rel="icon" href="data:,"></head><body>
+HARNESS = """<!DOCTYPE html><html><head><meta charset="utf-8"><link rel="icon" href="data:,">
+<style>body { margin: 0; }</style></head><body>
+<iframe id="f" src="report.html" style="width:WIDTHpx;height:HEIGHTpx;border:0;display:block"></iframe>
 <pre id="result">pending</pre>
-<iframe id="f" src="report.html" style="width:1200px;height:900px"></iframe>
 <script>
 const errors = [];
 const frame = document.getElementById("f");
@@ -46,8 +47,15 @@ frame.addEventListener("load", () => {
                                               external: !i.src.startsWith("data:")}));
   const ext = Array.from(d.querySelectorAll("link[href],script[src]"))
       .map(e => e.getAttribute("href") || e.getAttribute("src")).filter(u => !u.startsWith("data:"));
+  const vw = d.documentElement.clientWidth;
+  const wide = Array.from(d.body.querySelectorAll("*")).filter(e => e.getBoundingClientRect().right > vw + 0.5)
+      .map(e => e.tagName + "." + e.className + ": " + e.textContent.slice(0, 60));
+  const head = Array.from(d.querySelectorAll("figure.headline-fig img")).map(i => {
+      const r = i.getBoundingClientRect(); return {alt: i.alt, top: r.top, bottom: r.bottom, width: r.width}; });
+  const blocks = Array.from(d.querySelectorAll("table, .facts li, figure")).map(e => e.textContent.trim());
   document.getElementById("result").textContent = JSON.stringify(
-      {imgs, ext, errors, prov, title: d.title, h2: Array.from(d.querySelectorAll("h2")).map(h => h.textContent)});
+      {imgs, ext, errors, prov, title: d.title, h2: Array.from(d.querySelectorAll("h2")).map(h => h.textContent),
+       scroll: d.documentElement.scrollWidth, vw, wide, head, blocks, text: d.body.innerText});
 });
 </script></body></html>"""
 
@@ -91,13 +99,16 @@ def _chromium(chromium: str, tmp: Path, *args: str) -> subprocess.CompletedProce
                           capture_output=True, text=True, timeout=120)
 
 
-def _render(chromium: str, report: Path, tmp_path: Path) -> tuple[dict, subprocess.CompletedProcess]:
-    """What the harness saw of ``report`` in Chromium, and Chromium's process (its log on stderr)."""
+def _render(chromium: str, report: Path, tmp_path: Path, width: int = 1200,
+            height: int = 900) -> tuple[dict, subprocess.CompletedProcess]:
+    """What the harness saw of ``report`` in Chromium in a ``width`` × ``height`` px frame, and Chromium's process
+    (its log on stderr)."""
     page = tmp_path / "report.html"
     shutil.copy(report, page)
-    (tmp_path / "harness.html").write_text(HARNESS)
+    (tmp_path / "harness.html").write_text(HARNESS.replace("WIDTH", str(width)).replace("HEIGHT", str(height)))
     proc = _chromium(chromium, tmp_path, "--allow-file-access-from-files", "--virtual-time-budget=10000",
-                     "--enable-logging=stderr", "--v=0", "--dump-dom", (tmp_path / "harness.html").as_uri())
+                     f"--window-size={width + 40},{height + 200}", "--enable-logging=stderr", "--v=0",
+                     "--dump-dom", (tmp_path / "harness.html").as_uri())
     m = re.search(r'<pre id="result">(.*?)</pre>', proc.stdout, re.S)
     assert m and m.group(1) != "pending", f"the harness did not run: {proc.stdout[-500:]} {proc.stderr[-2000:]}"
     seen = json.loads(m.group(1).replace("&quot;", '"').replace("&amp;", "&").replace("&lt;", "<")
@@ -119,10 +130,54 @@ def test_report_displays_every_figure_without_console_errors(chromium, report, t
 
 def test_report_screenshot_for_the_docs(chromium, report, tmp_path):
     shot = tmp_path / "report.png"
-    _chromium(chromium, tmp_path, "--window-size=1200,1900", f"--screenshot={shot}", report.as_uri())
+    _chromium(chromium, tmp_path, "--window-size=1400,900", f"--screenshot={shot}", report.as_uri())
     assert shot.is_file() and shot.stat().st_size > 20_000
     assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # the docs' screenshot is of the bundled sample (tools/report_screenshot.sh); tests never write the tree
+
+
+def repeated(blocks: list[str]) -> list[str]:
+    """The tables, facts and figures (their whole text) that appear more than once: each fact is printed once."""
+    seen, twice = set(), []
+    for b in blocks:
+        if b in seen and b not in twice:
+            twice.append(b)
+        seen.add(b)
+    return twice
+
+
+@pytest.mark.parametrize("which", ["sample_report", "f16_report"])
+@pytest.mark.parametrize("width", [800, 1400])
+def test_report_fits_the_page_and_prints_each_table_once(chromium, which, width, request, tmp_path):
+    seen, _ = _render(chromium, request.getfixturevalue(which), tmp_path, width=width)
+    assert seen["vw"] == width
+    assert seen["scroll"] <= width and not seen["wide"], seen["wide"][:5]     # no horizontal scroll
+    assert not repeated(seen["blocks"]), [b[:120] for b in repeated(seen["blocks"])]
+    assert len(set(seen["h2"])) == len(seen["h2"]), seen["h2"]
+
+
+def test_the_check_for_repeated_tables_finds_a_table_printed_twice(chromium, sample_report, tmp_path):
+    html = sample_report.read_text()
+    noise = html.index('<section id="noise">')
+    table = html[html.index("<table>", noise):html.index("</table>", noise) + len("</table>")]
+    doubled = tmp_path / "doubled.html"
+    doubled.write_text(html.replace(table, table + table, 1))
+    (tmp_path / "r").mkdir()
+    seen, _ = _render(chromium, doubled, tmp_path / "r")
+    assert [b for b in repeated(seen["blocks"]) if "% of its RMS" in b or "%" in b]
+
+
+@pytest.mark.parametrize("which", ["sample_report", "f16_report"])
+def test_the_first_screen_shows_the_force_law_and_the_prediction_against_linear(chromium, which, request,
+                                                                               tmp_path):
+    seen, _ = _render(chromium, request.getfixturevalue(which), tmp_path, width=1400, height=900)
+    head = {h["alt"]: h for h in seen["head"]}
+    assert set(head) == {"headline force law", "headline prediction"}, head
+    for h in head.values():                                  # whole, on the first 1400 × 900 px screen
+        assert 0 <= h["top"] and h["bottom"] <= 900 and h["width"] > 900, h
+    first = seen["text"].split("Contents")[0]
+    for key in ("does:", "How well it predicts:", "What the loop changed:"):
+        assert key in first, first[:600]
 
 
 def test_report_command_writes_one_self_contained_file(report, tmp_path, capsys):
@@ -156,7 +211,9 @@ def test_report_of_sample_and_f16_loads_every_figure_and_fills_every_provenance_
     html = report.read_text()
     if which == "f16_report":   # MAT keys in the channels column; no quarter-car words on an airframe
         assert "Acceleration[1]" in html and "F-16 wing-payload interface" in html
-        assert "sprung mass" not in html and "spindle" not in html.split('id="provenance"')[0].lower()
+        words = seen["text"].rsplit("Settings and data provenance", 1)[0].lower()   # all shown before provenance
+        for car in ("sprung mass", "spindle", "strut", "body"):
+            assert not re.search(rf"\b{car}\b", words), (car, words[max(0, words.find(car) - 200):][:400])
     else:                       # the truth files beside the bundled sample are found and compared with
         pred = json.loads((report.parents[1] / "predict" / "predict.json").read_text())
         assert all(r["truth"]["model_nominal_t21_vs_true"]["median"] is not None for r in pred["records"])

@@ -69,7 +69,19 @@ def test_run_identifies_on_every_level_and_predicts_each_with_the_final_model(ra
     # the settings were chosen once from the data and say why
     assert doc["settings"]["choices"]["analysis_band_hz"]["source"] == "data"
     for r in pred["records"]:    # the predicted signals, in the output's unit, for any metric a user prefers
-        assert (out / "predict" / r["signals"][0]).is_file() and r["model"]["rms_error"]["value"] > 0
+        assert (out / "predict" / r["signals"][0]).is_file() and r["model"]["whole_signal"]["rms_error"] > 0
+
+
+def test_the_runs_marker_lists_every_file_it_wrote_with_its_content(ran):
+    """Every writer of every step claims its files in the run's marker as it writes them (nifo.io.atomic.claim): a
+    file one forgot would be the user's to a later run (refused), so the whole job's folder must answer for all."""
+    from nifo.io.ownership import MARKER, read_marker, unowned
+
+    out, _, _ = ran
+    assert unowned(out, limit=100) == []
+    docs = [read_marker(p.parent) for p in out.rglob(MARKER)]
+    assert len(docs) >= 7 and all(d["nifo_output"] == 2 and d["complete"] for d in docs)
+    assert all(c is not None for d in docs for c in d["content"].values())   # every file hashed once complete
 
 
 def test_run_runs_the_loop_when_it_is_part_of_the_build(ran):

@@ -130,7 +130,12 @@ def test_nifo_run_hands_off_at_150_mv_loops_to_the_cubic_and_predicts_every_othe
     for r in recs:
         m, li = r["model"], r["linear"]
         print(f"{r['name']}: band NMSE {m['band_nmse']['percent']:.3f} % vs linear {li['band_nmse']['percent']:.3f} %; "
-              f"RMS error {1e3 * m['rms_error']['value']:.3f} mV vs {1e3 * li['rms_error']['value']:.3f} mV")
+              f"RMS error {1e3 * m['whole_signal']['rms_error']:.3f} mV vs {1e3 * li['whole_signal']['rms_error']:.3f} mV")
         assert r["output"]["name"] == "body_disp"
         assert m["band_nmse"]["percent"] * 10 <= li["band_nmse"]["percent"], r["name"]
-        assert m["rms_error"]["value"] * 3 <= li["rms_error"]["value"], r["name"]
+        assert m["whole_signal"]["rms_error"] * 3 <= li["whole_signal"]["rms_error"], r["name"]
+        # the raw signal, offset included (issue 53): the model carries the circuit's operating point (the force's
+        # mean it was identified about, the output's offset); measured 2026-12-06: 0.67, 1.00, 0.95, 1.04 mV at
+        # 5/20/50/100 mV, offsets 0.39, 0.11, -0.04, 0.001 mV (before: 0.88-1.48 mV, 0.7-1.1 mV of them offset)
+        assert m["whole_signal"]["rms_error"] < 1.25e-3, r["name"]
+        assert abs(m["whole_signal"]["offset_error"]) < 0.5e-3, r["name"]

@@ -7,11 +7,19 @@
    counts, truncation): a read that succeeds must give the original record.
 3. The hypothesis property tests of ``tests/test_fuzz_files.py`` (CSV, MAT,
    model files, output paths) with ``--examples`` examples each (CI: 100).
+4. ``--hostile``: issue 56's classes (``tests/hostile_engine.py``: two commands at
+   once on one folder, ``nifo run`` among them; kills followed by the user's files;
+   forged or edited markers; records of one name; a force model without a force;
+   clipping; nothing excited; offsets 1e-3 to 1e6; the issue's messages), more
+   cases of each than CI runs, every command in a process of its own. ``--tree DIR``
+   runs them against another checkout (the before of a change: ``git archive
+   COMMIT | tar -x -C DIR``); ``--only NAME`` one class.
 
 Prints the counts (cases, clear errors, tracebacks, hangs, wrong-with-exit-0,
-errors not naming file and fix) and exits 1 if any of the last four is not 0::
+errors not naming file and fix, files lost) and exits 1 if any of the last five is not 0::
 
     PYTHONPATH=. .venv/bin/python tools/fuzz_release.py [--cases 2000] [--seeds 3] [--examples 2000]
+    PYTHONPATH=. .venv/bin/python tools/fuzz_release.py --hostile [--tree DIR] [--only CLASS]
 """
 
 from __future__ import annotations
@@ -46,8 +54,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--examples", type=int, default=2000, help="hypothesis examples per property test")
     p.add_argument("--no-hypothesis", action="store_true")
+    p.add_argument("--hostile", action="store_true", help="issue 56's hostile classes only (tests/hostile_engine.py)")
+    p.add_argument("--tree", type=Path, default=REPO, help="the checkout the hostile classes run (default: this one)")
+    p.add_argument("--only", action="append", help="one hostile class (repeatable)")
     args = p.parse_args(argv)
     t0 = time.monotonic()
+    if args.hostile:
+        return _hostile(args, t0)
     total = Tally()
     with tempfile.TemporaryDirectory(prefix="nifo-fuzz-") as tmp:
         for seed in range(args.seeds):
@@ -74,6 +87,18 @@ def main(argv: list[str] | None = None) -> int:
         code |= r.returncode != 0
     print(f"fuzz_release: {'OK' if code == 0 else 'FAILURES'} in {time.monotonic() - t0:.0f} s")
     return code
+
+
+def _hostile(args, t0: float) -> int:
+    from hostile_engine import Nifo, run_classes
+
+    with tempfile.TemporaryDirectory(prefix="nifo-hostile-") as tmp:
+        tallies = run_classes(Nifo(args.tree.resolve()), Path(tmp), release=True, only=args.only)
+    total = Tally()
+    for t in tallies.values():
+        total.counts.update(t.counts)
+    print(f"hostile classes against {args.tree}: {total.line()} in {time.monotonic() - t0:.0f} s")
+    return 1 if total.bad else 0
 
 
 if __name__ == "__main__":

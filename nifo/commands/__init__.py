@@ -23,6 +23,7 @@ SUMMARIES = {    # in the order of ``nifo --help``
     "replay": "publish a recorded bag into the ROS 2 graph (live nodes see it as the vehicle)",
     "view": "turn result directories into a Rerun recording (save, spawn a viewer, or connect)",
     "report": "write a self-contained HTML report of result directories",
+    "export": "the identified strut as tables (force against deflection and velocity), a linear model and a figure",
     "fleet": "identify a fleet: many bags of many vehicles on Dask, one model per vehicle/corner, odd struts flagged",
 }
 

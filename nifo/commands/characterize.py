@@ -17,6 +17,8 @@ from nifo.settings import add_settings_arguments
 from nifo_core.characterize.automatic import DEFAULT_KINDS, Thresholds
 
 HELP = SUMMARIES["characterize"]
+#: the argument naming what this command writes: locked for the whole command (nifo.io.lock)
+OUTPUT = "out"
 DESCRIPTION = f"""{HELP}.
 
 The body acceleration, negated, is the strut force per unit sprung mass

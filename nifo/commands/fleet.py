@@ -18,6 +18,8 @@ from nifo.io.loader import add_input_arguments, input_options
 from nifo_core.errors import ConfigError
 
 HELP = SUMMARIES["fleet"]
+#: the argument naming what this command writes: locked for the whole command (nifo.io.lock)
+OUTPUT = "out"
 DESCRIPTION = f"""{HELP}.
 
 INPUT is a manifest (CSV or YAML; columns vehicle, corner, date, path, model,
@@ -96,7 +98,8 @@ def _check(args) -> None:
         raise ConfigError("no such model file", source=str(args.model), hint="check the --model path")
     from nifo.io.atomic import check_output
 
-    check_output(args.out)   # refuse a file or a folder nifo did not write before any work
+    check_output(args.out, reads=[args.input, args.model])   # refuse a file, a folder nifo did not write or one
+    # holding an input before any work
 
 
 def run(args: argparse.Namespace) -> dict:

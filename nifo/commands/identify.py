@@ -26,6 +26,8 @@ from nifo.settings import add_settings_arguments
 from nifo_core.errors import IllConditionedError
 
 HELP = SUMMARIES["identify"]
+#: the argument naming what this command writes: locked for the whole command (nifo.io.lock)
+OUTPUT = "out"
 DESCRIPTION = f"""{HELP}.
 
 Output-only NIFO (Haroon & Adams, Eq. 8-9): from spindle and body

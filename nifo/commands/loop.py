@@ -18,6 +18,8 @@ from nifo_core.characterize.automatic import DEFAULT_KINDS
 from nifo_core.loop.results import LoopSettings
 
 HELP = SUMMARIES["loop"]
+#: the argument naming what this command writes: locked for the whole command (nifo.io.lock)
+OUTPUT = "out"
 DESCRIPTION = f"""{HELP}.
 
 Each DATA file is split in time: the first --fit-fraction fits, the rest is

@@ -18,6 +18,8 @@ from nifo.pipeline.predict import run_predict
 from nifo.settings import add_settings_arguments
 
 HELP = SUMMARIES["predict"]
+#: the argument naming what this command writes: locked for the whole command (nifo.io.lock)
+OUTPUT = "out"
 DESCRIPTION = _step.__doc__.split("\n", 1)[1].strip() if _step.__doc__ else HELP
 
 

@@ -17,6 +17,8 @@ from pathlib import Path
 from nifo.commands import SUMMARIES
 
 HELP = SUMMARIES["report"]
+#: the argument naming what this command writes: locked for the whole command (nifo.io.lock)
+OUTPUT = "out"
 DESCRIPTION = __doc__.split("\n", 1)[1].strip() if __doc__ else HELP
 
 

@@ -21,6 +21,8 @@ from nifo_core.errors import InputError
 __all__ = ["add_arguments", "run", "sample_data", "loop_available", "SAMPLE_DIR"]
 
 HELP = SUMMARIES["run"]
+#: the argument naming what this command writes: locked for the whole command (nifo.io.lock)
+OUTPUT = "out"
 DESCRIPTION = _step.__doc__.split("\n", 1)[1].strip() if _step.__doc__ else HELP
 
 #: the bundled sample, relative to the checkout

@@ -22,6 +22,8 @@ from nifo_core.simulate.quarter_car import (PRESETS, ChirpRoad, RandomRoad, Sens
                                 preset, simulate)
 
 HELP = SUMMARIES["simulate"]
+#: the argument naming what this command writes: locked for the whole command (nifo.io.lock)
+OUTPUT = "out"
 DESCRIPTION = f"""{HELP}.
 
 Road: Gaussian random (--road-rms, default 2.5 mm, 0.5-40 Hz) or the paper's

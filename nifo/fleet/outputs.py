@@ -8,7 +8,10 @@ estimates; NaN from one bag), ``NAME_se``, ``NAME_z`` (robust z against the
 fleet); ``t21_<f>hz_mag`` with ``_mag_lo/_mag_hi`` (~95 % random-error bounds)
 and ``_phase_deg`` at the chosen frequencies; ``coherence_h1_median``,
 ``cond_median``; ``flagged``, ``flag_evidence``, ``health_note``;
-``loop_verdict``, ``characterization``; ``warnings``. Units are in ``fleet.json`` (``units``).
+``loop_verdict`` and, with ``--loop``, the loop's held-out scores before and after
+(``loop_heldout_band_nmse_before_pct`` … ``loop_heldout_whole_nmse_after_pct``: the band NMSE and the
+whole-signal NMSE, the raw predicted output over all frequencies, offset included), ``characterization``;
+``warnings``. Units are in ``fleet.json`` (``units``).
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
 from nifo.fleet.runner import FleetRun
+from nifo.fleet.tasks import LOOP_SCORES
 from nifo.io.results import write_json
 
 __all__ = ["group_rows", "write_tables", "fleet_document", "GROUPS_PARQUET", "GROUPS_CSV", "BAGS_CSV",
@@ -60,6 +64,8 @@ def group_rows(run: FleetRun) -> list[dict]:
             row.update(flagged=False, flag_evidence="", health_note="not assessed: no result")
         loop = r.get("loop")
         row["loop_verdict"] = loop["verdict"] if loop else "loop not run (give --loop)"
+        for key in LOOP_SCORES:        # the loop's held-out band and whole-signal NMSE before and after [%]
+            row[f"loop_{key}"] = _nan((loop or {}).get(key))
         ch = r.get("characterization")
         row["characterization"] = ch["text"] if ch else "not run (give --characterize)"
         rows.append(row)

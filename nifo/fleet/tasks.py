@@ -34,6 +34,7 @@ from nifo_core.kinds.describing import Term
 from nifo_core.errors import NifoError, RecordTooShortError
 from nifo_core.fleet import interval_halfwidth, standard_error
 from nifo_core.signal.integrate import IntegrationBand, default_band
+from nifo_core.signal.record import acceleration_means
 from nifo_core.predict.linear_part import BODY_FIT_LIMIT, nominal_linear_part
 from nifo_core.loop.closing import LoopSettings, close_loop
 from nifo_core.predict.model import IdentifiedModel
@@ -41,7 +42,7 @@ from nifo_core.nifo.identify import StreamingNifo, nifo_from_spectra, static_fit
 from nifo_core.signal.spectral import SpectralSettings
 
 __all__ = ["GroupSetup", "coefficient_specs", "bag_setup", "group_setup", "bag_coefficients", "compute_batch",
-           "batch_status", "pick", "merge_outcomes", "solve_group", "loop_group", "characterize_group"]
+           "batch_status", "pick", "merge_outcomes", "solve_group", "loop_group", "characterize_group", "LOOP_SCORES"]
 
 @dataclass(frozen=True)
 class GroupSetup:
@@ -152,6 +153,8 @@ def _accumulate(chunks, path: str, setup: GroupSetup):
             one = StreamingNifo(chunk.fs_hz, setup.terms, settings=setup.spectral, band=setup.band,
                                 with_tire_patch=setup.with_tire_patch, analysis_band_hz=setup.analysis_band_hz,
                                 on_ill_conditioned="warn", cond_limit=setup.cond_limit)
+            means = acceleration_means(chunk)   # as nifo identify: the first chunk's offsets off every chunk
+        chunk = chunk.centred(means)
         one.push(chunk.spindle_accel, chunk.body_accel, chunk.tire_patch_disp if setup.with_tire_patch else None)
         n += chunk.n
     if one is None:
@@ -535,7 +538,19 @@ def loop_group(paths: list[str], setup: GroupSetup) -> dict:
     except Exception as err:  # noqa: BLE001
         return {"ok": False, "verdict": f"loop not run: {_one_line(err)}", "added": []}
     return {"ok": True, "verdict": res.verdict, "added": [c.term.label for c in res.added],
-            "nothing_missing": res.nothing_missing}
+            "nothing_missing": res.nothing_missing, **_loop_scores(res)}
+
+
+#: the loop's held-out scores a group reports: (key, when, the Errors attribute)
+_SCORES = tuple((f"heldout_{what}_{when}_pct", when, attr) for when in ("before", "after")
+                for what, attr in (("band_nmse", "prediction_nmse_pct"), ("whole_nmse", "whole_nmse_pct")))
+LOOP_SCORES = tuple(k for k, _, _ in _SCORES)
+
+
+def _loop_scores(res) -> dict:
+    """The loop's held-out scores before and after: the band NMSE and, beside it, the whole-signal NMSE (the raw
+    predicted output over all frequencies, offset included: :mod:`nifo_core.predict.whole_signal`)."""
+    return {k: getattr(res.initial if when == "before" else res.final, attr) for k, when, attr in _SCORES}
 
 
 def characterize_group(paths: list[str], setup: GroupSetup, m2_kg: float | None = None) -> dict:

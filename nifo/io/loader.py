@@ -116,7 +116,7 @@ def detect_format(path: str | os.PathLike) -> Format:
 def load_record(path: str | os.PathLike, *, topics: "BagTopics | None" = None,
                 columns: Mapping[str, str] | None = None, fs_hz: float | None = None,
                 axis: Axis = "z", skip_seconds: float | None = None, skip_periods: int | None = None,
-                period_samples: int | None = None) -> Record:
+                period_samples: int | None = None, centred: bool = False) -> Record:
     """Read one data file into a :class:`Record`.
 
     Parameters
@@ -142,6 +142,8 @@ def load_record(path: str | os.PathLike, *, topics: "BagTopics | None" = None,
         Drop ``skip_periods`` whole periods of ``period_samples`` samples from
         the start (periodic data); ``period_samples`` alone makes a
         displacement channel's derivative exact when the record is whole periods.
+    centred : bool
+        The accelerations' constant offsets removed (:meth:`Record.centred`): what the analysis steps read.
 
     Raises
     ------
@@ -154,7 +156,8 @@ def load_record(path: str | os.PathLike, *, topics: "BagTopics | None" = None,
     options = dict(topics=topics, columns=columns, fs_hz=fs_hz, axis=axis, skip_seconds=skip_seconds,
                    skip_periods=skip_periods, period_samples=period_samples)
     # the record names its file as given: the same file given another way is read for its own name
-    return remembered(Path(path), {**options, "as_given": str(path)}, lambda: _load(path, **options))
+    rec = remembered(Path(path), {**options, "as_given": str(path)}, lambda: _load(path, **options))
+    return rec.centred() if centred else rec
 
 
 def _load(path, *, topics, columns, fs_hz, axis, skip_seconds, skip_periods, period_samples) -> Record:

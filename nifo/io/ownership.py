@@ -5,18 +5,17 @@ whatever it cannot tell is refused (:mod:`nifo.io.atomic`), so nothing a user
 keeps is ever deleted or overwritten.
 
 Folders
-    Every output folder nifo creates carries :data:`MARKER` (``.nifo-output``):
-    JSON with ``nifo_output: 1``, nifo's version, the command line, the time,
-    and the list of entries it wrote. A folder is nifo's to replace when it
-    is empty, or carries the marker and holds nothing beyond the entries the
-    marker lists (a sub-folder with its own marker answers for itself; a
-    ``nifo run`` killed by SIGKILL leaves ``INCOMPLETE`` beside a marker
-    without a list: all of it is that run's). Result folders of a nifo from
-    before the marker are recognised only exactly (:func:`_legacy_result`):
-    one result document nifo writes (``identify.json`` with
-    ``nifo_identify: 1``, ...) and no entry but the files that document and
-    its command name; a ``nifo run`` folder only when every sub-folder is one
-    of those.
+    Every output folder nifo creates carries the marker ``.nifo-output``
+    (:mod:`nifo.io.marker`): what nifo wrote, each file with its size and
+    content hash. A folder is nifo's to replace when it is empty, or when
+    everything in it is listed there with the content nifo gave it (a
+    sub-folder with its own marker answers for itself; a ``nifo run`` cut
+    short by a kill keeps its marker up to date as it writes); :func:`unowned`
+    names the rest. Result folders of a nifo from before the marker are
+    recognised only exactly (:func:`_legacy_result`): one result document nifo
+    writes (``identify.json`` with ``nifo_identify: 1``, ...) and no entry but
+    the files that document and its command name; a ``nifo run`` folder only
+    when every sub-folder is one of those.
 Files
     An HTML report with nifo's ``<meta name="generator" content="nifo ...">``;
     a JSON document with one of nifo's own keys (``nifo_truth``,
@@ -32,27 +31,21 @@ Files
 
 from __future__ import annotations
 
-import datetime as _dt
 import json
 import os
 import re
-import shlex
 import stat
-import sys
 from pathlib import Path
 
-__all__ = ["MARKER", "INCOMPLETE", "set_invocation", "write_marker", "read_marker", "foreign_entries",
-           "nifo_wrote_file", "why_not_nifos", "nifo_bag_dir", "GENERATOR_META", "MAT_WRITER_KEY", "YAML_MARK_PREFIX"]
+from .marker import INCOMPLETE, LEFTOVER, LOCK, MARKER, MARKER_FORMAT, Unowned, command_line, read_marker
+from .marker import set_invocation, unowned_in_marked, write_marker
 
-#: the marker file of every output folder nifo writes
-MARKER = ".nifo-output"
-#: the marker file of a ``nifo run`` output that is being written (or was cut short by a kill)
-INCOMPLETE = "INCOMPLETE"
+__all__ = ["MARKER", "INCOMPLETE", "LEFTOVER", "LOCK", "set_invocation", "command_line", "write_marker", "read_marker",
+           "foreign_entries", "unowned", "Unowned", "nifo_wrote_file", "why_not_nifos", "nifo_bag_dir",
+           "GENERATOR_META", "MAT_WRITER_KEY", "YAML_MARK_PREFIX"]
+
 #: what an HTML page nifo writes carries in its <head> (``{version}`` filled in)
 GENERATOR_META = '<meta name="generator" content="nifo {version}">'
-
-#: leftovers of a killed writer beside an output (``.<name>.partial-<pid>-*``, ``.<name>.old-<pid>``)
-LEFTOVER = re.compile(r"^\.(?P<name>.+)\.(?:partial|old)-(?P<pid>\d+)(?:-.*)?$")
 
 _MAX_MARKER_BYTES = 4 << 20
 _MAX_JSON_BYTES = 64 << 20
@@ -61,116 +54,40 @@ _NIFO_JSON_KEYS = frozenset({"nifo_output", "nifo_truth", "nifo_identified_model
 _GENERATOR = re.compile(rb'<meta\s+name="generator"\s+content="nifo[ "]')
 _RRD_APP_ID = b"\n\x04nifo"   # protobuf: StoreInfo.application_id = "nifo" (nifo.viz.rerun_log.APP_ID)
 
-_invocation: list[str] = []
-
-
-def set_invocation(argv: list[str]) -> None:
-    """The command line the marker records (the ``nifo`` command sets it; else ``sys.argv``)."""
-    _invocation[:] = ["nifo", *map(str, argv)]
-
-
-def _command_line() -> str:
-    return shlex.join(_invocation or [Path(sys.argv[0]).name, *sys.argv[1:]])
-
-
-# -----------------------------------------------------------------------------
-# the marker
-# -----------------------------------------------------------------------------
-
-def _tree(d: Path) -> list[str]:
-    """Relative POSIX paths of every entry under ``d`` (folders too), the marker and INCOMPLETE left out."""
-    out = []
-    for root, dirs, files in os.walk(d):
-        rel = Path(root).relative_to(d)
-        for name in (*dirs, *files):
-            r = (rel / name).as_posix()
-            if r not in (MARKER, INCOMPLETE):
-                out.append(r)
-    return sorted(out)
-
-
-def write_marker(d: str | os.PathLike, *, complete: bool = True) -> Path:
-    """Write ``d/.nifo-output``: command, version, time and (``complete``) the entries now in ``d``."""
-    from nifo_core import __version__
-
-    d = Path(d)
-    doc = {"nifo_output": 1, "nifo_version": __version__, "command": _command_line(),
-           "written": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
-           "note": "nifo wrote this folder and may replace it; it refuses to replace a folder holding "
-                   "anything not listed here",
-           "entries": _tree(d) if complete else None}
-    path = d / MARKER
-    path.write_text(json.dumps(doc, indent=1) + "\n")
-    return path
-
-
-def read_marker(d: str | os.PathLike) -> dict | None:
-    """The marker document of folder ``d``, or None when it has no valid one."""
-    p = Path(d) / MARKER
-    try:
-        st = p.lstat()
-        if not stat.S_ISREG(st.st_mode) or st.st_size > _MAX_MARKER_BYTES:
-            return None
-        doc = json.loads(p.read_bytes())
-    except (OSError, ValueError):
-        return None
-    if not isinstance(doc, dict) or doc.get("nifo_output") != 1:
-        return None
-    entries = doc.get("entries")
-    if entries is not None and not (isinstance(entries, list) and all(isinstance(e, str) for e in entries)):
-        return None
-    return doc
-
 
 def _scan(d: Path) -> list[os.DirEntry]:
     return sorted(os.scandir(d), key=lambda e: e.name)
 
 
-def _unlisted(d: Path, doc: dict, limit: int) -> list[str]:
-    """Entries of marked folder ``d`` its marker does not list (relative paths, at most ``limit``)."""
-    if doc.get("entries") is None:   # a nifo run cut short by a kill: the whole folder is that run's
-        return [] if (d / INCOMPLETE).is_file() else [e.name for e in _scan(d) if e.name != MARKER][:limit]
-    listed = set(doc["entries"])
-    found: list[str] = []
+def unowned(d: str | os.PathLike, *, limit: int = 3, contents: bool = True) -> list[Unowned]:
+    """Entries of folder ``d`` that are not nifo's to replace (at most ``limit``): what it did not write, and what
+    it wrote that was changed since (:mod:`nifo.io.marker`; ``contents=False``: what it did not write only, no file
+    read); ``[]``: nifo may replace ``d``."""
+    d = Path(d)
+    entries = [e for e in _scan(d) if not (LEFTOVER.match(e.name) or LOCK.match(e.name))]
+    if not entries:
+        return []
+    doc = _marker(d)
+    if doc is not None:
+        return unowned_in_marked(d, doc, limit, contents=contents)
+    # an old nifo result (none, or an older nifo's marker, which lists no contents: recognised by its result
+    # documents alone, so a copied or hand-written marker never makes a user's file nifo's): name what is extra
+    for recognise in (_legacy_unexpected, _legacy_run_unexpected):
+        kind, unexpected = recognise(d)
+        if kind is not None:
+            return [Unowned(x) for x in unexpected[:limit]]
+    return [Unowned(e.name) for e in entries][:limit]
 
-    def walk(cur: Path, rel: str) -> None:
-        for e in _scan(cur):
-            if len(found) >= limit:
-                return
-            r = rel + e.name
-            if (not rel and e.name in (MARKER, INCOMPLETE)) or LEFTOVER.match(e.name):
-                continue
-            if e.is_symlink():
-                found.append(r)
-            elif e.is_dir():
-                sub = read_marker(e.path)
-                if sub is not None:
-                    found.extend(f"{r}/{x}" for x in _unlisted(Path(e.path), sub, limit - len(found)))
-                elif r not in listed:
-                    found.append(r)
-                else:
-                    walk(Path(e.path), r + "/")
-            elif r not in listed or not e.is_file(follow_symlinks=False):
-                found.append(r)
 
-    walk(d, "")
-    return found
+def _marker(d: Path) -> dict | None:
+    """The marker of folder ``d`` when it is one that answers for the folder (this format: sizes, hashes, digest)."""
+    doc = read_marker(d)
+    return doc if doc is not None and doc.get("nifo_output") == MARKER_FORMAT else None
 
 
 def foreign_entries(d: str | os.PathLike, *, limit: int = 3) -> list[str]:
-    """Entries of folder ``d`` nifo cannot tell it wrote (at most ``limit``); ``[]``: nifo may replace ``d``."""
-    d = Path(d)
-    entries = [e for e in _scan(d) if not LEFTOVER.match(e.name)]
-    if not entries:
-        return []
-    doc = read_marker(d)
-    if doc is not None:
-        return _unlisted(d, doc, limit)
-    for recognise in (_legacy_unexpected, _legacy_run_unexpected):   # an old nifo result: name what is extra
-        kind, unexpected = recognise(d)
-        if kind is not None:
-            return unexpected[:limit]
-    return [e.name for e in entries][:limit]
+    """The paths of :func:`unowned` (``[]``: nifo may replace ``d``)."""
+    return [u.path for u in unowned(d, limit=limit)]
 
 
 # -----------------------------------------------------------------------------
@@ -197,13 +114,14 @@ def _small_json(p: Path):
 
 
 def _figure_names(doc, depth: int = 0) -> set[str]:
-    """Every name in a ``figures`` list anywhere in a result document (predict lists them per record)."""
+    """Every name in a ``figures`` or ``signals`` list anywhere in a result document (predict lists them per
+    record)."""
     out: set[str] = set()
     if depth > 4:
         return out
     if isinstance(doc, dict):
         for k, v in doc.items():
-            if k == "figures" and isinstance(v, list):
+            if k in ("figures", "signals") and isinstance(v, list):
                 out |= {f for f in v if isinstance(f, str) and "/" not in f}
             elif isinstance(v, (dict, list)):
                 out |= _figure_names(v, depth + 1)
@@ -214,10 +132,12 @@ def _figure_names(doc, depth: int = 0) -> set[str]:
 
 
 def _legacy_unexpected(d: Path) -> tuple[str | None, list[str]]:
-    """(kind, entries beyond what it wrote) of an old nifo result folder (no marker); (None, []): not one."""
-    if read_marker(d) is not None:
-        return "marked", []
-    names = {e.name: e for e in _scan(d)}
+    """(kind, entries beyond what it wrote) of an old nifo result folder (no marker, or an older nifo's); (None,
+    []): not one. A folder with this nifo's marker is "marked": its marker names what is not nifo's."""
+    doc = _marker(d)
+    if doc is not None:
+        return "marked", [u.path for u in unowned_in_marked(d, doc, 3)]
+    names = {e.name: e for e in _scan(d) if e.name != MARKER and not LEFTOVER.match(e.name)}
     docs = [n for n in _LEGACY if n in names]
     if len(docs) != 1:
         return None, []
@@ -229,8 +149,22 @@ def _legacy_unexpected(d: Path) -> tuple[str | None, list[str]]:
     figures = _figure_names(doc)
     vectors = {str(Path(f).with_suffix(".svg")) for f in figures if f.endswith(".png")}   # nifo.plots.save_figure
     allowed = {name, *fixed, *figures, *vectors}
-    return name.removesuffix(".json"), [n for n, e in names.items()
-                                        if n not in allowed or e.is_symlink() or not e.is_file()]
+    unexpected = [n for n, e in names.items() if n not in allowed or e.is_symlink() or not e.is_file()]
+    marked_ns = _older_marker_ns(d)     # an older nifo's marker, written after its files: a file newer is edited
+    if marked_ns is not None:
+        unexpected += [n for n, e in names.items() if n not in unexpected and e.stat().st_mtime_ns > marked_ns]
+    return name.removesuffix(".json"), unexpected
+
+
+def _older_marker_ns(d: Path) -> int | None:
+    """The modification time of an older nifo's marker in ``d`` (format 1), if there is one."""
+    doc = read_marker(d)
+    if doc is None or doc.get("nifo_output") != 1:
+        return None
+    try:
+        return (d / MARKER).stat().st_mtime_ns
+    except OSError:
+        return None
 
 
 def _legacy_result(d: Path) -> str | None:
@@ -247,7 +181,7 @@ def _legacy_run(d: Path) -> bool:
 
 def _legacy_run_unexpected(d: Path) -> tuple[str | None, list[str]]:
     """("run", entries beyond what it wrote) of an old ``nifo run`` folder; (None, []): not one."""
-    names = {e.name: e for e in _scan(d) if not LEFTOVER.match(e.name)}
+    names = {e.name: e for e in _scan(d) if not LEFTOVER.match(e.name) and e.name != MARKER}
     incomplete = names.pop(INCOMPLETE, None)
     if incomplete is not None:
         if not _head(Path(incomplete.path), 64).startswith(b"nifo run (process "):

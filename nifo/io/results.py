@@ -17,14 +17,18 @@
 
 ``model.json`` (``nifo_identified_model: 1``; read through :class:`ModelDocument`)
     :meth:`IdentifiedModel.to_dict` (T21, B_i, terms, pooled c_i/M2, the
-    one-mass body model or null, ``linear_part``: the linear part predictions
+    one-mass body model or null, ``offsets`` (the static part the prediction adds),
+    ``prediction_band`` (the band the prediction covers, chosen by held-out whole-signal
+    error) and ``validity`` (the band and input amplitudes identified on;
+    :mod:`nifo_core.predict.scope`), ``linear_part``: the linear part predictions
     use — ``kind`` body or rational, ``order``, ``fit_rms``, ``stable``,
     ``physical``, ``reason`` it was chosen, the ``candidates`` tried, and for a
     rational one its ``poles``/``residues`` —, ``force_gain`` 1/M2, settings,
     provenance: data files, model file, identify settings; files without
     ``linear_part`` are read with the body as linear part), plus ``linear_h1``: the plain-H1 model at the
     identification level (the equivalent linearisation) that ``nifo predict``
-    compares against. :func:`read_model` returns both.
+    compares against. :func:`read_model` returns both. ``validity.strut_range``: the lowest and highest deflection
+    [m] and velocity [m/s] of the identification records (the force law's measured range).
 """
 
 from __future__ import annotations
@@ -43,7 +47,7 @@ from nifo_core.predict.model import IdentifiedModel
 from nifo_core.nifo.identify import NifoResult
 from nifo_core.signal.record import Record
 
-from .atomic import staged_file
+from .atomic import claim, staged_file
 from .modelfile import TermSpec, validation_error
 
 __all__ = ["data_entry", "identify_document", "write_json", "read_json", "read_identify", "model_document",
@@ -93,6 +97,7 @@ def write_json(path: str | os.PathLike, doc: Mapping, *, atomic: bool = True, in
         text = json.dumps(_nan_to_none(doc), default=_default, allow_nan=False, indent=indent, separators=seps) + "\n"
     p = Path(path)
     if not atomic:
+        claim(p)     # inside nifo run's folder: listed in its marker before it is written
         p.write_text(text)
         return p
     with staged_file(p) as tmp:
@@ -270,6 +275,40 @@ class _SpectralDoc(_Doc):
     detrend: str = "constant"
 
 
+class _OffsetsDoc(_Doc):
+    force: _Nullable = None
+    output: _Finite = 0.0
+    output_name: Literal["body_accel", "body_disp"] = "body_accel"
+    how: str = ""
+
+
+class _Banded(_Doc):
+    band_hz: _Pair
+
+    @field_validator("band_hz")
+    @classmethod
+    def _band(cls, v: list[float]) -> list[float]:
+        if not v[0] < v[1]:
+            raise ValueError(f"band_hz {v[0]:g}-{v[1]:g} must have its lower value first")
+        return v
+
+
+class _PredictionBandDoc(_Banded):
+    policy: Literal["whole", "band"]
+    reason: str = ""
+    held_out: dict[str, Any] | None = None
+
+
+class _ValidityDoc(_Banded):
+    input: Literal["spindle_accel", "force"]
+    unit: str = ""
+    rms: _Pair
+    peak: _Pair
+    outside_band_fraction: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = 0.0
+    n_records: Annotated[int, Field(ge=0)] = 0
+    strut_range: dict[str, Any] | None = None
+
+
 class ModelDocument(_Doc):
     """``model.json`` as :func:`read_model` accepts it: every field prediction uses, of the right type and
     finite (null only where NaN is a value nifo writes: T21 and B lines, fit errors)."""
@@ -289,6 +328,9 @@ class ModelDocument(_Doc):
     band: _BandDoc
     source: str = "static"
     provenance: dict[str, Any] | None = None
+    offsets: _OffsetsDoc | None = None
+    prediction_band: _PredictionBandDoc | None = None
+    validity: _ValidityDoc | None = None
     linear_h1: "ModelDocument | None" = None
 
     @field_validator("nifo_identified_model", mode="before")
@@ -349,4 +391,21 @@ def read_model(path: str | os.PathLike) -> tuple[IdentifiedModel, IdentifiedMode
         linear = None if lin is None else IdentifiedModel.from_dict(_nan(lin))
     except ConfigError as err:
         raise err.with_context(source=str(p)) from None
+    for m, where in ((model, ""), (linear, "linear_h1: ")):
+        if m is not None:
+            _check_model(m, str(p), where)
     return model, linear
+
+
+def _check_model(model: IdentifiedModel, source: str, where: str) -> None:
+    """What the schema cannot say about a model.json: its analysis band ordered, its linear part stable (a model
+    that cannot be simulated is the file's fault, named as such rather than after the data it was given)."""
+    lo, hi = model.analysis_band_hz
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):
+        raise ConfigError(f"{where}analysis_band_hz {lo:g} {hi:g} must satisfy 0 <= LO < HI", source=source,
+                          channel="analysis_band_hz", hint=_MODEL_FIX)
+    if not model.linear.stable:
+        poles = np.round(model.linear.all_poles(), 4).tolist()
+        raise ConfigError(f"{where}the linear part is not stable (poles {poles} 1/s): it cannot be simulated",
+                          source=source, channel="linear_part", hint=_MODEL_FIX)
+

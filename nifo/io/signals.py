@@ -19,7 +19,9 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
-__all__ = ["write_signals"]
+from .atomic import claim
+
+__all__ = ["write_signals", "read_signals"]
 
 
 def write_signals(out: Path, stem: str, columns: Mapping[str, np.ndarray], *, meta: Mapping | None = None
@@ -28,6 +30,14 @@ def write_signals(out: Path, stem: str, columns: Mapping[str, np.ndarray], *, me
     table = pa.table({k: pa.array(np.asarray(v, float)) for k, v in columns.items()})
     table = table.replace_schema_metadata({"nifo": json.dumps(dict(meta or {}), default=str)})
     names = [f"{stem}_signals.parquet", f"{stem}_signals.csv"]
+    for name in names:
+        claim(out / name)
     pq.write_table(table, out / names[0])
     pacsv.write_csv(table, out / names[1])
     return names
+
+
+def read_signals(path: str | Path, columns: list[str] | None = None) -> dict[str, np.ndarray]:
+    """The columns of a ``<record>_signals.parquet`` (all, or ``columns``) as arrays."""
+    table = pq.read_table(path, columns=columns)
+    return {name: table.column(name).to_numpy() for name in table.column_names}

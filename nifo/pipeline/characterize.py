@@ -27,6 +27,7 @@ from nifo.io.atomic import check_output, staged_dir
 from nifo.plots import DRAWING
 from nifo.plots.writer import figure_batch
 from nifo.io.loader import input_options, load_record
+from nifo.io.names import file_stems, record_labels
 from nifo.io.modelfile import write_model_spec
 from nifo.io.provenance import input_provenance, system_of, true_strut_model
 from nifo.io.results import write_json
@@ -45,10 +46,11 @@ def run_characterize(args: CharacterizeOptions, *, echo: Callable[[str], None] =
                      show_progress: bool = True) -> dict:
     """The step (module docstring); what it reports goes to ``echo`` (``nifo run`` collects the lines of steps it
     runs side by side and prints them in order), its progress bar only with ``show_progress``."""
-    check_output(args.out)   # refuse a file or a foreign directory before any work
+    # before any work: a file, a foreign folder or one holding an input of the command is refused
+    check_output(args.out, reads=args.data)
     settings = resolve([Path(p) for p in args.data], args, opts=input_options(args))
     opts = loader_options(input_options(args), settings)
-    records = [load_record(p, **opts) for p in args.data]
+    records = [load_record(p, **opts, centred=True) for p in args.data]   # offsets of any size alike
     rates = {r.fs_hz for r in records}
     band = band_for_records(settings.band or suggest_band(records).band, records)
     kinds = tuple(k.strip() for k in args.kinds.split(",")) if args.kinds else DEFAULT_KINDS
@@ -108,15 +110,17 @@ def _default_centres(track: FrequencyTrack) -> list[float]:
     return [round(float(f), 1) for f in lo + (hi - lo) * np.array([0.2, 0.4, 0.6, 0.85])]
 
 
-def _short(path: str) -> str:
-    return Path(path).stem
+def _short(label: str) -> str:
+    """A record's label without the file's suffix (``day1/rec.csv`` -> ``day1/rec``)."""
+    return label.removesuffix(Path(label).suffix) or label
 
 
 def _figures(out: Path, args, rfs: list[RestoringForce], tracks: list[FrequencyTrack], masks, char) -> list[str]:
     from nifo.plots.restoring import (CharacteristicPlot, SlicePlot, plot_characteristics, plot_ranking,
                                       plot_restoring_slices)
 
-    names = [_short(p) for p in args.data]
+    names = [_short(label) for label in record_labels(args.data)]    # unique where two records share a name
+    stems = file_stems(names)
     written: list[str] = []
     models = [_model_force(char, rf) for rf in rfs]
     units = system_of(args)["units"]
@@ -142,7 +146,7 @@ def _figures(out: Path, args, rfs: list[RestoringForce], tracks: list[FrequencyT
         rows = [SlicePlot(s.label, rfs[i].z[s.index], rfs[i].zdot[s.index], rfs[i].force[s.index],
                           model_at(i, s.index), True,
                           f"z peak {1e3 * np.max(np.abs(rfs[i].z[s.index])):.3g} mm") for s in sl]
-        fname = "restoring_frequency.png" if len(sweeps) == 1 else f"restoring_frequency_{i + 1}_{names[i]}.png"
+        fname = "restoring_frequency.png" if len(sweeps) == 1 else f"restoring_frequency_{i + 1}_{stems[i]}.png"
         plot_restoring_slices(rows, out / fname, title=f"{names[i]}: restoring force by frequency ({band})",
                               m2_kg=args.m2, subtitle=fitted,
                               units=system_of(args)["units"])

@@ -17,11 +17,12 @@ import numpy as np
 from nifo.io.atomic import check_output, staged_dir
 from nifo.plots.writer import figure_batch
 from nifo.io.loader import input_options, iter_record_chunks, load_records
+from nifo.io.names import record_labels
 from nifo.io.modelfile import load_model_spec
 from nifo.io.provenance import input_provenance, system_of, true_t21
 from nifo.io.results import IDENTIFY_JSON, MODEL_JSON, data_entry, identify_document, write_json, write_model
 from nifo.pipeline.options import CHUNK_SAMPLES, IdentifyOptions
-from nifo.pipeline.refine import fit_feedback_paths, refine
+from nifo.pipeline.refine import fit_feedback_paths, refine, with_scope
 from nifo.progress import Progress
 from nifo.settings import loader_options, resolve
 from nifo_core.errors import (ConfigError, IllConditionedError, InputError, NifoError, RecordTooShortError,
@@ -33,6 +34,7 @@ from nifo_core.predict.model import IdentifiedModel
 from nifo_core.nifo.identify import IllConditionedWarning, StreamingNifo, identify_two_step
 from nifo_core.settings import AnalysisSettings
 from nifo_core.signal.spectral import cross_spectra
+from nifo_core.signal.record import acceleration_means
 
 __all__ = ["CHUNK_SAMPLES", "accumulate", "check_usable", "summarize", "format_summary", "write_figures", "run_identify"]
 
@@ -85,11 +87,13 @@ def accumulate(paths: list[Path], terms, cfg: AnalysisSettings, *, opts: dict, c
     total, data, per_file, lines = None, [], [], []
     # progress only for long work (a minute of data streams in well under a second)
     with Progress(float(sum(totals)), "identify", enabled=not quiet and sum(totals) / fs > 600) as bar:
-        for p, first, gen in zip(paths, firsts, iters):
+        for p, first, gen, label in zip(paths, firsts, iters, record_labels(paths)):
             one = fresh()
             n = 0
             meta = dict(first.meta)
+            means = acceleration_means(first)   # removed from every chunk in float64: offsets of any size alike
             for chunk in _chain(first, gen):
+                chunk = chunk.centred(means)
                 one.push(chunk.spindle_accel, chunk.body_accel, chunk.tire_patch_disp if has_tp else None,
                          chunk.force if has_force else None)
                 n += chunk.n
@@ -100,9 +104,9 @@ def accumulate(paths: list[Path], terms, cfg: AnalysisSettings, *, opts: dict, c
                     f"{one.delay_samples} integrator edge samples at each end for f_lo={band.f_lo_hz:g} Hz), "
                     f"which needs {one.min_samples}", source=str(p), hint="record longer, or choose a smaller --block")
             meta.pop("chunk", None)
-            data.append(data_entry(p, fs_hz=fs, n_samples=n, meta=meta))
+            data.append({**data_entry(p, fs_hz=fs, n_samples=n, meta=meta), "name": label})
             spec = one.spectra()
-            per_file.append((p.name, spec.freq_hz, h1(spec, 0, 1)))
+            per_file.append((label, spec.freq_hz, h1(spec, 0, 1)))
             lines.append(None if (has_force or spindle_fixed) else RecordLines.from_spectra(
                 spec.freq_hz, spec.G[:, 0, 0], spec.G[:, 0, 1], spec.G[:, 1, 1], cfg.analysis_band_hz))
             total = one if total is None else total.merge(one)
@@ -307,7 +311,7 @@ def _step_paths(args, spec) -> list[list[Path]]:
 
 def _two_step(args, spec, cfg, opts):
     paths = _step_paths(args, spec)
-    recs = [load_records(ps, **opts) for ps in paths]
+    recs = [load_records(ps, **opts, centred=True) for ps in paths]   # offsets of any size alike
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         res = identify_two_step(recs[0], spec.steps[0].terms, recs[1], spec.steps[1].terms,
@@ -326,7 +330,8 @@ def _two_step(args, spec, cfg, opts):
 def run_identify(args: IdentifyOptions) -> dict:
     """``nifo identify`` (module docstring): writes identify.json, model.json and the figures into ``args.out``,
     prints the summary; the command's summary dict."""
-    check_output(args.out)   # refuse a file or a foreign directory before any work
+    # before any work: a file, a foreign folder or one holding an input of the command is refused
+    check_output(args.out, reads=[*args.data, args.model])
     if getattr(args, "feedback_paths", False) and (getattr(args, "refine", False)
                                                    or getattr(args, "refine_linear", False)):
         raise ConfigError("--feedback-paths and --refine/--refine-linear are two different fits of the terms",
@@ -403,7 +408,11 @@ def run_identify(args: IdentifyOptions) -> dict:
                     linear = linear_refinement.model
             if linear_refinement is not None:
                 summary["refinement"]["linear"] = linear_refinement.to_dict()
-    prov = {"data": data, "model_file": str(args.model), "settings": _settings_doc(cfg, res)}
+    if model is not None:
+        model, linear = with_scope(model, linear, opts, [d["path"] for d in _entries(data)])
+        summary["prediction_band"] = model.prediction_band.to_dict()
+        summary["offsets"] = model.offsets.to_dict()
+    prov = {"data": data, "model_file": str(args.model), "settings": _settings_doc(cfg, res), "system": system_of(args)}
     settings_doc = _settings_doc(cfg, res)
     model_file = {"path": str(args.model), "steps": [{"name": s.name, "terms": [t.to_dict() for t in s.terms]}
                                                     for s in spec.steps]}
@@ -453,7 +462,7 @@ def _noise_doc(data, opts) -> list[dict]:
     out = []
     for d in _entries(data):
         try:
-            out.append(estimate_noise(load_record(d["path"], **opts)).to_dict())
+            out.append(estimate_noise(load_record(d["path"], **opts, centred=True)).to_dict())
         except NifoError as err:
             out.append({"source": d.get("name"), "available": False, "unavailable": err.message, "channels": []})
     return out

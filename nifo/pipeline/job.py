@@ -37,7 +37,7 @@ from pathlib import Path
 
 import yaml
 
-from nifo.io.atomic import staged_run
+from nifo.io.atomic import check_output, claim, staged_run
 from nifo.io.loader import input_options
 from nifo.io.memo import reuse_reads
 from nifo.plots.writer import deferred_figures, start_helpers, wait_figures
@@ -46,7 +46,7 @@ from nifo.pipeline.characterize import run_characterize
 from nifo.pipeline.identify import run_identify
 from nifo.pipeline.options import CharacterizeOptions, IdentifyOptions, LoopOptions, PredictOptions, RunOptions
 from nifo.pipeline.predict import run_predict
-from nifo.settings import resolve
+from nifo.settings import explain, resolve
 from nifo.viz.report_html import write_report
 from nifo.viz.results import read_results
 from nifo_core.errors import NifoError
@@ -107,6 +107,7 @@ def _two_step_model(ordered: list[Path], char_dir: Path, given: RunOptions) -> t
                       "nonlinearities": [t.to_dict() for t in high],
                       "data": [str(p.resolve()) for p in ordered[1:]]}]}
     path = base / "two_step_model.yaml"
+    claim(path)
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     text = (f"step 1: {' + '.join(t.label for t in low)} on {ordered[0].name} (the lowest level); step 2: "
             f"{' + '.join(t.label for t in high)} on {', '.join(p.name for p in ordered[1:])}")
@@ -133,6 +134,7 @@ def loop_available() -> bool:
 def run_job(args: RunOptions) -> dict:
     """The whole job on ``args.data`` into ``args.out`` (module docstring); a summary of what was written."""
     data = [Path(p) for p in args.data]
+    check_output(args.out, reads=data)   # a file, a foreign folder or one holding a record: refused before any work
     start_helpers()      # the figure helpers import matplotlib while the settings are chosen
     # all old or all new: the old --out is kept aside until the run succeeds (INCOMPLETE marks a killed run)
     # the steps read the same files: each file is probed and read once (nifo.io.memo); a step's figures render
@@ -142,19 +144,32 @@ def run_job(args: RunOptions) -> dict:
 
 
 def _with_settings(args: RunOptions, st) -> RunOptions:
-    """``args`` with the settings chosen once from the data filled in where not given, so every step uses them."""
-    out = {}
+    """``args`` with the settings chosen once from the data filled in where not given, so every step uses them, and
+    where each came from (``setting_sources``), so every step says so."""
+    out, told = {}, {}
+
+    def tell(name: str, choice: str) -> None:
+        c = st.choices.get(choice)
+        if c is not None:
+            told[name] = (c.source, c.reason)
+
     if args.block is None and args.window is None and args.overlap is None:
         out.update(block=st.spectral.block, overlap=st.spectral.overlap, window=st.spectral.window)
+        for k in ("block", "overlap", "window"):
+            tell(k, "spectral")
     if args.band is None and st.band is not None:
         out["band"] = [st.band.f_lo_hz, st.band.f_hi_hz]
+        tell("band_hz", "band")
     if args.freq_range is None:
         out["freq_range"] = list(st.analysis_band_hz)
+        tell("analysis_band_hz", "analysis_band_hz")
     if args.period_samples is None and st.period_samples:
         out["period_samples"] = st.period_samples
+        tell("period_samples", "period_samples")
         if args.skip_periods is None and args.skip_seconds is None:
             out["skip_periods"] = st.skip_periods
-    return replace(args, **out)
+            tell("skip_periods", "skip_periods")
+    return replace(args, **out, setting_sources=told)
 
 
 def _run(args: RunOptions, data: list[Path], out: Path) -> dict:
@@ -210,6 +225,7 @@ def _run(args: RunOptions, data: list[Path], out: Path) -> dict:
             if (dirs["loop"] / "model.json").is_file():
                 final = dirs["loop"]
         except NifoError as err:   # the report still shows everything else; the exit code says it failed
+            err = explain(err)
             print(f"nifo run: loop failed: {err}", file=sys.stderr)
             notes.append(f"The loop step failed: {err}")
             failed = err

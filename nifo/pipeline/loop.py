@@ -31,7 +31,7 @@ from nifo.plots.writer import figure_batch, start_helpers
 from nifo.io.loader import input_options, load_record
 from nifo.io.modelfile import load_model_spec, write_model_spec
 from nifo.io.provenance import input_provenance, system_of
-from nifo.io.results import MODEL_JSON, write_json, write_model
+from nifo.io.results import MODEL_JSON, data_entry, write_json, write_model
 from nifo.pipeline.options import LoopOptions
 from nifo.progress import Progress
 from nifo.settings import loader_options, resolve
@@ -42,7 +42,8 @@ from nifo_core.loop.closing import LoopResult, LoopSettings, close_loop
 
 
 def run_loop(args: LoopOptions) -> dict:
-    check_output(args.out)   # refuse a file or a foreign directory before any work
+    # before any work: a file, a foreign folder or one holding an input of the command is refused
+    check_output(args.out, reads=[*args.data, args.model])
     start_helpers()          # the figure helpers import matplotlib while the records are read (one core busy)
     spec = load_model_spec(args.model) if args.model else None
     declared = list(spec.terms) if spec else []
@@ -52,7 +53,7 @@ def run_loop(args: LoopOptions) -> dict:
         print("settings:\n  " + "\n  ".join(data.describe()))
     opts = loader_options(input_options(args), data)
     opts.update(skip_periods=None, skip_seconds=None)   # whole records: simulated from rest, the transient not scored
-    records = [load_record(p, **opts) for p in args.data]
+    records = [load_record(p, **opts) for p in args.data]   # as measured: the loop removes the offsets itself
     if data.band is not None:   # an edge too low for the shortest record: refused before any work, naming it
         data = replace(data, band=band_for_records(data.band, records))
     kinds = tuple(k.strip() for k in args.kinds.split(",")) if args.kinds else DEFAULT_KINDS
@@ -84,8 +85,11 @@ def run_loop(args: LoopOptions) -> dict:
         write_model_spec(tmp / "refined_model.yaml", res.terms, settings=model_settings,
                          note=_note(res), suggested_by=f"nifo loop {__version__}")
         written = ["loop.json", "refined_model.yaml", *figures]
-        if res.model is not None:
-            write_model(tmp / MODEL_JSON, res.model, linear=res.linear_model, atomic=False)
+        if res.model is not None:   # with the data and words it was identified on (nifo export, nifo.api)
+            prov = {**dict(res.model.provenance), "data": [data_entry(p, r) for p, r in zip(args.data, records)],
+                    "system": doc["system"]}
+            write_model(tmp / MODEL_JSON, replace(res.model, provenance=prov), linear=res.linear_model,
+                        atomic=False)
             written.insert(1, MODEL_JSON)
     print(res.report())
     if res.model is None:

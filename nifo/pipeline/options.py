@@ -15,16 +15,25 @@ from __future__ import annotations
 import argparse
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
-from typing import Sequence
+from typing import Mapping, Sequence
 
-__all__ = ["Inputs", "CharacterizeOptions", "IdentifyOptions", "LoopOptions", "PredictOptions", "RunOptions"]
+__all__ = ["Inputs", "CharacterizeOptions", "IdentifyOptions", "LoopOptions", "PredictOptions", "RunOptions",
+           "ExportOptions"]
 
 #: NIFO's default streaming chunk [samples] (7.3 min at 600 Hz): memory stays ~0.1 GB whatever the record's length
 CHUNK_SAMPLES = 2 ** 18
 
 
+class _FromArgs:
+    @classmethod
+    def from_args(cls, args: argparse.Namespace, **given):
+        """The options of parsed arguments (attributes the parser did not define keep their defaults), ``given``
+        overriding them."""
+        return cls(**{**{f.name: getattr(args, f.name) for f in fields(cls) if hasattr(args, f.name)}, **given})
+
+
 @dataclass(frozen=True)
-class Inputs:
+class Inputs(_FromArgs):
     """The input and settings options every data step takes (None: not given — the model file, the data or the
     default decide)."""
 
@@ -43,12 +52,9 @@ class Inputs:
     system: str | None = None
     #: the CLI's ``--quiet`` (no settings printout)
     quiet: bool = False
-
-    @classmethod
-    def from_args(cls, args: argparse.Namespace, **given):
-        """The options of parsed arguments (attributes the parser did not define keep their defaults), ``given``
-        overriding them."""
-        return cls(**{**{f.name: getattr(args, f.name) for f in fields(cls) if hasattr(args, f.name)}, **given})
+    #: settings given here that no user typed: the settings' name -> (where it came from, why); ``nifo run`` chooses
+    #: the settings once and hands them to every step, which then says "data: ..." rather than "command line"
+    setting_sources: Mapping[str, tuple[str, str]] | None = None
 
     def taking(self, given: Inputs):
         """These options with the input and settings options of ``given`` that this step also has (``nifo run``
@@ -139,6 +145,21 @@ class RunOptions(Inputs):
     no_recording: bool = False
 
 
-#: the options ``nifo run`` passes on to every step that has them (the flags of the input and settings groups)
+@dataclass(frozen=True)
+class ExportOptions(_FromArgs):
+    """``nifo export``: an identified model's strut force law as tables, its linear part, a figure."""
+
+    model: Path | None = None
+    out: Path | None = None
+    m2: float | None = None
+    points: int = 201
+    #: the CLI's ``--quiet``
+    quiet: bool = False
+
+
+#: the fields of the options that no flag gives (the command's --quiet; what nifo run tells its steps)
+NOT_FLAGS = frozenset({"quiet", "setting_sources"})
+#: the options ``nifo run`` passes on to every step that has them (the flags of the input and settings groups, and
+#: where the settings it filled in came from)
 INPUT_FIELDS = frozenset({f.name for f in fields(Inputs)} - {"quiet"} | {"band", "cond_limit"})
 

@@ -35,7 +35,6 @@ data, the model's nominal T21 is also compared with the true linear T21.
 from __future__ import annotations
 
 import json
-import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -44,15 +43,18 @@ import numpy as np
 from nifo.io.atomic import check_output, staged_dir
 from nifo.plots.writer import figure_batch
 from nifo.io.loader import input_options, load_record
+from nifo.io.names import file_stems, record_labels
 from nifo.io.provenance import input_provenance, system_of
 from nifo.io.results import PREDICT_JSON, read_model, write_json
 from nifo.io.signals import write_signals
 from nifo.io.truth import truth_for
 from nifo.pipeline.options import PredictOptions
 from nifo.settings import loader_options, resolve
-from nifo_core.errors import ConfigError, InputError, NifoError
+from nifo_core.errors import ConfigError, InputError, MissingChannelError, NifoError, RecordTooShortError
 from nifo_core.signal.frf import coherence, h1
 from nifo_core.predict.model import predict_body, record_inputs
+from nifo_core.predict.output_signal import measured_output, predicted_output
+from nifo_core.predict.whole_signal import distortion_error, whole_signal_error
 from nifo_core.predict.prediction_bounds import Z95, half_width, line_spread, prediction_spread
 from nifo_core.predict.prediction_error import band_nmse, band_spectra
 from nifo_core.settings import GivenSettings
@@ -60,11 +62,6 @@ from nifo_core.signal.spectral import cross_spectra
 from nifo_core.simulate.vehicle import QuarterCar
 
 EXCERPT_S = 4.0
-
-
-def _nmse(y: np.ndarray, yhat: np.ndarray) -> float:
-    """Worden & Tomlinson's normalised mean-square error [%]."""
-    return float(100 * np.sum((y - yhat) ** 2) / (y.size * np.var(y)))
 
 
 def _rel(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> dict:
@@ -80,7 +77,15 @@ def _interp(f_new: np.ndarray, f: np.ndarray, h: np.ndarray) -> np.ndarray:
 
 
 def _drive(record, model) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray, str]:
-    """(spindle acceleration or None, force or None, the signal the transmissibility is taken from, its name)."""
+    """(spindle acceleration or None, force or None, the signal the transmissibility is taken from, its name).
+
+    A model identified with a measured force needs the force: driven by the spindle alone it predicts nothing of
+    what the force did (issue 56: exit 0, band NMSE 52 % for model and linear alike)."""
+    if model.force_gain > 0 and record.force is None:
+        raise MissingChannelError("the model was identified with a measured force on the body, and this record has "
+                                  "no force channel", channel="force",
+                                  hint="give the force (--columns force=NAME, or the bag's /nifo/force topic), or "
+                                       "predict with a model identified without a force")
     a1, force = record_inputs(record, model)
     if a1 is None:
         return a1, force, force, "force"
@@ -105,19 +110,22 @@ def _band_nmse(a2, pred, fs: float, band_hz, period_samples: int | None, transie
         return {"percent": None, "band_hz": list(band_hz), "how": how, "not_computed": err.message}
 
 
-def _output(record, pred) -> tuple[str, str, np.ndarray, np.ndarray]:
-    """(name, unit, measured, predicted) of the output in the unit it was measured in: the body displacement when a
-    displacement was recorded on a single mass driven by a force (the prediction's z is then x2), else the body
-    acceleration."""
-    if record.body_disp is not None and record.spindle_fixed:
-        return "body_disp", "unit of the measured displacement", np.asarray(record.body_disp), np.asarray(pred.z)
-    return "body_accel", "m/s²", np.asarray(record.body_accel), np.asarray(pred.body_accel)
+def _whole(y: np.ndarray, yhat: np.ndarray, skip: int) -> dict:
+    """The raw predicted signal's error over all frequencies, offset included, or why it could not be computed."""
+    try:
+        return whole_signal_error(y, yhat, skip=skip).to_dict()
+    except InputError as err:
+        return {"rms_error": None, "nmse_percent": None, "after_samples": int(skip), "not_computed": err.message}
 
 
-def _rms_error(y: np.ndarray, yhat: np.ndarray, skip: int) -> dict:
-    e = np.asarray(y)[skip:] - np.asarray(yhat)[skip:]
-    return {"value": float(np.sqrt(np.mean(e ** 2))) if e.size else None,
-            "dc_removed": float(np.std(e)) if e.size else None, "after_samples": int(skip)}
+def _distortion(y: np.ndarray, yhat: np.ndarray, u: np.ndarray, fs: float, band_hz, period_samples: int,
+                skip: int) -> dict:
+    """The prediction on the lines the periodic input did not excite, or why it could not be computed."""
+    try:
+        return distortion_error(y, yhat, u, fs, period_samples=period_samples, band_hz=tuple(band_hz),
+                                skip=skip).to_dict()
+    except InputError as err:
+        return {"percent_of_none": None, "not_computed": err.message}
 
 
 def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
@@ -136,6 +144,10 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
                              hint=f"give --freq-range LO HI with HI below {0.5 * fs:g} Hz")
         rate_note = (f"predicted at the record's rate, {fs:g} Hz; the model was identified at {model.fs_hz:g} Hz "
                      f"(its parameters are continuous-time)")
+    if record.n < model.settings.block:    # the transmissibility needs one block of the model's settings
+        raise RecordTooShortError(f"the record has {record.n} samples ({record.duration_s:.3g} s), fewer than one "
+                                  f"spectral block of the model ({model.settings.block} samples)", source=str(path),
+                                  hint="predict a longer record, or give a smaller --block")
     a1, force, drive, drive_name = _drive(record, model)
     if a1 is None and force is None:
         raise InputError("the spindle is fixed and the model has no force input: nothing drives the model",
@@ -152,31 +164,38 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
     t_meas, t_model, t_lin = h1(spec, 0, 1), h1(spec, 0, 2), h1(spec, 0, 3)
     f = spec.freq_hz
     mask = (f >= band_hz[0]) & (f <= band_hz[1])
-    y = a2[valid]
+    measured = measured_output(record)
+    y_model, y_lin = predicted_output(model, record, pm), predicted_output(linear, record, pl)
     out = {
         "path": str(path), "name": path.name, "fs_hz": fs, "n_samples": record.n, "duration_s": record.duration_s,
         "valid_samples": [valid.start, valid.stop], "n_avg": int(spec.n_avg), "transmissibility_from": drive_name,
-        "model": {"nmse_percent": _nmse(y, pm.body_accel[valid]),
+        "output": {"name": measured.name, "unit": measured.unit},
+        "model": {"whole_signal": _whole(measured.values, y_model, skip),
                   "band_nmse": _band_nmse(a2, pm, fs, band_hz, period_samples, transient),
                   "transmissibility_error": _rel(t_model, t_meas, mask), "engine": pm.method,
                   "iterations": pm.iterations, "residual": pm.residual},
-        "linear": {"nmse_percent": _nmse(y, pl.body_accel[valid]),
+        "linear": {"whole_signal": _whole(measured.values, y_lin, skip),
                    "band_nmse": _band_nmse(a2, pl, fs, band_hz, period_samples, transient),
                    "transmissibility_error": _rel(t_lin, t_meas, mask), "source": linear.source,
                    "engine": pl.method},
         "coherence_measured_median": float(np.median(coherence(spec, 0, 1)[mask])),
     }
-    out_name, out_unit, y_meas, y_model = _output(record, pm)
-    y_lin = _output(record, pl)[3]
-    out["output"] = {"name": out_name, "unit": out_unit}
-    out["model"]["rms_error"] = _rms_error(y_meas, y_model, skip)
-    out["linear"]["rms_error"] = _rms_error(y_meas, y_lin, skip)
+    raw_drive = np.asarray(record.force if drive_name == "force" else record.spindle_accel, float)
+    if period_samples:
+        for key, yh in (("model", y_model), ("linear", y_lin)):
+            out[key]["distortion"] = _distortion(measured.values, yh, raw_drive, fs, band_hz, period_samples,
+                                                 skip)
+    for key, m in (("model", model), ("linear", linear)):
+        if m.prediction_band is not None:
+            out[key]["prediction_band"] = m.prediction_band.describe()
+    if model.validity is not None:
+        out["validity"] = model.validity.check(raw_drive[transient:], fs).to_dict()
     drive_col = "force" if drive_name == "force" else "spindle_accel_m_s2"
     arrays = {"f": f, "t_meas": t_meas, "t_model": t_model, "t_linear": t_lin, "mask": mask,
               "a2": a2, "a2_model": pm.body_accel, "a2_linear": pl.body_accel, "valid": valid, "fs": fs,
-              "signals": {"time_s": np.arange(record.n) / fs, drive_col: np.asarray(drive, float),
-                          f"{out_name}_measured": y_meas, f"{out_name}_model": y_model,
-                          f"{out_name}_linear": y_lin}}
+              "signals": {"time_s": np.arange(record.n) / fs, drive_col: raw_drive,
+                          f"{measured.name}_measured": measured.values, f"{measured.name}_model": y_model,
+                          f"{measured.name}_linear": y_lin}}
     out["model"]["parameter_bounds"], eps = _parameter_bounds(
         model, lambda m: predict_body(m, a1, fs, force=force, method=method, label=str(path)).body_accel,
         a2=a2, drive=drive, valid=valid, t_model=t_model, fs=fs, band_hz=band_hz, period_samples=period_samples,
@@ -239,11 +258,7 @@ def _truth_comparison(tp: Path, model, f: np.ndarray, t_meas: np.ndarray, mask: 
             "t21": {"re": t_true.real.tolist(), "im": t_true.imag.tolist()}}
 
 
-def _safe(name: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._") or "record"
-
-
-def _figures(out: Path, name: str, arr: dict, band_hz, model, *, system: dict | None = None) -> list[str]:
+def _figures(out: Path, name: str, stem: str, arr: dict, band_hz, model, *, system: dict | None = None) -> list[str]:
     from nifo.plots.nifo import plot_time_excerpt, plot_transmissibility
 
     f = arr["f"]
@@ -256,7 +271,6 @@ def _figures(out: Path, name: str, arr: dict, band_hz, model, *, system: dict | 
                                                                                        "ls": ":"})]
     if "t_true" in arr:
         curves.append(("true nominal linear T21", f, arr["t_true"], {"color": "C2", "lw": 0.9, "alpha": 0.8}))
-    stem = _safe(name)
     names = [f"{stem}_transmissibility.png", f"{stem}_time.png"]
     plot_transmissibility(out / names[0], curves, band_hz=tuple(band_hz),
                           title=f"{name}: predicted vs measured transmissibility")
@@ -292,13 +306,14 @@ def _linear_part(model):
 
 
 def run_predict(args: PredictOptions) -> dict:
-    check_output(args.out)   # refuse a file or a foreign directory before any work
+    # before any work: a file, a foreign folder or one holding an input of the command is refused
+    check_output(args.out, reads=[*args.data, args.model])
 
     model, linear = read_model(args.model)
     if linear is None:
         linear = _linear_part(model)
-    lo, hi = args.freq_range if args.freq_range is not None else model.analysis_band_hz
-    if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):
+    lo, hi = args.freq_range if args.freq_range is not None else model.analysis_band_hz   # the model's: checked
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):                         # by read_model
         raise ConfigError(f"--freq-range {lo:g} {hi:g} must satisfy 0 <= LO < HI", channel="--freq-range")
     given = GivenSettings(period_samples=args.period_samples, skip_periods=args.skip_periods,
                           skip_seconds=args.skip_seconds, analysis_band_hz=(lo, hi))
@@ -306,9 +321,10 @@ def run_predict(args: PredictOptions) -> dict:
     if spectral:    # the transmissibilities on other blocks than the model's
         model = replace(model, settings=replace(model.settings, **{k: getattr(args, k) for k in spectral}))
     results, failed, figures, tables = [], [], [], []
+    labels = record_labels(args.data)     # the file's name, told apart from a record of the same name elsewhere
     with staged_dir(args.out) as tmp, figure_batch():   # figures rendered by helpers, all written before the commit
-        for p in args.data:   # every record it can do is written; the others are named at the end
-            path = Path(p)
+        for p, label, stem in zip(args.data, labels, file_stems(labels)):   # every record it can do is written; the
+            path = Path(p)                                                    # others are named at the end
             try:
                 try:                                                           # its period and transient
                     st = resolve([path], given=given, opts=input_options(args))
@@ -325,12 +341,13 @@ def run_predict(args: PredictOptions) -> dict:
                 continue
             numbers["settings"] = {k: c.to_dict() for k, c in st.choices.items()
                                    if k in ("period_samples", "skip_periods", "skip_seconds")}
-            numbers["signals"] = write_signals(tmp, _safe(path.name), arrays["signals"],
+            numbers["name"] = label
+            numbers["signals"] = write_signals(tmp, stem, arrays["signals"],
                                                meta={"record": str(path), "model": str(args.model),
                                                      "output_unit": numbers["output"]["unit"]})
             tables += numbers["signals"]
             if not args.no_plots:
-                numbers["figures"] = _figures(tmp, path.name, arrays, (lo, hi), model, system=system_of(args))
+                numbers["figures"] = _figures(tmp, label, stem, arrays, (lo, hi), model, system=system_of(args))
                 figures += numbers["figures"]
             results.append(numbers)
         doc = {"nifo_predict": 1, "model": str(args.model), "model_terms": [t.to_dict() for t in model.terms],
@@ -357,12 +374,19 @@ def _pct(x) -> str:
     return "-" if x is None else f"{100 * x:.1f} %"
 
 
+def _num(x, fmt: str) -> str:
+    return "-" if x is None else format(x, fmt)
+
+
 def _summary(results: list[dict], band, out: Path) -> str:
     w = max([24] + [len(r["name"]) for r in results])     # the whole name: records often differ at its end
-    # the band NMSE first: the metric of --freq-range; the whole-signal NMSE also counts energy outside the band,
-    # where the model was not identified (on the F-16 at levels 5-7 it is 30-60 % where the band NMSE is 0.3 %)
-    lines = [f"{'record':<{w}} band NMSE {band[0]:.4g}-{band[1]:.4g} Hz model | linear   RMS error model | linear   "
-             f"NMSE all frequencies model | linear   |T| error model (median/max) | linear (median/max)"]
+    # the whole signal first: what the field scores (the raw predicted signal over all frequencies, offset
+    # included); the band NMSE beside it is the diagnosis over --freq-range
+    periodic = any("distortion" in r["model"] for r in results)
+    lines = [f"{'record':<{w}} RMS error model | linear   NMSE all frequencies model | linear   "
+             f"band NMSE {band[0]:.4g}-{band[1]:.4g} Hz model | linear   "
+             + ("distortion (non-excited lines, 100 % = none predicted) model | linear   " if periodic else "")
+             + "|T| error model (median/max) | linear (median/max)"]
     for r in results:
         m, li = r["model"], r["linear"]
         bm, bl = (x["band_nmse"]["percent"] for x in (m, li))
@@ -370,12 +394,23 @@ def _summary(results: list[dict], band, out: Path) -> str:
         pm_txt = f" ± {pb['band_nmse_half_width_pct']:.2g}" if pb.get("available") else ""
         band_txt = ("not computed: " + m["band_nmse"].get("not_computed", "") if bm is None
                     else f"{bm:.3f}%{pm_txt} | {bl:.3f}%")
-        rm, rl = m["rms_error"]["value"], li["rms_error"]["value"]
+        wm, wl = m["whole_signal"], li["whole_signal"]
         unit = "m/s²" if r["output"]["name"] == "body_accel" else "(displacement unit)"
-        rms_txt = f"{rm:.4g} | {rl:.4g} {unit}"
-        lines.append(f"{r['name']:<{w}} {band_txt}   {rms_txt}   {m['nmse_percent']:.2f}% | {li['nmse_percent']:.2f}%   "
+        rms_txt = f"{_num(wm['rms_error'], '.4g')} | {_num(wl['rms_error'], '.4g')} {unit}"
+        nmse_txt = f"{_num(wm['nmse_percent'], '.3g')}% | {_num(wl['nmse_percent'], '.3g')}%"
+        dist_txt = ""
+        if periodic:
+            dm, dl = (x.get("distortion") or {} for x in (m, li))
+            dist_txt = (f"{_num(dm.get('percent_of_none'), '.3g')}% | {_num(dl.get('percent_of_none'), '.3g')}%"
+                        f" of {_num(dm.get('share_percent'), '.2g')}% of the output   ")
+        lines.append(f"{r['name']:<{w}} {rms_txt}   {nmse_txt}   {band_txt}   {dist_txt}"
                      f"{_pct(m['transmissibility_error']['median'])} / {_pct(m['transmissibility_error']['max'])}"
                      f" | {_pct(li['transmissibility_error']['median'])} / {_pct(li['transmissibility_error']['max'])}")
+        v = r.get("validity") or {}
+        if v.get("outside"):
+            lines.append(f"  NOT VALIDATED: {v['message']}")
+        for note in v.get("notes") or ():
+            lines.append(f"  note: {note}")
         if "truth" in r and "model_nominal_t21_vs_true" in r["truth"]:
             tr = r["truth"]
             lines.append(f"  truth ({tr['file']}): vs the true linear T21, median: model's linear part "
@@ -384,5 +419,14 @@ def _summary(results: list[dict], band, out: Path) -> str:
                          f"{_pct(tr['measured_h1_vs_true']['median'])}")
         if r.get("note"):
             lines.append(f"  note: {r['note']}")
+    if results:
+        r = results[0]
+        after = r["model"]["whole_signal"].get("after_samples")
+        lines.append(f"whole signal: the raw predicted {r['output']['name']} against the measured one, offset "
+                     f"included, after the first {after} samples (start-up from rest)"
+                     + (f"; the model's prediction covers {r['model']['prediction_band']}"
+                        if r["model"].get("prediction_band") else "")
+                     + (f"; the linear model's {r['linear']['prediction_band']}"
+                        if r["linear"].get("prediction_band") else ""))
     lines.append(f"wrote {out}/predict.json")
     return "\n".join(lines)

@@ -10,16 +10,18 @@ from nifo.progress import Progress
 from nifo_core.predict.heldout import Scores, split_records
 from nifo_core.predict.model_fit import joint_paths
 from nifo_core.predict.refine import refine_jointly, refine_model, start_up_samples
+from nifo_core.predict.scope_fit import fit_scope
 
 
-def from_start(opts: dict, paths: list) -> list[tuple]:
+def from_start(opts: dict, paths: list, *, centred: bool = True) -> list[tuple]:
     """Every identification record read once, whole from its start, with the samples the identification skipped
-    (--skip-periods/--skip-seconds)."""
+    (--skip-periods/--skip-seconds); ``centred``: the accelerations' constant offsets removed (what the fits read:
+    offsets of any size alike), else as measured (what the model's static part is fitted on)."""
     period = opts.get("period_samples")
     load_opts = {k: v for k, v in opts.items() if k not in ("skip_periods", "skip_seconds")}
     out = []
     for path in paths:
-        rec = load_record(path, **load_opts)
+        rec = load_record(path, **load_opts, centred=centred)
         out.append((rec, int(opts.get("skip_periods") or 0) * int(period or 0)
                     or int(round(float(opts.get("skip_seconds") or 0.0) * rec.fs_hz))))
     return out
@@ -87,6 +89,16 @@ def refine(args, model, linear, opts: dict, paths: list):
     before, after = held.score(model), held.score(out[0].model)
     check = HeldOutCheck(after.mean <= before.mean, before, after, tuple(float(r.duration_s) for r in records))
     return (*out, check)
+
+
+def with_scope(model, linear, opts: dict, paths: list):
+    """``model`` and ``linear`` with their offsets, prediction band and validity from the identification records
+    (:func:`nifo_core.predict.scope_fit.fit_scope`: held-out parts as the refinement's check splits them)."""
+    loaded = from_start(opts, paths, centred=False)      # the static part: the records as measured
+    held = split_records([rec for rec, _ in loaded], skip_samples=max(skip for _, skip in loaded),
+                         period_samples=opts.get("period_samples"), band_hz=model.analysis_band_hz)
+    with Progress(None, "the static part and the band the prediction covers", enabled=True):
+        return fit_scope(model, held), None if linear is None else fit_scope(linear, held)
 
 
 def _refine(args, model, linear, records, skips, period, refine_jointly, refine_model):

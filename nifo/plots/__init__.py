@@ -11,6 +11,8 @@ from __future__ import annotations
 import threading
 from pathlib import Path
 
+from nifo.io.atomic import claim
+
 __all__ = ["pyplot", "save_figure", "VECTOR_SUFFIXES", "DRAWING"]
 
 #: held while a thread builds or renders figures: matplotlib (pyplot's state, the mathtext parser) is not
@@ -43,9 +45,11 @@ def save_figure(fig, path: str | Path, *, dpi: int = 130, tight_rect: tuple | No
     where the figure is rendered they cost the step nothing inside a batch. Inside
     :func:`nifo.plots.writer.figure_batch` the files are rendered by helper processes and are complete when the
     batch ends; elsewhere, here and now."""
-    from nifo.plots.writer import submit_figure, write_files
+    from nifo.plots.writer import figure_paths, submit_figure, write_files
 
     p = Path(path)
+    for target in figure_paths(p, vector):   # inside nifo run's folder: listed in its marker before they are written
+        claim(target)
     if submit_figure(fig, p, dpi, tight_rect, vector=vector):
         return p
     try:

@@ -273,6 +273,25 @@ def term_label(kind: str, params: dict, *, units: str = SI) -> str:
     return kind + "(" + ", ".join(f"{k}={text(v)}" for k, v in p.items()) + ")"
 
 
+def term_words(term, *, units: str = SI) -> str:
+    """A term as a test engineer names it, its key parameter in units: "damper knee at 0.030 m/s", "play 0.43 mm"
+    (the kind's ``noun`` in the registry; z in mm and ż in m/s, or the system's unit·s² and unit·s)."""
+    spec = term.spec
+    key = spec.key_param
+    if key is None or key not in term.params:
+        return spec.noun or term.kind
+    v = float(term.params[key])
+    if units != SI:
+        text = f"{v:.3g} {units}·s²" if term.variable == "z" else f"{v:.3g} {units}·s"
+    elif term.variable == "z":
+        text = f"{1e3 * v:.2f} mm" if 1e3 * v < 10 else f"{1e3 * v:.1f} mm"
+    else:
+        text = f"{v:.3f} m/s"
+    side = f" ({term.params['side']})" if "side" in term.params else ""
+    joined = {"backlash": " ", "clearance": " ", "saturation": " at ±"}.get(term.kind, " at ")
+    return f"{spec.noun or term.kind}{joined}{text}{side}"
+
+
 def plot_ranking(candidates: Sequence[dict], path: str | Path, *, title: str, min_err: float,
                  units: str = SI) -> Path:
     """Horizontal bars: each kind's error reduction ratio, coloured by its status; the threshold dashed.

@@ -37,6 +37,7 @@ import signal
 import sys
 import threading
 import time
+import warnings
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
@@ -44,8 +45,8 @@ from typing import Iterator, Sequence
 
 from nifo.interrupt import by_interrupt, crash_stacks, signals_held
 
-__all__ = ["figure_batch", "deferred_figures", "wait_figures", "submit_figure", "write_files", "figure_workers",
-           "start_helpers", "abandon_helpers"]
+__all__ = ["figure_batch", "deferred_figures", "wait_figures", "submit_figure", "write_files", "figure_paths",
+           "figure_workers", "start_helpers", "abandon_helpers"]
 
 #: environment variable: helper processes for figures (0: write them in the calling process)
 WORKERS_ENV = "NIFO_FIGURE_WORKERS"
@@ -76,7 +77,7 @@ def figure_workers() -> int:
 def write_files(fig, path: str | Path, dpi: int, tight_rect: tuple | None = None, *, vector: bool = True) -> None:
     """The PNG at ``path`` and (``vector``) the vector files beside it (:data:`nifo.plots.VECTOR_SUFFIXES`), laid
     out first (``tight_rect``: see :func:`nifo.plots.save_figure`); the caller closes ``fig``."""
-    _write(fig, _targets(path, vector), dpi, tight_rect)
+    _write(fig, figure_paths(path, vector), dpi, tight_rect)
 
 
 def _write(fig, paths: Sequence[str | Path], dpi: int, tight_rect: tuple | None) -> None:
@@ -87,7 +88,8 @@ def _write(fig, paths: Sequence[str | Path], dpi: int, tight_rect: tuple | None)
         _render(fig, Path(path), dpi)
 
 
-def _targets(path: str | Path, vector: bool = True) -> list[Path]:
+def figure_paths(path: str | Path, vector: bool = True) -> list[Path]:
+    """The files of a figure saved at ``path``: the PNG and (``vector``) the vector files beside it."""
     from nifo.plots import VECTOR_SUFFIXES
 
     p = Path(path)
@@ -149,6 +151,7 @@ def _helper_init(parent: int) -> None:
     """A helper: Ctrl-C is the step's to handle; gone with its parent; a crash says where; matplotlib on Agg,
     imported now."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    warnings.simplefilter("ignore")   # a library's warning while rendering is not the user's to read (issue 56)
     crash_stacks()   # Agg, FreeType, the PNG encoder: the stack on the stderr it shares with the step
     _die_with_parent()
     if os.getppid() != parent:       # the parent died before the line above
@@ -327,7 +330,7 @@ def submit_figure(fig, path: str | Path, dpi: int, tight_rect: tuple | None = No
     if pool is None:
         return False
     blob = pickle.dumps(fig, protocol=pickle.HIGHEST_PROTOCOL)
-    paths = [str(p) for p in _targets(path, vector)]
+    paths = [str(p) for p in figure_paths(path, vector)]
     try:
         fut = pool.submit(_render_pickled, blob, paths, dpi, tight_rect)
     except (BrokenProcessPool, RuntimeError):

@@ -16,6 +16,8 @@ from typing import Sequence
 
 import numpy as np
 
+from nifo.io.names import file_stems, record_labels
+
 from . import rerun_log as rl
 from .results import ResultDir, data_paths, resolve_data
 
@@ -59,8 +61,9 @@ def _log_data(records, band, *, recording, notes: list[str]) -> None:
     from nifo_core.characterize.restoring import restoring_force
 
     palette = [(31, 78, 121), (192, 57, 43), (46, 139, 87), (161, 92, 0), (120, 60, 160)]
-    for k, (path, rec) in enumerate(records):
-        name = path.name
+    # one entity per record: records of the same name (from two folders, or "rec 1.csv" and rec_1.csv) kept apart
+    names = file_stems(record_labels([path for path, _ in records]))
+    for k, ((path, rec), name) in enumerate(zip(records, names)):
         rl.log_record_styling(name, recording=recording)
         rl.log_accelerations(name, _stamps(rec.t0_ns, 0, rec.n, rec.fs_hz), rec.spindle_accel, rec.body_accel,
                              recording=recording)
@@ -145,8 +148,9 @@ def _summary(results: Sequence[ResultDir], notes: list[str]) -> str:
             lines.append(f"- settings: `{json.dumps(d.get('settings', {}))}`")
         elif r.kind == "predict":
             for rec in d.get("records", []):
-                lines.append(f"- {rec.get('name')}: NMSE model {rec['model']['nmse_percent']:.2f} %, "
-                             f"linear {rec['linear']['nmse_percent']:.2f} %")
+                wm, wl = (rec[k].get("whole_signal") or {} for k in ("model", "linear"))
+                lines.append(f"- {rec.get('name')}: whole-signal NMSE model {wm.get('nmse_percent', float('nan')):.3g} %, "
+                             f"linear {wl.get('nmse_percent', float('nan')):.3g} %")
         lines.append("")
     lines += ["## data", *notes]
     return "\n".join(lines)

@@ -17,18 +17,21 @@ from __future__ import annotations
 import base64
 import datetime as _dt
 import json
+import re
 import tempfile
 from functools import lru_cache
 from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
-from jinja2 import ChainableUndefined, Environment, PackageLoader, Undefined, select_autoescape
+from jinja2 import ChainableUndefined, Environment, PackageLoader, Undefined, pass_context, select_autoescape
 from markupsafe import Markup
 
+from nifo.io.names import record_labels
 from nifo_core import __version__
 from nifo_core.errors import NifoError
 
+from .report_headline import outside_message, headline, noise_table, whole_signal
 from .results import ResultDir, data_paths, resolve_data
 
 __all__ = ["build_report", "write_report", "levels_figure", "CAPTIONS", "system_words"]
@@ -93,11 +96,29 @@ def _pct(x, fmt: str = ".1f") -> str:
     return f"{100 * float(x):{fmt}} %"
 
 
+#: the quarter car's words in the core's sentences, and the word of :func:`system_words` each becomes elsewhere
+_CAR_WORDS = (("sprung mass", "mass"), ("spindle", "input"), ("strut", "element"), ("body", "output"))
+
+
+@pass_context
+def _say(ctx, text):
+    """A sentence of the core's (a verdict, a round's reason, a warning) in the system's words: for data that are
+    not a vehicle, "spindle" is the input side, "body" the output side, "strut" the nonlinear element."""
+    system, words = ctx.get("system") or {}, ctx.get("words") or {}
+    if text is None or isinstance(text, (Undefined, Markup)) or system.get("vehicle", True):
+        return text
+    out = str(text)
+    for car, key in _CAR_WORDS:
+        out = re.sub(rf"\b{car}\b", words[key], out)
+        out = re.sub(rf"\b{car.capitalize()}\b", words[key.capitalize()], out)
+    return out
+
+
 @lru_cache(maxsize=1)
 def _env() -> Environment:
     env = Environment(loader=PackageLoader("nifo.viz", "templates"), autoescape=select_autoescape(["j2", "html"]),
                       undefined=ChainableUndefined, trim_blocks=True, lstrip_blocks=True)
-    env.filters.update(num=_num, pct=_pct)
+    env.filters.update(num=_num, pct=_pct, say=_say)
     return env
 
 
@@ -181,7 +202,7 @@ def _term_text(c: Mapping, system: Mapping) -> str:
     return str(c.get("label", c.get("kind", "?")))
 
 
-def _characterize(r: ResultDir, system: Mapping) -> tuple[dict, list]:
+def _characterize(r: ResultDir, system: Mapping) -> dict:
     d = r.doc
     zu, zs, vu, vs = _units(system)
     cands, classes = [], []
@@ -195,16 +216,15 @@ def _characterize(r: ResultDir, system: Mapping) -> tuple[dict, list]:
         cands.append([_term_text(c, system), coef, _num(c.get("err"), ".3f"), _num(c.get("p_value"), ".1e"),
                       status, c.get("meaning", "")])
         classes.append("suggested" if c.get("status") == "suggested" else "")
-    levels = [[Path(x.get("path", x.get("source", ""))).name, _num(x.get("duration_s"), ".1f"),
+    recs = d.get("records", [])
+    names = record_labels([str(x.get("path", x.get("source", ""))) for x in recs])   # two rec.csv told apart
+    levels = [[name, _num(x.get("duration_s"), ".1f"),
                _num(None if x.get("z_rms_m") is None else zs * x["z_rms_m"], ".3g"),
                _num(None if x.get("zdot_rms_m_s") is None else vs * x["zdot_rms_m_s"], ".3g"),
-               _num(x.get("linear_r2"), ".4f")] for x in d.get("records", [])]
+               _num(x.get("linear_r2"), ".4f")] for x, name in zip(recs, names)]
     sug = d.get("suggested") or []
-    lines = ([{"text": "linear (nothing found)"}] if d.get("nothing_found") else
-             [{"text": _term_text(s, system), "small": s.get("meaning", "")} for s in sug])
-    return ({"candidates": cands, "candidate_classes": classes, "levels": levels, "z_unit": zu, "v_unit": vu,
-             "suggested": [f"{_term_text(x, system)}: {x.get('meaning', '')}" for x in sug]},
-            [{"key": "suggested model", "lines": lines}])
+    return {"candidates": cands, "candidate_classes": classes, "levels": levels, "z_unit": zu, "v_unit": vu,
+            "suggested": [f"{_term_text(x, system)}: {x.get('meaning', '')}" for x in sug]}
 
 
 def _mean(v) -> float | None:
@@ -212,13 +232,12 @@ def _mean(v) -> float | None:
     return sum(v) / len(v) if v else None
 
 
-def _identify(r: ResultDir, system: Mapping) -> tuple[dict, list]:
+def _identify(r: ResultDir, system: Mapping) -> dict:
     s = r.doc.get("summary", {})
     terms = [{**t, "label": _term_text(t.get("term") or t, system)} for t in s.get("terms", [])]
     rows = [[t.get("label"), _num(t.get("c_over_m2")), t.get("unit", ""),
              "held fixed" if t.get("fixed") else
              f"{_num(t.get('per_line_mean_re'))} {_num(t.get('per_line_mean_im'), '+.3g')}j"] for t in terms]
-    lines = [{"text": f"{t.get('label')}: {_num(t.get('c_over_m2'))} {t.get('unit', '')}"} for t in terms]
     ref = s.get("refinement")
     refinement = None if not ref else {
         "message": (f"from the {ref.get('start')} start; mean band NMSE of the {len(ref.get('records') or [])} "
@@ -227,9 +246,6 @@ def _identify(r: ResultDir, system: Mapping) -> tuple[dict, list]:
         "rows": [[p.get("name"), _num(p.get("before")), _num(p.get("after")) + (
             "" if p.get("half_width_95") is None else f" ± {_num(p['half_width_95'], '.2g')}"), p.get("unit", "")]
                  for p in ref.get("parameters") or []]}
-    if refinement:
-        lines = lines + [{"text": "refined (model.json): " + ", ".join(f"{p[0]} {p[2]} {p[3]}" for p in
-                                                                       refinement["rows"][:len(terms)])}]
     fp = s.get("feedback_paths")
     paths = None if not fp else {
         "message": fp.get("message", ""),
@@ -237,27 +253,7 @@ def _identify(r: ResultDir, system: Mapping) -> tuple[dict, list]:
                   if g.get("regimes_stable", True) else "not eligible: a stuck/active regime is unstable",
                   _num(g.get("nmse_sum_percent"), ".4g") if g.get("regimes_stable", True) else "",
                   "chosen" if g.get("ridge") == fp.get("ridge") else ""] for g in fp.get("grid") or []]}
-    if paths:
-        lines = lines + [{"text": f"feedback paths (model.json): ridge {_num(fp.get('ridge'))}"}]
-    return {"terms": rows, "t21_bounds": _t21_bounds(r.doc), "refinement": refinement, "paths": paths}, [{"key": "pooled coefficients", "lines": lines or [{"text": "none (linear)"}]},
-                             {"key": "coherence, median",
-                              "lines": [{"text": _num(s.get("coherence_h1_median"), ".3f")}]}, _noise_key(r.doc, system)]
-
-
-def _noise_key(doc: Mapping, system: Mapping) -> dict:
-    """The sensor noise per record and channel (identify.json / loop.json ``noise``), in the system's words."""
-    words, units = system_words(system), system.get("units", "m/s²")
-    lines = []
-    for e in doc.get("noise") or []:
-        if not e.get("available", bool(e.get("channels"))):
-            lines.append({"text": f"{e.get('source')}: no estimate ({e.get('unavailable')})"})
-            continue
-        parts = [f"{words['input'] if c.get('channel', '').startswith('spindle') else words['output']} "
-                 f"{_num(c.get('percent_of_rms'), '.2g')} % of its RMS ({_num(c.get('std'), '.3g')} {units}, floor "
-                 f"at {_num((c.get('octave_hz') or [0, 0])[0], '.3g')}-{_num((c.get('octave_hz') or [0, 0])[1], '.3g')}"
-                 f" Hz)" for c in e.get("channels") or []]
-        lines.append({"text": f"{e.get('source')}: " + ", ".join(parts)})
-    return {"key": "sensor noise", "lines": lines or [{"text": "not estimated"}]}
+    return {"terms": rows, "t21_bounds": _t21_bounds(r.doc), "refinement": refinement, "paths": paths}
 
 
 def _t21_bounds(doc: Mapping) -> list[list]:
@@ -290,32 +286,31 @@ def _loop_coefficients(d: Mapping) -> list[list]:
     return rows
 
 
-def _predict(r: ResultDir) -> tuple[dict, list]:
-    rows, glance = [], []
+def _predict(r: ResultDir) -> dict:
+    """Rows per record, each pair final model / linear model: whole-signal RMS error and NMSE (the raw predicted
+    signal over all frequencies, offset included), band NMSE (± its 95 % bound), |T| error; the nominal T21 against
+    the truth; and the records outside the range the model was identified on, with their message."""
+    rows, outside = [], []
     for rec in r.doc.get("records", []):
         m, li = rec.get("model", {}), rec.get("linear", {})
-        nm = _num(m.get("nmse_percent"), ".2f") + " %"
-        better = (m.get("nmse_percent") is not None and li.get("nmse_percent") is not None
-                  and m["nmse_percent"] < li["nmse_percent"])
+        (rm, nm, unit), (rl, nl, _) = whole_signal(m), whole_signal(li)
+        unit = unit or (rec.get("output") or {}).get("unit", "")
         bm, bl = (x.get("band_nmse") or {} for x in (m, li))
         pb = m.get("parameter_bounds") or {}
         band = _num(bm.get("percent"), ".3g") + " %" if bm.get("percent") is not None else "not computed"
         if pb.get("available") and bm.get("percent") is not None:
             band += f" ± {_num(pb.get('band_nmse_half_width_pct'), '.2g')}"
-        rows.append([rec.get("name"), Markup('<span class="good">{}</span>').format(nm) if better else nm,
-                     _num(li.get("nmse_percent"), ".2f") + " %", band,
-                     _num(bl.get("percent"), ".3g") + " %" if bl.get("percent") is not None else "not computed",
-                     _pct((m.get("transmissibility_error") or {}).get("median")),
-                     _pct((li.get("transmissibility_error") or {}).get("median")),
+        band_lin = _num(bl.get("percent"), ".3g") + " %" if bl.get("percent") is not None else "not computed"
+        why = outside_message(rec)
+        if why:
+            outside.append(f"{rec.get('name')}: {why}")
+        rows.append([str(rec.get("name")) + (" (outside the identified range)" if why else ""),
+                     f"{_num(rm, '.3g')} / {_num(rl, '.3g')} {unit}", f"{_num(nm, '.3g')} / {_num(nl, '.3g')} %",
+                     f"{band} / {band_lin}",
+                     f"{_pct((m.get('transmissibility_error') or {}).get('median'))} / "
+                     f"{_pct((li.get('transmissibility_error') or {}).get('median'))}",
                      _pct(((rec.get("truth") or {}).get("model_nominal_t21_vs_true") or {}).get("median"))])
-        if m and li:   # the metric the CLI leads with: the band NMSE over the analysis band
-            lo, hi = (bm.get("band_hz") or [None, None])[:2]
-            where = f"{_num(lo, '.3g')}-{_num(hi, '.3g')} Hz" if lo is not None else "the analysis band"
-            glance.append({"key": f"band NMSE ({where}) at {rec.get('name')}",
-                           "lines": [{"text": band if bm.get("percent") is not None else "not computed",
-                                      "small": "(linear " + (_num(bl.get("percent"), ".3g") + " %)"
-                                                             if bl.get("percent") is not None else "not computed)")}]})
-    return {"rows": rows}, glance
+    return {"rows": rows, "outside": outside}
 
 
 def _find(d, *keys):
@@ -369,7 +364,7 @@ def _errors_rows(before: Mapping, after: Mapping) -> list[list[str]]:
     return rows
 
 
-def _loop(r: ResultDir, words: Mapping, system: Mapping) -> tuple[dict, list]:
+def _loop(r: ResultDir, words: Mapping) -> dict:
     d = r.doc
     rounds = [x for x in (d.get("rounds") or []) if isinstance(x, Mapping)]
     rows = []
@@ -389,22 +384,8 @@ def _loop(r: ResultDir, words: Mapping, system: Mapping) -> tuple[dict, list]:
             "report_lines": [ln for ln in report.splitlines() if ln.strip()] if isinstance(report, str) else [],
             "errors": _errors_rows(eb, ea) if isinstance(eb, Mapping) and isinstance(ea, Mapping) else [],
             "rounds": rows, "coefficients": _loop_coefficients(d)}
-    added = [_effect_label(x.get("added") or x.get("effect")) for x in rounds if x.get("added") or x.get("effect")]
-    fin, lin = d.get("final_heldout_prediction_nmse_pct"), d.get("linear_heldout_prediction_nmse_pct")
-    verdict = str(view["verdict"] or "")
-    if verdict.startswith("The model class cannot predict") or verdict.startswith("The model class does not predict"):
-        text = verdict.split(":")[0]          # a floor the model does not beat: said first, never "nothing missing"
-    elif added:
-        text = ", ".join(added) + " added"
-    elif d.get("nothing_missing", True):
-        text = "nothing significant missing"
-    else:   # nothing added, but the verdict says what these data cannot pin or tell apart
-        text = "nothing added; not everything could be told apart (see the loop's verdict)"
-    lines = [{"text": text}]
-    if fin is not None:
-        lines.append({"text": f"held-out {_num(fin, '.3g')} %",
-                      "small": "" if lin is None else f"(linear model of the same data {_num(lin, '.3g')} %)"})
-    return view, [{"key": "loop (final model)", "lines": lines}, _noise_key(r.doc, system)]
+    return view
+
 
 
 # ------------------------------------------------------------------------------------ provenance
@@ -515,13 +496,13 @@ def levels_figure(results: Sequence[ResultDir], out_png: Path) -> Path | None:
             if q is not None and q.resolve() not in [x.resolve() for x, _ in found]:
                 found.append((q, r))
     curves, truth = [], None
-    for p, r in found:
+    for (p, r), name in zip(found, record_labels([p for p, _ in found])):
         rec = _record(p, r)
         if abs(rec.fs_hz - res.fs_hz) > 1e-6 * res.fs_hz:
             continue
         spec = cross_spectra(np.stack([rec.spindle_accel, rec.body_accel]), rec.fs_hz, res.settings)
         rms = float(np.std(rec.spindle_accel))
-        curves.append((f"measured H1, {p.name} ({words['input']} RMS {rms:.2g} {units})", spec.freq_hz,
+        curves.append((f"measured H1, {name} ({words['input']} RMS {rms:.2g} {units})", spec.freq_hz,
                        h1(spec, 0, 1), {"lw": 1.0, "alpha": 0.85}))
         if truth is None and (t := true_t21(p, spec.freq_hz)) is not None:
             truth = (spec.freq_hz, t)
@@ -542,31 +523,35 @@ def levels_figure(results: Sequence[ResultDir], out_png: Path) -> Path | None:
 
 # ------------------------------------------------------------------------------------ the document
 def build_report(results: Sequence[ResultDir], *, title: str = "nifo report", notes: Sequence[str] = (),
-                 levels_png: Path | None = None, recording: str | None = None) -> str:
-    """The whole HTML document (a string), rendered from ``templates/report.html.j2``."""
+                 levels_png: Path | None = None, recording: str | None = None, head: Mapping | None = None) -> str:
+    """The whole HTML document (a string), rendered from ``templates/report.html.j2``; ``head``: the first
+    screen (:func:`nifo.viz.report_headline.headline`)."""
     system = _system(results)
     words = system_words(system)
-    sections, glance = [], []
+    sections = []
     for r in results:
         if r.kind == "characterize":
-            view, g = _characterize(r, system)
+            view = _characterize(r, system)
         elif r.kind == "identify":
-            view, g = _identify(r, system)
+            view = _identify(r, system)
             if levels_png is not None:
                 view["levels_figure"] = _figure(levels_png, words, _caption("levels", words))
         elif r.kind == "predict":
-            view, g = _predict(r)
+            view = _predict(r)
         else:
-            view, g = _loop(r, words, system)
-        glance += g
+            view = _loop(r, words)
         sections.append({**view, "kind": r.kind, "anchor": f"{r.kind}-{len(sections) + 1}",
                          "title": _SECTION_TITLES[r.kind], "path": str(r.path), "doc": r.doc,
                          "figures": [_figure(f, words) for f in r.figures]})
     if not any(r.kind == "loop" for r in results) and not any("loop" in n for n in notes):
         notes = [*notes, "No loop result was given: the search for effects the model lacks is not in this report."]
+    top = None if head is None else {
+        "facts": head["facts"], "outside": head["outside"],
+        "figures": [_figure(f["path"], words, f["caption"]) for f in head["figures"]]}
     return _env().get_template("report.html.j2").render(
-        title=title, sections=sections, glance=glance, notes=list(notes), recording=recording,
+        title=title, sections=sections, head=top, notes=list(notes), recording=recording,
         recording_name=Path(recording).name if recording else None, system=system, words=words,
+        noise=noise_table(results, words, system.get("units", "m/s²")),
         provenance=_provenance(results), version=__version__,
         generated=_dt.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z"))
 
@@ -580,7 +565,10 @@ def write_report(results: Sequence[ResultDir], out: Path, *, title: str = "nifo 
     try:
         with tempfile.TemporaryDirectory(prefix="nifo-report-") as tmp:
             levels_png = levels_figure(results, Path(tmp) / "levels.png") if levels else None
-            text = build_report(results, title=title, notes=notes, levels_png=levels_png, recording=recording)
+            system = _system(results)
+            head = headline(results, Path(tmp), system=system, words=system_words(system))
+            text = build_report(results, title=title, notes=notes, levels_png=levels_png, recording=recording,
+                                head=head)
     finally:
         _load.cache_clear()   # records are large: keep none after the report
     with staged_file(out) as f:

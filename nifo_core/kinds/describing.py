@@ -142,6 +142,9 @@ class Kind:
         """The parameter an output-error refinement moves: ``shape``, else the key parameter (gap, knee...)."""
         return self.shape or self.key_param
 
+    #: what a test engineer calls it ("damper knee", "play"): the report's and the export's words
+    noun: str = ""
+
     def check(self, params: Mapping[str, object]) -> dict:
         unknown = set(params) - set(self.params)
         if unknown:
@@ -185,43 +188,43 @@ def _kinds() -> dict[str, Kind]:
     ks = [
         Kind("cubic_stiffness", "z", {}, _cube,
              "hardening (c>0) or softening (c<0) cubic spring", None, coef_unit="N/m³",
-             compiled=_code("cubic"), lipschitz=lambda p: (inf, 0.0)),
+             compiled=_code("cubic"), lipschitz=lambda p: (inf, 0.0), noun="cubic spring"),
         Kind("quadratic_stiffness", "z", {}, lambda z, zd: z**2,
              "asymmetric (even) quadratic spring: stiffer on one side than the other, e.g. a cubic centred off the "
              "static position", None, coef_unit="N/m²", compiled=_code("quadratic_stiffness"),
-             lipschitz=lambda p: (inf, 0.0)),
+             lipschitz=lambda p: (inf, 0.0), noun="even (quadratic) spring"),
         Kind("clearance", "z", {"gap": (None, "m")}, lambda z, zd, gap: _sym_deadzone(z, gap),
              "stiffness change beyond ±gap (clearance, piecewise-linear stiffness)", "gap", coef_unit="N/m",
-             absorb=(1.0, 0.0), path_slopes=(1.0, 0.0), compiled=_code("clearance", "gap")),
+             absorb=(1.0, 0.0), path_slopes=(1.0, 0.0), compiled=_code("clearance", "gap"), noun="clearance"),
         Kind("saturation", "z", {"limit": (None, "m")}, lambda z, zd, limit: np.clip(z, -limit, limit),
              "stiffness that saturates beyond ±limit", "limit", coef_unit="N/m",
-             path_slopes=(0.0, 1.0), compiled=_code("saturation", "limit")),
+             path_slopes=(0.0, 1.0), compiled=_code("saturation", "limit"), noun="saturating spring"),
         Kind("bump_stop", "z", {"gap": (None, "m"), "side": ("compression", "compression|rebound"), "offset": (0.0, "m")},
              lambda z, zd, gap, side, offset: _bump(z, gap, side, offset),
              "one-sided contact stiffness beyond gap (compression: z < offset-gap)", "gap", coef_unit="N/m",
              compiled=lambda p: (CODES["bump_compression" if p["side"] == "compression" else "bump_rebound"],
-                                 p["gap"], p["offset"])),
+                                 p["gap"], p["offset"]), noun="bump stop"),
         Kind("backlash", "z", {"deadband": (None, "m")}, lambda z, zd, deadband: play_operator(z, deadband),
              "hysteretic stiffness through a play of total width deadband (paper Fig. 9a)", "deadband",
              hysteretic=True, coef_unit="N/m", absorb=(1.0, 0.0), path_slopes=(1.0, 0.0),
-             compiled=lambda p: (CODES["play"], 0.5 * float(p.get("deadband", 0.0)), 0.0)),
+             compiled=lambda p: (CODES["play"], 0.5 * float(p.get("deadband", 0.0)), 0.0), noun="play"),
         Kind("velocity_deadzone", "zdot", {"knee": (None, "m/s")}, lambda z, zd, knee: _sym_deadzone(zd, knee),
              "damping change beyond ±knee (digressive/progressive damper, paper Fig. 12a)", "knee", coef_unit="N·s/m",
-             absorb=(0.0, 1.0), compiled=_code("velocity_deadzone", "knee")),
+             absorb=(0.0, 1.0), compiled=_code("velocity_deadzone", "knee"), noun="damper knee"),
         Kind("velocity_saturation", "zdot", {"limit": (None, "m/s")}, lambda z, zd, limit: np.clip(zd, -limit, limit),
              "damping force that saturates beyond ±limit", "limit", coef_unit="N·s/m",
-             compiled=_code("velocity_saturation", "limit")),
+             compiled=_code("velocity_saturation", "limit"), noun="damper force limit"),
         Kind("coulomb", "zdot", {"eps": (0.005, "m/s")}, lambda z, zd, eps: np.tanh(zd / eps),
              "dry friction, smoothed over ±eps", None, coef_unit="N", compiled=_code("coulomb", "eps"),
-             lipschitz=lambda p: (0.0, 1.0 / float(p.get("eps", 0.005))), shape="eps"),
+             lipschitz=lambda p: (0.0, 1.0 / float(p.get("eps", 0.005))), shape="eps", noun="friction"),
         Kind("quadratic_damping", "zdot", {}, lambda z, zd: zd * np.abs(zd),
              "velocity-squared (orifice) damping", None, coef_unit="N·s²/m²", compiled=_code("quadratic_damping"),
-             lipschitz=lambda p: (0.0, inf)),
+             lipschitz=lambda p: (0.0, inf), noun="quadratic damping"),
         Kind("asymmetric_damping", "zdot", {"side": ("rebound", "rebound|compression")},
              lambda z, zd, side: _asym(zd, side), "extra damping on one side (rebound ≠ compression)", None,
              coef_unit="N·s/m",
              compiled=lambda p: (CODES["asymmetric_rebound" if p["side"] == "rebound" else "asymmetric_compression"],
-                                 0.0, 0.0)),
+                                 0.0, 0.0), noun="asymmetric damping"),
     ]
     return {k.name: k for k in ks}
 

@@ -112,6 +112,7 @@ from ..characterize.score import score_candidate
 from ..predict.feedback_paths import PATH_KINDS
 from ..predict.heldout import HeldOut, split_records
 from ..predict.model import IdentifiedModel
+from ..predict.scope_fit import fit_scope
 from .residual import _design, _Evaluator, _evidence, _g, _retune, _static_candidate, _tire_check
 from ..predict.model_fit import RATIONAL_MARGIN, Fitted, LinearChoice, choose_linear_form, fit_model
 from ..settings import AnalysisSettings
@@ -119,7 +120,8 @@ from .results import (NOTHING_MISSING, RESIDUAL_BANDS_HZ, RETUNE_FACTOR, Declare
                       LoopRefinement, LoopResult, LoopSettings, Round, Trial, _nothing_text, _round_text,
                       before_after_text, unconfirmed_text)
 from .ambiguity import Ambiguity, Comparison, Explanation, compare_errors, separating_record
-from .gates import Alternative, heldout_failures, judge_alternatives, one_of_kind_alternatives, prediction_failures
+from .gates import (Alternative, heldout_failures, judge_alternatives, one_of_kind_alternatives, prediction_failures,
+                    whole_signal_failures)
 from .refine import refine_final
 from ..signal.record import Record
 from ..characterize.restoring import suggest_band
@@ -252,6 +254,7 @@ def _errors(ev: _Evaluator, pred: _Predictor, terms: Sequence[Term]) -> Errors:
     eq = ev.equation(terms)
     notes: list[str] = []
     pred_nmse, per, trans, bands, unavailable, fitted = None, (), (), None, None, None
+    whole = (None, (), "")
     if pred.off:
         unavailable = "prediction switched off (prediction='none')"
     else:
@@ -264,6 +267,7 @@ def _errors(ev: _Evaluator, pred: _Predictor, terms: Sequence[Term]) -> Errors:
                 unavailable = fitted.scores.unavailable
             else:
                 pred_nmse, per = fitted.score, fitted.scores.per_record
+                whole = (fitted.scores.whole_mean, fitted.scores.whole, fitted.scores.whole_policy)
                 bands, trans = ev.band_numbers(fitted.scores.predictions)
         if unavailable is not None:
             notes.append(f"no held-out prediction for this model ({unavailable}); equation error only")
@@ -276,7 +280,8 @@ def _errors(ev: _Evaluator, pred: _Predictor, terms: Sequence[Term]) -> Errors:
                   equation_band_residual_db=eq["equation_band_residual_db"],
                   transmissibility_error_pct=tuple(trans), prediction_unavailable=unavailable, notes=tuple(notes),
                   structure="" if fitted is None else fitted.structure,
-                  model_note="" if fitted is None else fitted.note, fitted=fitted)
+                  model_note="" if fitted is None else fitted.note, fitted=fitted, whole_nmse_pct=whole[0],
+                  whole_nmse_per_record_pct=tuple(whole[1]), whole_policy=whole[2])
 
 
 #: a term whose describing function the linear columns z, ż explain to this R² on the fit parts acts linearly there
@@ -385,9 +390,12 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
     -------
     LoopResult
     """
-    recs = [records] if isinstance(records, Record) else list(records)
-    if not recs:
+    raw = [records] if isinstance(records, Record) else list(records)
+    if not raw:
         raise InputError("no records to run the loop on")
+    # every analysis on the records without their accelerations' constant offsets (removed in float64: offsets of
+    # any size give the same loop); the model's static part is fitted on the records as measured (fit_scope)
+    recs = [r.centred() for r in raw]
     if m2_kg is not None and not (np.isfinite(m2_kg) and m2_kg > 0):
         raise ConfigError(f"m2_kg={m2_kg!r} must be a positive mass [kg]")
     rates = sorted({r.fs_hz for r in recs})
@@ -491,7 +499,7 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
                 eq_failed, pred_failed = [], prediction_failures(current, after, s, twin, floor)
             else:
                 eq_failed, pred_failed = heldout_failures(current, after, s, compare_errors(held, after, current))
-            failed += eq_failed + pred_failed
+            failed += eq_failed + pred_failed + whole_signal_failures(current, after, s)
             ties = instead = ()
             passed = not failed
             # failing the prediction alone makes a candidate "unconfirmed" (maybe missing), unless a term of a kind
@@ -697,6 +705,11 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
     final_score = current.prediction_nmse_pct
     if refinement is not None and refinement.kept and refinement.heldout_after_pct is not None:
         final_score = refinement.heldout_after_pct
+    if model is not None:   # what the model carries besides its dynamics: offsets, the band it covers, its range
+        say(0.99, "the static part and the band the prediction covers")
+        held_raw = replace(held, records=tuple(raw))
+        model = fit_scope(model, held_raw)
+        linear = None if linear is None else fit_scope(linear, held_raw)
     floor_note = _floors(final_score, pred, terms)
     if floor_note:
         verdict = floor_note + " " + verdict.replace(NOTHING_MISSING, "").replace(

@@ -318,7 +318,8 @@ class _Evaluator:
             t_meas, t_pred = h1(sv, 0, 1), h1(sv, 0, 2)
             with np.errstate(divide="ignore", invalid="ignore"):
                 rel = np.abs(t_pred[m] - t_meas[m]) / np.abs(t_meas[m])
-            trans.append((rec.source, 100.0 * float(np.nanmedian(rel)) if rel.size else float("nan")))
+            rel = rel[~np.isnan(rel)]      # lines where the measured H1 is undefined say nothing (no all-NaN warning)
+            trans.append((rec.source, 100.0 * float(np.median(rel)) if rel.size else float("nan")))
         return _band_db(pairs), tuple(trans)
 
 
@@ -405,11 +406,13 @@ def _evidence(ev: _Evaluator, terms: Sequence[Term], cand: Term, s: LoopSettings
     q = ev.n_lin + len(terms) + 1
     level = 1 - 0.05 ** (1 / max(n_avg - q - 1, 1)) if n_avg else float("nan")
     pc_all = np.concatenate(pcs) if pcs else np.array([np.nan])
+    finite = pc_all[np.isfinite(pc_all)]       # no all-NaN mean (numpy's warning reached the user): NaN said plainly
     centres = 0.5 * (edges[1:] + edges[:-1])
     return Evidence(variable=cand.variable, bins=tuple(float(c) for c in centres), before=mean(e0), after=mean(e1),
-                    effect=mean(effect), partial_coherence_mean=float(np.nanmean(pc_all)),
+                    effect=mean(effect),
+                    partial_coherence_mean=float(np.mean(finite)) if finite.size else float("nan"),
                     partial_coherence_level=float(level),
-                    fraction_lines_above_level=float(np.nanmean(pc_all > level)) if pcs else float("nan"))
+                    fraction_lines_above_level=float(np.mean(pc_all > level)) if pcs else float("nan"))
 
 
 def _retune(ev: "_Evaluator", terms: Sequence[Term], s: LoopSettings, *, which: Sequence[int] | None = None,

@@ -213,6 +213,12 @@ class Errors:
     prediction_unavailable : str or None
         Why there is no held-out prediction (None when there is one).
     notes : tuple of str
+    whole_nmse_pct : float or None
+        Held-out NMSE of the raw predicted output over all frequencies, offset included (the field's score,
+        :mod:`nifo_core.predict.whole_signal`), mean over records [%]; None without a prediction.
+    whole_nmse_per_record_pct : tuple of float
+    whole_policy : str
+        'whole' or 'band': whether that prediction is limited to the analysis band (whichever scores lower).
     """
 
     terms: tuple[Term, ...]
@@ -232,9 +238,15 @@ class Errors:
     structure: str = ""
     model_note: str = ""
     fitted: object = field(default=None, compare=False, repr=False)   # the Fitted model scored (model_fit)
+    whole_nmse_pct: float | None = None
+    whole_nmse_per_record_pct: tuple[float, ...] = ()
+    whole_policy: str = ""
 
     def to_dict(self) -> dict:
         return {"terms": [t.to_dict() for t in self.terms], "theta_per_kg": list(self.theta_per_kg),
+                "whole_signal_nmse_pct": self.whole_nmse_pct,
+                "whole_signal_nmse_per_record_pct": list(self.whole_nmse_per_record_pct),
+                "whole_signal_prediction": self.whole_policy or None,
                 "structure": self.structure, "model_note": self.model_note,
                 "k_per_kg": self.k_per_kg, "c_per_kg": self.c_per_kg,
                 "prediction_nmse_pct": self.prediction_nmse_pct,
@@ -650,7 +662,13 @@ def before_after_text(before: Errors, after: Errors) -> str:
         pred = ("held-out prediction NMSE " + (f"{p0:.2f} %" if p0 is not None else "not computed")
                 + " → " + (f"{p1:.2f} %" if p1 is not None else "not computed")
                 + f" ({(after if p1 is None else before).prediction_unavailable})")
-    return (f"{pred}; held-out equation error {before.equation_nmse_pct:.2f} % → "
+    w0, w1 = before.whole_nmse_pct, after.whole_nmse_pct
+    whole = ""
+    if w0 is not None and w1 is not None:
+        whole = f"; held-out whole-signal NMSE (all frequencies, offset included) {w0:.3g} % → {w1:.3g} %"
+        if w1 > w0 and p0 is not None and p1 is not None and p1 < p0:
+            whole += " (worse over all frequencies while better in the band: not confirmed outside the band)"
+    return (f"{pred}{whole}; held-out equation error {before.equation_nmse_pct:.2f} % → "
             f"{after.equation_nmse_pct:.2f} %")
 
 

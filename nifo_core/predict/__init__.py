@@ -10,6 +10,10 @@ Modules:
 - :mod:`nifo_core.predict.time_prediction`  the time-domain prediction: a model's input, simulation, divergence
 - :mod:`nifo_core.predict.feedback_paths`  terms with a bounded remainder through their own feedback paths
 - :mod:`nifo_core.predict.prediction_error`  band NMSE of a prediction
+- :mod:`nifo_core.predict.whole_signal`  the raw predicted signal's error over all frequencies, and the distortion
+- :mod:`nifo_core.predict.scope`  what a model carries besides its dynamics: offsets, prediction band, validity
+- :mod:`nifo_core.predict.output_signal`  the predicted signal in the output's unit, offset included
+- :mod:`nifo_core.predict.scope_fit`  the static part, prediction band and validity from the identification records
 - :mod:`nifo_core.predict.refine`  output-error refinement of a model's coefficients
 - :mod:`nifo_core.predict.refine_bias`  the refinement's bias from sensor noise removed (errors in variables)
 - :mod:`nifo_core.predict.heldout`  held-out parts and their scores
@@ -38,6 +42,10 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
                        "choose_paths", "equivalent_gammas", "fit_joint", "fit_paths", "path_model",
                        "path_remainders", "regimes_stable"],
     "prediction_error": ["band_spectra", "band_nmse"],
+    "whole_signal": ["WholeSignalError", "whole_signal_error", "DistortionError", "distortion_error", "excited_lines"],
+    "scope": ["Offsets", "PredictionBand", "Validity", "RecordValidity"],
+    "output_signal": ["MeasuredOutput", "measured_output", "predicted_output", "output_name"],
+    "scope_fit": ["fit_scope"],
     "refine": ["Refinement", "refine_model", "refine_jointly", "model_nmse", "parameter_space", "start_up_samples"],
     "heldout": ["HeldOut", "split_records", "Scores"],
     "prediction_bounds": ["PredictionSpread", "prediction_spread", "line_spread", "half_width", "Z95"],

@@ -21,13 +21,16 @@ of what follows the transient.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
 
 from ..errors import InputError, NifoError
 from .model import IdentifiedModel, predict_body, record_inputs
+from .output_signal import common_mode, measured_output, output_name
+from .whole_signal import whole_signal_error
+from ..signal.band import band_limit
 from .prediction_error import band_nmse
 from ..signal.parallel import thread_map
 from ..signal.record import Record
@@ -38,20 +41,32 @@ __all__ = ["HeldOut", "split_records", "Scores"]
 
 @dataclass(frozen=True)
 class Scores:
-    """Band NMSE [%] of a model on each record's held-out part (None: it could not be predicted, with why)."""
+    """Band NMSE [%] of a model on each record's held-out part (None: it could not be predicted, with why), and
+    beside it the whole-signal NMSE [%] of the same predictions (:mod:`nifo_core.predict.whole_signal`: the raw
+    output over all frequencies, offset included, the offset taken from the fit parts), with the prediction
+    limited to the analysis band or not, whichever scores lower (``whole_policy``)."""
 
     per_record: tuple[float, ...]
     unavailable: str | None = None
     predictions: tuple = field(default=(), compare=False, repr=False)   # whole-record predictions scored
+    whole: tuple[float, ...] = ()
+    whole_policy: str = ""
 
     @property
     def mean(self) -> float:
         """The one metric: the mean over records of the held-out band NMSE [%] (inf when not available)."""
         return float(np.mean(self.per_record)) if self.per_record and self.unavailable is None else float("inf")
 
+    @property
+    def whole_mean(self) -> float | None:
+        """The mean over records of the held-out whole-signal NMSE [%] (None when not computed)."""
+        return float(np.mean(self.whole)) if self.whole and self.unavailable is None else None
+
     def to_dict(self) -> dict:
         return {"mean_percent": None if not np.isfinite(self.mean) else self.mean,
-                "per_record_percent": list(self.per_record), "unavailable": self.unavailable}
+                "per_record_percent": list(self.per_record), "unavailable": self.unavailable,
+                "whole_signal_mean_percent": self.whole_mean, "whole_signal_per_record_percent": list(self.whole),
+                "whole_signal_prediction": self.whole_policy or None}
 
 
 @dataclass(frozen=True)
@@ -110,12 +125,10 @@ class HeldOut:
             w = max(start_up_samples(model, r), self.skip[i])
         return min(w, self.split[i])
 
-    def predictions(self, model: IdentifiedModel, *, part: str = "held-out") -> list[np.ndarray]:
-        """The model's body acceleration of every record, simulated from rest (may raise NifoError), as arrays of the
-        record's length (NaN where not simulated): ``part='held-out'`` from a warm-up before the held-out part
-        (:meth:`warmup`) to the end, ``'fit'`` from the record's first sample to the end of its fit part,
-        ``'whole'`` all of it."""
-        def one(i: int) -> np.ndarray:
+    def _simulated(self, model: IdentifiedModel, part: str) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per record (body acceleration, the output's predicted deviation in its measured unit), each an array of the
+        record's length, NaN where not simulated (:meth:`predictions`)."""
+        def one(i: int) -> tuple[np.ndarray, np.ndarray]:
             r = self.records[i]
             if part == "held-out":
                 lo, hi = self.split[i] - self.warmup(model, i), r.n
@@ -125,18 +138,61 @@ class HeldOut:
                 lo, hi = 0, r.n
             seg = r.slice(lo, hi)
             a1, force = record_inputs(seg, model)
-            y = np.full(r.n, np.nan)
-            y[lo:hi] = predict_body(model, a1, r.fs_hz, force=force, label=r.source).body_accel
-            return y
+            pred = predict_body(model, a1, r.fs_hz, force=force, label=r.source)
+            y, dev = np.full(r.n, np.nan), np.full(r.n, np.nan)
+            y[lo:hi] = pred.body_accel
+            dev[lo:hi] = pred.z if output_name(r) == "body_disp" else pred.body_accel
+            return y, dev
         return thread_map(one, range(len(self.records)))     # the records side by side (pure simulations)
 
+    def predictions(self, model: IdentifiedModel, *, part: str = "held-out") -> list[np.ndarray]:
+        """The model's body acceleration of every record, simulated from rest (may raise NifoError), as arrays of the
+        record's length (NaN where not simulated): ``part='held-out'`` from a warm-up before the held-out part
+        (:meth:`warmup`) to the end, ``'fit'`` from the record's first sample to the end of its fit part,
+        ``'whole'`` all of it."""
+        return [y for y, _ in self._simulated(model, part)]
+
     def score(self, model: IdentifiedModel, *, part: str = "held-out") -> Scores:
-        """Band NMSE of ``model`` on the held-out parts (``part='fit'``: on the fit parts, in-sample)."""
+        """Band NMSE of ``model`` on the held-out parts (``part='fit'``: on the fit parts, in-sample), and on the
+        held-out parts their whole-signal NMSE (:class:`Scores`)."""
         try:
-            preds = self.predictions(model, part=part)
+            sims = self._simulated(model, part)
         except (NifoError, np.linalg.LinAlgError) as err:
             return Scores((), str(err))
-        return self.score_predictions(preds, part=part)
+        scores = self.score_predictions([y for y, _ in sims], part=part)
+        if part != "held-out" or scores.unavailable is not None:
+            return scores
+        whole, policy = self.whole_signal([d for _, d in sims])
+        return replace(scores, whole=whole, whole_policy=policy)
+
+    def whole_signal(self, deviations: Sequence[np.ndarray]) -> tuple[tuple[float, ...], str]:
+        """Per record the held-out whole-signal NMSE [%] of the predicted output deviations (NaN where not
+        simulated), unlimited or limited to the analysis band — whichever scores lower on the mean over records
+        — and that choice ('whole' or 'band'). The output offset is pooled over the records: each fit part's
+        measured mean beyond the common mode, less the mean the model predicts for the record (:class:`Scores`)."""
+        best: tuple[tuple[float, ...], str] = ((), "")
+        for policy in ("whole", "band"):
+            devs = []
+            for r, d, k in zip(self.records, deviations, self.split):
+                ok = np.flatnonzero(np.isfinite(d))
+                dd = d.copy()
+                if policy == "band" and ok.size:
+                    dd[ok[0]:] = band_limit(d[ok[0]:], r.fs_hz, self.band_hz)
+                devs.append(dd)
+            means, weights = [], []
+            for r, dd, s, k in zip(self.records, devs, self.skip, self.split):
+                cm = common_mode(r) if output_name(r) == "body_accel" else 0.0
+                y = measured_output(r).values
+                means.append(float(np.mean(y[s:k]) - cm - np.nanmean(dd[k:])))
+                weights.append(k - s)
+            y0 = float(np.average(means, weights=weights)) if sum(weights) > 0 else 0.0
+            per = []
+            for r, dd, k in zip(self.records, devs, self.split):
+                cm = common_mode(r) if output_name(r) == "body_accel" else 0.0
+                per.append(whole_signal_error(measured_output(r).values[k:], dd[k:] + cm + y0).nmse_percent)
+            if not best[0] or np.mean(per) < np.mean(best[0]):
+                best = (tuple(per), policy)
+        return best
 
     def ridge_records(self, *, max_periods: int = 2, max_seconds: float = 60.0) -> tuple[list[Record], list[int]]:
         """Short in-sample records for choices made on the fit parts (a ridge weight): each record from its start,

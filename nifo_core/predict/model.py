@@ -49,6 +49,8 @@ from ..signal.integrate import IntegrationBand
 from .linear_part import BodyModel, LinearPart, absorbed_rates, fit_body_model, nominal_linear_part, select_linear_part
 from ..nifo.identify import NifoResult
 from ..nifo.result import _cplx, _ro, _uncplx  # one home for the JSON forms of complex arrays
+from ..signal.band import band_taper
+from .scope import Offsets, PredictionBand, Validity
 from ..signal.frf import coherence, h1
 from ..signal.spectral import SpectralSettings, cross_spectra
 from .time_prediction import (DIVERGENCE_FACTOR, FINE_RATE_HZ, Prediction, PredictionDivergedError, _check_input,
@@ -65,6 +67,10 @@ Engine = Literal["time", "frequency"]
 # ---------------------------------------------------------------------------------------------
 # the identified model
 # ---------------------------------------------------------------------------------------------
+#: what a model carries besides its dynamics (:mod:`nifo_core.predict.scope`), by its key in model.json
+_SCOPE = {"offsets": Offsets, "prediction_band": PredictionBand, "validity": Validity}
+
+
 @dataclass(frozen=True, eq=False)
 class IdentifiedModel:
     """T21(ω) + describing functions + coefficients + linear part: what ``nifo identify`` produces.
@@ -95,6 +101,13 @@ class IdentifiedModel:
         The linear part Hz predictions use; default: the one-mass ``body``.
     force_gain : float
         1/M2 [1/kg] for a measured force on the body (0: no force input).
+    offsets : Offsets, optional
+        The static part the prediction adds (:mod:`nifo_core.predict.scope`; None: not yet taken from data —
+        each record's own input means, no output offset).
+    prediction_band : PredictionBand, optional
+        The band the prediction covers (None: every frequency).
+    validity : Validity, optional
+        The band and input amplitudes the model was identified on.
     """
 
     freq_hz: np.ndarray
@@ -111,6 +124,9 @@ class IdentifiedModel:
     provenance: Mapping = field(default_factory=dict)
     linear: LinearPart | None = None
     force_gain: float = 0.0
+    offsets: Offsets | None = None
+    prediction_band: PredictionBand | None = None
+    validity: Validity | None = None
 
     def __post_init__(self) -> None:
         for k in ("freq_hz", "t21", "b", "c_over_m2"):
@@ -204,7 +220,8 @@ class IdentifiedModel:
                 "linear_part": self.linear.to_dict(), "force_gain": self.force_gain,
                 "analysis_band_hz": list(self.analysis_band_hz), "fs_hz": self.fs_hz,
                 "settings": self.settings.to_dict(), "band": self.band.to_dict(), "source": self.source,
-                "provenance": json.loads(json.dumps(dict(self.provenance), default=str))}
+                "provenance": json.loads(json.dumps(dict(self.provenance), default=str)),
+                **{k: getattr(self, k).to_dict() for k in _SCOPE if getattr(self, k) is not None}}
 
     @classmethod
     def from_dict(cls, d: Mapping) -> "IdentifiedModel":
@@ -221,7 +238,8 @@ class IdentifiedModel:
                        analysis_band_hz=tuple(d["analysis_band_hz"]), fs_hz=float(d["fs_hz"]),
                        settings=SpectralSettings.from_dict(d["settings"]), band=IntegrationBand(**d["band"]),
                        source=str(d.get("source", "static")), provenance=dict(d.get("provenance") or {}),
-                       linear=lin, force_gain=float(d.get("force_gain") or 0.0))
+                       linear=lin, force_gain=float(d.get("force_gain") or 0.0),
+                       **{k: kind.from_dict(d[k]) for k, kind in _SCOPE.items() if d.get(k) is not None})
         except KeyError as err:
             raise ConfigError(f"identified model lacks {err.args[0]!r}",
                               hint="pass what IdentifiedModel.to_dict() wrote") from None
@@ -232,12 +250,6 @@ class IdentifiedModel:
 # ---------------------------------------------------------------------------------------------
 # prediction
 # ---------------------------------------------------------------------------------------------
-
-
-def _fade(f: np.ndarray, lo: float, hi: float, width: float) -> np.ndarray:
-    """1 inside [lo, hi], 0 outside [lo - width, hi + width], raised cosine between."""
-    x = np.clip(np.minimum(f - (lo - width), (hi + width) - f) / width, 0.0, 1.0)
-    return 0.5 - 0.5 * np.cos(np.pi * x)
 
 
 def _interp_c(f: np.ndarray, fp: np.ndarray, yp: np.ndarray) -> np.ndarray:
@@ -252,7 +264,7 @@ def _line_responses(model: IdentifiedModel, f: np.ndarray) -> tuple[np.ndarray, 
     hz = model.linear.hz(f)
     bz = model.c_over_m2[:, None] * hz[None, :]
     lo, hi = model.analysis_band_hz
-    wgt = _fade(f, lo, hi, min(0.5, 0.25 * (hi - lo)))
+    wgt = band_taper(f, (lo, hi))
     with np.errstate(divide="ignore", invalid="ignore"):
         hz_np = (1 - _interp_c(f, model.freq_hz, model.t21)) / np.where(w > 0, w, 1) ** 2
     hz = wgt * hz_np + (1 - wgt) * hz

@@ -140,6 +140,7 @@ class _Space:
     body: bool                        # refine k, c of a one-mass body
     track_absorbed: bool = False      # absorbed = absorbed_rates(terms, γ) as γ moves (bounded feedback)
     residues: bool = False            # refine a rational linear part's residues (poles kept)
+    force: bool = False               # refine a measured force's gain 1/M2 (log scale)
 
     @functools.cached_property
     def _pairs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -165,19 +166,24 @@ class _Space:
             return (1 - self.base.t21) / np.where(w > 0, w, np.nan) ** 2
 
     @property
+    def n_linear(self) -> int:
+        """Log factors of the linear part's physical parameters: a one-mass body's k and c, a force's 1/M2."""
+        return (2 if self.body else 0) + (1 if self.force else 0)
+
+    @property
     def size(self) -> int:
-        return self.gamma_scale.size + len(self.shape_idx) + (2 if self.body else 0) + self.n_residues
+        return self.gamma_scale.size + len(self.shape_idx) + self.n_linear + self.n_residues
 
     def x0(self, gammas: np.ndarray) -> np.ndarray:
         return np.concatenate([gammas / self.gamma_scale,
-                               np.zeros(len(self.shape_idx) + (2 if self.body else 0) + self.n_residues)])
+                               np.zeros(len(self.shape_idx) + self.n_linear + self.n_residues)])
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         nt, ns, nr = self.gamma_scale.size, len(self.shape_idx), self.n_residues
         lo = np.concatenate([np.full(nt, -np.inf), np.full(ns, -np.log(_SHAPE_RANGE)),
-                             np.full(2 if self.body else 0, -2.0), np.full(nr, -np.inf)])
+                             np.full(self.n_linear, -2.0), np.full(nr, -np.inf)])
         hi = np.concatenate([np.full(nt, np.inf), np.full(ns, np.log(_SHAPE_RANGE)),
-                             np.full(2 if self.body else 0, 2.0), np.full(nr, np.inf)])
+                             np.full(self.n_linear, 2.0), np.full(nr, np.inf)])
         return lo, hi
 
     def _linear(self, lin, dx: np.ndarray):
@@ -201,6 +207,8 @@ class _Space:
             out.append((f"{t.kind}.{key}", KINDS[t.kind].params[key][1]))
         if self.body:
             out += [("k = K2/M2 (nominal body)", "1/s²"), ("c = C2/M2 (nominal body)", "1/s")]
+        if self.force:
+            out.append(("1/M2 (gain of the measured force)", "1/kg"))
         return out
 
     def model(self, x: np.ndarray) -> IdentifiedModel:
@@ -215,17 +223,19 @@ class _Space:
         lin, body = m.linear, m.body
         if self.residues:
             lin = self._linear(lin, x[self.size - self.n_residues:])
+        k0 = nt + len(self.shape_idx)
         if self.body:
-            kb, cb = x[nt + len(self.shape_idx):nt + len(self.shape_idx) + 2]
+            kb, cb = x[k0:k0 + 2]
             bm = lin.body
             lin = replace(lin, body=BodyModel(bm.k * float(np.exp(kb)), bm.c * float(np.exp(cb)), bm.k3, bm.fit_rms))
+        force_gain = m.force_gain * float(np.exp(x[k0 + (2 if self.body else 0)])) if self.force else m.force_gain
         if self.track_absorbed:       # the realised linear part stays; the terms' linear part moves with γ
             lin = replace(lin, absorbed=absorbed_rates(terms, gam))
         if lin.kind == "body":        # the nominal body: the realised one without the absorbed strut part
             bm, (ka, ca) = lin.body, lin.absorbed
             body = BodyModel(bm.k - ka, bm.c - ca, bm.k3, bm.fit_rms)
         b = gam[:, None] * self.hz[None, :]
-        return replace(m, terms=tuple(terms), c_over_m2=gam, b=b, linear=lin, body=body)
+        return replace(m, terms=tuple(terms), c_over_m2=gam, b=b, linear=lin, body=body, force_gain=force_gain)
 
 
 def model_nmse(model: IdentifiedModel, records: Sequence[Record], *, band_hz: tuple[float, float],
@@ -293,7 +303,11 @@ def _space(start: IdentifiedModel, scale_from: IdentifiedModel, *, shape: bool, 
     idx = tuple(i for i, v in shaped if shape and isinstance(v, float) and v > 0)
     body = bool(linear_params and start.linear.kind == "body" and start.linear.body.k > 0 and start.linear.body.c > 0)
     res = bool(residues and start.linear.kind == "rational" and np.any(start.linear.poles.imag > 0))
-    return _Space(start, scale, idx, body, track_absorbed, res)
+    # a measured force's gain 1/M2 comes from NIFO's force path; refined with the body, it is what sets the static
+    # gain of the output: the Silverbox at 150 mV refined with it predicts 50 and 100 mV at 0.77 and 0.78 mV
+    # against 0.92 and 0.97 mV with NIFO's gain held (1/M2 +0.34 %)
+    force = bool(linear_params and start.force_gain > 0)
+    return _Space(start, scale, idx, body, track_absorbed, res, force)
 
 
 # Long (over 100 lines): the parameter space, the two starts and the least squares with its covariance
@@ -599,11 +613,11 @@ def _stored_covariance(sp: _Space, x: np.ndarray, cov: np.ndarray | None) -> dic
         start_scale = sp._pairs[3]
         ref = _Space(sp.model(x), np.ones(nt), (), False, residues=True)._pairs[3]
         d = np.concatenate([d, np.tile(start_scale / ref, 2)])
-    return {"coordinates": "coefficients relative to the refined ones, then log factors of the key parameters "
-                           "and of a one-mass body's k and c, then the rational linear part's residue changes "
+    return {"coordinates": "coefficients relative to the refined ones, then log factors of the key parameters, "
+                           "of a one-mass body's k and c and of a force's 1/M2, then the rational linear part's residue changes "
                            "(re, im per pole pair, in units of |r|)",
             "shape_terms": list(sp.shape_idx), "body": bool(sp.body), "track_absorbed": bool(sp.track_absorbed),
-            "residues": bool(sp.residues), "matrix": (d[:, None] * cov * d[None, :]).tolist()}
+            "residues": bool(sp.residues), "force": bool(sp.force), "matrix": (d[:, None] * cov * d[None, :]).tolist()}
 
 
 def _stored_space(model: IdentifiedModel) -> tuple[_Space, np.ndarray] | None:
@@ -614,7 +628,7 @@ def _stored_space(model: IdentifiedModel) -> tuple[_Space, np.ndarray] | None:
     gam = np.asarray(model.c_over_m2, float)
     scale = np.where(gam != 0, gam, 1.0)
     sp = _Space(model, scale, tuple(int(i) for i in c["shape_terms"]), bool(c["body"]), bool(c["track_absorbed"]),
-                bool(c.get("residues", False)))
+                bool(c.get("residues", False)), bool(c.get("force", False)))
     cov = np.asarray(c["matrix"], float)
     if cov.shape != (sp.size, sp.size) or not np.all(np.isfinite(cov)):
         return None
@@ -681,4 +695,6 @@ def _values(sp: _Space, x: np.ndarray) -> list[float]:
         vals.append(float(t.params[KINDS[t.kind].shape_param]))
     if sp.body:      # the nominal body: the realised one without the terms' absorbed linear part
         vals += [m.body.k, m.body.c]
+    if sp.force:
+        vals.append(m.force_gain)
     return vals

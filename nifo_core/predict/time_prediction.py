@@ -112,12 +112,26 @@ def _external(model, linear: LinearPart, a1, force, fs_hz: float, n: int) -> np.
 
 
 def record_inputs(record, model) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """What drives ``model`` in ``record``: (spindle acceleration, or None for a fixed spindle;
-    the measured force, or None when the record has none or the model no force input)."""
-    a1 = None if getattr(record, "spindle_fixed", False) else np.asarray(record.spindle_accel, float)
+    """What drives ``model`` in ``record``, about the model's operating point (:mod:`nifo_core.predict.scope`):
+    (the spindle acceleration about the record's own mean, or None for a fixed spindle; the measured force about
+    the model's ``offsets.force`` — the record's own mean when the model has none —, or None when the record has
+    none or the model no force input). A model whose prediction is limited to its band
+    (``prediction_band``) is still driven by the whole input, as it was fitted: only its output is limited
+    (:func:`~nifo_core.predict.output_signal.dynamic_output`)."""
+    a1 = None if getattr(record, "spindle_fixed", False) else _deviation(record.spindle_accel)
     f = getattr(record, "force", None)
-    force = np.asarray(f, float) if f is not None and model.force_gain > 0 else None
+    force = None
+    if f is not None and model.force_gain > 0:
+        offsets = getattr(model, "offsets", None)
+        u0 = offsets.force if offsets is not None and offsets.force is not None else None
+        force = _deviation(f, u0)
     return a1, force
+
+
+def _deviation(x, about: float | None = None) -> np.ndarray:
+    """``x`` about ``about`` (its own mean when None), in float64: offsets of any size leave the same deviation."""
+    x = np.asarray(x, float)
+    return x - (np.mean(x) if about is None else float(about))
 
 
 def _check_input(x, name: str, n: int | None) -> np.ndarray | None:

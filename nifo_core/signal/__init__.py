@@ -11,6 +11,7 @@ Modules:
 - :mod:`nifo_core.signal.noise`  each sensor's noise, estimated from the data
 - :mod:`nifo_core.signal.bias_correction`  a fit's bias removed by simulating it with that noise (errors in variables)
 - :mod:`nifo_core.signal.excitation`  what the data say about their excitation: period, transient, excited band (docs/method.md §8)
+- :mod:`nifo_core.signal.band`  a band of frequencies as a zero-phase filter (where a model holds)
 
 Layer: it imports the bottom (it imports only :mod:`nifo_core.errors`) (``.importlinter``). The names below are its
 front door; the modules' private (``_``) names stay inside the package.
@@ -37,4 +38,5 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
     "uncertainty": ["CoefficientBounds", "coefficient_bounds", "effective_samples"],
     "excitation": ["Excitation", "analyse_excitation", "combine_excitations", "detect_period"],
     "noise": ["NoiseEstimate", "estimate_noise"],
+    "band": ["band_taper", "band_limit", "edge_width_hz", "fraction_outside", "prediction_taper", "PREDICTION_EDGE"],
 })

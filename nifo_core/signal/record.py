@@ -20,7 +20,11 @@ import numpy as np
 
 from ..errors import InputError, NonFiniteError, RecordTooShortError
 
-__all__ = ["Record", "CHANNELS", "acceleration_from_displacement", "concatenate"]
+__all__ = ["Record", "CHANNELS", "acceleration_from_displacement", "acceleration_means", "concatenate"]
+
+#: the channels whose constant part carries no dynamics (a constant acceleration would be an unbounded motion): a
+#: sensor's bias or gravity, removed before any analysis (:meth:`Record.centred`)
+ACCELERATIONS = ("spindle_accel", "body_accel")
 
 #: channel names, in the order used throughout (CSV columns, bag topics' roles)
 CHANNELS = ("spindle_accel", "body_accel", "tire_patch_disp", "force")
@@ -154,6 +158,20 @@ class Record:
                        body_accel=self.body_accel[start:stop], tire_patch_disp=tp, force=fo, body_disp=bd,
                        t0_ns=self.t0_ns + int(round(start * 1e9 / self.fs_hz)))
 
+    def centred(self, means: Mapping[str, float] | None = None) -> "Record":
+        """This record with the constant offsets of its accelerations removed: ``means`` (default its own,
+        :func:`acceleration_means`). What every analysis step works on: a constant acceleration carries no
+        dynamics, and removed in float64 before any spectrum, sum or square, an offset of any size (a sensor's bias,
+        gravity, 1e6) gives the answer of the record without it. ``meta["offsets_m_s2"]`` adds up what was removed.
+        Forces and displacements keep their means (a preload or a static deflection is physics)."""
+        m = acceleration_means(self) if means is None else {k: float(means.get(k, 0.0)) for k in ACCELERATIONS}
+        if not any(m.values()):
+            return self
+        before = dict(self.meta.get("offsets_m_s2") or {})
+        meta = {**dict(self.meta), "offsets_m_s2": {k: before.get(k, 0.0) + v for k, v in m.items()}}
+        return replace(self, spindle_accel=None if self.spindle_fixed else self.spindle_accel - m["spindle_accel"],
+                       body_accel=self.body_accel - m["body_accel"], meta=meta)
+
     def require_samples(self, n_min: int, *, what: str) -> None:
         """Raise :class:`RecordTooShortError` unless the record holds ``n_min`` samples."""
         if self.n < n_min:
@@ -161,6 +179,13 @@ class Record:
                 f"{self.n} samples ({self.duration_s:.1f} s) is too short for {what}, which needs {n_min}",
                 source=self.source or "record",
                 hint="record longer, or choose a smaller --block")
+
+
+def acceleration_means(record: Record) -> dict[str, float]:
+    """The mean of each acceleration channel [m/s²], in float64 (0 for a fixed spindle)."""
+    return {k: 0.0 if k == "spindle_accel" and record.spindle_fixed else float(np.mean(getattr(record, k),
+                                                                                       dtype=np.float64))
+            for k in ACCELERATIONS}
 
 
 def concatenate(parts) -> Record:
