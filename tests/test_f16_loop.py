@@ -95,6 +95,8 @@ def test_nifo_run_on_levels_3_5_7_predicts_the_held_out_level_1_better_than_line
         whole[exc] = (r["model"]["whole_signal"]["rms_error"], r["linear"]["whole_signal"]["rms_error"])
         assert (pred / r["signals"][0]).is_file() and r["output"]["name"] == "body_accel"
         assert not r["validity"]["outside"], r["validity"]
+        if exc == "FullMSine":      # the model's response at this level wanders from period to period: said
+            assert "not periodic" in r["model"]["not_periodic"], r["model"]
     print(f"\nF-16 nifo run 3/5/7, held-out level 1 (band NMSE model | linear of 3/5/7): {got}; whole-signal RMS "
           f"error [m/s²] model | linear: {whole}")
     for exc, (model, linear) in got.items():

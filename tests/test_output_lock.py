@@ -161,7 +161,11 @@ def test_two_nifo_runs_on_one_folder_one_refused_naming_the_other(tmp_path):
     run = [sys.executable, "-m", "nifo", "run", str(data), "--out", str(out), "--no-loop", "--no-refine",
            "--no-recording", "-q"]
     a = subprocess.Popen(run, cwd=tmp_path, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(4.0)     # a's imports done and its lock taken (its settings step runs)
+    lock = tmp_path / ".SAME.lock"      # a's imports done and its lock taken (a fixed sleep lost the race under load)
+    t0 = time.monotonic()
+    while not (lock.is_file() and f'"pid": {a.pid}' in lock.read_text()):
+        assert a.poll() is None and time.monotonic() - t0 < 120, "the first nifo run never took its lock"
+        time.sleep(0.05)
     b = subprocess.run(run, cwd=tmp_path, env=_env(), capture_output=True, text=True, timeout=120)
     inside = subprocess.run([sys.executable, "-m", "nifo", "identify", str(data), "--model", str(model), "--out",
                              str(out / "identify"), "-q"], cwd=tmp_path, env=_env(), capture_output=True, text=True,

@@ -178,6 +178,8 @@ def test_the_first_screen_shows_the_force_law_and_the_prediction_against_linear(
     first = seen["text"].split("Contents")[0]
     for key in ("does:", "How well it predicts:", "What the loop changed:"):
         assert key in first, first[:600]
+    loop_line = first.split("What the loop changed:")[1]       # the loop's held-out error in the band and over all
+    assert "held-out prediction NMSE" in loop_line and "over all frequencies" in loop_line, loop_line[:400]
 
 
 def test_report_command_writes_one_self_contained_file(report, tmp_path, capsys):

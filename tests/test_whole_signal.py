@@ -58,6 +58,26 @@ def test_the_distortion_predicted_exactly_scores_zero_and_none_scores_a_hundred(
     assert 0 < none.share_percent < 100 and none.measured_rms > 0 and none.lines > 0
 
 
+def test_a_prediction_that_wanders_from_period_to_period_is_named_not_periodic():
+    rng = np.random.default_rng(2)
+    p = 1024
+    u = np.tile(_multisine(p, np.arange(10, 60, 2), rng), 6)
+    y = u + 0.01 * rng.standard_normal(u.size)                        # the structure: periodic up to its noise
+    f_band = (10 * FS / p, 60 * FS / p)
+    steady = distortion_error(y, u, u, FS, period_samples=p, band_hz=f_band, skip=p)
+    assert steady.period_variation_rms == pytest.approx(0.0, abs=1e-12)
+    # noise about the average of 5 periods: √(4/5) of its RMS
+    assert steady.measured_period_variation_rms == pytest.approx(0.01 * np.sqrt(4 / 5), rel=0.05)
+    assert not steady.not_periodic()
+    # a model whose response changes from one period to the next (a play slipping on some cycles): 0.05 RMS
+    wander = u * (1 + 0.05 * np.repeat(rng.standard_normal(6), p) / np.std(u))
+    wanders = distortion_error(y, wander, u, FS, period_samples=p, band_hz=f_band, skip=p)
+    assert wanders.period_variation_rms > 2 * wanders.measured_period_variation_rms
+    assert wanders.not_periodic() and wanders.not_periodic(steady) and not wanders.not_periodic(wanders)
+    assert distortion_error(y[: 2 * p], u[: 2 * p], u[: 2 * p], FS, period_samples=p, band_hz=f_band,
+                            skip=p).to_dict()["period_variation_rms"] is None          # one period: no variation
+
+
 def test_a_band_limit_passes_its_band_zero_phase_and_removes_the_rest():
     t = np.arange(8192) / FS                                  # a whole number of periods of both tones
     inside, outside = np.sin(2 * np.pi * 6.25 * t + 0.7), 0.5 * np.sin(2 * np.pi * 50 * t)

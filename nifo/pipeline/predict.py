@@ -54,7 +54,7 @@ from nifo_core.errors import ConfigError, InputError, MissingChannelError, NifoE
 from nifo_core.signal.frf import coherence, h1
 from nifo_core.predict.model import predict_body, record_inputs
 from nifo_core.predict.output_signal import measured_output, predicted_output
-from nifo_core.predict.whole_signal import distortion_error, whole_signal_error
+from nifo_core.predict.whole_signal import DistortionError, distortion_error, whole_signal_error
 from nifo_core.predict.prediction_bounds import Z95, half_width, line_spread, prediction_spread
 from nifo_core.predict.prediction_error import band_nmse, band_spectra
 from nifo_core.settings import GivenSettings
@@ -119,13 +119,22 @@ def _whole(y: np.ndarray, yhat: np.ndarray, skip: int) -> dict:
 
 
 def _distortion(y: np.ndarray, yhat: np.ndarray, u: np.ndarray, fs: float, band_hz, period_samples: int,
-                skip: int) -> dict:
-    """The prediction on the lines the periodic input did not excite, or why it could not be computed."""
+                skip: int) -> DistortionError | dict:
+    """The prediction on the lines the periodic input did not excite, or why it could not be computed (a dict)."""
     try:
-        return distortion_error(y, yhat, u, fs, period_samples=period_samples, band_hz=tuple(band_hz),
-                                skip=skip).to_dict()
+        return distortion_error(y, yhat, u, fs, period_samples=period_samples, band_hz=tuple(band_hz), skip=skip)
     except InputError as err:
         return {"percent_of_none": None, "not_computed": err.message}
+
+
+def _not_periodic(dm: DistortionError | dict, dl: DistortionError | dict, unit: str) -> str | None:
+    """One sentence when the model's prediction of a periodic record is not periodic where the structure was."""
+    if not (isinstance(dm, DistortionError) and isinstance(dl, DistortionError) and dm.not_periodic(dl)):
+        return None
+    return (f"the model's response is not periodic at this level: {dm.period_variation_rms:.3g} {unit} RMS from "
+            f"period to period, measured {dm.measured_period_variation_rms:.3g} {unit}, its linear model "
+            f"{dl.period_variation_rms:.3g} {unit} (a nonlinearity that slips or jumps on some periods and not "
+            f"others: its signal carries a wandering the structure does not show)")
 
 
 def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
@@ -182,9 +191,14 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
     }
     raw_drive = np.asarray(record.force if drive_name == "force" else record.spindle_accel, float)
     if period_samples:
-        for key, yh in (("model", y_model), ("linear", y_lin)):
-            out[key]["distortion"] = _distortion(measured.values, yh, raw_drive, fs, band_hz, period_samples,
-                                                 skip)
+        dist = {key: _distortion(measured.values, yh, raw_drive, fs, band_hz, period_samples, skip)
+                for key, yh in (("model", y_model), ("linear", y_lin))}
+        for key, d in dist.items():
+            out[key]["distortion"] = d.to_dict() if isinstance(d, DistortionError) else d
+        wandering = _not_periodic(dist["model"], dist["linear"], "m/s²" if measured.name == "body_accel"
+                                  else "(displacement unit)")
+        if wandering:
+            out["model"]["not_periodic"] = wandering
     for key, m in (("model", model), ("linear", linear)):
         if m.prediction_band is not None:
             out[key]["prediction_band"] = m.prediction_band.describe()
@@ -406,6 +420,8 @@ def _summary(results: list[dict], band, out: Path) -> str:
         lines.append(f"{r['name']:<{w}} {rms_txt}   {nmse_txt}   {band_txt}   {dist_txt}"
                      f"{_pct(m['transmissibility_error']['median'])} / {_pct(m['transmissibility_error']['max'])}"
                      f" | {_pct(li['transmissibility_error']['median'])} / {_pct(li['transmissibility_error']['max'])}")
+        if m.get("not_periodic"):
+            lines.append(f"  note: {m['not_periodic']}")
         v = r.get("validity") or {}
         if v.get("outside"):
             lines.append(f"  NOT VALIDATED: {v['message']}")
@@ -424,9 +440,9 @@ def _summary(results: list[dict], band, out: Path) -> str:
         after = r["model"]["whole_signal"].get("after_samples")
         lines.append(f"whole signal: the raw predicted {r['output']['name']} against the measured one, offset "
                      f"included, after the first {after} samples (start-up from rest)"
-                     + (f"; the model's prediction covers {r['model']['prediction_band']}"
+                     + (f"; the model's prediction: {r['model']['prediction_band']}"
                         if r["model"].get("prediction_band") else "")
-                     + (f"; the linear model's {r['linear']['prediction_band']}"
+                     + (f"; the linear model's: {r['linear']['prediction_band']}"
                         if r["linear"].get("prediction_band") else ""))
     lines.append(f"wrote {out}/predict.json")
     return "\n".join(lines)
