@@ -87,7 +87,8 @@ def test_a_declared_term_that_changed_its_meaning_says_so():
     moved = DeclaredTerm(KNEE, -2.19, Term("velocity_deadzone", {"knee": 0.03 * 1.01 * RETUNE_FACTOR}), -2.0, 320.0)
     assert not same.changed_meaning and "within the stated factor" in same.text()
     assert flipped.sign_flipped and flipped.changed_meaning
-    assert "changed its meaning" in flipped.text() and "rising where the declared fit is falling" in flipped.text()
-    assert "-700.8 N·s/m as declared → 1120 N·s/m" in flipped.text()
-    assert moved.changed_meaning and not moved.sign_flipped and "more than the stated factor" in moved.text()
+    assert "changed its meaning" in flipped.text() and "changed sign, -700.8 N·s/m when the declared model is " \
+        "fitted alone, 1120 N·s/m in the final model" in flipped.text()
+    assert "its knee moved beyond the stated factor 2: 0.03 → 0.227 (× 7.57)" in flipped.text()
+    assert moved.changed_meaning and not moved.sign_flipped and "beyond the stated factor" in moved.text()
     assert flipped.to_dict()["changed_meaning"] and flipped.to_dict()["key_param_factor"] > 7
