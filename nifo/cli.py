@@ -17,6 +17,7 @@ import contextvars
 import importlib
 import io
 import json
+import math
 import os
 import sys
 import traceback
@@ -103,7 +104,7 @@ def build_parser(only: str | None = None, *, summary: bool = False) -> argparse.
 
 
 def _jsonable(x):
-    """Paths, numpy scalars and tuples as JSON values."""
+    """Paths, numpy scalars and tuples as JSON values; a NaN or infinite number as null (as in the files written)."""
     if isinstance(x, dict):
         return {str(k): _jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
@@ -111,7 +112,9 @@ def _jsonable(x):
     if isinstance(x, os.PathLike):
         return os.fspath(x)
     if hasattr(x, "item") and callable(x.item):
-        return x.item()
+        x = x.item()
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
     return x
 
 

@@ -16,9 +16,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from nifo.cli import COMMANDS, main
+from nifo.cli import COMMANDS, _jsonable, main
 from nifo_core.errors import EXIT_CODES, USAGE_EXIT_CODE, InputError, NifoError
 from test_run_cmd import pipeline
 
@@ -259,3 +260,11 @@ def test_a_loop_setting_it_accepts_reaches_the_loop():
     args = build_parser().parse_args(["loop", str(SAMPLE), "--out", "x", "--max-rounds", "10", "--fit-fraction",
                                       "0.3", "--refine-seconds", "5"])
     assert (args.max_rounds, args.fit_fraction, args.refine_seconds) == (10, 0.3, 5.0)
+
+
+def test_json_summary_writes_a_nan_or_infinite_number_as_null():
+    # `nifo loop --json` on a control case: a per-band residual of NaN made the summary's json.dumps raise
+    # (exit 1, traceback) after the loop had written its results
+    doc = {"a": float("nan"), "b": [np.float64("inf"), 1.5], "c": {"d": np.float32(-np.inf)}, "e": 2}
+    assert json.loads(json.dumps(_jsonable(doc), allow_nan=False)) == {"a": None, "b": [None, 1.5],
+                                                                       "c": {"d": None}, "e": 2}

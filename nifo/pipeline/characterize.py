@@ -271,7 +271,8 @@ def _document(args, records, rfs, tracks, char: Characterization, figures, *, ba
 def _model_note(char: Characterization) -> str:
     if char.nothing_found:
         return "nifo characterize found no nonlinearity above its thresholds: a linear strut (plain H1) suffices"
-    return "suggested by nifo characterize: " + "; ".join(f"{c.term.label}: {c.describe()}" for c in char.suggested)
+    return ("suggested by nifo characterize: " + "; ".join(f"{c.term.label}: {c.describe()}" for c in char.suggested)
+            + "".join(f". Ambiguity: {a.text()}" for a in char.ambiguities))
 
 
 def _fmt_coef(c, m2: float | None) -> str:
@@ -287,7 +288,7 @@ def _table(char: Characterization, top: int, paths: list[str], mixed_rates: bool
     lines = [f"characterized {len(paths)} file(s) in band {char.band.f_lo_hz:g}-{char.band.f_hi_hz:g} Hz; "
              f"linear fit R² {char.linear['r2']:.4f}",
              f"{'#':>2}  {'candidate':<44} {'coefficient ± 95 %':>26}  {'ERR':>7} {'ERR_cv':>7} {'p':>8} {'spread':>6}  status",
-             "    (suggested terms first, each scored given the ones above it; then the rest, ranked alone)"]
+             "    (suggested terms first, each scored given all the other suggested ones; then the rest, ranked alone)"]
     shown = [c for i, c in enumerate(char.candidates) if i < top or c.status == "suggested"]
     for i, c in enumerate(shown, 1):
         spread = f"{c.spread:6.2f}" if np.isfinite(c.spread) else "     -"
@@ -300,6 +301,7 @@ def _table(char: Characterization, top: int, paths: list[str], mixed_rates: bool
                      f"p < {char.thresholds.alpha:g}, spread ≤ {char.thresholds.max_spread:g})")
     else:
         lines.append("suggested model: " + "; ".join(f"{c.term.label} ({c.describe()})" for c in char.suggested))
+    lines += [f"ambiguity: {a.text()}." for a in char.ambiguities]
     lines += [f"note: {n}" for n in char.notes if not n.startswith("no nonlinear candidate")]
     if mixed_rates:
         lines.append("note: the files have different sample rates")

@@ -13,7 +13,8 @@ from ..errors import ConfigError
 from ..signal.integrate import IntegrationBand
 from .restoring import bandpass
 
-__all__ = ["Thresholds", "Candidate", "FittedModel", "Characterization", "RecordSummary", "DEFAULT_KINDS",
+__all__ = ["Thresholds", "Candidate", "Equivalence", "FittedModel", "Characterization", "RecordSummary",
+           "DEFAULT_KINDS",
            "POSITIVE_KINDS"]
 
 #: kinds searched by default (saturation/velocity_saturation are exact equivalents, named as such)
@@ -199,13 +200,52 @@ class FittedModel:
 
 
 @dataclass(frozen=True)
+class Equivalence:
+    """A suggested term and the terms of other kinds these data cannot tell from it (an ambiguity, named).
+
+    Each alternative, in the suggested term's place beside the other suggested terms, explains as much of what
+    those leave: the F-test of the difference of their residuals does not reach the significance a term needs
+    (``p_value`` ≥ the threshold's alpha). The suggested one explains most; both are named, neither is dropped
+    silently.
+    """
+
+    suggested: Candidate
+    alternatives: tuple[Candidate, ...]
+    p_values: tuple[float, ...]
+
+    @property
+    def kinds(self) -> tuple[str, ...]:
+        return (self.suggested.kind, *(a.kind for a in self.alternatives))
+
+    def text(self) -> str:
+        opts = [self.suggested, *self.alternatives]
+        names = " or ".join(f"{describe(c)} ({c.term.label}{_coef_text(c)})" for c in opts)
+        how = ", ".join(f"{100 * c.err:.3g} %" for c in opts)
+        return (f"{names}: these data cannot tell them apart (each explains {how} of what the other terms leave; "
+                f"p = {', '.join(f'{p:.2g}' for p in self.p_values)} for the difference); a record at higher "
+                f"amplitude (or lower noise) would. The suggested model holds the first")
+
+    def to_dict(self) -> dict:
+        return {"kinds": list(self.kinds), "suggested": self.suggested.term.label,
+                "options": [c.to_dict() for c in (self.suggested, *self.alternatives)],
+                "p_values": list(self.p_values), "text": self.text()}
+
+
+def _coef_text(c: Candidate) -> str:
+    if c.coefficient is None:
+        return f", {c.theta:.3g} {c.term.spec.coef_unit}/kg"
+    return f", {c.coefficient:.3g} {c.term.spec.coef_unit}"
+
+
+@dataclass(frozen=True)
 class Characterization:
     """Result of :func:`characterize`.
 
     ``candidates`` holds each kind's best form: the suggested terms first, in
     selection order (with their statistics given the terms before them), then
     the others ranked by the variance they explain beyond linear on their own;
-    ``suggested`` the terms of the suggested model (empty: nothing nonlinear found).
+    ``suggested`` the terms of the suggested model (empty: nothing nonlinear found); ``ambiguities`` the
+    suggested terms that other kinds explain as well (:class:`Equivalence`: named, not suggested beside them).
     """
 
     candidates: tuple[Candidate, ...]
@@ -219,6 +259,7 @@ class Characterization:
     z_range_m: float = 0.0
     zdot_range_m_s: float = 0.0
     notes: tuple[str, ...] = ()
+    ambiguities: tuple[Equivalence, ...] = ()
 
     @property
     def nothing_found(self) -> bool:
@@ -243,6 +284,7 @@ class Characterization:
                 "z_range_m": self.z_range_m, "zdot_range_m_s": self.zdot_range_m_s,
                 "nothing_found": self.nothing_found,
                 "suggested": [c.to_dict() for c in self.suggested],
+                "ambiguities": [a.to_dict() for a in self.ambiguities],
                 "candidates": [c.to_dict() for c in self.candidates],
                 "records": [r.to_dict() for r in self.records], "notes": list(self.notes)}
 

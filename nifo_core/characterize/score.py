@@ -76,6 +76,37 @@ def _cv_rss(a: np.ndarray, y: np.ndarray, fold: np.ndarray) -> float:
     return rss
 
 
+def _group_thetas(a1: np.ndarray, y: np.ndarray, group: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The last column's coefficient fitted on each group alone (given the others), and its information there; groups
+    where the term is barely exercised (motion within a play, say) are left out: they say nothing."""
+    gth, w = [], []
+    for gi in np.unique(group):
+        am, ym = a1[group == gi], y[group == gi]
+        q, rr = np.linalg.qr(am[:, :-1])
+        gp = am[:, -1] - q @ (q.T @ am[:, -1])
+        info = float(gp @ gp)
+        if info <= 1e-12 * float(am[:, -1] @ am[:, -1]) or info == 0:
+            continue  # the term is not exercised in this group
+        gth.append(float(gp @ (ym - q @ (q.T @ ym)) / info))
+        w.append(info)
+    gth_a, w_a = np.array(gth), np.array(w)
+    if w_a.size:
+        big = w_a >= 1e-3 * w_a.max()
+        gth_a, w_a = gth_a[big], w_a[big]
+    return gth_a, w_a
+
+
+def _quarters(data: RegressionData) -> np.ndarray:
+    """Groups for the stability of a term exercised in one record only: consecutive quarters (``n_groups``) of
+    each record, numbered apart."""
+    out = np.empty(data.rec.size, dtype=np.int64)
+    for i in np.unique(data.rec):
+        idx = np.nonzero(data.rec == i)[0]
+        out[idx] = i * data.n_groups + np.minimum(np.arange(idx.size) * data.n_groups // idx.size,
+                                                  data.n_groups - 1)
+    return out
+
+
 def score_candidate(data: RegressionData, base: list[np.ndarray], term: Term, *, thresholds: Thresholds, n_grid: int,
            m2: float | None, names: tuple[str, ...], offsets: Sequence[float] | None = None) -> Candidate:
     """Full-length fit of ``term`` on top of the linear columns and the ``base`` regressors."""
@@ -95,20 +126,11 @@ def score_candidate(data: RegressionData, base: list[np.ndarray], term: Term, *,
     err_cv = 1.0 - _cv_rss(a1, y, data.fold) / cv0 if cv0 > 0 else 0.0
     theta = float(c1[-1])
     half = _half_width(a0, a1[:, -1], r1, data)
-    gth, w = [], []
-    for gi in np.unique(data.group):
-        am, ym = a1[data.group == gi], y[data.group == gi]
-        q, rr = np.linalg.qr(am[:, :-1])
-        gp = am[:, -1] - q @ (q.T @ am[:, -1])
-        info = float(gp @ gp)
-        if info <= 1e-12 * float(am[:, -1] @ am[:, -1]) or info == 0:
-            continue  # the term is not exercised in this group
-        gth.append(float(gp @ (ym - q @ (q.T @ ym)) / info))
-        w.append(info)
-    gth_a, w_a = np.array(gth), np.array(w)
-    if w_a.size:  # groups where the term is barely exercised (motion within a play, say) say nothing
-        big = w_a >= 1e-3 * w_a.max()
-        gth_a, w_a = gth_a[big], w_a[big]
+    gth_a, w_a = _group_thetas(a1, y, data.group)
+    if w_a.size < 2 and len(data.rfs) > 1:
+        # several records, and only one exercises the term (a stop reached at the highest level alone): its
+        # stability across consecutive quarters of the records where it acts, as for a single record
+        gth_a, w_a = _group_thetas(a1, y, _quarters(data))
     if w_a.size >= 2 and theta != 0:
         spread = float(np.sqrt(np.sum(w_a * (gth_a - theta) ** 2) / np.sum(w_a)) / abs(theta))
     else:

@@ -36,7 +36,8 @@ is ``coulomb`` with c = 100 N; a bump stop of 50 kN/m is ``bump_stop`` with
 c = 50e3 N/m.
 
 The kind registry: :data:`KINDS` holds every fact the rest of the core needs about a kind — its variable,
-parameters and g; ``hysteretic`` (it carries a state from sample to sample: the play); ``absorb`` (the slopes
+parameters and g; ``hysteretic`` (it carries a state from sample to sample: the play); ``shape_param`` (what an output-error fit
+may move: the key parameter, or a friction's smoothing); ``absorb`` (the slopes
 (α, β) of the linear part α·z + β·ż its g leaves to the model's linear part, its remainder being bounded);
 ``path_slopes`` (for a kind with a bounded remainder that a feedback path may carry: its slope of z at large and
 at small amplitude); ``compiled`` (its numba code and parameters for :mod:`nifo_core.kinds.strut_forces`); and
@@ -132,6 +133,15 @@ class Kind:
     compiled: Callable[[Mapping[str, object]], tuple[int, float, float]] | None = None
     #: params -> global Lipschitz constants (L_z, L_ż) of g (inf: none); None: 1 in its variable
     lipschitz: Callable[[Mapping[str, object]], tuple[float, float]] | None = None
+    #: the parameter that shapes g, which an output-error fit may move, when it is not the key parameter (a
+    #: friction's smoothing eps: not physics a user states, but what its prediction at small motion hangs on)
+    shape: str | None = None
+
+    @property
+    def shape_param(self) -> str | None:
+        """The parameter an output-error refinement moves: ``shape``, else the key parameter (gap, knee...)."""
+        return self.shape or self.key_param
+
     #: what a test engineer calls it ("damper knee", "play"): the report's and the export's words
     noun: str = ""
 
@@ -206,7 +216,7 @@ def _kinds() -> dict[str, Kind]:
              compiled=_code("velocity_saturation", "limit"), noun="damper force limit"),
         Kind("coulomb", "zdot", {"eps": (0.005, "m/s")}, lambda z, zd, eps: np.tanh(zd / eps),
              "dry friction, smoothed over ±eps", None, coef_unit="N", compiled=_code("coulomb", "eps"),
-             lipschitz=lambda p: (0.0, 1.0 / float(p.get("eps", 0.005))), noun="friction"),
+             lipschitz=lambda p: (0.0, 1.0 / float(p.get("eps", 0.005))), shape="eps", noun="friction"),
         Kind("quadratic_damping", "zdot", {}, lambda z, zd: zd * np.abs(zd),
              "velocity-squared (orifice) damping", None, coef_unit="N·s²/m²", compiled=_code("quadratic_damping"),
              lipschitz=lambda p: (0.0, inf), noun="quadratic damping"),

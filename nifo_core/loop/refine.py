@@ -106,7 +106,7 @@ def _compare(before: IdentifiedModel, after: IdentifiedModel, m2: float | None,
     out = []
     for i, (t0, t1, g0, g1) in enumerate(zip(before.terms, after.terms, before.c_over_m2, after.c_over_m2)):
         out.append(entry(f"{t0.kind} coefficient", f"{t0.spec.coef_unit}/kg", g0, g1, t0.spec.coef_unit, coef_w[i]))
-        key = t0.spec.key_param
+        key = t0.spec.shape_param
         if key is not None and isinstance(t0.params.get(key), float):
             out.append(entry(f"{t0.kind}.{key}", t0.spec.params[key][1], t0.params[key], t1.params[key],
                              hw=named.get(f"{t0.kind}.{key}")))

@@ -22,13 +22,13 @@ from ..characterize.automatic import candidate_grid
 from ..characterize.data import RegressionData
 from ..characterize.result import Candidate
 from ..characterize.score import score_candidate
-from ..characterize.static import STATIC_KINDS, static_bump_stops
+from ..characterize.static import SHIFTED_KINDS, STATIC_KINDS, shifted_offsets, static_bump_stops
 from ..kinds.describing import Term
 from ..errors import InputError
 from ..signal.integrate import IntegrationBand
 from ..predict.heldout import HeldOut
 from ..predict.linear_part import BodyModel
-from .results import RESIDUAL_BANDS_HZ, Evidence, LoopSettings
+from .results import RESIDUAL_BANDS_HZ, RETUNE_FACTOR, Evidence, LoopSettings
 from ..predict.model import IdentifiedModel
 from ..characterize.restoring import RestoringForce, bandpass, bandpass_settle_samples, restoring_force
 from ..signal.frf import h1, partial_coherence
@@ -86,12 +86,18 @@ def _g(part: _Part, term: Term, offsets: Mapping[str, Sequence[float]] | None = 
     """g(z, ż) on the part's motion, band-passed AFTER the map (docs/method.md §5 step 3).
 
     ``offsets``: term label → one ``offset`` [m] per record (a bump stop measured from the static
-    position, which sits elsewhere in each record: :mod:`nifo_core.characterize.static`).
+    position, which sits elsewhere in each record: :mod:`nifo_core.characterize.static`; an even stiffness
+    evaluated on z from the static position, ``z - offset``).
     """
     rf = part.rf
+    z = rf.z
     if offsets and term.label in offsets:
-        term = Term(term.kind, {**term.params, "offset": float(offsets[term.label][part.index])})
-    return bandpass(term.evaluate(rf.z, rf.zdot), rf.fs_hz, rf.band)[part.keep]
+        off = float(offsets[term.label][part.index])
+        if "offset" in term.spec.params:
+            term = Term(term.kind, {**term.params, "offset": off})
+        else:        # an even stiffness: evaluated on z measured from the static position (.characterize.static)
+            z = z - off
+    return bandpass(term.evaluate(z, rf.zdot), rf.fs_hz, rf.band)[part.keep]
 
 
 def _design(parts: Sequence[_Part], terms: Sequence[Term],
@@ -341,19 +347,26 @@ def _tire_check(ev: _Evaluator, terms: Sequence[Term], cand: Term, s: LoopSettin
 
 def _static_candidate(ev: _Evaluator, terms: Sequence[Term], cand: Candidate, s: LoopSettings,
                       m2_kg: float | None) -> Candidate:
-    """A bump-stop candidate re-measured from the static position (:mod:`nifo_core.characterize.static`).
+    """A bump-stop or even-stiffness candidate re-measured from the static position
+    (:mod:`nifo_core.characterize.static`).
 
-    The ranking measures its gap from each record's mean position, which a one-sided stop pushes away
-    from it, the more the harder the excitation. The gap from the static position and one offset
-    -m_i per record come from the balance of the mean force; the candidate is re-scored with them and
-    its offsets registered in ``ev.static`` (the loop's columns use them from then on).
+    The ranking measures z from each record's mean position, which a one-sided stop (or an even stiffness, whose
+    mean force θ·mean z² is not zero) pushes away from the static one, the more the harder the excitation. A stop's
+    gap from the static position and one offset -m_i per record come from the balance of the mean force (an even
+    stiffness: the offsets alone, :func:`~nifo_core.characterize.static.shifted_offsets`); the candidate is
+    re-scored with them and its offsets registered in ``ev.static`` (the loop's columns use them from then on).
+    Measured without it: a hidden even stiffness beside a clearance (the fleet of issue 54) had its level-dependent
+    linear part taken up by two spurious bump stops.
     """
-    if cand.kind not in STATIC_KINDS:
+    if cand.kind not in STATIC_KINDS and cand.kind not in SHIFTED_KINDS:
         return cand
     data = ev.regression()
     # the other terms keep their own (already static) frame; only the candidate is re-measured
-    new, offs = static_bump_stops(data, [*terms, cand.term])
-    term, off = new[-1], offs[-1]
+    if cand.kind in STATIC_KINDS:
+        new, offs = static_bump_stops(data, [*terms, cand.term])
+        term, off = new[-1], offs[-1]
+    else:
+        term, off = cand.term, shifted_offsets(data, [*terms, cand.term])[-1]
     if off is None:
         return cand
     base = [data.regressor(t, offsets=ev.static.get(t.label)) for t in terms]
@@ -402,14 +415,23 @@ def _evidence(ev: _Evaluator, terms: Sequence[Term], cand: Term, s: LoopSettings
                     fraction_lines_above_level=float(np.mean(pc_all > level)) if pcs else float("nan"))
 
 
-def _retune(ev: "_Evaluator", terms: Sequence[Term], s: LoopSettings) -> tuple[list[Term], list[str]]:
-    """Each term's varying parameter re-tuned over its grid (then refined), the others held: best ERR."""
+def _retune(ev: "_Evaluator", terms: Sequence[Term], s: LoopSettings, *, which: Sequence[int] | None = None,
+            declared: Sequence[Term] = ()) -> tuple[list[Term], list[str]]:
+    """Each term's varying parameter re-tuned over its grid (then refined), the others held: best ERR.
+
+    ``which``: the indices of the terms to re-tune (default all). A declared term (``declared[i]`` for the i-th
+    term) stays within :data:`~nifo_core.loop.results.RETUNE_FACTOR` of its *declared* key parameter (a gap, knee
+    or deadband is the engineer's statement: re-tuning round after round must not walk it away); a term the loop
+    added within a factor 2 of its current one.
+    """
     z = np.concatenate([p.z for p in ev.fit_parts])
     v = np.concatenate([p.zdot for p in ev.fit_parts])
     rng = dict(z_range=float(np.quantile(np.abs(z), 0.995)), zdot_range=float(np.quantile(np.abs(v), 0.995)),
                z_neg=float(np.quantile(-z, 0.998)), z_pos=float(np.quantile(z, 0.998)))
     out, notes = list(terms), []
     for i, t in enumerate(terms):
+        if which is not None and i not in which:
+            continue
         if t.label in ev.static:  # a bump stop from the static position: its gap was fitted with its offsets
             continue
         grid = [g for g in candidate_grid(t.kind, points=s.grid_points, **rng)
@@ -429,13 +451,19 @@ def _retune(ev: "_Evaluator", terms: Sequence[Term], s: LoopSettings) -> tuple[l
             return float(g @ r) ** 2 / d if d > 0 else 0.0
 
         vals = sorted({float(g.params[key]) for g in grid})
-        if key == t.spec.key_param:  # a declared gap/knee/deadband is the engineer's statement: within 2×
+        if key == t.spec.key_param:  # a declared gap/knee/deadband is the engineer's statement
             v0 = float(t.params[key])
-            vals = [x for x in vals if 0.5 * v0 <= x <= 2.0 * v0] or [v0]
+            lo, hi = 0.5 * v0, 2.0 * v0
+            if i < len(declared) and declared[i].kind == t.kind and key in declared[i].params:
+                d0 = float(declared[i].params[key])
+                lo, hi = d0 / RETUNE_FACTOR, d0 * RETUNE_FACTOR
+            vals = [x for x in vals if lo <= x <= hi] or [v0]
+        else:
+            lo, hi = -np.inf, np.inf
         scores = [err(Term(t.kind, {**t.params, key: x})) for x in vals]
         j = int(np.argmax(scores))
-        lo, hi = vals[max(j - 1, 0)], vals[min(j + 1, len(vals) - 1)]
-        fine = [x for x in np.linspace(lo, hi, 9)[1:-1] if x > 0 or t.kind == "bump_stop"]
+        a, b = vals[max(j - 1, 0)], vals[min(j + 1, len(vals) - 1)]
+        fine = [x for x in np.linspace(a, b, 9)[1:-1] if (x > 0 or t.kind == "bump_stop") and lo <= x <= hi]
         cands = [(scores[j], vals[j])] + [(err(Term(t.kind, {**t.params, key: x})), x) for x in fine]
         cands.append((err(t), float(t.params[key])))
         best_score, best = max(cands)

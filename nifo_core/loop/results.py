@@ -24,12 +24,16 @@ from ..predict.model import IdentifiedModel
 from ..signal.spectral import SpectralSettings
 
 __all__ = ["LoopSettings", "Errors", "Trial", "Evidence", "Round", "LoopRefinement", "LoopResult",
-           "RESIDUAL_BANDS_HZ", "NOTHING_MISSING"]
+           "RESIDUAL_BANDS_HZ", "NOTHING_MISSING", "RETUNE_FACTOR", "DeclaredTerm"]
 
 #: bands of the per-band residual [Hz]
 RESIDUAL_BANDS_HZ = ((2.0, 5.0), (5.0, 10.0), (10.0, 20.0), (20.0, 30.0))
 #: the verdict when the last round found nothing
 NOTHING_MISSING = "Nothing significant is missing."
+#: a declared term's key parameter (knee, gap, deadband...) may be re-tuned within this factor of its declared
+#: value; beyond it, or with its coefficient's sign flipped against the declared model's fit, it is another
+#: physics than the one declared, and the loop says so
+RETUNE_FACTOR = 2.0
 
 Prediction = Literal["model", "none"]
 Structure = Literal["auto", "constant", "paths"]
@@ -268,12 +272,21 @@ class Trial:
     accepted: bool
     failed: tuple[str, ...]
     unconfirmed: bool = False  # passes everything but the held-out prediction
+    #: the one-of-kind alternatives (:class:`~nifo_core.loop.gates.Alternative`) the data cannot tell from it, and
+    #: those taken instead of it; ``gates_passed``: it passes every check but those alternatives
+    ties: tuple = ()
+    instead: tuple = ()
+    gates_passed: bool = False
 
     def to_dict(self) -> dict:
+        def alt(a) -> dict:
+            return {"replaces": a.index, "term": a.term.to_dict(), "comparison": a.comparison.to_dict(),
+                    "keeps_declared": a.keeps_declared, "changes": a.changes}
         return {"candidate": self.candidate.to_dict(), "tire_shift": _fin(self.tire_shift),
                 "tire_excluded_fraction": self.tire_excluded_fraction,
                 "heldout_equation_gain": _fin(self.heldout_gain), "accepted": self.accepted,
-                "unconfirmed": self.unconfirmed,
+                "unconfirmed": self.unconfirmed, "as_good_alternatives": [alt(a) for a in self.ties],
+                "alternatives_taken_instead": [alt(a) for a in self.instead],
                 "failed": list(self.failed), "after": None if self.after is None else self.after.to_dict()}
 
 
@@ -363,6 +376,7 @@ class LoopRefinement:
     seconds: tuple[float, ...] = ()
     refinement: Mapping | None = None
     unavailable: str | None = None
+    refused: str | None = None       # why a refinement that predicts better is not kept (it changes a declared term)
 
     def parameter(self, name: str) -> Mapping:
         """The entry of ``parameters`` called ``name``."""
@@ -376,6 +390,7 @@ class LoopRefinement:
         score = (f"held-out prediction NMSE {_pct(self.heldout_before_pct)} (equation-error fit) → "
                  f"{_pct(self.heldout_after_pct)} (refined)")
         which = ("model.json holds the refined model" if self.kept else
+                 f"not kept, {self.refused}: model.json holds the equation-error fit" if self.refused else
                  "not better on held-out data: model.json holds the equation-error fit")
         secs = ", ".join(f"{v:.0f}" for v in self.seconds)
         note = (self.refinement or {}).get("bias_note", "")
@@ -391,7 +406,7 @@ class LoopRefinement:
                 "heldout_prediction_nmse_after_per_record_pct": list(self.heldout_after_per_record_pct),
                 "parameters": [dict(p) for p in self.parameters], "seconds": list(self.seconds),
                 "refinement": None if self.refinement is None else dict(self.refinement),
-                "unavailable": self.unavailable, "text": self.text()}
+                "unavailable": self.unavailable, "refused": self.refused, "text": self.text()}
 
 
 def _pct(v: float | None) -> str:
@@ -406,6 +421,73 @@ def _value_text(p: Mapping, which: str) -> str:
     unit = p["unit_times_m2"] if m2 else p["unit"]
     scale, unit = (1e3, "mm") if unit == "m" else (1.0, unit)
     return f"{scale * v:.4g}" + (f" ± {scale * hw:.2g}" if hw is not None else "") + f" {unit}"
+
+
+@dataclass(frozen=True)
+class DeclaredTerm:
+    """What became of one declared term: fitted as declared, and in the loop's final model.
+
+    ``theta_declared``: its coefficient per unit sprung mass when the declared model is fitted as declared (the
+    sign the declaration means: a falling knee, a hardening spring...); ``final``/``theta_final``: the term and
+    coefficient in the final model (re-tuned within :data:`RETUNE_FACTOR`, refined). It *changed its meaning*
+    when the coefficient's sign flipped or the key parameter moved beyond the factor: the loop says so, never
+    silently.
+    """
+
+    declared: Term
+    theta_declared: float
+    final: Term
+    theta_final: float
+    m2_kg: float | None = None
+
+    @property
+    def factor(self) -> float:
+        """Final key parameter over the declared one (1 without one)."""
+        k = self.declared.spec.key_param
+        if k is None or k not in self.final.params or not float(self.declared.params[k]):
+            return 1.0
+        return float(self.final.params[k]) / float(self.declared.params[k])
+
+    @property
+    def sign_flipped(self) -> bool:
+        return bool(self.theta_declared * self.theta_final < 0)
+
+    @property
+    def changed_meaning(self) -> bool:
+        return self.sign_flipped or not (1 / RETUNE_FACTOR <= self.factor <= RETUNE_FACTOR)
+
+    def _coef(self, th: float) -> str:
+        unit = self.declared.spec.coef_unit
+        return f"{th * self.m2_kg:.4g} {unit}" if self.m2_kg else f"{th:.4g} {unit}/kg"
+
+    def text(self) -> str:
+        k = self.declared.spec.key_param
+        moved = (f", its {k} {self.declared.params[k]:.4g} → {self.final.params[k]:.4g} (× {self.factor:.3g})"
+                 if k is not None and self.factor != 1.0 else "")
+        if self.changed_meaning:
+            # the facts, not a judgement: the declared model fitted alone may be the biased one (a missing effect
+            # pulls it: measured, a hidden quadratic damping turned the paper's falling knee to +329 N·s/m, the final
+            # model restored -701 for the true -700), or the final one (issue 54: a knee re-tuned to 0.227 m/s rising)
+            why = []
+            if self.sign_flipped:
+                why.append(f"its coefficient changed sign, {self._coef(self.theta_declared)} when the declared model "
+                           f"is fitted alone, {self._coef(self.theta_final)} in the final model")
+            if not 1 / RETUNE_FACTOR <= self.factor <= RETUNE_FACTOR:
+                why.append(f"its {k} moved beyond the stated factor {RETUNE_FACTOR:g}: {self.declared.params[k]:.4g} → "
+                           f"{self.final.params[k]:.4g} (× {self.factor:.3g})")
+            return (f"The declared {self.declared.label} changed its meaning between the declared model's fit and the "
+                    f"final model: " + "; ".join(why) + " (model.json holds the final model).")
+        return (f"declared {self.declared.label}: coefficient {self._coef(self.theta_declared)} as declared → "
+                f"{self._coef(self.theta_final)} in the final model{moved} (within the stated factor "
+                f"{RETUNE_FACTOR:g}, same sign)")
+
+    def to_dict(self) -> dict:
+        return {"declared": self.declared.to_dict(), "theta_declared_per_kg": self.theta_declared,
+                "final": self.final.to_dict(), "theta_final_per_kg": self.theta_final,
+                "coefficient_declared": None if self.m2_kg is None else self.theta_declared * self.m2_kg,
+                "coefficient_final": None if self.m2_kg is None else self.theta_final * self.m2_kg,
+                "key_param_factor": self.factor, "sign_flipped": self.sign_flipped,
+                "changed_meaning": self.changed_meaning, "retune_factor": RETUNE_FACTOR, "text": self.text()}
 
 
 @dataclass(frozen=True)
@@ -437,6 +519,8 @@ class LoopResult:
     final_heldout_pct: float | None = None
     noise: tuple = ()                 # NoiseEstimate per record (nifo_core.signal.noise)
     bias_corrected: bool = False      # coefficients and bounds with the fit's bias removed (nifo_core.signal.bias_correction)
+    ambiguities: tuple = ()           # Ambiguity (nifo_core.loop.ambiguity): explanations the data cannot tell apart
+    declared_terms: tuple[DeclaredTerm, ...] = ()   # what became of each declared term
 
     def coefficients(self) -> list[dict]:
         """The final model's equation-error coefficients with 95 % random-error bounds (per kg, and × M2).
@@ -490,6 +574,7 @@ class LoopResult:
         if self.rounds and any(r.added for r in self.rounds):
             lines.append("After: " + _errors_line(self.final))
         lines.append(self.verdict)
+        lines.extend(f"Declared term: {d.text()}." for d in self.declared_terms if not d.changed_meaning)
         if self.bounds is not None:
             m = self.m2_kg
             what = ("bias-corrected, bounds: random error and the correction's uncertainty" if self.bias_corrected else
@@ -510,6 +595,7 @@ class LoopResult:
         return {"declared_model": [t.to_dict() for t in self.declared],
                 "refined_model": [t.to_dict() for t in self.terms],
                 "effects_added": [_effect_dict(r.added) | {"round": r.index} for r in self.rounds if r.added],
+                "effects_in_final_model": [t.to_dict() for t in self.terms[len(self.declared):]],
                 "effects_unconfirmed": [_effect_dict(t) | {"round": self.rounds[-1].index}
                                         for t in (self.rounds[-1].trials if self.unconfirmed else ()) if t.unconfirmed],
                 "errors_before": self.initial.to_dict(), "errors_after": self.final.to_dict(),
@@ -527,7 +613,8 @@ class LoopResult:
                 "records": [{"source": s, "fit_s": a, "test_s": b}
                             for s, a, b in zip(self.sources, self.fit_seconds, self.test_seconds)],
                 "noise": [e.to_dict() for e in self.noise], "bias_corrected": self.bias_corrected,
-                "notes": list(self.notes)}
+                "ambiguities": [a.to_dict() for a in self.ambiguities],
+                "declared_terms": [d.to_dict() for d in self.declared_terms], "notes": list(self.notes)}
 
 
 def _fin(x) -> float | None:

@@ -203,7 +203,7 @@ class _Space:
         out = [(f"c/M2 of {t.kind}", f"{KINDS[t.kind].coef_unit}/kg") for t in self.base.terms]
         for i in self.shape_idx:
             t = self.base.terms[i]
-            key = KINDS[t.kind].key_param
+            key = KINDS[t.kind].shape_param
             out.append((f"{t.kind}.{key}", KINDS[t.kind].params[key][1]))
         if self.body:
             out += [("k = K2/M2 (nominal body)", "1/s²"), ("c = C2/M2 (nominal body)", "1/s")]
@@ -218,7 +218,7 @@ class _Space:
         terms = list(m.terms)
         for j, i in enumerate(self.shape_idx):
             t = terms[i]
-            key = KINDS[t.kind].key_param
+            key = KINDS[t.kind].shape_param
             terms[i] = Term(t.kind, {**dict(t.params), key: float(t.params[key]) * float(np.exp(x[nt + j]))})
         lin, body = m.linear, m.body
         if self.residues:
@@ -299,9 +299,8 @@ def _space(start: IdentifiedModel, scale_from: IdentifiedModel, *, shape: bool, 
            track_absorbed: bool, residues: bool = False) -> _Space:
     g = np.abs(np.asarray(scale_from.c_over_m2, float))
     scale = np.where((g > 0) & np.isfinite(g), g, 1.0)
-    idx = tuple(i for i, t in enumerate(start.terms)
-                if shape and KINDS[t.kind].key_param is not None
-                and isinstance(t.params.get(KINDS[t.kind].key_param), float) and t.params[KINDS[t.kind].key_param] > 0)
+    shaped = [(i, t.params.get(KINDS[t.kind].shape_param)) for i, t in enumerate(start.terms)]
+    idx = tuple(i for i, v in shaped if shape and isinstance(v, float) and v > 0)
     body = bool(linear_params and start.linear.kind == "body" and start.linear.body.k > 0 and start.linear.body.c > 0)
     res = bool(residues and start.linear.kind == "rational" and np.any(start.linear.poles.imag > 0))
     # a measured force's gain 1/M2 comes from NIFO's force path; refined with the body, it is what sets the static
@@ -693,7 +692,7 @@ def _values(sp: _Space, x: np.ndarray) -> list[float]:
     vals = [float(g) for g in m.c_over_m2]
     for i in sp.shape_idx:
         t = m.terms[i]
-        vals.append(float(t.params[KINDS[t.kind].key_param]))
+        vals.append(float(t.params[KINDS[t.kind].shape_param]))
     if sp.body:      # the nominal body: the realised one without the terms' absorbed linear part
         vals += [m.body.k, m.body.c]
     if sp.force:

@@ -1,0 +1,94 @@
+"""Ambiguity is a verdict, and a declared term is never silently re-tuned into another physics (issue 54).
+
+The pieces, on synthetic inputs whose answer is known: the paired comparison of two models' held-out predictions,
+the decision between adding a candidate and re-placing a term of its kind, and what became of a declared term.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from nifo_core.kinds.describing import Term
+from nifo_core.loop.ambiguity import T_DISTINCT, Comparison, compare
+from nifo_core.loop.gates import Alternative, judge_alternatives
+from nifo_core.loop.results import RETUNE_FACTOR, DeclaredTerm, Errors, LoopSettings
+from nifo_core.predict.heldout import split_records
+from nifo_core.signal.record import Record
+
+KNEE = Term("velocity_deadzone", {"knee": 0.03})
+QUAD = Term("quadratic_damping")
+S = LoopSettings()
+
+
+def _held(seconds: float = 300.0, fs: float = 200.0):
+    rng = np.random.default_rng(3)
+    y = np.convolve(rng.standard_normal(int(seconds * fs)), np.ones(8) / 8, mode="same")
+    rec = Record(fs, 0.1 * rng.standard_normal(y.size), y, source="synthetic")
+    return split_records([rec], band_hz=(1.0, 30.0)), y, rng
+
+
+def test_the_paired_comparison_tells_a_better_model_from_an_equal_one():
+    held, y, rng = _held()
+    k = held.split[0]
+    same_a = y + 0.05 * rng.standard_normal(y.size)
+    same_b = y + 0.05 * rng.standard_normal(y.size)
+    worse = y + 0.08 * rng.standard_normal(y.size)
+    equal = compare(held, [same_a], [same_b])
+    apart = compare(held, [same_a], [worse])
+    print(f"\nequal noise: NMSE {equal.nmse_a:.3f} / {equal.nmse_b:.3f} %, t {equal.t:+.2f} over {equal.blocks} blocks; "
+          f"1.6× the noise: {apart.nmse_a:.3f} / {apart.nmse_b:.3f} %, t {apart.t:+.2f}")
+    assert equal.blocks == (y.size - k) // int(4.0 * 200.0)
+    assert abs(equal.t) < T_DISTINCT and not equal.apart()
+    assert apart.t > T_DISTINCT and apart.better("a") and not apart.better("b")
+    assert apart.nmse_b > 2 * apart.nmse_a      # the metric's own numbers: band NMSE of the held-out part
+
+
+def _errors(terms, theta, pct) -> Errors:
+    return Errors(terms=tuple(terms), theta_per_kg=tuple(theta), k_per_kg=75.0, c_per_kg=4.5, equation_nmse_pct=1.0,
+                  equation_nmse_fit_pct=1.0, prediction_nmse_pct=pct, prediction_nmse_per_record_pct=(pct,),
+                  band_residual_db={}, residual_of="prediction", transmissibility_error_pct=())
+
+
+def _alt(comp: Comparison, keeps: bool, term: Term = Term("velocity_deadzone", {"knee": 0.227})) -> Alternative:
+    return Alternative(0, term, _errors([term], [3.5], comp.nmse_b), comp, keeps, "" if keeps else "sign flipped")
+
+
+def test_adding_a_term_or_re_placing_a_declared_one_is_decided_by_the_held_out_data_and_the_declaration():
+    better = Comparison(0.30, 0.40, 6.0, 60)          # the candidate's model predicts clearly better
+    worse = Comparison(0.40, 0.30, -6.0, 60)          # the re-placed term predicts clearly better
+    tie = Comparison(0.30, 0.31, 0.4, 60)             # these data cannot tell them apart
+    # the candidate wins: added, nothing named
+    assert judge_alternatives([KNEE], QUAD, [_alt(better, keeps=False)], S) == ([], [], [])
+    # the re-placed knee predicts better: taken instead (and said to change the declared term when it does)
+    failed, ties, instead = judge_alternatives([KNEE], QUAD, [_alt(worse, keeps=False)], S)
+    assert len(instead) == 1 and "better" in failed[0] and "changes the declared term" in failed[0]
+    # cannot tell apart, the re-placed knee changes the declared physics: the candidate is added, the tie named
+    failed, ties, instead = judge_alternatives([KNEE], QUAD, [_alt(tie, keeps=False)], S)
+    assert not failed and len(ties) == 1 and not instead
+    # ... a re-tune within the stated factor keeps it: the re-tune is taken (no term added), the tie named
+    failed, ties, instead = judge_alternatives([KNEE], QUAD, [_alt(tie, keeps=True, term=Term(
+        "velocity_deadzone", {"knee": 0.045}))], S)
+    assert len(failed) == 1 and len(ties) == 1 and len(instead) == 1
+    # ... neither keeps it: fewer terms
+    failed, ties, instead = judge_alternatives([KNEE], QUAD, [_alt(tie, keeps=False)], S, candidate_keeps=False)
+    assert len(failed) == 1 and len(instead) == 1
+    # a second knee a few per cent from the first is the same feature re-placed, however it predicts
+    second = Term("velocity_deadzone", {"knee": 0.035})
+    failed, ties, instead = judge_alternatives([KNEE], second, [_alt(better, keeps=True, term=second)], S)
+    assert "the same feature re-placed" in failed[0] and len(instead) == 1
+    # ... two knees a factor 3 apart are two valve stages
+    stage = Term("velocity_deadzone", {"knee": 0.1})
+    assert judge_alternatives([KNEE], stage, [_alt(better, keeps=True, term=stage)], S) == ([], [], [])
+
+
+def test_a_declared_term_that_changed_its_meaning_says_so():
+    same = DeclaredTerm(KNEE, -2.19, Term("velocity_deadzone", {"knee": 0.036}), -2.0, 320.0)
+    flipped = DeclaredTerm(KNEE, -2.19, Term("velocity_deadzone", {"knee": 0.227}), 3.5, 320.0)
+    moved = DeclaredTerm(KNEE, -2.19, Term("velocity_deadzone", {"knee": 0.03 * 1.01 * RETUNE_FACTOR}), -2.0, 320.0)
+    assert not same.changed_meaning and "within the stated factor" in same.text()
+    assert flipped.sign_flipped and flipped.changed_meaning
+    assert "changed its meaning" in flipped.text() and "changed sign, -700.8 N·s/m when the declared model is " \
+        "fitted alone, 1120 N·s/m in the final model" in flipped.text()
+    assert "its knee moved beyond the stated factor 2: 0.03 → 0.227 (× 7.57)" in flipped.text()
+    assert moved.changed_meaning and not moved.sign_flipped and "beyond the stated factor" in moved.text()
+    assert flipped.to_dict()["changed_meaning"] and flipped.to_dict()["key_param_factor"] > 7
