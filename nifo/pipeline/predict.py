@@ -195,8 +195,7 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
                 for key, yh in (("model", y_model), ("linear", y_lin))}
         for key, d in dist.items():
             out[key]["distortion"] = d.to_dict() if isinstance(d, DistortionError) else d
-        wandering = _not_periodic(dist["model"], dist["linear"], "m/s²" if measured.name == "body_accel"
-                                  else "(displacement unit)")
+        wandering = _not_periodic(dist["model"], dist["linear"], measured.unit)
         if wandering:
             out["model"]["not_periodic"] = wandering
     for key, m in (("model", model), ("linear", linear)):

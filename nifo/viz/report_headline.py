@@ -106,7 +106,7 @@ def _loop_facts(loop: ResultDir | None) -> str:
             "it added nothing to the linear model")
     if lin is not None and fin is not None:
         text += f"; held-out prediction NMSE {_fmt(lin)} % (linear) → {_fmt(fin)} % (final model)"
-    wb, wa = (((d.get(k) or {}) if isinstance(d.get(k), Mapping) else {}).get("whole_signal_nmse_pct")
+    wb, wa = (d[k].get("whole_signal_nmse_pct") if isinstance(d.get(k), Mapping) else None
               for k in ("errors_before", "errors_after"))
     if wb is not None and wa is not None:
         text += f", over all frequencies {_fmt(wb)} % → {_fmt(wa)} %"
