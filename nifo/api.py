@@ -37,7 +37,7 @@ from nifo_core.errors import ConfigError, DataFileError
 from nifo_core.predict.force_law import (Characteristic, characteristic, force_law_bounds, strut_law, truth_law)
 from nifo_core.predict.model import IdentifiedModel, predict_body, record_inputs
 from nifo_core.predict.output_signal import output_name, predicted_output
-from nifo_core.predict.periodic import periodic_prediction
+from nifo_core.predict.periodic import record_periodic_response
 from nifo_core.signal.record import Record
 
 __all__ = ["Model", "Simulation", "ForceLaw", "Curve", "load_record", "find_model"]
@@ -251,7 +251,8 @@ class Model:
         if period_samples and m.terms and pr is not None and pr.periodic and self.linear is not None:
             la1, lforce = record_inputs(record, self.linear)
             lin = predict_body(self.linear, la1, record.fs_hz, force=lforce)
-            pred = periodic_prediction(pred, lin, period_samples=period_samples, start=period_samples)
+            pred = record_periodic_response(m, record, pred, lin, period_samples=period_samples,
+                                            start=period_samples, band_hz=m.analysis_band_hz)
         sim = Simulation(float(record.fs_hz), pred.body_accel, pred.z, pred.zdot, pred.valid)
         return replace(sim, output=predicted_output(m, record, pred), output_name=output_name(record))
 

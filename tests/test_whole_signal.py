@@ -18,6 +18,7 @@ from nifo_core.kinds.describing import make_term
 from nifo_core.predict.heldout import split_records
 from nifo_core.predict.linear_part import BodyModel
 from nifo_core.predict.model import IdentifiedModel, predict_body, record_inputs
+from nifo_core.predict.time_prediction import Prediction
 from nifo_core.predict.output_signal import measured_output, predicted_output
 from nifo_core.predict.periodic import periodic_prediction, steady_state
 from nifo_core.predict.scope import Offsets, PeriodicResponse, PredictionBand, Validity
@@ -275,3 +276,22 @@ def test_the_periodic_response_keeps_what_the_input_itself_varies():
     assert e_per.rms_error < 0.2 * e_avg.rms_error and e_per.nmse_percent < 0.1
     # its period average is the model's: every figure read from it is unchanged
     np.testing.assert_allclose(steady_state(per.body_accel, p, p), steady_state(sim.body_accel, p, p), atol=1e-12)
+
+
+def test_the_model_s_distortion_can_give_way_to_the_linear_model_s_on_the_lines_not_excited():
+    """``excited``: the model's period average on the lines the input excited (and DC), its linear twin's on the
+    others — a model whose distortion did not predict the identification records' better than its twin's."""
+    rng = np.random.default_rng(25)
+    p = 512
+    u = _multisine(p, np.arange(5, 40, 2), rng)                      # odd lines excited
+    excited = excited_lines(u, FS, (4 * FS / p, 40 * FS / p))
+    assert excited[5] and not excited[6] and not excited[0]
+    model_distortion, linear_distortion = _multisine(p, [6, 8], rng), _multisine(p, [10, 12], rng)
+    m = np.tile(u + model_distortion + 0.3, 4)
+    lin = np.tile(0.9 * u + linear_distortion, 4)
+    sim = Prediction(m, m, m, 0, 0.0, "test", 0)
+    twin = Prediction(lin, lin, lin, 0, 0.0, "test", 0)
+    got = periodic_prediction(sim, twin, period_samples=p, start=p, excited=excited).body_accel
+    np.testing.assert_allclose(got[p:2 * p], u + linear_distortion + 0.3, atol=1e-12)
+    np.testing.assert_allclose(periodic_prediction(sim, twin, period_samples=p, start=p).body_accel[p:2 * p],
+                               u + model_distortion + 0.3, atol=1e-12)

@@ -304,6 +304,7 @@ class _PeriodicResponseDoc(_Doc):
     policy: Literal["periodic", "simulated"]
     reason: str = ""
     held_out: dict[str, Any] | None = None
+    distortion: Literal["model", "linear"] = "model"
 
 
 class _ValidityDoc(_Banded):

@@ -151,33 +151,42 @@ class PeriodicResponse:
     reason : str
     held_out : mapping
         The held-out whole-signal NMSE [%] per policy it was chosen by.
+    distortion : {'model', 'linear'}
+        On the lines the input did not excite, the model's period average (its predicted distortion) or its linear
+        twin's (the model's distortion did not predict the identification records' better).
     """
 
     policy: Literal["periodic", "simulated"] = "simulated"
     reason: str = ""
     held_out: Mapping = field(default_factory=dict)
+    distortion: Literal["model", "linear"] = "model"
 
     def __post_init__(self) -> None:
         if self.policy not in ("periodic", "simulated"):
             raise ConfigError(f"periodic response policy {self.policy!r} must be 'periodic' or 'simulated'")
+        if self.distortion not in ("model", "linear"):
+            raise ConfigError(f"periodic response distortion {self.distortion!r} must be 'model' or 'linear'")
 
     @property
     def periodic(self) -> bool:
         return self.policy == "periodic"
 
     def describe(self) -> str:
-        return ("for a periodic input, the model's periodic response (its period average, and the part of the "
-                "linear model's response that is not periodic)" if self.periodic else
-                "for a periodic input, the simulation as it comes")
+        if not self.periodic:
+            return "for a periodic input, the simulation as it comes"
+        return ("for a periodic input, the model's periodic response (its period average" +
+                (", on the lines the input did not excite the linear model's" if self.distortion == "linear" else "")
+                + ", and the part of the linear model's response that is not periodic)")
 
     def to_dict(self) -> dict:
-        return {"policy": self.policy, "reason": self.reason, "held_out": dict(self.held_out)}
+        return {"policy": self.policy, "reason": self.reason, "held_out": dict(self.held_out),
+                "distortion": self.distortion}
 
     @classmethod
     def from_dict(cls, d: Mapping) -> "PeriodicResponse":
         try:
             return cls(policy=str(d["policy"]), reason=str(d.get("reason") or ""),
-                       held_out=dict(d.get("held_out") or {}))
+                       held_out=dict(d.get("held_out") or {}), distortion=str(d.get("distortion") or "model"))
         except (KeyError, TypeError, ValueError) as err:
             raise ConfigError(f"cannot read the model's periodic response: {err}") from None
 
