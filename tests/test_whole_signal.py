@@ -20,7 +20,7 @@ from nifo_core.predict.linear_part import BodyModel
 from nifo_core.predict.model import IdentifiedModel, predict_body, record_inputs
 from nifo_core.predict.time_prediction import Prediction
 from nifo_core.predict.output_signal import measured_output, predicted_output
-from nifo_core.predict.periodic import periodic_prediction, steady_state
+from nifo_core.predict.periodic import model_lines, periodic_prediction, steady_state
 from nifo_core.predict.scope import Offsets, PeriodicResponse, PredictionBand, Validity
 from nifo_core.predict.scope_fit import fit_scope
 from nifo_core.predict.whole_signal import distortion_error, excited_lines, whole_signal_error
@@ -279,7 +279,7 @@ def test_the_periodic_response_keeps_what_the_input_itself_varies():
 
 
 def test_the_model_s_distortion_can_give_way_to_the_linear_model_s_on_the_lines_not_excited():
-    """``excited``: the model's period average on the lines the input excited (and DC), its linear twin's on the
+    """``keep``: the model's period average on the lines the input excited (and DC), its linear twin's on the
     others — a model whose distortion did not predict the identification records' better than its twin's."""
     rng = np.random.default_rng(25)
     p = 512
@@ -291,7 +291,12 @@ def test_the_model_s_distortion_can_give_way_to_the_linear_model_s_on_the_lines_
     lin = np.tile(0.9 * u + linear_distortion, 4)
     sim = Prediction(m, m, m, 0, 0.0, "test", 0)
     twin = Prediction(lin, lin, lin, 0, 0.0, "test", 0)
-    got = periodic_prediction(sim, twin, period_samples=p, start=p, excited=excited).body_accel
+    keep = excited.copy()
+    keep[0] = True
+    got = periodic_prediction(sim, twin, period_samples=p, start=p, keep=keep).body_accel
     np.testing.assert_allclose(got[p:2 * p], u + linear_distortion + 0.3, atol=1e-12)
+    # the lines kept: those excited in the band, and every line outside it (there the prediction band decides)
+    kept = model_lines(np.tile(u, 4), p, p, FS, (4 * FS / p, 11 * FS / p))
+    assert kept[0] and kept[5] and kept[7] and not kept[6] and not kept[8] and kept[12] and kept[13]
     np.testing.assert_allclose(periodic_prediction(sim, twin, period_samples=p, start=p).body_accel[p:2 * p],
                                u + model_distortion + 0.3, atol=1e-12)

@@ -35,7 +35,7 @@ from .scope import input_name
 from .time_prediction import Prediction
 from .whole_signal import excited_lines
 
-__all__ = ["steady_state", "periodic_prediction", "input_lines", "record_periodic_response"]
+__all__ = ["steady_state", "periodic_prediction", "model_lines", "record_periodic_response"]
 
 
 def _average(x: np.ndarray, period: int, start: int) -> np.ndarray | None:
@@ -60,20 +60,27 @@ def steady_state(y: np.ndarray, period_samples: int, start: int) -> np.ndarray:
     return out
 
 
-def input_lines(u: np.ndarray, period_samples: int, start: int, fs_hz: float,
+def model_lines(u: np.ndarray, period_samples: int, start: int, fs_hz: float,
                 band_hz: tuple[float, float]) -> np.ndarray | None:
-    """The lines of one period the periodic input ``u`` excited (:func:`~nifo_core.predict.whole_signal.excited_lines`
-    of its period average after ``start``; None when fewer than two whole periods follow)."""
-    avg = _average(np.asarray(u, float), int(period_samples), max(int(start), 0))
-    return None if avg is None else excited_lines(avg, fs_hz, band_hz)
+    """The lines of one period on which the model's period average is kept when its distortion gives way to its
+    linear twin's: those the periodic input ``u`` excited inside ``band_hz``
+    (:func:`~nifo_core.predict.whole_signal.excited_lines` of its period average after ``start``) and every line
+    outside the band (DC included: outside the band the prediction band decides,
+    :class:`~nifo_core.predict.scope.PredictionBand`). None when fewer than two whole periods follow ``start``."""
+    p = int(period_samples)
+    avg = _average(np.asarray(u, float), p, max(int(start), 0))
+    if avg is None:
+        return None
+    f = np.fft.rfftfreq(p, 1.0 / fs_hz)
+    return excited_lines(avg, fs_hz, band_hz) | (f < band_hz[0]) | (f > band_hz[1])
 
 
 def periodic_prediction(prediction: Prediction, linear_prediction: Prediction, *, period_samples: int,
-                        start: int, excited: np.ndarray | None = None) -> Prediction:
+                        start: int, keep: np.ndarray | None = None) -> Prediction:
     """The model's simulation ``prediction`` as its periodic response (module docstring), given its linear twin's
     simulation of the same record; ``prediction`` itself when fewer than two whole periods follow ``start``.
-    ``excited`` (the lines of one period the input excited, :func:`input_lines`): the model's period average is kept
-    on those lines and at DC, the linear twin's taken on every other (the model's distortion left out)."""
+    ``keep`` (lines of one period, :func:`model_lines`): the model's period average is kept on those, the linear
+    twin's taken on every other (the model's distortion on the lines the input did not excite left out)."""
     p, start = int(period_samples), max(int(start), 0)
     if (prediction.body_accel.size - start) // max(p, 1) < 2:
         return prediction
@@ -81,9 +88,7 @@ def periodic_prediction(prediction: Prediction, linear_prediction: Prediction, *
     for k in ("body_accel", "z", "zdot"):
         m, lin = (np.asarray(getattr(x, k), float) for x in (prediction, linear_prediction))
         periodic = steady_state(m, p, start)
-        if excited is not None:
-            keep = np.asarray(excited, bool).copy()
-            keep[0] = True
+        if keep is not None:
             mp, lp = (np.fft.rfft(_average(x, p, start)) for x in (m, lin))
             periodic[start:] = np.resize(np.fft.irfft(np.where(keep, mp, lp), p), m.size - start)
         y = periodic + lin - steady_state(lin, p, start)
@@ -95,12 +100,13 @@ def periodic_prediction(prediction: Prediction, linear_prediction: Prediction, *
 def record_periodic_response(model, record, prediction: Prediction, linear_prediction: Prediction, *,
                              period_samples: int, start: int, band_hz: tuple[float, float],
                              distortion: str | None = None) -> Prediction:
-    """:func:`periodic_prediction` of ``record`` with the lines its driving input excited in ``band_hz`` when the
-    model takes its linear twin's distortion (``distortion``, default the model's ``periodic_response``)."""
+    """:func:`periodic_prediction` of ``record``, keeping the model's lines of :func:`model_lines` (its driving input,
+    ``band_hz``) when the model takes its linear twin's distortion (``distortion``, default the model's
+    ``periodic_response``)."""
     d = distortion or model.periodic_response.distortion
     lines = None
     if d == "linear":
         drive = record.force if input_name(record, model.force_gain) == "force" else record.spindle_accel
-        lines = input_lines(drive, period_samples, start, record.fs_hz, band_hz)
+        lines = model_lines(drive, period_samples, start, record.fs_hz, band_hz)
     return periodic_prediction(prediction, linear_prediction, period_samples=period_samples, start=start,
-                               excited=lines)
+                               keep=lines)
