@@ -519,7 +519,6 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
                          ties=tuple(ties), instead=tuple(instead), gates_passed=passed)
 
         judge = judging(pred, current)
-        took = ""
         if pred.flexible:      # every candidate judged on the one metric, side by side: the best that passes
             say(base + 0.5 / total, f"round {i}: checking {len(cands)} candidates side by side")
             trials = thread_map(judge, cands)
@@ -533,8 +532,7 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
                     added = trials[-1]
                     break
             if added is not None:   # another kind that explains as much and predicts as well: named beside it
-                added, amb, took = _rival(i, held, ev.fit_rfs, added, cands[len(trials):], judge, trials, s,
-                                          explanation)
+                added, amb = _rival(i, held, ev.fit_rfs, added, cands[len(trials):], judge, trials, s, explanation)
                 if amb is not None:
                     ambiguities.append(amb)
         if added is None and pred.flexible:   # the one-mass body again, with a term in (:meth:`_Predictor.reconsider`)
@@ -593,7 +591,7 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
                 separating_record(ev.fit_rfs, added.candidate.term, added.ties[0].term)))
         added = _with_corrected_coefficient(ev, terms, added, m2_kg)
         evid = _evidence(ev, terms, added.candidate.term, s)
-        text = pre + _round_text(i, added, current, evid, m2_kg, len(recs), ranked) + took
+        text = pre + _round_text(i, added, current, evid, m2_kg, len(recs), ranked)
         text += "".join(f" Ambiguity: {a.text()}." for a in ambiguities if a.round == i)
         rounds.append(Round(i, tuple(terms), ranked, tuple(trials), current, added, evid, text))
         terms = [*terms, added.candidate.term]
@@ -802,14 +800,12 @@ def _retune_instead(trials: Sequence[Trial], current: Errors) -> tuple[Trial, Al
 
 def _rival(i: int, held: HeldOut, rfs: Sequence, added: Trial, rest: Sequence[Candidate],
            judge: Callable[[Candidate], Trial], trials: list[Trial], s: LoopSettings,
-           explanation: Callable[[str, Errors], Explanation]) -> tuple[Trial, Ambiguity | None, str]:
+           explanation: Callable[[str, Errors], Explanation]) -> tuple[Trial, Ambiguity | None]:
     """Another kind that passes every check and whose model the held-out data cannot tell from the one with
     ``added``: an ambiguity, named (``added`` kept). Candidates of ``rest`` are judged (and appended to
     ``trials``) while their ERR is at least half the added one's: a kind that explains much less cannot predict
-    as well. A kind that passes every check and predicts the held-out parts *better* beyond the scatter is taken
-    instead of ``added`` (the loop's one metric; the ERR only ranks), said in the round's text (returned third);
-    the rivals are then judged against it."""
-    rivals, better = [], []
+    as well."""
+    rivals = []
     for c in rest:
         if c.kind == added.candidate.kind or c.err < 0.5 * added.candidate.err:
             continue
@@ -819,30 +815,17 @@ def _rival(i: int, held: HeldOut, rfs: Sequence, added: Trial, rest: Sequence[Ca
             comp = compare_errors(held, added.after, t.after)
             if not comp.apart():
                 rivals.append((t, comp))
-            elif comp.better("b"):
-                better.append((t, comp))
-    took = ""
-    if better:
-        best, comp = min(better, key=lambda tc: tc[0].after.prediction_nmse_pct)
-        took = (f" Taken instead of {added.candidate.term.label}, first in rank (it explains more of the residual), "
-                f"which predicts the held-out parts worse beyond their scatter: {comp.nmse_a:.3g} % against "
-                f"{comp.nmse_b:.3g} % (paired t {comp.t:+.2g}).")
-        rivals = [(t, compare_errors(held, best.after, t.after)) for t, _ in [*rivals, *better, (added, None)]
-                  if t is not best]
-        rivals = [(t, c) for t, c in rivals if not c.apart()]
-        added = best
     if not rivals:
-        return added, None, took
+        return added, None
     # the first accepted is kept: which of two tied models predicts a hair better is the noise's choice (measured:
     # a hidden friction and a hidden knee on one record, 0.0854 against 0.0856 %, each taken for the other)
     others = [t for t, _ in rivals]
     opts = (explanation(f"{added.candidate.term.label} added", added.after),
             *[explanation(f"{t.candidate.term.label} added", t.after) for t in others])
     comps = tuple(comp for _, comp in rivals)
-    amb = Ambiguity(i, opts, comps, "it predicts the held-out parts best" if took else
-                    "it explains the most of the residual and passes every check first",
+    amb = Ambiguity(i, opts, comps, "it explains the most of the residual and passes every check first",
                     separating_record(rfs, added.candidate.term, others[0].candidate.term))
-    return added, amb, took
+    return added, amb
 
 
 def _body_round(ev: _Evaluator, pred: _Predictor, terms: Sequence[Term], ranked: Sequence[Candidate],

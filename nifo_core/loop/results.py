@@ -713,8 +713,7 @@ def _round_text(i: int, trial: Trial, before: Errors, ev: Evidence | None, m2: f
     alt = ""
     if alts:
         alt = (" Nearly as good: " + ", ".join(f"{a.term.label} (explains {100 * a.err:.2f} %)" for a in alts)
-               + f" — the data barely tell them apart by the residual they explain; {c.kind} explains "
-               f"{'most' if all(a.err <= c.err for a in alts) else 'less'} ({100 * c.err:.2f} %).")
+               + f" — the data barely tell them apart; {c.kind} explains most ({100 * c.err:.2f} %).")
     assert after is not None
     pc = ""
     if ev is not None and np.isfinite(ev.partial_coherence_mean):
