@@ -248,24 +248,86 @@ def simulate_level(case: Case, j: int):
     return Record(rec.fs_hz, a1, a2, rec.tire_patch_disp, source=f"case{case.id}_level{j}", meta=dict(rec.meta))
 
 
-def write_case(case: Case, root: Path) -> tuple[list[Path], Path]:
-    """The case's records (MCAP), its declared model file and its truth, under ``root/caseNN`` (kept if present)."""
+class NotSimulated(Exception):
+    """A case whose records could not be made: the simulator stopped (the quarter car diverged, the equations too
+    stiff) or took longer than the case's time limit. The case is reported as such, apart from the scores."""
+
+
+#: exit code of ``--simulate-level`` when the simulator stopped (:class:`SimulationStoppedError`)
+SIM_STOPPED_EXIT = 3
+
+
+def _simulate_level_to(case: Case, j: int, path: Path, deadline: float | None) -> None:
+    """Level ``j``'s record saved to ``path``: in this process, or (``deadline``, a ``time.monotonic()``) in a
+    child process killed at the deadline. Raises :class:`NotSimulated` with the simulator's words."""
+    if deadline is None:
+        from nifo.io.loader import save_record
+
+        save_record(path, simulate_level(case, j))
+        return
+    left = deadline - time.monotonic()
+    try:
+        proc = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--simulate-level", str(case.id), str(j),
+                               str(path)], capture_output=True, text=True, timeout=max(left, 1.0),
+                              env={**os.environ, "PYTHONPATH": str(CODE)})
+    except subprocess.TimeoutExpired:
+        raise NotSimulated(f"level {j} ({case.levels_mm[j]:.2g} mm) was still simulating at the case's time limit")
+    if proc.returncode == SIM_STOPPED_EXIT:
+        raise NotSimulated(proc.stdout.strip().splitlines()[-1])
+    if proc.returncode != 0 or not path.exists():
+        raise NotSimulated(f"level {j}: the simulation failed (exit {proc.returncode}): "
+                           + (proc.stderr.strip().splitlines() or ["no message"])[-1])
+
+
+def _case_by_id(i: int) -> Case:
+    return issue_case(i) if i in ISSUE_CASES else draw_case(i)
+
+
+def _simulate_level_main(case_id: int, j: int, path: Path) -> int:
+    """``--simulate-level``: one record written whole (a temporary file renamed) or nothing."""
     from nifo.io.loader import save_record
+    from nifo_core.simulate.independent import SimulationStoppedError
+
+    try:
+        rec = simulate_level(_case_by_id(case_id), j)
+    except SimulationStoppedError as err:
+        print(err)
+        return SIM_STOPPED_EXIT
+    tmp = path.with_name(path.stem + ".part" + path.suffix)
+    save_record(tmp, rec)
+    tmp.replace(path)
+    return 0
+
+
+def write_case(case: Case, root: Path, *, deadline: float | None = None) -> tuple[list[Path], Path]:
+    """The case's records (MCAP), its declared model file and its truth, under ``root/caseNN`` (kept if present).
+
+    A simulator that stops is remembered in ``not_simulated.json`` (it is deterministic) and raises
+    :class:`NotSimulated`; a time limit (``deadline``) passed is not remembered (a run on a quieter machine
+    tries again)."""
     from nifo.io.modelfile import write_model_spec
     from nifo_core.kinds.describing import Term
 
     d = root / f"case{case.id:02d}"
     d.mkdir(parents=True, exist_ok=True)
+    (d / "truth.json").write_text(json.dumps(asdict(case), indent=1))
+    stopped = d / "not_simulated.json"
+    if stopped.exists():
+        raise NotSimulated(json.loads(stopped.read_text())["reason"])
     paths = []
     for j in range(len(case.levels_mm)):
         p = d / f"level{j}.mcap"
         if not p.exists():
-            save_record(p, simulate_level(case, j))
+            try:
+                _simulate_level_to(case, j, p, deadline)
+            except NotSimulated as err:
+                if "time limit" not in str(err):
+                    stopped.write_text(json.dumps({"level": j, "reason": str(err)}))
+                raise
         paths.append(p)
     model = d / "declared.yaml"
     if not model.exists():
         write_model_spec(model, [Term(case.declared.kind, dict(case.declared.params))])
-    (d / "truth.json").write_text(json.dumps(asdict(case), indent=1))
     return paths, model
 
 
@@ -276,11 +338,18 @@ def write_case(case: Case, root: Path) -> tuple[list[Path], Path]:
 CODE = HERE.parent
 
 
-def _nifo(args: list[str], log: Path) -> dict:
+def _nifo(args: list[str], log: Path, deadline: float | None = None) -> dict:
+    """``nifo ARGS`` in a fresh process, its text to ``log``; killed at ``deadline`` (``time.monotonic()``)."""
     env = {**os.environ, "PYTHONPATH": str(CODE), "NIFO_THREADS": os.environ.get("NIFO_THREADS", "1"),
            "NIFO_FIGURE_WORKERS": "0"}
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "nifo", *args], env=env, capture_output=True, text=True)
+    timeout = None if deadline is None else max(deadline - time.monotonic(), 1.0)
+    try:
+        proc = subprocess.run([sys.executable, "-m", "nifo", *args], env=env, capture_output=True, text=True,
+                              timeout=timeout)
+    except subprocess.TimeoutExpired as err:
+        log.write_text(f"{err.stdout or ''}{err.stderr or ''}\n[killed at the case's time limit]")
+        return {"exit": "timeout", "seconds": time.perf_counter() - t0}
     log.write_text(proc.stdout + proc.stderr)
     return {"exit": proc.returncode, "seconds": time.perf_counter() - t0}
 
@@ -297,10 +366,16 @@ def _nifo_here(args: list[str], log: Path) -> dict:
     return {"exit": code, "seconds": time.perf_counter() - t0}
 
 
-def run_case(case: Case, root: Path, *, in_process: bool = False) -> dict:
+def run_case(case: Case, root: Path, *, in_process: bool = False, time_limit_s: float | None = None) -> dict:
     """``nifo characterize`` and ``nifo loop`` on the case (reused when their output is there); ``in_process``:
-    through the command line's entry in this process rather than a fresh one per command."""
-    paths, model = write_case(case, root)
+    through the command line's entry in this process rather than a fresh one per command. ``time_limit_s``: the
+    case's wall time (its simulation and both commands, each in a child process killed when it is up); a command
+    killed there is not remembered. A case that could not be simulated returns ``{"not_simulated": reason}``."""
+    deadline = None if time_limit_s is None or in_process else time.monotonic() + time_limit_s
+    try:
+        paths, model = write_case(case, root, deadline=deadline)
+    except NotSimulated as err:
+        return {"not_simulated": str(err)}
     d = root / f"case{case.id:02d}"
     m2 = f"{case.corner['m2']:.6g}"
     res = {}
@@ -311,8 +386,9 @@ def run_case(case: Case, root: Path, *, in_process: bool = False) -> dict:
         if done.exists():
             res[name] = json.loads(done.read_text())
             continue
-        r = (_nifo_here if in_process else _nifo)(args, d / f"{name}.log")
-        done.write_text(json.dumps(r))
+        r = _nifo_here(args, d / f"{name}.log") if in_process else _nifo(args, d / f"{name}.log", deadline)
+        if r["exit"] != "timeout":
+            done.write_text(json.dumps(r))
         res[name] = r
     return res
 
@@ -410,6 +486,9 @@ def score_case(case: Case, root: Path, res: dict) -> dict:
     hidden = sorted(e.kind for e in case.hidden)
     out = {"id": case.id, "part": case.part, "simulator": case.simulator, "control": case.control,
            "declared": case.declared.kind, "hidden": hidden}
+    if "not_simulated" in res:
+        return {**out, "not_simulated": res["not_simulated"], "below_limit": [], "limits": {},
+                "loop": {"outcome": "not simulated"}, "characterize": {"outcome": "not simulated"}}
     try:
         limits = true_limits(case, root)
     except Exception as err:  # noqa: BLE001 - a benchmark reports what it could not compute
@@ -471,10 +550,15 @@ def _outcome(named: list[str], true: list[str], ambiguities: list[set[str]]) -> 
 def summarise(scores: list[dict]) -> str:
     lines = []
     for part in ("tune", "heldout", "issue"):
-        sc = [s for s in scores if s["part"] == part]
-        if not sc:
+        everything = [s for s in scores if s["part"] == part]
+        if not everything:
             continue
+        sc = [s for s in everything if "not_simulated" not in s]
         lines.append(f"=== {part}: {len(sc)} cases ({sum(s['control'] for s in sc)} controls)")
+        for s in everything:
+            if "not_simulated" in s:
+                lines.append(f"not simulated, counted in no figure below: #{s['id']:02d} ({s['simulator']}): "
+                             f"{s['not_simulated']}")
         ctrl = [s for s in sc if s["control"]]
         eff = [s for s in sc if not s["control"]]
         ok_ctrl = sum(s["loop"].get("outcome") == "exact" for s in ctrl)
@@ -532,7 +616,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=Path("/tmp/nifo_physics_fleet"), help="records and results (kept)")
     ap.add_argument("--list", action="store_true", help="print the cases and stop")
     ap.add_argument("--code", type=Path, help="run the nifo of this checkout (default: this one)")
+    ap.add_argument("--case-time-limit", type=float, default=1800.0, metavar="S",
+                    help="wall time of one case, its simulation and both commands (default 1800 s); what is still "
+                         "running then is killed and the case reported as such")
+    ap.add_argument("--simulate-level", nargs=3, metavar=("ID", "LEVEL", "PATH"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.simulate_level:
+        i, j, path = args.simulate_level
+        return _simulate_level_main(int(i), int(j), Path(path))
     global CODE
     CODE = (args.code or CODE).resolve()
     fleet = draw_fleet()
@@ -552,12 +643,12 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
 
     def one(c: Case) -> dict:
-        res = run_case(c, args.out)
+        res = run_case(c, args.out, time_limit_s=args.case_time_limit)
         s = score_case(c, args.out, res)
         (args.out / f"case{c.id:02d}" / "score.json").write_text(json.dumps(s, indent=1))
         print(f"[{time.perf_counter() - t0:6.0f} s] {c.describe()}\n      loop {s['loop'].get('outcome')} "
               f"{s['loop'].get('added', '')} | char {s['characterize'].get('outcome')} "
-              f"{s['characterize'].get('suggested', '')}", flush=True)
+              f"{s['characterize'].get('suggested', '')} {s.get('not_simulated', '')}", flush=True)
         return s
 
     with ThreadPoolExecutor(max(1, args.jobs)) as pool:

@@ -9,7 +9,7 @@ from nifo_core.kinds.describing import Term
 from nifo_core.signal.frf import h1
 from nifo_core.signal.spectral import SpectralSettings, cross_spectra
 from nifo_core.simulate.independent import (Corner, Element, HarmonicRoad, IndependentConfig, Sensors,
-                                            simulate_independent)
+                                            SimulationStoppedError, simulate_independent)
 
 CORNER = Corner(m1=45.0, m2=320.0, k1=230e3, c1=150.0, k2=24e3, c2=1500.0)
 EVERY = (Element("velocity_deadzone", -700.0, 0.03), Element("quadratic_damping", 800.0),
@@ -99,3 +99,16 @@ def test_bad_configurations_are_refused_with_what_to_change():
         Element("bump_stop", 1e5, 0.004)
     with pytest.raises(ConfigError, match="too low for a road"):
         IndependentConfig(road=HarmonicRoad(0.002, f_hi_hz=250.0))
+
+
+def test_a_quarter_car_that_diverges_stops_the_simulator_with_its_words_not_a_stall():
+    # an even spring whose total stiffness K2 + 2·k_q·z turns negative at z = -K2/(2·k_q) = -2.4 mm: at 6 mm of
+    # road the strut collapses in finite time (before: the step control shrank the step for ever, case 57's stall)
+    cfg = IndependentConfig(corner=CORNER, elements=(Element("quadratic_stiffness", 5e6),), road=HarmonicRoad(0.006),
+                            duration_s=20.0, lift_off=True)
+    with pytest.raises(SimulationStoppedError, match=r"diverged .*quadratic_stiffness 5e\+06"):
+        simulate_independent(cfg, seed=3, source="collapse")
+    # the same spring at 0.3 mm stays where K2 + 2·k_q·z > 0 and is carried to its end, one step per output instant
+    run = simulate_independent(IndependentConfig(**{**cfg.__dict__, "road": HarmonicRoad(0.0003)}), seed=3)
+    assert run.record.body_accel.size == 20 * 600 and np.all(np.isfinite(run.record.body_accel))
+    assert run.steps[1] < 0.01 * run.steps[0]

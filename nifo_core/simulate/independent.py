@@ -43,13 +43,28 @@ from ..errors import ConfigError
 from ..signal.record import Record
 
 __all__ = ["Corner", "Element", "HarmonicRoad", "Sensors", "IndependentConfig", "IndependentRun",
-           "simulate_independent", "ELEMENT_KINDS"]
+           "SimulationStoppedError", "simulate_independent", "ELEMENT_KINDS"]
 
 G = 9.80665
 #: the output grid of the integrator, a multiple of the record's rate; the record is decimated from it
 GRID_FACTOR = 4
 #: simulated before the record (the road fades in over the first FADE_S) and after it (the decimation's edge) [s]
 WARMUP_S, FADE_S, TAIL_S = 12.0, 4.0, 1.0
+#: a relative displacement no strut travels [m]: beyond it the quarter car has diverged (e.g. an even stiffness
+#: whose total spring K2 + 2·k_q·z turns negative past z = -K2/(2·k_q): the strut collapses in finite time)
+Z_MAX_M = 0.5
+#: the integrator's budget of steps (accepted and rejected) per output instant (4·fs); a converging record takes
+#: about one, a stop or a play's kink a few more
+MAX_STEPS_PER_OUTPUT = 50
+#: why the integrator stopped (its status 1, 2, 3)
+STOPS = {1: f"the strut's travel |z| passed {Z_MAX_M:g} m: the quarter car diverged",
+         2: "the step size fell below 1e-9 of the output interval: the equations are too stiff (or singular) here",
+         3: f"the integrator used its budget of {MAX_STEPS_PER_OUTPUT} steps per output instant"}
+
+
+class SimulationStoppedError(ArithmeticError):
+    """The integrator could not carry the record to its end (:data:`STOPS`): the quarter car diverged or its
+    equations are too stiff for the step control. Nothing of the record is returned."""
 
 #: element kind → (code, what its value is, its parameter's meaning)
 ELEMENT_KINDS: Mapping[str, tuple[int, str, str]] = {
@@ -308,11 +323,12 @@ def _rhs(t, y, dy, par, codes, vals, pars, sides, t0, h, xg, vg):  # pragma: no 
 
 
 @numba.njit(cache=True)
-def _dopri(y, par, codes, vals, pars, sides, t0, h, xg, vg, t_start, dt_out, n_out, rtol, atol,
-           out):  # pragma: no cover - compiled
+def _dopri(y, par, codes, vals, pars, sides, t0, h, xg, vg, t_start, dt_out, n_out, rtol, atol, z_max,
+           max_steps, out):  # pragma: no cover - compiled
     """Dormand–Prince 5(4) with step control (Hairer, Nørsett & Wanner, *Solving ODEs I*, II.4-5), never
     stepping over an output instant. ``out[k] = (x1, x2, v1, v2, a1, a2, N)`` at t_start + k·dt_out.
-    Returns (accepted steps, rejected steps)."""
+    Returns (accepted steps, rejected steps, status, t): status 0 done; otherwise it stopped at t because
+    :data:`STOPS` [status] (the rows of ``out`` from there on are not written)."""
     a21 = 1 / 5
     a31, a32 = 3 / 40, 9 / 40
     a41, a42, a43 = 44 / 45, -56 / 15, 32 / 9
@@ -341,6 +357,10 @@ def _dopri(y, par, codes, vals, pars, sides, t0, h, xg, vg, t_start, dt_out, n_o
     for k in range(1, n_out):
         t_end = t_start + k * dt_out
         while t < t_end - 1e-12 * dt_out:
+            if n_acc + n_rej >= max_steps:
+                return n_acc, n_rej, 3, t
+            if not step > 1e-9 * dt_out:       # False for NaN too
+                return n_acc, n_rej, 2, t
             hs = min(step, t_end - t)
             for q in range(m):
                 yt[q] = y[q] + hs * a21 * k1[q]
@@ -366,7 +386,11 @@ def _dopri(y, par, codes, vals, pars, sides, t0, h, xg, vg, t_start, dt_out, n_o
                 d = hs * (e1 * k1[q] + e3 * k3[q] + e4 * k4[q] + e5 * k5[q] + e6 * k6[q] + e7 * k7[q]) / sc
                 err += d * d
             err = np.sqrt(err / m)
+            if not np.isfinite(err):
+                err = 1e10                      # a stage left the finite numbers: a much smaller step
             if err <= 1.0:
+                if abs(yn[1] - yn[0]) > z_max:
+                    return n_acc, n_rej, 1, t + hs
                 t += hs
                 for q in range(m):
                     y[q] = yn[q]
@@ -392,7 +416,7 @@ def _dopri(y, par, codes, vals, pars, sides, t0, h, xg, vg, t_start, dt_out, n_o
         a1, a2 = _rhs(t, y, k1, par, codes, vals, pars, sides, t0, h, xg, vg)
         out[k, 0], out[k, 1], out[k, 2], out[k, 3], out[k, 4], out[k, 5] = y[0], y[1], y[2], y[3], a1, a2
         out[k, 6] = _strut(y[1] - y[0], y[3] - y[2], y, codes, vals, pars, sides)
-    return n_acc, n_rej
+    return n_acc, n_rej, 0, t
 
 
 @numba.njit(cache=True)
@@ -468,8 +492,14 @@ def simulate_independent(config: IndependentConfig, *, seed: int,
     y = np.zeros(4 + n_play)
     atol = np.array([1e-10, 1e-10, 1e-8, 1e-8] + [1e-10] * n_play)
     out = np.empty((n_out, 7))
-    n_acc, n_rej = _dopri(y, par, codes, vals, pars, sides, float(tr[0]), 1.0 / (2 * fo), xg, vg, float(t[0]),
-                          1.0 / fo, n_out, float(config.rtol), atol, out)
+    n_acc, n_rej, status, t_stop = _dopri(y, par, codes, vals, pars, sides, float(tr[0]), 1.0 / (2 * fo), xg, vg,
+                                          float(t[0]), 1.0 / fo, n_out, float(config.rtol), atol, Z_MAX_M,
+                                          MAX_STEPS_PER_OUTPUT * n_out, out)
+    if status:
+        raise SimulationStoppedError(
+            f"{source}: stopped at t = {t_stop:.4g} s of {config.duration_s:g} s (warm-up from -{WARMUP_S:g} s) "
+            f"after {n_acc} accepted and {n_rej} rejected steps: {STOPS[status]} (strut: "
+            f"{', '.join(f'{e.kind} {e.value:.3g}' for e in els) or 'linear'}; road RMS {1e3 * config.road.rms_m:.3g} mm)")
     keep = slice(n_warm, n_warm + n_rec)
     acc = [signal.decimate(out[:, i], q, ftype="fir", zero_phase=True)[keep] for i in (4, 5)]
     states = out[::q][keep]
