@@ -158,27 +158,17 @@ class TermSpec(_Strict):
             k = _kind(self.kind)
         except ConfigError as err:
             raise ValueError(f"{err.message}; {err.hint}") from None
-        for name, (default, unit) in k.params.items():
-            if default is None and name not in self.params:
-                raise ValueError(f"{k.name} needs parameter {name!r} [{unit}], e.g. {k.name}: {{{name}: ...}}")
-        if len(self.params) > len(k.params) or (self.coefficient is not None and not _is_number(self.coefficient)):
-            raise ValueError(f"{k.name} takes parameters {list(k.params) or 'none'}; coefficient must be a number")
-        for name, value in self.params.items():
-            if name not in k.params:
-                raise ValueError(f"{k.name} has no parameter {name!r}; it takes {list(k.params) or 'none'}")
-            default, unit = k.params[name]
-            if "|" in unit:   # a choice (side)
-                if not isinstance(value, str) or value not in unit.split("|"):
-                    raise ValueError(f"{k.name}.{name}={_short(value)} must be one of {unit.replace('|', ', ')}")
-            elif not _is_number(value):
-                raise ValueError(f"{k.name}.{name}={_short(value)} must be a number [{unit}]"
-                                 + (" (true/false is not a number)" if isinstance(value, bool) else "")
-                                 + text_number_note(value))
-            elif abs(value) > 1e300 or not math.isfinite(value):
-                raise ValueError(f"{k.name}.{name}={_short(value)} must be finite [{unit}]")
-            elif name != "offset" and (value < 0 or (value == 0 and not (k.name == "bump_stop" and name == "gap"))):
-                raise ValueError(f"{k.name}.{name}={_short(value)} must be positive [{unit}]"
-                                 + (" (0 makes the term the linear one)" if value == 0 else ""))
+        if self.coefficient is not None and not _is_number(self.coefficient):
+            raise ValueError(f"{k.name} coefficient={_short(self.coefficient)} must be a number")
+        note = ""
+        try:    # the kind's own rule (Kind.check), the one every caller of the core goes through
+            for name, value in self.params.items():
+                note = text_number_note(value)
+                k.check_value(name, value)
+            note = ""
+            k.check(self.params)
+        except ConfigError as err:
+            raise ValueError(err.message + note + (f", {err.hint}" if err.hint else "")) from None
         return self
 
 

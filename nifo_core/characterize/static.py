@@ -39,12 +39,17 @@ from ..kinds.describing import Term
 from ..signal.least_squares import lstsq
 from ..signal.parallel import thread_map
 
-__all__ = ["mean_shift", "static_bump_stops", "shifted_offsets", "STATIC_KINDS", "SHIFTED_KINDS"]
+__all__ = ["mean_shift", "static_bump_stops", "shifted_offsets"]
 
-#: kinds whose threshold is measured from the static position (one-sided: they move the mean)
-STATIC_KINDS = frozenset({"bump_stop"})
-#: kinds without a threshold that are evaluated on z from the static position (even: they move the mean)
-SHIFTED_KINDS = frozenset({"quadratic_stiffness"})
+
+def _threshold_from_static(t: Term) -> bool:
+    """A one-sided kind whose threshold counts from the static position (``Kind.static_frame``: a bump stop)."""
+    return t.spec.static_frame == "threshold"
+
+
+def _shifted(t: Term) -> bool:
+    """An even kind without a threshold evaluated on z from the static position (a quadratic stiffness)."""
+    return t.spec.static_frame == "position"
 
 
 def mean_shift(z: np.ndarray, zdot: np.ndarray, k_per_kg: float, terms: Sequence[tuple[Term, float]]) -> float:
@@ -66,7 +71,7 @@ def mean_shift(z: np.ndarray, zdot: np.ndarray, k_per_kg: float, terms: Sequence
         m such that k·m + Σ θ·mean g(z + m, ż) = 0; 0.0 when no root lies within the motion's range.
     """
     z, zdot = np.asarray(z, float), np.asarray(zdot, float)
-    terms = [(Term(t.kind, {**t.params, "offset": 0.0}) if t.kind in STATIC_KINDS else t, th) for t, th in terms]
+    terms = [(Term(t.kind, {**t.params, "offset": 0.0}) if _threshold_from_static(t) else t, th) for t, th in terms]
     # a term of ż does not move with m: its mean force is computed once, not at every step of the root search
     # (the same numbers, summed in the same order; it was 2/3 of the loop's static bump-stop search)
     moving = [t.spec.variable == "z" for t, _ in terms]
@@ -88,21 +93,21 @@ def mean_shift(z: np.ndarray, zdot: np.ndarray, k_per_kg: float, terms: Sequence
 
 def shifted_offsets(data: RegressionData, terms: Sequence[Term], *,
                     iterations: int = 4) -> list[tuple[float, ...] | None]:
-    """Per term, the offsets -m_i of every record for the :data:`SHIFTED_KINDS` terms, else None (module docstring).
+    """Per term, the offsets -m_i of every record for the shifted terms (``Kind.static_frame`` "position"), else None (module docstring).
 
     A fixed point: fit k, θ with the current offsets, solve the mean balance of every record
     (:func:`mean_shift`, with the terms other than bump stops, whose gap is still from the mean),
     repeat. All None when ``terms`` hold no shifted kind.
     """
     terms = list(terms)
-    which = [t.kind in SHIFTED_KINDS for t in terms]
+    which = [_shifted(t) for t in terms]
     if not any(which):
         return [None] * len(terms)
     nl = len(data.lin)
     off = [0.0] * len(data.rfs)
     for _ in range(iterations):
         c, _ = _fit(data, terms, [tuple(off) if w else None for w in which])
-        pairs = [(t, float(c[nl + i])) for i, t in enumerate(terms) if t.kind not in STATIC_KINDS]
+        pairs = [(t, float(c[nl + i])) for i, t in enumerate(terms) if not _threshold_from_static(t)]
         off = [-mean_shift(rf.z, rf.zdot, float(c[0]), pairs) for rf in data.rfs]
     return [tuple(off) if w else None for w in which]
 
@@ -143,9 +148,9 @@ def static_bump_stops(data: RegressionData, terms: Sequence[Term], *,
     """
     terms = list(terms)
     offsets: list = list(shifted_offsets(data, terms))
-    shifted = [t.kind in SHIFTED_KINDS for t in terms]
+    shifted = [_shifted(t) for t in terms]
     for j, t in enumerate(terms):
-        if t.kind not in STATIC_KINDS:
+        if not _threshold_from_static(t):
             continue
         g_mean = float(t.params["gap"])
         c, _ = _fit(data, terms, offsets)

@@ -102,7 +102,7 @@ import numpy as np
 
 from ..characterize.automatic import grid_search, rank_beyond
 from ..characterize.subsets import best_subsets, subset_rss
-from ..kinds.describing import Term, make_term
+from ..kinds.describing import Term, kind as lookup_kind, linear_twin, make_term
 from .detection import confounded_pairs, detection_limits, undetermined_terms
 from ..errors import ConfigError, InputError, NifoError, RecordTooShortError
 from ..signal.integrate import IntegrationBand
@@ -315,24 +315,17 @@ def _path_grid(ev: _Evaluator, kinds: Sequence[str], points: int) -> list[Term]:
     for kind in kinds:
         if kind not in PATH_KINDS or not hi > lo > 0:
             continue
-        key = {"backlash": "deadband", "clearance": "gap", "saturation": "limit"}[kind]
-        scale = 1.0 if kind == "backlash" else 0.5
-        out += [Term(kind, {key: float(w)}) for w in np.geomspace(scale * lo, scale * hi, points)]
+        k = lookup_kind(kind)
+        scale = k.path_width
+        out += [Term(kind, {k.key_param: float(w)}) for w in np.geomspace(scale * lo, scale * hi, points)]
     return out
-
-
-def linear_twin(ev: _Evaluator) -> Term:
-    """A term whose remainder is z itself (a saturation far beyond the motion): through a feedback path it adds only
-    linear flexibility — what a candidate must beat to count as a nonlinearity."""
-    peak = max(float(np.max(np.abs(p.z))) for p in ev.fit_parts)
-    return Term("saturation", {"limit": 100.0 * peak})
 
 
 def _grid_candidates(ev: _Evaluator, pred: _Predictor, terms: Sequence[Term], s: LoopSettings,
                      m2_kg: float | None) -> list:
     """Plays over a grid of widths for a flexible body (a discrete Iwan model: patches of a joint that slip one
     after another), with their equation-error statistics. Clearances and saturations come from the ranking."""
-    grid = _path_grid(ev, ["backlash"] if "backlash" in s.kinds else [], int(s.path_widths))
+    grid = _path_grid(ev, [k for k in s.kinds if _iwan(k)], int(s.path_widths))
     if not grid or pred.linear is None:
         return []
     chosen = [t for t in grid if all(t.label != u.label for u in terms)]
@@ -342,13 +335,24 @@ def _grid_candidates(ev: _Evaluator, pred: _Predictor, terms: Sequence[Term], s:
                             names=tuple(t.label for t in terms)) for t in chosen]
 
 
+def _reach(ev: _Evaluator) -> float:
+    """The peak |z| of the fitted records [m]."""
+    return max(float(np.max(np.abs(p.z))) for p in ev.fit_parts)
+
+
+def _iwan(kind: str) -> bool:
+    """A kind tried over a grid of widths on a flexible body: a hysteretic one a feedback path carries (a play)."""
+    k = lookup_kind(kind)
+    return k.hysteretic and k.path_slopes is not None
+
+
 def _round_candidates(ev, pred, terms, ranked, s, m2_kg) -> list:
     """What a round tries: on a one-mass body the significant ranked candidates in rank order; on a flexible body
     (rational linear part, where the one-mass equation error is mis-specified and only the held-out prediction
     judges) plays over a grid of widths and the best ranked candidates of the other kinds."""
     if not pred.flexible:
         return [c for c in ranked if c.present][: s.top_tried]
-    others = [c for c in ranked if c.kind != "backlash"][: s.top_tried]
+    others = [c for c in ranked if not _iwan(c.kind)][: s.top_tried]
     seen = {c.term.label for c in others}
     return [c for c in _grid_candidates(ev, pred, terms, s, m2_kg) if c.term.label not in seen] + others
 
@@ -475,7 +479,7 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
         twin = None
         if pred.flexible and cands and all(t.kind in PATH_KINDS for t in terms):
             say(base + 0.5 / total, f"round {i}: the linear twin (one more linear path)")
-            twin = _errors(ev, pred, [*terms, linear_twin(ev)])
+            twin = _errors(ev, pred, [*terms, linear_twin(_reach(ev))])
 
         def judging(pred: _Predictor, current: Errors) -> Callable[[Candidate], Trial]:
             """The acceptance of a candidate with ``pred``'s linear form, against the model ``current``."""

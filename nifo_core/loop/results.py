@@ -694,8 +694,8 @@ def _effect_words(c: Candidate, m2: float | None) -> str:
         size = f"{c.coefficient:.3g} {unit} (θ = {c.theta:.3g} {unit}/kg × M2 = {m2:g} kg)"
     else:
         size = f"{c.theta:.3g} {unit} per kg of the output-side mass M2 (give --m2 for newtons)"
-    if c.kind == "coulomb":
-        return f"Coulomb friction of {size}"
+    if c.term.spec.sentence:
+        return f"{c.term.spec.sentence} of {size}"
     return f"{c.describe()}{where}: {c.term.label}, coefficient {size}"
 
 

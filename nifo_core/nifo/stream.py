@@ -30,8 +30,8 @@ def _as_terms(terms) -> tuple[Term, ...]:
         terms = [terms]
     out = tuple(make_term(t) for t in terms)
     for t in out:
-        if t.spec.hysteretic and t.kind != "backlash":
-            raise ConfigError(f"{t.label}: streaming NIFO knows how to carry the state of 'backlash' only")
+        if t.spec.hysteretic and not t.spec.play_state:
+            raise ConfigError(f"{t.label}: streaming NIFO knows how to carry the state of a play operator only")
     return out
 
 
