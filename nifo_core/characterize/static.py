@@ -122,7 +122,8 @@ def _fit(data: RegressionData, terms: list[Term], offsets: list[list[float] | No
 def _offsets(data: RegressionData, terms: list[Term], c: np.ndarray, j: int, gap: float) -> list[float]:
     """offset = -m per record for term ``j`` at static gap ``gap``, given the fit ``c``."""
     nl = len(data.lin)
-    pairs = [(Term(t.kind, {**t.params, "gap": gap}) if i == j else t, float(c[nl + i])) for i, t in enumerate(terms)]
+    pairs = [(Term(t.kind, {**t.params, t.spec.key_param: gap}) if i == j else t, float(c[nl + i]))
+             for i, t in enumerate(terms)]
     return [-mean_shift(rf.z, rf.zdot, float(c[0]), pairs) for rf in data.rfs]
 
 
@@ -152,7 +153,8 @@ def static_bump_stops(data: RegressionData, terms: Sequence[Term], *,
     for j, t in enumerate(terms):
         if not _threshold_from_static(t):
             continue
-        g_mean = float(t.params["gap"])
+        key = t.spec.key_param       # the gap, counted from the static position
+        g_mean = float(t.params[key])
         c, _ = _fit(data, terms, offsets)
         best = (np.inf, g_mean, [0.0] * len(data.rfs))
 
@@ -160,7 +162,7 @@ def static_bump_stops(data: RegressionData, terms: Sequence[Term], *,
             cc, off = c0, None
             for _ in range(3):  # m depends on k and θ, which depend on the offsets: a few fixed-point steps
                 off = _offsets(data, terms, cc, j, s)
-                trial_terms = terms[:j] + [Term(t.kind, {**t.params, "gap": s})] + terms[j + 1:]
+                trial_terms = terms[:j] + [Term(t.kind, {**t.params, key: s})] + terms[j + 1:]
                 trial_off = [off if (i == j or shifted[i]) else o for i, o in enumerate(offsets)]
                 cc, rss = _fit(data, trial_terms, trial_off)
             return rss, s, off
@@ -178,6 +180,6 @@ def static_bump_stops(data: RegressionData, terms: Sequence[Term], *,
         tried([s for s in np.linspace(best[1] - step, best[1] + step, 9) if s > 0])
         _, s, off = best
         main = int(np.argmax([float(np.std(rf.z)) for rf in data.rfs]))
-        terms[j] = Term(t.kind, {**t.params, "gap": float(s), "offset": float(off[main])})
+        terms[j] = Term(t.kind, {**t.params, key: float(s), "offset": float(off[main])})
         offsets = [off if (i == j or shifted[i]) else o for i, o in enumerate(offsets)]
     return terms, [None if o is None else tuple(float(v) for v in o) for o in offsets]

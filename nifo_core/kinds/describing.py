@@ -35,14 +35,30 @@ digressive damper blowing off above 0.03 m/s from C2 = 1400 to 700 N·s/m is
 is ``coulomb`` with c = 100 N; a bump stop of 50 kN/m is ``bump_stop`` with
 c = 50e3 N/m.
 
-The kind registry: :data:`KINDS` holds every fact the rest of the core needs about a kind — its variable,
-parameters and g; ``hysteretic`` (it carries a state from sample to sample: the play); ``shape_param`` (what an output-error fit
-may move: the key parameter, or a friction's smoothing); ``absorb`` (the slopes
-(α, β) of the linear part α·z + β·ż its g leaves to the model's linear part, its remainder being bounded);
-``path_slopes`` (for a kind with a bounded remainder that a feedback path may carry: its slope of z at large and
-at small amplitude); ``compiled`` (its numba code and parameters for :mod:`nifo_core.kinds.strut_forces`); and
-``lipschitz`` (global Lipschitz constants of g, for the fixed point's contraction bound). Adding a kind touches
-this file (and the numba ``g_one`` of :mod:`nifo_core.kinds.strut_forces`, for its compiled form).
+The kind registry: :data:`KINDS` holds every fact the rest of nifo needs about a kind (PySINDy's feature libraries
+that name and fit themselves) — its variable, parameters and g, and:
+
+- what it accepts: :meth:`Kind.check` (``zero_ok``, ``signed``; one rule for the core, the command line and the
+  model file, which validates through it);
+- how characterize searches it: :meth:`Kind.grid` (``grid_spec``, ``fixed``), ``searched`` (in
+  :data:`DEFAULT_KINDS`), ``positive`` (the sign of a physical coefficient), ``equivalent`` and ``mirror`` (what a fit
+  reports, :meth:`Kind.canonical`), ``static_frame`` (a threshold or a z counted from the static position);
+- how a fit reads: :meth:`Kind.describe` (``phrase``), ``noun``, ``joiner``, ``beyond``, ``sentence``,
+  ``coef_unit``, and the reach of its key parameter (:meth:`Kind.reach`);
+- how the model treats it: ``hysteretic`` and ``play_state`` (a state from sample to sample: the play);
+  ``shape_param`` (what an output-error fit may move: the key parameter, or a friction's smoothing); ``absorb``
+  (the slopes (α, β) of the linear part α·z + β·ż its g leaves to the model's linear part, its remainder being
+  bounded); ``bounded`` (a force bounded whatever the motion); ``path_slopes`` and ``path_width`` (for a kind a
+  feedback path may carry: its slope of z at large and at small amplitude, its width per unit of its key
+  parameter); ``compiled`` (its numba code and parameters for :mod:`nifo_core.kinds.strut_forces`);
+  ``lipschitz`` and ``slopes_within`` (bounds of its slopes, for the fixed point's contraction and the
+  simulator's step).
+
+Code outside this package asks the kind (``term.spec.positive``), never its name; where it names a kind as data (a
+simulator preset) it takes it from :data:`LIBRARY` (``tests/test_kinds_own_facts.py`` counts kind names written as
+strings elsewhere: none). Adding a kind is one :class:`Kind` in :func:`_kinds` below plus its tests; a g that is not
+one of the compiled forms of :data:`CODES` also takes one branch in ``g_one`` of :mod:`nifo_core.kinds.strut_forces`
+(docs/CONTRACTS.md, "Where a new kind goes").
 """
 
 from __future__ import annotations

@@ -186,7 +186,7 @@ class StreamingNifo:
         for i, t in enumerate(self.all_terms):
             if t.spec.hysteretic:   # the play operator's state carries over chunks
                 y0 = None if np.isnan(self._play[i]) else float(self._play[i])
-                g = play_operator(z, t.params["deadband"], y0=y0)
+                g = play_operator(z, t.params[t.spec.key_param], y0=y0)
                 self._play[i] = g[-1]
             else:
                 g = t.evaluate(z, zdot)
