@@ -58,7 +58,7 @@ Code outside this package asks the kind (``term.spec.positive``), never its name
 simulator preset) it takes it from :data:`LIBRARY` (``tests/test_kinds_own_facts.py`` counts kind names written as
 strings elsewhere: none). Adding a kind is one :class:`Kind` in :func:`_kinds` below plus its tests; a g that is not
 one of the compiled forms of :data:`CODES` also takes one branch in ``g_one`` of :mod:`nifo_core.kinds.strut_forces`
-(docs/CONTRACTS.md, "Where a new kind goes").
+(docs/CONTRACTS.md, "A new kind").
 """
 
 from __future__ import annotations
