@@ -93,7 +93,8 @@ def mean_shift(z: np.ndarray, zdot: np.ndarray, k_per_kg: float, terms: Sequence
 
 def shifted_offsets(data: RegressionData, terms: Sequence[Term], *,
                     iterations: int = 4) -> list[tuple[float, ...] | None]:
-    """Per term, the offsets -m_i of every record for the shifted terms (``Kind.static_frame`` "position"), else None (module docstring).
+    """Per term, the offsets -m_i of every record for the shifted terms (``Kind.static_frame`` "position"), else
+    None (module docstring).
 
     A fixed point: fit k, θ with the current offsets, solve the mean balance of every record
     (:func:`mean_shift`, with the terms other than bump stops, whose gap is still from the mean),

@@ -73,8 +73,8 @@ import numpy as np
 
 from ..errors import ConfigError
 
-__all__ = ["Kind", "GridSpec", "Term", "KINDS", "LIBRARY", "DEFAULT_KINDS", "ALIASES", "kind", "make_term", "evaluate_terms",
-           "play_operator", "path_slopes", "linear_twin", "CODES"]
+__all__ = ["Kind", "GridSpec", "Term", "KINDS", "LIBRARY", "DEFAULT_KINDS", "ALIASES", "kind", "make_term",
+           "evaluate_terms", "play_operator", "path_slopes", "linear_twin", "CODES"]
 
 Variable = Literal["z", "zdot"]
 

@@ -1,7 +1,7 @@
 """A second quarter-car simulator, written apart from :mod:`nifo_core.simulate.quarter_car` (issue 54).
 
-Nothing of the first simulator is used: not its strut forces (:mod:`nifo_core.kinds`: only the kinds' names), not its road
-(:mod:`nifo_core.simulate.road`), not its integrator or its anti-aliasing. What the estimators are checked on
+Nothing of the first simulator is used: not its strut forces (of :mod:`nifo_core.kinds` only the kinds' names), not
+its road (:mod:`nifo_core.simulate.road`), not its integrator or its anti-aliasing. What the estimators are checked on
 then rests on two discretisations, two force codes and two road generators:
 
 ==================  ==============================================  ==============================================
