@@ -37,16 +37,19 @@ import numpy as np
 
 from nifo.io.loader import iter_record_chunks
 from nifo.io.memo import nbytes, remembered
-from nifo_core.defaults import DEFAULT_COND_LIMIT
+from nifo_core.defaults import DEFAULT_ANALYSIS_BAND_HZ, DEFAULT_COND_LIMIT
 from nifo_core.errors import ClippedSignalError, IllConditionedError, InputError, NifoError, RecordTooShortError
 from nifo_core.signal.clipping import REFUSE_FRACTION, ClippingWarning, clipping
 from nifo_core.signal.record import acceleration_means, concatenate
 from nifo_core.signal.excitation import Excitation, analyse_excitation, combine_excitations
 from nifo_core.characterize.restoring import suggest_band
-from nifo_core.settings import PAPER_BLOCK_S, AnalysisSettings, GivenSettings, merge_given, resolve_settings
+from nifo_core.settings import (PAPER_BLOCK_S, AnalysisSettings, GivenSettings, merge_given, period_and_transient,
+                                resolve_settings, shortest_after_transient)
 
-__all__ = ["add_settings_arguments", "forget_step", "given_from_args", "given_from_file", "resolve", "loader_options",
+__all__ = ["add_settings_arguments", "forget_step", "given_from_args", "given_from_file", "resolve", "for_records", "loader_options",
            "check_record", "in_context", "explain", "PROBE_SAMPLES"]
+
+_DEFAULT_BAND = "{:g}-{:g}".format(*DEFAULT_ANALYSIS_BAND_HZ)
 
 #: samples of each file read to choose settings from the data (58 min at 600 Hz: a whole sweep or road test; the
 #: periods of a multisine), in chunks of PROBE_CHUNK (bags are decoded chunk by chunk)
@@ -76,8 +79,8 @@ def add_settings_arguments(p: argparse.ArgumentParser, *, cond_limit: bool = Tru
         g.add_argument("--cond-limit", type=float, metavar="C",
                        help=f"scaled cond(G_UU) counted as ill-conditioned (default {DEFAULT_COND_LIMIT:g})")
     g.add_argument("--no-settings-from-data", action="store_true", dest="no_settings_from_data",
-                   help="settings not given take the defaults (paper Table 2, 2-30 Hz, 0.5-200 Hz), not choices read "
-                        "off the data: what nifo fleet and the identifier node use")
+                   help=f"settings not given take the defaults (paper Table 2, {_DEFAULT_BAND} Hz, 0.5-200 Hz), not "
+                        "choices read off the data: what nifo fleet and the identifier node use")
 
 
 def given_from_args(args: argparse.Namespace) -> GivenSettings:
@@ -207,35 +210,27 @@ def check_record(path: Path, rec) -> tuple[dict, list[str]]:
 def resolve(paths: Sequence[Path], args: argparse.Namespace | None = None, *, file_settings=None,
             opts: dict | None = None, given: GivenSettings | None = None,
             from_data: bool = True) -> AnalysisSettings:
-    """The settings for ``paths``: command line (``args`` or ``given``) > model file > data > default.
+    """The settings for ``paths``: command line (``args`` or ``given``) > model file > data > default — once per
+    command (``nifo run``: once per job; its steps take the result through :func:`for_records`).
 
-    Every record is checked first (:func:`check_record`). ``from_data=False``: no probing for settings (the merge
-    of what is given with the defaults). ``args.setting_sources`` (``nifo run``'s steps): where the settings it
-    fills in really came from, so each step says so rather than "command line".
+    Every record is checked first (:func:`check_record`). ``from_data=False`` (or ``--no-settings-from-data``): no
+    probing for settings (the merge of what is given with the defaults).
     """
     cli = given if given is not None else (given_from_args(args) if args is not None else GivenSettings())
     merged, origin = merge_given(cli, given_from_file(file_settings))
     origins = {k: ("command line", "model file")[i] for k, i in origin.items()}
-    reasons: dict[str, str] = {}
-    for k, (src, why) in dict(getattr(args, "setting_sources", None) or {}).items():
-        if origins.get(k) == "command line":
-            origins[k], reasons[k] = src, why
     opts = dict(opts or {})
-    inputs, notes, reads = {}, [], []
-    for p in paths:
-        reads.append(_probe_read(Path(p), _load_options(opts, merged)))
-        found, said = check_record(Path(p), reads[-1][0])
-        inputs[str(p)] = found
-        notes += said
+    paths = [Path(p) for p in paths]
+    inputs, notes, reads = _checked(paths, _load_options(opts, merged))
     excitation, snr, fs, durations = None, None, None, []
     if args is not None and getattr(args, "no_settings_from_data", False):
         from_data = False
     if from_data and paths:
         parts, probes = [], []
         for p, read in zip(paths, reads):
-            ex, fs_p, dur, rec = _probe(Path(p), opts, merged, read)
+            ex, fs_p, dur, rec = _probe(p, opts, merged, read)
             if ex is None and merged.analysis_band_hz is None:
-                _too_short_to_tell(Path(p), rec)
+                _too_short_to_tell(p, rec)
                 why = rec.meta.get("settings_not_from_data", "")
                 raise IllConditionedError(
                     f"no excited band found in the data ({why}): the analysis band cannot be chosen from them",
@@ -258,14 +253,66 @@ def resolve(paths: Sequence[Path], args: argparse.Namespace | None = None, *, fi
     # records it reads (default_band of the shortest, or characterize's noise edge), as before settings existed
     try:
         st = resolve_settings(merged, fs_hz=fs, durations_s=durations, excitation=excitation, snr_lo_hz=snr,
-                              origins=origins, reasons=reasons)
+                              origins=origins)
     except NifoError as err:     # a setting the data cannot take (e.g. a band edge too low): name the data
-        shortest = paths[int(min(range(len(durations)), key=lambda i: durations[i]))] if durations else \
-            (paths[0] if paths else None)
-        raise in_context(err, _Origins(origins), source=None if shortest is None else str(shortest)) from None
+        raise in_context(err, _Origins(origins), source=_shortest(paths, durations)) from None
     st = replace(st, inputs=inputs, notes=tuple(notes))
     _step.set((st, [str(p) for p in paths]))
     return st
+
+
+def for_records(settings: AnalysisSettings, paths: Sequence[Path], *, opts: dict | None = None,
+                from_data: bool = True) -> AnalysisSettings:
+    """The settings resolved once (:func:`resolve`) on some of their records: a level ``nifo run`` characterizes
+    alone, each file ``nifo predict`` predicts. Not a second resolution: every value stays the resolved one and keeps
+    its source; what belongs to these records is theirs — their checks and notes (:func:`check_record`), their
+    excitation (``from_data``), and the period and transient where the resolved settings left them to the data and
+    found none (a periodic file among random ones: :func:`nifo_core.settings.period_and_transient`). The integration
+    band is checked against the shortest of them (refused, naming it, when it cannot resolve the band's edge)."""
+    opts = dict(opts or {})
+    paths = [Path(p) for p in paths]
+    fixed = GivenSettings(period_samples=settings.period_samples)
+    inputs, notes, reads = _checked(paths, _load_options(opts, fixed))
+    out: dict = {"inputs": inputs, "notes": tuple(notes), "excitation": None}
+    probes = [_probe(p, opts, fixed, read) for p, read in zip(paths, reads)] if from_data else []
+    if probes and all(ex is not None for ex, *_ in probes):
+        out["excitation"] = combine_excitations([ex for ex, *_ in probes])
+    try:
+        if settings.period_samples is None and out["excitation"] is not None:
+            choices = dict(settings.choices)
+            left = GivenSettings(skip_seconds=settings.skip_seconds)
+            period, skip_periods, _ = period_and_transient(left, out["excitation"], choices,
+                                                           lambda value, name: settings.choices[name])
+            out.update(period_samples=period, skip_periods=skip_periods, choices=choices)
+        durations = [dur for _, _, dur, _ in probes]
+        if settings.band is not None and probes:
+            now = replace(settings, **out)
+            fs = probes[0][1]
+            shortest = shortest_after_transient(durations, fs, now.period_samples, now.skip_periods, now.skip_seconds)
+            settings.band.validate(fs, n_samples=int(shortest * fs))
+    except NifoError as err:
+        raise in_context(err, settings, source=_shortest(paths, durations)) from None
+    st = replace(settings, **out)
+    _step.set((st, [str(p) for p in paths]))
+    return st
+
+
+def _checked(paths: list[Path], load: dict) -> tuple[dict, list[str], list]:
+    """({path: what :func:`check_record` found}, its notes, the probed reads) of ``paths``."""
+    inputs, notes, reads = {}, [], []
+    for p in paths:
+        reads.append(_probe_read(p, load))
+        found, said = check_record(p, reads[-1][0])
+        inputs[str(p)] = found
+        notes += said
+    return inputs, notes, reads
+
+
+def _shortest(paths: list[Path], durations: list[float]) -> str | None:
+    """The shortest record of ``paths`` (the one a band edge is about), else the first."""
+    if durations:
+        return str(paths[int(min(range(len(durations)), key=lambda i: durations[i]))])
+    return str(paths[0]) if paths else None
 
 
 #: fewer samples than this many of the paper's blocks (10.24 s) say nothing about a band: the record is too short

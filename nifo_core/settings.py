@@ -46,7 +46,8 @@ from .signal.integrate import IntegrationBand, default_band, lowest_edge_hz
 from .signal.spectral import SpectralSettings
 
 __all__ = ["Choice", "GivenSettings", "AnalysisSettings", "DEFAULT_ANALYSIS_BAND_HZ", "DEFAULT_COND_LIMIT",
-           "PAPER_BLOCK_S", "resolve_settings", "merge_given"]
+           "PAPER_BLOCK_S", "resolve_settings", "merge_given", "period_and_transient",
+           "shortest_after_transient"]
 
 #: random data: at least this many spectral averages before the paper's block is shortened
 MIN_AVERAGES = 8
@@ -226,6 +227,46 @@ def _random_block(fs_hz: float, n_samples: int, lowest_hz: float, overlap: float
     return block, f"{why}: {averages(block)} averages, {block / fs_hz * lowest_hz:.3g} cycles of the lowest line"
 
 
+def period_and_transient(given: GivenSettings, excitation: Excitation | None, choices: dict[str, Choice],
+                         given_choice) -> tuple[int | None, int | None, float | None]:
+    """The period and the transient: as given, else read off ``excitation``; (period_samples, skip_periods,
+    skip_seconds), their :class:`Choice` entered in ``choices`` (``given_choice(value, name)``: the choice of a given
+    value). The one place both are decided: :func:`resolve_settings` for a job, and the job's settings on some of its
+    records (:func:`nifo.settings.for_records`: a level, a file) where the job left them to the data."""
+    ex = excitation
+    period = given.period_samples
+    if period is not None:
+        choices["period_samples"] = given_choice(int(period), "period_samples")
+    elif ex is not None and ex.periodic:
+        period = ex.period_samples
+        choices["period_samples"] = Choice(int(period), "data", ex.reasons.get("period", ""))
+    elif ex is not None:
+        choices["period_samples"] = Choice(None, "data", ex.reasons.get("period", ""))
+    skip_periods, skip_seconds = given.skip_periods, given.skip_seconds
+    if skip_periods is not None:
+        choices["skip_periods"] = given_choice(int(skip_periods), "skip_periods")
+    elif skip_seconds is not None:
+        choices["skip_seconds"] = given_choice(float(skip_seconds), "skip_seconds")
+    elif ex is not None and ex.periodic and ex.period_samples == period:
+        skip_periods = int(ex.transient_periods)
+        choices["skip_periods"] = Choice(skip_periods, "data", ex.reasons.get("transient", ""))
+    if skip_periods and not period:
+        raise ConfigError("--skip-periods needs the period: give --period-samples too", channel="--skip-periods")
+    return period, skip_periods, skip_seconds
+
+
+def shortest_after_transient(durations_s: Sequence[float], fs_hz: float | None, period_samples: int | None,
+                             skip_periods: int | None, skip_seconds: float | None) -> float | None:
+    """The shortest record's duration once its transient is dropped [s] (None without records): what bounds the
+    blocks and the integration band's lower edge."""
+    shortest = min(durations_s) if durations_s else None
+    if shortest is not None and period_samples and skip_periods:
+        shortest = shortest - skip_periods * period_samples / fs_hz
+    elif shortest is not None and skip_seconds:
+        shortest = shortest - skip_seconds
+    return shortest
+
+
 def resolve_settings(given: GivenSettings, *, fs_hz: float | None, durations_s: Sequence[float] = (),
                      excitation: Excitation | None = None, snr_lo_hz: float | None = None,
                      origins: Mapping[str, str] | None = None,
@@ -265,31 +306,9 @@ def resolve_settings(given: GivenSettings, *, fs_hz: float | None, durations_s: 
         return Choice(value, from_user(name), reasons.get(name, ""))
 
     ex = excitation
-    period = g.period_samples
+    period, skip_periods, skip_seconds = period_and_transient(g, ex, choices, given_choice)
     periodic = period is not None or (ex is not None and ex.periodic)
-    if period is not None:
-        choices["period_samples"] = given_choice(int(period), "period_samples")
-    elif ex is not None and ex.periodic:
-        period = ex.period_samples
-        choices["period_samples"] = Choice(int(period), "data", ex.reasons.get("period", ""))
-    elif ex is not None:
-        choices["period_samples"] = Choice(None, "data", ex.reasons.get("period", ""))
-    # the transient
-    skip_periods, skip_seconds = g.skip_periods, g.skip_seconds
-    if skip_periods is not None:
-        choices["skip_periods"] = given_choice(int(skip_periods), "skip_periods")
-    elif skip_seconds is not None:
-        choices["skip_seconds"] = given_choice(float(skip_seconds), "skip_seconds")
-    elif ex is not None and ex.periodic and ex.period_samples == period:
-        skip_periods = int(ex.transient_periods)
-        choices["skip_periods"] = Choice(skip_periods, "data", ex.reasons.get("transient", ""))
-    if skip_periods and not period:
-        raise ConfigError("--skip-periods needs the period: give --period-samples too", channel="--skip-periods")
-    shortest = min(durations_s) if durations_s else None
-    if shortest is not None and period and skip_periods:
-        shortest = shortest - skip_periods * period / fs_hz
-    elif shortest is not None and skip_seconds:
-        shortest = shortest - skip_seconds
+    shortest = shortest_after_transient(durations_s, fs_hz, period, skip_periods, skip_seconds)
     # blocks
     if periodic and period:
         auto = SpectralSettings(block=int(period), overlap=0.0, window="boxcar")

@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Sequence
 
 __all__ = ["Inputs", "CharacterizeOptions", "IdentifyOptions", "LoopOptions", "PredictOptions", "RunOptions",
            "ExportOptions"]
@@ -52,9 +52,6 @@ class Inputs(_FromArgs):
     system: str | None = None
     #: the CLI's ``--quiet`` (no settings printout)
     quiet: bool = False
-    #: settings given here that no user typed: the settings' name -> (where it came from, why); ``nifo run`` chooses
-    #: the settings once and hands them to every step, which then says "data: ..." rather than "command line"
-    setting_sources: Mapping[str, tuple[str, str]] | None = None
 
     def taking(self, given: Inputs):
         """These options with the input and settings options of ``given`` that this step also has (``nifo run``
@@ -158,8 +155,8 @@ class ExportOptions(_FromArgs):
 
 
 #: the fields of the options that no flag gives (the command's --quiet; what nifo run tells its steps)
-NOT_FLAGS = frozenset({"quiet", "setting_sources"})
-#: the options ``nifo run`` passes on to every step that has them (the flags of the input and settings groups, and
-#: where the settings it filled in came from)
+NOT_FLAGS = frozenset({"quiet"})
+#: the options ``nifo run`` passes on to every step that has them (the flags of the input and settings groups; the
+#: settings themselves travel resolved, as one AnalysisSettings)
 INPUT_FIELDS = frozenset({f.name for f in fields(Inputs)} - {"quiet"} | {"band", "cond_limit"})
 
