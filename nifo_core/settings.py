@@ -123,13 +123,18 @@ class GivenSettings:
         return {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None}
 
 
+#: a band setting's flag and its name in words (the messages of every source: flag, model file, node parameter)
+_BANDS = {"band_hz": ("--band", "integration band"), "analysis_band_hz": ("--freq-range", "analysis band")}
+
+
 def _pair(value, name: str) -> tuple[float, float]:
+    flag, words = _BANDS[name]
     try:
         lo, hi = (float(v) for v in value)
     except (TypeError, ValueError):
-        raise ConfigError(f"{name}={value!r} must be two numbers [Hz]", channel=name, hint="e.g. 2 30") from None
+        raise ConfigError(f"{words} {value!r} must be two numbers [Hz]", channel=flag, hint="e.g. 2 30") from None
     if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):
-        raise ConfigError(f"{name} {lo:g}-{hi:g} Hz must satisfy 0 <= LO < HI", channel=name, hint="e.g. 2 30")
+        raise ConfigError(f"{words} {lo:g}-{hi:g} Hz must satisfy 0 <= LO < HI", channel=flag, hint="e.g. 2 30")
     return lo, hi
 
 

@@ -42,6 +42,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from nifo_core.kinds.describing import KINDS, Term, kind as _kind, make_term
 from nifo_core.errors import ConfigError, DataFileError, NifoError
+from nifo_core.settings import GivenSettings
+from nifo_core.signal.spectral import MAX_BLOCK
 
 from .atomic import staged_file
 from .ownership import YAML_MARK_PREFIX
@@ -55,15 +57,11 @@ SETTINGS_KEYS = ("block", "overlap", "window", "band_hz", "freq_range_hz")
 MAX_MODEL_BYTES = 1 << 20
 #: YAML nodes (scalars, lists, maps) a model file may hold
 MAX_NODES = 20_000
-#: the largest spectral block accepted [samples] (2^22: 4.2 M; the paper uses 6144)
-MAX_BLOCK = 1 << 22
 #: the most nonlinearities per step / steps per file
 MAX_TERMS = 64
 
-_WINDOW = Literal["flattop", "hann", "hamming", "boxcar", "blackman", "blackmanharris", "nuttall"]
 _Text = Annotated[str, Field(max_length=10_000)]
 _Name = Annotated[str, Field(min_length=1, max_length=200)]
-_Hz = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
 
 
 # -----------------------------------------------------------------------------
@@ -75,13 +73,15 @@ class _Strict(BaseModel):
 
 
 class Settings(_Strict):
-    """``settings:`` of a model file; the command line overrides each."""
+    """``settings:`` of a model file; the command line overrides each. The types are checked here (strict); the
+    values by the settings' own rules, one validator per field for every source
+    (:class:`nifo_core.settings.GivenSettings`: the command line, a model file, the identifier node)."""
 
-    block: Annotated[int, Field(ge=8, le=MAX_BLOCK)] | None = None
-    overlap: Annotated[float, Field(ge=0.0, lt=1.0, allow_inf_nan=False)] | None = None
-    window: _WINDOW | None = None
-    band_hz: tuple[_Hz, _Hz] | None = None
-    freq_range_hz: tuple[_Hz, _Hz] | None = None
+    block: int | None = None
+    overlap: float | None = None
+    window: Annotated[str, Field(max_length=100)] | None = None
+    band_hz: tuple[float, float] | None = None
+    freq_range_hz: tuple[float, float] | None = None
 
     @field_validator("band_hz", "freq_range_hz", mode="before")
     @classmethod
@@ -89,14 +89,12 @@ class Settings(_Strict):
         return tuple(v) if isinstance(v, list) else v
 
     @model_validator(mode="after")
-    def _bands(self) -> "Settings":
-        for name in ("band_hz", "freq_range_hz"):
-            pair = getattr(self, name)
-            if pair is not None and not pair[0] < pair[1]:
-                raise ValueError(f"{name} [{pair[0]:g}, {pair[1]:g}] must be [LO, HI] with LO < HI")
-        if self.band_hz is not None and self.band_hz[0] <= 0:
-            raise ValueError(f"band_hz [{self.band_hz[0]:g}, {self.band_hz[1]:g}] needs LO > 0 "
-                             "(integration cannot reach 0 Hz)")
+    def _values(self) -> "Settings":
+        try:
+            GivenSettings(block=self.block, overlap=self.overlap, window=self.window, band_hz=self.band_hz,
+                          analysis_band_hz=self.freq_range_hz)
+        except ConfigError as err:
+            raise ValueError(err.message) from None
         return self
 
 
