@@ -1,7 +1,7 @@
 """The settings of every command: the same flags everywhere, one merge, choices read off the data.
 
 :func:`add_settings_arguments` gives every data command the same settings
-flags (``--block``, ``--overlap``, ``--window``, ``--band``, ``--freq-range``,
+flags (``--block``, ``--overlap``, ``--window``, ``--integration-band``, ``--analysis-band``,
 ``--cond-limit``; ``--period-samples``, ``--skip-periods``, ``--skip-seconds``
 come with the input options of :func:`nifo.io.loader.add_input_arguments`).
 :func:`resolve` merges them — command line > model file > chosen from the
@@ -20,7 +20,7 @@ channel, the spindle and the body read from the same channel; the constant
 offsets of the accelerations are measured and reported (every step removes them
 before it computes). When the settings are to be read off the data and no
 excited band can be found, the command is refused (exit 10) rather than run on
-fixed defaults; ``--freq-range`` (and ``--band``) or ``--no-settings-from-data``
+fixed defaults; ``--analysis-band`` (and ``--integration-band``) or ``--no-settings-from-data``
 say where to look instead.
 """
 
@@ -58,9 +58,10 @@ PROBE_CHUNK = 2 ** 18
 
 
 def add_settings_arguments(p: argparse.ArgumentParser, *, cond_limit: bool = True, band: bool = True,
-                           freq_range: bool = True) -> None:
+                           analysis_band: bool = True) -> None:
     """The spectral and band settings every data command takes (each chosen from the data when not given); a command
-    leaves out the ones it has no use for (``band``: the integration band; ``freq_range``; ``cond_limit``)."""
+    leaves out the ones it has no use for (``band``: the integration band; ``analysis_band``; ``cond_limit``). Each
+    flag has the setting's one name (docs/CONTRACTS.md, "One name per setting"); the old flags stay as aliases."""
     g = p.add_argument_group("settings (each overrides the model file's; chosen from the data when neither gives it)")
     g.add_argument("--block", type=int, metavar="N",
                    help="samples per spectral block (periodic data: one period; random: the paper's 10.24 s)")
@@ -69,10 +70,12 @@ def add_settings_arguments(p: argparse.ArgumentParser, *, cond_limit: bool = Tru
     g.add_argument("--window", metavar="W", help="window: flattop, hann, boxcar, ... (periodic: boxcar; random: "
                                                  "flattop)")
     if band:
-        g.add_argument("--band", type=float, nargs=2, metavar=("LO", "HI"),
+        g.add_argument("--integration-band", "--band", type=float, nargs=2, metavar=("LO", "HI"),
+                       dest="integration_band_hz",
                        help="integration band for z, ż [Hz] (from below the excited band to 3× its top)")
-    if freq_range:
-        g.add_argument("--freq-range", type=float, nargs=2, metavar=("LO", "HI"),
+    if analysis_band:
+        g.add_argument("--analysis-band", "--freq-range", type=float, nargs=2, metavar=("LO", "HI"),
+                       dest="analysis_band_hz",
                        help="analysis band [Hz]: NIFO's pooled fit, the linear part, the prediction error (the "
                             "excited band)")
     if cond_limit:
@@ -86,8 +89,8 @@ def add_settings_arguments(p: argparse.ArgumentParser, *, cond_limit: bool = Tru
 def given_from_args(args: argparse.Namespace) -> GivenSettings:
     """What the command line gives (None where not given)."""
     get = lambda k: getattr(args, k, None)   # noqa: E731
-    return GivenSettings(block=get("block"), overlap=get("overlap"), window=get("window"), band_hz=get("band"),
-                         analysis_band_hz=get("freq_range"), period_samples=get("period_samples"),
+    return GivenSettings(block=get("block"), overlap=get("overlap"), window=get("window"), integration_band_hz=get("integration_band_hz"),
+                         analysis_band_hz=get("analysis_band_hz"), period_samples=get("period_samples"),
                          skip_periods=get("skip_periods"), skip_seconds=get("skip_seconds"),
                          cond_limit=get("cond_limit"))
 
@@ -96,7 +99,8 @@ def given_from_file(settings) -> GivenSettings:
     """A model file's ``settings:`` (validated by :mod:`nifo.io.modelfile`) as given settings."""
     s = dict(settings or {})
     return GivenSettings(block=s.get("block"), overlap=s.get("overlap"), window=s.get("window"),
-                         band_hz=s.get("band_hz"), analysis_band_hz=s.get("freq_range_hz"))
+                         integration_band_hz=s.get("integration_band_hz"),
+                         analysis_band_hz=s.get("analysis_band_hz"))
 
 
 #: bytes of probed records kept inside :func:`nifo.io.memo.reuse_reads` (an hour at 600 Hz probed is 2**21 samples
@@ -235,7 +239,7 @@ def resolve(paths: Sequence[Path], args: argparse.Namespace | None = None, *, fi
                 raise IllConditionedError(
                     f"no excited band found in the data ({why}): the analysis band cannot be chosen from them",
                     source=str(p), hint="check the channels (--columns/--topics) and that the excitation was on; "
-                    "or give the band yourself: --freq-range LO HI (and --band LO HI)")
+                    "or give the band yourself: --analysis-band LO HI (and --integration-band LO HI)")
             parts.append(ex)
             durations.append(dur)
             fs = fs_p if fs is None else fs
@@ -325,7 +329,7 @@ def _too_short_to_tell(path: Path, rec) -> None:
     if rec.n < need:
         raise RecordTooShortError(f"{rec.n} samples ({rec.duration_s:.3g} s) are too few to tell the excited band "
                                   f"(at least {need}, {need / rec.fs_hz:.3g} s)", source=str(path),
-                                  hint="record longer, or give the band yourself: --freq-range LO HI")
+                                  hint="record longer, or give the band yourself: --analysis-band LO HI")
 
 
 class _Origins:
@@ -335,12 +339,13 @@ class _Origins:
         self.origins = origins
 
     def source_of(self, name: str) -> str:
-        src = self.origins.get({"band": "band_hz"}.get(name, name))
+        src = self.origins.get({"band": "integration_band_hz"}.get(name, name))
         return "chosen from the data" if src in (None, "data") else src
 
 
 #: the settings an error may be about: (its flag, its name in the settings' choices, the words for it)
-_SETTINGS_NAMED = (("--freq-range", "analysis_band_hz", "analysis band"), ("--band", "band", "integration band"))
+_SETTINGS_NAMED = (("--analysis-band", "analysis_band_hz", "analysis band"),
+                   ("--integration-band", "band", "integration band"))
 
 #: the settings of the step running in this context and the files it reads (:func:`explain`)
 _step: contextvars.ContextVar[tuple[object, list[str]] | None] = contextvars.ContextVar("nifo_step", default=None)
@@ -348,7 +353,7 @@ _step: contextvars.ContextVar[tuple[object, list[str]] | None] = contextvars.Con
 
 def in_context(err: NifoError, settings, *, source: str | None = None) -> NifoError:
     """``err`` naming ``source`` (the data it is about) when it names none, and a setting by where it really came
-    from: ``--freq-range`` only when the user gave that flag, else "analysis band (chosen from the data)" or "(model
+    from: ``--analysis-band`` only when the user gave that flag, else "analysis band (chosen from the data)" or "(model
     file)", with a fix that fits (issue 56: a band nifo chose was reported as the user's flag, and no file named)."""
     msg, channel, hint = err.message, err.channel, err.hint
     for flag, name, words in _SETTINGS_NAMED:

@@ -87,7 +87,7 @@ class GivenSettings:
     block: int | None = None
     overlap: float | None = None
     window: str | None = None
-    band_hz: tuple[float, float] | None = None
+    integration_band_hz: tuple[float, float] | None = None
     analysis_band_hz: tuple[float, float] | None = None
     period_samples: int | None = None
     skip_periods: int | None = None
@@ -95,7 +95,7 @@ class GivenSettings:
     cond_limit: float | None = None
 
     def __post_init__(self) -> None:
-        for name in ("band_hz", "analysis_band_hz"):
+        for name in ("integration_band_hz", "analysis_band_hz"):
             v = getattr(self, name)
             if v is not None:
                 object.__setattr__(self, name, _pair(v, name))
@@ -112,9 +112,10 @@ class GivenSettings:
                               channel="--skip-seconds")
         if self.cond_limit is not None and not (np.isfinite(self.cond_limit) and self.cond_limit > 1):
             raise ConfigError(f"cond_limit={self.cond_limit!r} must be a number > 1", channel="--cond-limit")
-        if self.band_hz is not None and self.band_hz[0] <= 0:
-            raise ConfigError(f"integration band {self.band_hz[0]:g}-{self.band_hz[1]:g} Hz needs LO > 0",
-                              channel="--band", hint="e.g. --band 0.5 200")
+        if self.integration_band_hz is not None and self.integration_band_hz[0] <= 0:
+            lo, hi = self.integration_band_hz
+            raise ConfigError(f"integration band {lo:g}-{hi:g} Hz needs LO > 0",
+                              channel="--integration-band", hint="e.g. --integration-band 0.5 200")
         spectral = {k: getattr(self, k) for k in ("block", "overlap", "window") if getattr(self, k) is not None}
         if spectral:    # the spectral engine's own rules, checked here once for every caller
             replace(SpectralSettings(), **spectral)
@@ -124,7 +125,8 @@ class GivenSettings:
 
 
 #: a band setting's flag and its name in words (the messages of every source: flag, model file, node parameter)
-_BANDS = {"band_hz": ("--band", "integration band"), "analysis_band_hz": ("--freq-range", "analysis band")}
+_BANDS = {"integration_band_hz": ("--integration-band", "integration band"),
+          "analysis_band_hz": ("--analysis-band", "analysis band")}
 
 
 def _pair(value, name: str) -> tuple[float, float]:
@@ -351,9 +353,9 @@ def resolve_settings(given: GivenSettings, *, fs_hz: float | None, durations_s: 
         analysis = DEFAULT_ANALYSIS_BAND_HZ
         choices["analysis_band_hz"] = Choice(analysis, "default", "paper Table 2's figures")
     floor = lowest_edge_hz(shortest) if shortest else 0.0
-    if g.band_hz is not None:
-        band = IntegrationBand(*g.band_hz)
-        choices["band"] = given_choice(band, "band_hz")
+    if g.integration_band_hz is not None:
+        band = IntegrationBand(*g.integration_band_hz)
+        choices["band"] = given_choice(band, "integration_band_hz")
     elif ex is not None:
         lo = analysis[0] / EXACT_FROM
         why = [f"from 1/{EXACT_FROM:g} of the lowest analysed line"]
@@ -380,7 +382,7 @@ def resolve_settings(given: GivenSettings, *, fs_hz: float | None, durations_s: 
         if not lo < hi:
             raise ConfigError(f"the excited band {analysis[0]:.4g}-{analysis[1]:.4g} Hz lies outside what the "
                               f"record can integrate ({band.f_lo_hz:.4g}-{band.f_hi_hz:.4g} Hz)",
-                              hint="record longer, or give --freq-range and --band")
+                              hint="record longer, or give --analysis-band and --integration-band")
         note = ex.reasons.get("band", "the excited band")
         if lo > analysis[0]:
             note += f"; from {lo:.4g} Hz, the integration band's lower edge"

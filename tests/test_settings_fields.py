@@ -1,4 +1,5 @@
-"""One validator per setting: the command line, a model file and the loader refuse the same values with the same words.
+"""One validator and one name per setting: the command line, a model file, the loader and the nodes refuse the same
+values with the same words, and take each band under its one name (the old names read as aliases).
 
 On a99f355 the copies disagreed: ``period_samples`` ≥ 8 for the settings but ≥ 1 for the loader (a period of 4
 samples loaded and was cut into periods), the block limit (2^22) held for model files only, and a model file's
@@ -40,7 +41,8 @@ def _given(**kw) -> str:
     ({"overlap": 1.5}, "{overlap: 1.5}"),
     ({"window": "triangle"}, "{window: triangle}"),
     ({"analysis_band_hz": (30.0, 2.0)}, "{freq_range_hz: [30, 2]}"),
-    ({"band_hz": (0.0, 200.0)}, "{band_hz: [0, 200]}"),
+    ({"integration_band_hz": (0.0, 200.0)}, "{band_hz: [0, 200]}"),
+    ({"integration_band_hz": (0.0, 200.0)}, "{integration_band_hz: [0, 200]}"),
 ])
 def test_the_command_line_and_a_model_file_refuse_a_setting_with_the_same_words(tmp_path, given, written):
     said = _given(**given)
@@ -64,3 +66,35 @@ def test_the_loader_refuses_a_period_the_settings_refuse(tmp_path):
         load_record(path, skip_seconds=-1.0)
     assert err.value.message == _given(skip_seconds=-1.0)
     assert load_record(path, period_samples=8).n == sim.record.n
+
+
+def test_the_old_flags_are_aliases_of_the_settings_one_name():
+    import argparse
+
+    from nifo.settings import add_settings_arguments, given_from_args
+
+    p = argparse.ArgumentParser()
+    add_settings_arguments(p)
+    old = p.parse_args(["--freq-range", "2", "20", "--band", "0.5", "60"])
+    new = p.parse_args(["--analysis-band", "2", "20", "--integration-band", "0.5", "60"])
+    assert vars(old) == vars(new)
+    assert given_from_args(old) == GivenSettings(analysis_band_hz=(2.0, 20.0), integration_band_hz=(0.5, 60.0))
+
+
+def test_a_model_file_reads_the_old_keys_as_the_settings_one_name(tmp_path):
+    path = tmp_path / "m.yaml"
+    path.write_text("nifo_model: 1\nnonlinearities: [coulomb]\nsettings: {band_hz: [0.5, 60], freq_range_hz: [2, 20]}\n")
+    old = load_model_spec(path).settings
+    path.write_text("nifo_model: 1\nnonlinearities: [coulomb]\n"
+                    "settings: {integration_band_hz: [0.5, 60], analysis_band_hz: [2, 20]}\n")
+    assert old == load_model_spec(path).settings == {"integration_band_hz": [0.5, 60.0], "analysis_band_hz": [2.0, 20.0]}
+    assert "give it once" in _from_model_file(tmp_path, "{band_hz: [0.5, 60], integration_band_hz: [0.5, 60]}")
+
+
+def test_a_node_reads_the_old_edges_as_the_integration_band():
+    from nifo_nodes.common import integration_edges
+
+    assert integration_edges({"integration_band_hz": [0.0, 0.0], "f_lo_hz": 1.0, "f_hi_hz": 80.0}) == (1.0, 80.0)
+    assert integration_edges({"integration_band_hz": [1.0, 80.0], "f_lo_hz": 0.0, "f_hi_hz": 0.0}) == (1.0, 80.0)
+    with pytest.raises(ConfigError, match="give it once"):
+        integration_edges({"integration_band_hz": [1.0, 80.0], "f_lo_hz": 1.0, "f_hi_hz": 0.0})

@@ -86,7 +86,7 @@ def run_characterize(args: CharacterizeOptions, *, settings: AnalysisSettings | 
         doc["settings"] = settings.to_dict()
         write_json(tmp / "characterize.json", doc, atomic=False, indent=2)
         write_model_spec(tmp / "suggested_model.yaml", char.suggested_terms,
-                         settings={"band_hz": [band.f_lo_hz, band.f_hi_hz]},
+                         settings={"integration_band_hz": [band.f_lo_hz, band.f_hi_hz]},
                          note=_model_note(char), suggested_by=f"nifo characterize {__version__}")
     echo(_table(char, args.top, [str(p) for p in args.data], len(rates) > 1))
     echo(f"wrote {args.out}/ (characterize.json, suggested_model.yaml, {', '.join(figures)})")

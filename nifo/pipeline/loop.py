@@ -85,8 +85,8 @@ def run_loop(args: LoopOptions, *, settings: AnalysisSettings | None = None) -> 
         doc["figures"] = figures
         write_json(tmp / "loop.json", doc, atomic=False, indent=2)
         model_settings = {"block": data.spectral.block, "overlap": data.spectral.overlap,
-                          "window": data.spectral.window, "band_hz": [res.band.f_lo_hz, res.band.f_hi_hz],
-                          "freq_range_hz": list(data.analysis_band_hz)}
+                          "window": data.spectral.window, "integration_band_hz": [res.band.f_lo_hz, res.band.f_hi_hz],
+                          "analysis_band_hz": list(data.analysis_band_hz)}
         write_model_spec(tmp / "refined_model.yaml", res.terms, settings=model_settings,
                          note=_note(res), suggested_by=f"nifo loop {__version__}")
         written = ["loop.json", "refined_model.yaml", *figures]

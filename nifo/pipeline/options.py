@@ -47,7 +47,7 @@ class Inputs(_FromArgs):
     block: int | None = None
     overlap: float | None = None
     window: str | None = None
-    freq_range: Sequence[float] | None = None
+    analysis_band_hz: Sequence[float] | None = None
     no_settings_from_data: bool = False
     system: str | None = None
     #: the CLI's ``--quiet`` (no settings printout)
@@ -67,7 +67,7 @@ class CharacterizeOptions(Inputs):
 
     data: Sequence[str] = ()
     out: Path | None = None
-    band: Sequence[float] | None = None
+    integration_band_hz: Sequence[float] | None = None
     m2: float | None = None
     top: int = 5
     max_terms: int = 3
@@ -86,7 +86,7 @@ class IdentifyOptions(Inputs):
     data: Sequence[Path] = ()
     model: Path | None = None
     out: Path | None = None
-    band: Sequence[float] | None = None
+    integration_band_hz: Sequence[float] | None = None
     cond_limit: float | None = None
     step_data: Sequence[Sequence[Path]] | None = None
     chunk_samples: int = CHUNK_SAMPLES
@@ -104,7 +104,7 @@ class LoopOptions(Inputs):
     data: Sequence[str] = ()
     model: Path | None = None
     out: Path | None = None
-    band: Sequence[float] | None = None
+    integration_band_hz: Sequence[float] | None = None
     cond_limit: float | None = None
     max_rounds: int = 4
     m2: float | None = None
@@ -135,7 +135,7 @@ class RunOptions(Inputs):
 
     data: Sequence[Path] = ()
     out: Path = Path("results")
-    band: Sequence[float] | None = None
+    integration_band_hz: Sequence[float] | None = None
     cond_limit: float | None = None
     no_loop: bool = False
     no_refine: bool = False
@@ -158,5 +158,5 @@ class ExportOptions(_FromArgs):
 NOT_FLAGS = frozenset({"quiet"})
 #: the options ``nifo run`` passes on to every step that has them (the flags of the input and settings groups; the
 #: settings themselves travel resolved, as one AnalysisSettings)
-INPUT_FIELDS = frozenset({f.name for f in fields(Inputs)} - {"quiet"} | {"band", "cond_limit"})
+INPUT_FIELDS = frozenset({f.name for f in fields(Inputs)} - {"quiet"} | {"integration_band_hz", "cond_limit"})
 

@@ -9,13 +9,13 @@ compared with the measured one:
 
 - NMSE in time, 100·Σ(y - ŷ)²/(N·σ_y²) % over the prediction's valid part
   (start-up edges left out; below 5 % good, below 1 % excellent);
-- the band NMSE, 100·Σ|Y - Ŷ|²/Σ|Y|² over the DFT lines of ``--freq-range``
+- the band NMSE, 100·Σ|Y - Ŷ|²/Σ|Y|² over the DFT lines of ``--analysis-band``
   (:mod:`nifo_core.predict.prediction_error`; the same number ``nifo identify --refine``
   minimises): after the start-up edge, or — with ``--period-samples`` — on the
   period average after the first, transient period of the prediction (the
   multisine benchmarks' convention);
 - the transmissibility error |T_pred/T_meas - 1|, median and max over the
-  lines of ``--freq-range`` (default: the model's analysis band), where T is the H1 from the
+  lines of ``--analysis-band`` (default: the model's analysis band), where T is the H1 from the
   measured spindle signal to the predicted or the measured body signal, on
   the same spectral settings.
 
@@ -150,7 +150,7 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
             raise InputError(f"the record is sampled at {fs:g} Hz (Nyquist {0.5 * fs:g} Hz) and the band scored, "
                              f"{band_hz[0]:g}-{band_hz[1]:g} Hz, reaches beyond it (the model was identified at "
                              f"{model.fs_hz:g} Hz)", source=str(path),
-                             hint=f"give --freq-range LO HI with HI below {0.5 * fs:g} Hz")
+                             hint=f"give --analysis-band LO HI with HI below {0.5 * fs:g} Hz")
         rate_note = (f"predicted at the record's rate, {fs:g} Hz; the model was identified at {model.fs_hz:g} Hz "
                      f"(its parameters are continuous-time)")
     if record.n < model.settings.block:    # the transmissibility needs one block of the model's settings
@@ -330,8 +330,8 @@ def run_predict(args: PredictOptions, *, settings: AnalysisSettings | None = Non
     if linear is None:
         linear = _linear_part(model)
     if settings is None:    # the analysis band: the command line's, else the model's (checked by read_model)
-        band = args.freq_range if args.freq_range is not None else model.analysis_band_hz
-        given = replace(given_from_args(args), analysis_band_hz=band, band_hz=None)
+        band = args.analysis_band_hz if args.analysis_band_hz is not None else model.analysis_band_hz
+        given = replace(given_from_args(args), analysis_band_hz=band, integration_band_hz=None)
         settings = resolve([], given=given, from_data=False)
         spectral = [k for k in ("block", "overlap", "window") if getattr(args, k) is not None]
     else:
@@ -401,7 +401,7 @@ def _num(x, fmt: str) -> str:
 def _summary(results: list[dict], band, out: Path) -> str:
     w = max([24] + [len(r["name"]) for r in results])     # the whole name: records often differ at its end
     # the whole signal first: what the field scores (the raw predicted signal over all frequencies, offset
-    # included); the band NMSE beside it is the diagnosis over --freq-range
+    # included); the band NMSE beside it is the diagnosis over --analysis-band
     periodic = any("distortion" in r["model"] for r in results)
     lines = [f"{'record':<{w}} RMS error model | linear   NMSE all frequencies model | linear   "
              f"band NMSE {band[0]:.4g}-{band[1]:.4g} Hz model | linear   "
