@@ -9,8 +9,10 @@ data > default — through :func:`nifo_core.settings.resolve_settings`: the
 data are probed once (the first :data:`PROBE_SAMPLES` samples of each file,
 bounded memory whatever the recording's length) for a periodic excitation,
 its transient and the excited band (:mod:`nifo_core.signal.excitation`). It returns
-the :class:`~nifo_core.settings.AnalysisSettings` and the input options with
-the period and transient filled in, for the loaders.
+the :class:`~nifo_core.settings.AnalysisSettings`, once per command (``nifo run``: once
+per job); :func:`loader_options` gives the loaders the period and transient it chose.
+:func:`for_records` takes resolved settings on some of their records (a level, a file):
+their checks and excitation, every value and its source unchanged.
 
 Before any setting is chosen, each record is checked for what would make any
 answer wrong (:func:`check_record`, on the same probed samples): a channel that
