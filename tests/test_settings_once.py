@@ -93,6 +93,43 @@ def test_each_single_command_resolves_its_settings_once(job, records, command, m
     assert calls[0] == 1
 
 
+def _periodic_record(path):
+    """A multisine spindle (10 periods of 2048 samples at 400 Hz, 1-40 Hz) through a linear body (1.5 Hz, 30 %
+    damping), 1 % noise: the settings read a period, its transient and the excited band off it."""
+    import numpy as np
+
+    from nifo_core.signal.record import Record
+
+    fs, p = 400.0, 2048
+    rng = np.random.default_rng(3)
+    f = np.fft.rfftfreq(p, 1 / fs)
+    spec = np.where((f > 1.0) & (f < 40.0), np.exp(2j * np.pi * rng.random(f.size)), 0)
+    w, wn, z = 2 * np.pi * f, 2 * np.pi * 1.5, 0.3
+    h = (2 * z * wn * 1j * w + wn ** 2) / (wn ** 2 - w ** 2 + 2j * z * wn * w)
+    scale = np.fft.irfft(spec, p).std()
+    u = np.tile(np.fft.irfft(spec, p) / scale, 10) + 0.01 * rng.standard_normal(10 * p)
+    y = np.tile(np.fft.irfft(spec * h, p) / scale, 10) + 0.01 * rng.standard_normal(10 * p)
+    return save_record(path, Record(fs_hz=fs, spindle_accel=u, body_accel=y, source="multisine"))
+
+
+def test_a_period_read_off_the_data_is_written_as_the_datas_by_the_step_that_takes_it(tmp_path, capsys):
+    """On a99f355 nifo run handed the period it had read off periodic data to predict as a given value, and
+    predict.json said "command line" for it (F-16 levels 1 and 3: both records)."""
+    from nifo.pipeline.options import PredictOptions
+    from nifo.pipeline.predict import run_predict
+
+    path = _periodic_record(tmp_path / "multisine.csv")
+    st = settings.resolve([path])
+    assert st.period_samples == 2048 and st.choices["period_samples"].source == "data"
+    model = tmp_path / "m.yaml"
+    model.write_text("nifo_model: 1\nnonlinearities: [cubic_stiffness]\n")
+    assert main(["identify", str(path), "--model", str(model), "--out", str(tmp_path / "id"), "--no-plots"]) == 0
+    run_predict(PredictOptions(data=[path], model=tmp_path / "id", out=tmp_path / "p", no_plots=True), settings=st)
+    written = json.loads((tmp_path / "p" / "predict.json").read_text())["records"][0]["settings"]
+    assert written["period_samples"] == st.choices["period_samples"].to_dict()
+    assert written["skip_periods"]["source"] == "data"
+
+
 def test_a_setting_given_on_the_command_line_says_so(records, monkeypatch, tmp_path, capsys):
     """The printed source is true the other way too: what the user typed is "command line"; the rest "data"."""
     _, paths = records

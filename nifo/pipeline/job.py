@@ -32,6 +32,7 @@ import json
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 from pathlib import Path
 
 import yaml
@@ -144,6 +145,18 @@ def run_job(args: RunOptions) -> dict:
         return _run(args, data, out)
 
 
+def _read_as_chosen(args: RunOptions, st: AnalysisSettings) -> RunOptions:
+    """``args`` with the period and transient the job chose as its input options: they are also how the records are
+    read, and every step records its input options (``"input"`` of its JSON) for whoever reads the records again
+    (the report, the viewer: :func:`nifo.io.provenance.reader_options`). The settings themselves travel as ``st``."""
+    if args.period_samples is not None or not st.period_samples:
+        return args
+    chosen = {"period_samples": st.period_samples}
+    if args.skip_periods is None and args.skip_seconds is None:
+        chosen["skip_periods"] = st.skip_periods
+    return replace(args, **chosen)
+
+
 def _run(args: RunOptions, data: list[Path], out: Path) -> dict:
     """The steps of the module docstring in order, each timed; the summary :func:`run` returns. Long because it
     is the job's script, one step after the other, read top to bottom."""
@@ -162,6 +175,7 @@ def _run(args: RunOptions, data: list[Path], out: Path) -> dict:
     t = begin(f"settings from the data of {len(data)} record(s)")
     st = resolve(data, args, opts=input_options(args))
     print("\n".join("  " + line for line in st.describe()))
+    args = _read_as_chosen(args, st)
     timings["settings"] = time.monotonic() - t
 
     t = begin(f"characterize {len(data)} record(s): restoring force, suggested model")
