@@ -41,6 +41,7 @@ import numpy as np
 
 from .defaults import DEFAULT_ANALYSIS_BAND_HZ, DEFAULT_COND_LIMIT
 from .errors import ConfigError
+from .setting_rules import check_timing
 from .signal.excitation import Excitation
 from .signal.integrate import IntegrationBand, default_band, lowest_edge_hz
 from .signal.spectral import SpectralSettings
@@ -99,17 +100,7 @@ class GivenSettings:
             v = getattr(self, name)
             if v is not None:
                 object.__setattr__(self, name, _pair(v, name))
-        if self.period_samples is not None and (isinstance(self.period_samples, bool)
-                                                or int(self.period_samples) != self.period_samples
-                                                or self.period_samples < 8):
-            raise ConfigError(f"period_samples={self.period_samples!r} must be a whole number of samples ≥ 8",
-                              channel="--period-samples", hint="e.g. --period-samples 8192")
-        if self.skip_periods is not None and (int(self.skip_periods) != self.skip_periods or self.skip_periods < 0):
-            raise ConfigError(f"skip_periods={self.skip_periods!r} must be a whole number ≥ 0",
-                              channel="--skip-periods")
-        if self.skip_seconds is not None and not (np.isfinite(self.skip_seconds) and self.skip_seconds >= 0):
-            raise ConfigError(f"skip_seconds={self.skip_seconds!r} must be a number of seconds ≥ 0",
-                              channel="--skip-seconds")
+        check_timing(period_samples=self.period_samples, skip_periods=self.skip_periods, skip_seconds=self.skip_seconds)
         if self.cond_limit is not None and not (np.isfinite(self.cond_limit) and self.cond_limit > 1):
             raise ConfigError(f"cond_limit={self.cond_limit!r} must be a number > 1", channel="--cond-limit")
         if self.integration_band_hz is not None and self.integration_band_hz[0] <= 0:

@@ -57,7 +57,7 @@ from typing import Literal
 import numpy as np
 
 from nifo_core.errors import ConfigError, DataFileError
-from nifo_core.settings import GivenSettings
+from nifo_core.setting_rules import check_timing
 from nifo_core.signal.record import Record
 
 from . import bag   # a lazy front door: rosbags and mcap are imported when a bag is first read or written
@@ -223,7 +223,7 @@ def _with_meta(rec: Record, **items) -> Record:
 
 def _skip(seconds, periods, period_samples, *, source: str) -> Skip:
     try:    # the values by the settings' own rules (one validator per field, every caller alike)
-        GivenSettings(skip_seconds=seconds, skip_periods=periods, period_samples=period_samples)
+        check_timing(skip_seconds=seconds, skip_periods=periods, period_samples=period_samples)
     except ConfigError as err:
         raise err.with_context(source=source) from None
     if periods is not None and period_samples is None:     # the loader cuts whole periods: it needs their length
