@@ -361,7 +361,7 @@ def _round_candidates(ev, pred, terms, ranked, s, m2_kg) -> list:
 def _data_settings(recs: Sequence[Record], band: IntegrationBand | None, s: LoopSettings) -> AnalysisSettings:
     """Without explicit data settings: the loop's spectral settings and analysis band, its integration band."""
     fs = float(recs[0].fs_hz)
-    return AnalysisSettings(spectral=s.spectral, band=band, analysis_band_hz=s.analysis_band_hz, cond_limit=1e4)
+    return AnalysisSettings(spectral=s.spectral, band=band, analysis_band_hz=s.analysis_band_hz)
 
 
 # Long (over 100 lines): each round's fit, residual, ranking, acceptance tests and refit share the round's

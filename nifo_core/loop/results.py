@@ -18,6 +18,7 @@ from ..characterize.automatic import DEFAULT_KINDS, Candidate, Thresholds
 from ..kinds.describing import Term
 from ..signal.uncertainty import CoefficientBounds
 from .detection import Confounding, DetectionLimit, Undetermined
+from ..defaults import DEFAULT_ANALYSIS_BAND_HZ
 from ..errors import ConfigError
 from ..signal.integrate import IntegrationBand
 from ..predict.model import IdentifiedModel
@@ -117,7 +118,7 @@ class LoopSettings:
     max_tire_shift: float = 0.5
     top_tried: int = 3
     spectral: SpectralSettings = field(default_factory=SpectralSettings)
-    analysis_band_hz: tuple[float, float] = (2.0, 30.0)
+    analysis_band_hz: tuple[float, float] = DEFAULT_ANALYSIS_BAND_HZ
     prediction: Prediction = "model"
     retune: bool = True
     refine: bool = True
