@@ -37,6 +37,7 @@ from nifo_core.errors import ConfigError, DataFileError
 from nifo_core.predict.force_law import (Characteristic, characteristic, force_law_bounds, strut_law, truth_law)
 from nifo_core.predict.model import IdentifiedModel, predict_body, record_inputs
 from nifo_core.predict.output_signal import output_name, predicted_output
+from nifo_core.predict.periodic import record_periodic_response
 from nifo_core.signal.record import Record
 
 __all__ = ["Model", "Simulation", "ForceLaw", "Curve", "load_record", "find_model"]
@@ -238,12 +239,22 @@ class Model:
                             float(fs_hz), force=None if force is None else np.asarray(force, float))
         return Simulation(float(fs_hz), pred.body_accel, pred.z, pred.zdot, pred.valid)
 
-    def predict(self, record: Record) -> Simulation:
+    def predict(self, record: Record, *, period_samples: int | None = None) -> Simulation:
         """:meth:`simulate` driven by a record's measured inputs about the model's operating point, and the predicted
-        signal as measured (``output``: offsets included, as ``nifo predict`` writes it)."""
-        a1, force = record_inputs(record, self.identified)
-        sim = self.simulate(a1, record.fs_hz, force=force)
-        return replace(sim, output=predicted_output(self.identified, record, sim), output_name=output_name(record))
+        signal as measured (``output``: offsets included, as ``nifo predict`` writes it). A periodic record's
+        ``period_samples``: after its first period the prediction is the model's periodic response when model.json
+        says it predicts one (``periodic_response``), as ``nifo predict`` gives it."""
+        m = self.identified
+        a1, force = record_inputs(record, m)
+        pred = predict_body(m, a1, record.fs_hz, force=force)
+        pr = m.periodic_response
+        if period_samples and m.terms and pr is not None and pr.periodic and self.linear is not None:
+            la1, lforce = record_inputs(record, self.linear)
+            lin = predict_body(self.linear, la1, record.fs_hz, force=lforce)
+            pred = record_periodic_response(m, record, pred, lin, period_samples=period_samples,
+                                            start=period_samples, band_hz=m.analysis_band_hz)
+        sim = Simulation(float(record.fs_hz), pred.body_accel, pred.z, pred.zdot, pred.valid)
+        return replace(sim, output=predicted_output(m, record, pred), output_name=output_name(record))
 
     def transmissibility(self, freq_hz) -> np.ndarray:
         """The nominal linear spindle→body transmissibility T21(jω) of the model's linear part (complex)."""

@@ -18,8 +18,10 @@ from nifo_core.kinds.describing import make_term
 from nifo_core.predict.heldout import split_records
 from nifo_core.predict.linear_part import BodyModel
 from nifo_core.predict.model import IdentifiedModel, predict_body, record_inputs
+from nifo_core.predict.time_prediction import Prediction
 from nifo_core.predict.output_signal import measured_output, predicted_output
-from nifo_core.predict.scope import Offsets, PredictionBand, Validity
+from nifo_core.predict.periodic import model_lines, periodic_prediction, steady_state
+from nifo_core.predict.scope import Offsets, PeriodicResponse, PredictionBand, Validity
 from nifo_core.predict.scope_fit import fit_scope
 from nifo_core.predict.whole_signal import distortion_error, excited_lines, whole_signal_error
 from nifo_core.signal.band import band_limit, fraction_outside
@@ -199,3 +201,102 @@ def test_model_json_round_trip_keeps_the_static_part_the_band_and_the_range():
     back = IdentifiedModel.from_dict(m.to_dict())
     assert back.offsets == m.offsets and back.prediction_band.policy == "band"
     assert back.validity.rms == (1.0, 3.0) and back.validity.peak == (3.0, 9.0)
+
+
+# -------------------------------------------------------------------------------------------------
+# the periodic response: a periodic input's prediction is the model's periodic steady state when the data say so
+# -------------------------------------------------------------------------------------------------
+def test_the_steady_state_never_adds_to_the_error_against_a_periodic_response():
+    rng = np.random.default_rng(21)
+    p = 512
+    y = np.tile(_multisine(p, np.arange(5, 40, 2), rng), 7)                     # the structure: periodic
+    wander = y + np.repeat(rng.standard_normal(7), p) * 0.1 + 0.05 * rng.standard_normal(y.size)
+    ss = steady_state(wander, p, p)
+    np.testing.assert_array_equal(ss[:p], wander[:p])                        # the start-up as it was simulated
+    periods = ss[p: p + 6 * p].reshape(6, p)
+    np.testing.assert_allclose(periods, np.broadcast_to(periods[0], periods.shape), atol=1e-12)
+    e_sim, e_ss = (whole_signal_error(y, x, skip=p) for x in (wander, ss))
+    # Σ|y - ŷ|² = Σ|y - ŷ_sync|² + Σ|ŷ - ŷ_sync|² over whole periods of a periodic y
+    var = distortion_error(y, wander, y, FS, period_samples=p, band_hz=(1.0, 30.0), skip=p).period_variation_rms
+    assert e_ss.rms_error ** 2 + var ** 2 == pytest.approx(e_sim.rms_error ** 2, rel=1e-9)
+    np.testing.assert_array_equal(steady_state(wander[: 2 * p + 10], p, p), wander[: 2 * p + 10])   # one period
+
+
+def test_a_model_that_rings_across_periods_predicts_its_periodic_response_and_says_so():
+    """A periodic multisine through the cubic body (the structure, periodic); a model whose resonance is nearly
+    undamped rings from its start-up through every period, its linear twin does not: the held-out whole-signal error
+    chooses the periodic response, and the prediction after the first period is periodic and closer to the
+    measurement."""
+    rng = np.random.default_rng(22)
+    p = 2048
+    u = np.tile(_multisine(p, np.arange(6, 60, 3), rng), 8)
+    u *= 2.0 / u.std()
+    truth = _model()
+    rec = Record(FS, u, np.asarray(predict_body(truth, u, FS).body_accel) + 0.002 * rng.standard_normal(u.size),
+                 source="periodic")
+    held = split_records([rec], band_hz=(1.0, 30.0), period_samples=p)
+    ringing = IdentifiedModel.from_body(BodyModel(k=BODY.k, c=BODY.c * 0.03), [CUBIC], [4e6], fs_hz=FS,
+                                        analysis_band_hz=(1.0, 30.0))
+    twin = fit_scope(IdentifiedModel.from_body(BODY, [], [], fs_hz=FS, analysis_band_hz=(1.0, 30.0)), held,
+                     choose_band=False)
+    assert twin.periodic_response is None                     # a linear model's response is periodic as it comes
+    scoped = fit_scope(ringing, held, choose_band=False, linear=twin)
+    pr = scoped.periodic_response
+    assert pr.policy == "periodic" and pr.held_out["periodic"] < pr.held_out["simulated"], pr.reason
+    sim = predict_body(scoped, record_inputs(rec, scoped)[0], FS)
+    lin = predict_body(twin, record_inputs(rec, twin)[0], FS)
+    per = periodic_prediction(sim, lin, period_samples=p, start=p)
+    e_per, e_sim = (whole_signal_error(rec.body_accel, predicted_output(scoped, rec, x), skip=p) for x in (per, sim))
+    assert e_per.rms_error < 0.5 * e_sim.rms_error
+    np.testing.assert_allclose(per.body_accel[p:2 * p], per.body_accel[-p:], atol=0.01 * np.std(per.body_accel))
+    np.testing.assert_array_equal(per.body_accel[:p], sim.body_accel[:p])      # the start-up as simulated
+    assert IdentifiedModel.from_dict(scoped.to_dict()).periodic_response == pr
+    # random data choose nothing: the prediction is the simulation as it comes
+    assert fit_scope(truth, split_records([_record(23, 2.0)], band_hz=(1.0, 30.0)), linear=twin).periodic_response \
+        is None
+    with pytest.raises(ConfigError, match="periodic"):
+        PeriodicResponse("averaged")
+
+
+def test_the_periodic_response_keeps_what_the_input_itself_varies():
+    """A measured input is not exactly periodic: the part of the response its own variation causes is kept (the
+    linear twin's response to it), where averaging the simulation would throw it away."""
+    rng = np.random.default_rng(24)
+    p = 2048
+    periodic = np.tile(_multisine(p, np.arange(6, 60, 3), rng), 6)
+    u = 2.0 * periodic / periodic.std() + band_limit(0.2 * rng.standard_normal(periodic.size), FS, (1.0, 30.0))
+    truth = _model(3e4)          # the linear twin (no cubic) off by 9 % of the output: the twin is an approximation
+    rec = Record(FS, u, np.asarray(predict_body(truth, u, FS).body_accel), source="nearly periodic")
+    twin = IdentifiedModel.from_body(BODY, [], [], fs_hz=FS, analysis_band_hz=(1.0, 30.0))
+    a1 = record_inputs(rec, truth)[0]
+    sim, lin = predict_body(truth, a1, FS), predict_body(twin, a1, FS)
+    per = periodic_prediction(sim, lin, period_samples=p, start=p)
+    e_per = whole_signal_error(rec.body_accel, per.body_accel, skip=p)
+    e_avg = whole_signal_error(rec.body_accel, steady_state(sim.body_accel, p, p), skip=p)
+    assert e_per.rms_error < 0.2 * e_avg.rms_error and e_per.nmse_percent < 0.1
+    # its period average is the model's: every figure read from it is unchanged
+    np.testing.assert_allclose(steady_state(per.body_accel, p, p), steady_state(sim.body_accel, p, p), atol=1e-12)
+
+
+def test_the_model_s_distortion_can_give_way_to_the_linear_model_s_on_the_lines_not_excited():
+    """``keep``: the model's period average on the lines the input excited (and DC), its linear twin's on the
+    others — a model whose distortion did not predict the identification records' better than its twin's."""
+    rng = np.random.default_rng(25)
+    p = 512
+    u = _multisine(p, np.arange(5, 40, 2), rng)                      # odd lines excited
+    excited = excited_lines(u, FS, (4 * FS / p, 40 * FS / p))
+    assert excited[5] and not excited[6] and not excited[0]
+    model_distortion, linear_distortion = _multisine(p, [6, 8], rng), _multisine(p, [10, 12], rng)
+    m = np.tile(u + model_distortion + 0.3, 4)
+    lin = np.tile(0.9 * u + linear_distortion, 4)
+    sim = Prediction(m, m, m, 0, 0.0, "test", 0)
+    twin = Prediction(lin, lin, lin, 0, 0.0, "test", 0)
+    keep = excited.copy()
+    keep[0] = True
+    got = periodic_prediction(sim, twin, period_samples=p, start=p, keep=keep).body_accel
+    np.testing.assert_allclose(got[p:2 * p], u + linear_distortion + 0.3, atol=1e-12)
+    # the lines kept: those excited in the band, and every line outside it (there the prediction band decides)
+    kept = model_lines(np.tile(u, 4), p, p, FS, (4 * FS / p, 11 * FS / p))
+    assert kept[0] and kept[5] and kept[7] and not kept[6] and not kept[8] and kept[12] and kept[13]
+    np.testing.assert_allclose(periodic_prediction(sim, twin, period_samples=p, start=p).body_accel[p:2 * p],
+                               u + model_distortion + 0.3, atol=1e-12)

@@ -19,7 +19,8 @@
     :meth:`IdentifiedModel.to_dict` (T21, B_i, terms, pooled c_i/M2, the
     one-mass body model or null, ``offsets`` (the static part the prediction adds),
     ``prediction_band`` (the band the prediction covers, chosen by held-out whole-signal
-    error) and ``validity`` (the band and input amplitudes identified on;
+    error), ``periodic_response`` (for a periodic input: the model's periodic response or its simulation as it
+    comes, chosen the same way) and ``validity`` (the band and input amplitudes identified on;
     :mod:`nifo_core.predict.scope`), ``linear_part``: the linear part predictions
     use — ``kind`` body or rational, ``order``, ``fit_rms``, ``stable``,
     ``physical``, ``reason`` it was chosen, the ``candidates`` tried, and for a
@@ -299,6 +300,13 @@ class _PredictionBandDoc(_Banded):
     held_out: dict[str, Any] | None = None
 
 
+class _PeriodicResponseDoc(_Doc):
+    policy: Literal["periodic", "simulated"]
+    reason: str = ""
+    held_out: dict[str, Any] | None = None
+    distortion: Literal["model", "linear"] = "model"
+
+
 class _ValidityDoc(_Banded):
     input: Literal["spindle_accel", "force"]
     unit: str = ""
@@ -330,6 +338,7 @@ class ModelDocument(_Doc):
     provenance: dict[str, Any] | None = None
     offsets: _OffsetsDoc | None = None
     prediction_band: _PredictionBandDoc | None = None
+    periodic_response: _PeriodicResponseDoc | None = None
     validity: _ValidityDoc | None = None
     linear_h1: "ModelDocument | None" = None
 

@@ -284,6 +284,8 @@ def run_identify(args: IdentifyOptions, *, settings: AnalysisSettings | None = N
     if model is not None:
         model, linear = with_scope(model, linear, opts, [d["path"] for d in _entries(data)])
         summary["prediction_band"] = model.prediction_band.to_dict()
+        if model.periodic_response is not None:
+            summary["periodic_response"] = model.periodic_response.to_dict()
         summary["offsets"] = model.offsets.to_dict()
     prov = {"data": data, "model_file": str(args.model), "settings": _settings_doc(cfg, res), "system": system_of(args)}
     settings_doc = _settings_doc(cfg, res)

@@ -54,6 +54,7 @@ from nifo_core.errors import ConfigError, InputError, MissingChannelError, NifoE
 from nifo_core.signal.frf import coherence, h1
 from nifo_core.predict.model import predict_body, record_inputs
 from nifo_core.predict.output_signal import measured_output, predicted_output
+from nifo_core.predict.periodic import record_periodic_response
 from nifo_core.predict.whole_signal import DistortionError, distortion_error, whole_signal_error
 from nifo_core.predict.prediction_bounds import Z95, half_width, line_spread, prediction_spread
 from nifo_core.predict.prediction_error import band_nmse, band_spectra
@@ -127,14 +128,18 @@ def _distortion(y: np.ndarray, yhat: np.ndarray, u: np.ndarray, fs: float, band_
         return {"percent_of_none": None, "not_computed": err.message}
 
 
-def _not_periodic(dm: DistortionError | dict, dl: DistortionError | dict, unit: str) -> str | None:
-    """One sentence when the model's prediction of a periodic record is not periodic where the structure was."""
+def _not_periodic(dm: DistortionError | dict, dl: DistortionError | dict, unit: str, periodic: bool) -> str | None:
+    """One sentence when the model's simulation of a periodic record is not periodic where the structure was
+    (``periodic``: its prediction is its periodic response, without the wandering)."""
     if not (isinstance(dm, DistortionError) and isinstance(dl, DistortionError) and dm.not_periodic(dl)):
         return None
     return (f"the model's response is not periodic at this level: {dm.period_variation_rms:.3g} {unit} RMS from "
             f"period to period, measured {dm.measured_period_variation_rms:.3g} {unit}, its linear model "
             f"{dl.period_variation_rms:.3g} {unit} (a nonlinearity that slips or jumps on some periods and not "
-            f"others: its signal carries a wandering the structure does not show)")
+            f"others: " + ("the prediction is its periodic response, its period average and the part of the linear "
+                           "model's response that is not periodic; the wandering the structure does not show is "
+                           "left out)" if periodic else
+                           "its signal carries a wandering the structure does not show)"))
 
 
 def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
@@ -162,9 +167,14 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
         raise InputError("the spindle is fixed and the model has no force input: nothing drives the model",
                          source=str(path), hint="predict with a model identified with the measured force")
     a2 = np.asarray(record.body_accel)
-    pm = predict_body(model, a1, fs, force=force, method=method, label=str(path))
+    sim = predict_body(model, a1, fs, force=force, method=method, label=str(path))
     pl = predict_body(linear, a1, fs, force=force, method=method, label=str(path))
-    skip = _skip(pm, period_samples, transient)
+    skip = _skip(sim, period_samples, transient)
+    periodic_model = bool(period_samples and model.terms and model.periodic_response is not None
+                          and model.periodic_response.periodic)
+    # the model's prediction: its periodic response to a periodic input when it predicts one (model.json)
+    pm = (record_periodic_response(model, record, sim, pl, period_samples=period_samples, start=skip,
+                                   band_hz=tuple(band_hz)) if periodic_model else sim)
     valid = slice(max(pm.valid.start, skip), pm.valid.stop)
     if valid.stop - valid.start < model.settings.block:
         valid = pm.valid
@@ -191,16 +201,25 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
     }
     raw_drive = np.asarray(record.force if drive_name == "force" else record.spindle_accel, float)
     if period_samples:
+        # the model's simulation as it comes beside its prediction: how much it varies from period to period is
+        # said even where the prediction is its periodic response
         dist = {key: _distortion(measured.values, yh, raw_drive, fs, band_hz, period_samples, skip)
                 for key, yh in (("model", y_model), ("linear", y_lin))}
+        as_simulated = (_distortion(measured.values, predicted_output(model, record, sim), raw_drive, fs, band_hz,
+                                    period_samples, skip) if periodic_model else dist["model"])
         for key, d in dist.items():
             out[key]["distortion"] = d.to_dict() if isinstance(d, DistortionError) else d
-        wandering = _not_periodic(dist["model"], dist["linear"], measured.unit)
+        if periodic_model and isinstance(as_simulated, DistortionError) and isinstance(dist["model"], DistortionError):
+            out["model"]["distortion"]["simulated_period_variation_rms"] = as_simulated.to_dict()[
+                "period_variation_rms"]
+        wandering = _not_periodic(as_simulated, dist["linear"], measured.unit, periodic_model)
         if wandering:
             out["model"]["not_periodic"] = wandering
     for key, m in (("model", model), ("linear", linear)):
         if m.prediction_band is not None:
             out[key]["prediction_band"] = m.prediction_band.describe()
+        if period_samples and m.periodic_response is not None and m.terms:
+            out[key]["periodic_response"] = m.periodic_response.describe()
     if model.validity is not None:
         out["validity"] = model.validity.check(raw_drive[transient:], fs).to_dict()
     drive_col = "force" if drive_name == "force" else "spindle_accel_m_s2"
@@ -449,6 +468,7 @@ def _summary(results: list[dict], band, out: Path) -> str:
                      + (f"; the model's prediction: {r['model']['prediction_band']}"
                         if r["model"].get("prediction_band") else "")
                      + (f"; the linear model's: {r['linear']['prediction_band']}"
-                        if r["linear"].get("prediction_band") else ""))
+                        if r["linear"].get("prediction_band") else "")
+                     + (f"; {r['model']['periodic_response']}" if r["model"].get("periodic_response") else ""))
     lines.append(f"wrote {out}/predict.json")
     return "\n".join(lines)

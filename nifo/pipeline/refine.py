@@ -92,13 +92,15 @@ def refine(args, model, linear, opts: dict, paths: list):
 
 
 def with_scope(model, linear, opts: dict, paths: list):
-    """``model`` and ``linear`` with their offsets, prediction band and validity from the identification records
-    (:func:`nifo_core.predict.scope_fit.fit_scope`: held-out parts as the refinement's check splits them)."""
+    """``model`` and ``linear`` with their offsets, prediction band, periodic response and validity from the
+    identification records (:func:`nifo_core.predict.scope_fit.fit_scope`: held-out parts as the refinement's check
+    splits them)."""
     loaded = from_start(opts, paths, centred=False)      # the static part: the records as measured
     held = split_records([rec for rec, _ in loaded], skip_samples=max(skip for _, skip in loaded),
                          period_samples=opts.get("period_samples"), band_hz=model.analysis_band_hz)
     with Progress(None, "the static part and the band the prediction covers", enabled=True):
-        return fit_scope(model, held), None if linear is None else fit_scope(linear, held)
+        linear = None if linear is None else fit_scope(linear, held)
+        return fit_scope(model, held, linear=linear), linear
 
 
 def _refine(args, model, linear, records, skips, period, refine_jointly, refine_model):

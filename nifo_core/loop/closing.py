@@ -869,8 +869,8 @@ def _final_model(u: _Setup, found: _Found, verdict: str, say: Callable[[float, s
     if model is not None:   # what the model carries besides its dynamics: offsets, the band it covers, its range
         say(0.99, "the static part and the band the prediction covers")
         held_raw = replace(u.held, records=u.raw)
-        model = fit_scope(model, held_raw)
         linear = None if linear is None else fit_scope(linear, held_raw)
+        model = fit_scope(model, held_raw, linear=linear)
     floor_note = _floors(final_score, pred, terms)
     if floor_note:
         verdict = floor_note + " " + verdict.replace(NOTHING_MISSING, "").replace(

@@ -51,7 +51,7 @@ from .linear_part import BodyModel, LinearPart, absorbed_rates, fit_body_model, 
 from ..nifo.identify import NifoResult
 from ..nifo.result import complex_from_json, complex_json, read_only  # one home for the JSON forms of complex arrays
 from ..signal.band import band_taper
-from .scope import Offsets, PredictionBand, Validity
+from .scope import Offsets, PeriodicResponse, PredictionBand, Validity
 from ..signal.frf import coherence, h1
 from ..signal.spectral import SpectralSettings, cross_spectra
 from .time_prediction import (DIVERGENCE_FACTOR, FINE_RATE_HZ, Prediction, PredictionDivergedError, _check_input,
@@ -69,7 +69,8 @@ Engine = Literal["time", "frequency"]
 # the identified model
 # ---------------------------------------------------------------------------------------------
 #: what a model carries besides its dynamics (:mod:`nifo_core.predict.scope`), by its key in model.json
-_SCOPE = {"offsets": Offsets, "prediction_band": PredictionBand, "validity": Validity}
+_SCOPE = {"offsets": Offsets, "prediction_band": PredictionBand, "periodic_response": PeriodicResponse,
+          "validity": Validity}
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,6 +108,8 @@ class IdentifiedModel:
         each record's own input means, no output offset).
     prediction_band : PredictionBand, optional
         The band the prediction covers (None: every frequency).
+    periodic_response : PeriodicResponse, optional
+        What the prediction of a periodic input is (None: the simulation as it comes).
     validity : Validity, optional
         The band and input amplitudes the model was identified on.
     """
@@ -127,6 +130,7 @@ class IdentifiedModel:
     force_gain: float = 0.0
     offsets: Offsets | None = None
     prediction_band: PredictionBand | None = None
+    periodic_response: PeriodicResponse | None = None
     validity: Validity | None = None
 
     def __post_init__(self) -> None:

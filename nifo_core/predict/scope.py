@@ -19,6 +19,13 @@ included, over all frequencies. Three small frozen objects, each written into ``
     by the whole input, as it was fitted (limiting the input too moved the F-16's band NMSE at levels 5 and 7 from
     0.301 to 0.313 % and 0.425 to 0.440 %). Chosen per model by the held-out whole-signal error
     (:func:`nifo_core.predict.scope_fit.fit_scope`).
+:class:`PeriodicResponse`
+    What the prediction of a *periodic* input is. ``'periodic'``: the model's periodic response — its
+    simulation's period average plus the part of its linear twin's that is not periodic
+    (:mod:`nifo_core.predict.periodic`). ``'simulated'``: the simulation as it comes. A structure driven
+    periodically answers periodically, up to its noise and the input's own variation; a model may not (a play that
+    slips on some periods and not others wanders from period to period). Chosen per model by the held-out
+    whole-signal error on the identification records (:func:`nifo_core.predict.scope_fit.fit_scope`).
 :class:`Validity`
     The band and the input amplitudes (RMS and peak about the mean) of the records the model was identified on;
     :meth:`Validity.check` says how far another record's input lies outside them (:class:`RecordValidity`).
@@ -34,7 +41,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..signal.band import fraction_outside
 
-__all__ = ["Offsets", "PredictionBand", "Validity", "RecordValidity", "OUTSIDE_BAND_FRACTION", "AMPLITUDE_MARGIN",
+__all__ = ["Offsets", "PredictionBand", "PeriodicResponse", "Validity", "RecordValidity", "OUTSIDE_BAND_FRACTION", "AMPLITUDE_MARGIN",
            "input_name", "INPUT_UNITS"]
 
 #: a record whose input has more than this fraction of its energy outside the model's band is outside it
@@ -132,6 +139,56 @@ class PredictionBand:
                        held_out=dict(d.get("held_out") or {}))
         except (KeyError, TypeError, ValueError, IndexError) as err:
             raise ConfigError(f"cannot read the model's prediction band: {err}") from None
+
+
+@dataclass(frozen=True)
+class PeriodicResponse:
+    """What the prediction of a periodic input is (module docstring).
+
+    Attributes
+    ----------
+    policy : {'periodic', 'simulated'}
+    reason : str
+    held_out : mapping
+        The held-out whole-signal NMSE [%] per policy it was chosen by.
+    distortion : {'model', 'linear'}
+        On the lines the input did not excite, the model's period average (its predicted distortion) or its linear
+        twin's (the model's distortion did not predict the identification records' better).
+    """
+
+    policy: Literal["periodic", "simulated"] = "simulated"
+    reason: str = ""
+    held_out: Mapping = field(default_factory=dict)
+    distortion: Literal["model", "linear"] = "model"
+
+    def __post_init__(self) -> None:
+        if self.policy not in ("periodic", "simulated"):
+            raise ConfigError(f"periodic response policy {self.policy!r} must be 'periodic' or 'simulated'")
+        if self.distortion not in ("model", "linear"):
+            raise ConfigError(f"periodic response distortion {self.distortion!r} must be 'model' or 'linear'")
+
+    @property
+    def periodic(self) -> bool:
+        return self.policy == "periodic"
+
+    def describe(self) -> str:
+        if not self.periodic:
+            return "for a periodic input, the simulation as it comes"
+        return ("for a periodic input, the model's periodic response (its period average" +
+                (", on the lines the input did not excite the linear model's" if self.distortion == "linear" else "")
+                + ", and the part of the linear model's response that is not periodic)")
+
+    def to_dict(self) -> dict:
+        return {"policy": self.policy, "reason": self.reason, "held_out": dict(self.held_out),
+                "distortion": self.distortion}
+
+    @classmethod
+    def from_dict(cls, d: Mapping) -> "PeriodicResponse":
+        try:
+            return cls(policy=str(d["policy"]), reason=str(d.get("reason") or ""),
+                       held_out=dict(d.get("held_out") or {}), distortion=str(d.get("distortion") or "model"))
+        except (KeyError, TypeError, ValueError) as err:
+            raise ConfigError(f"cannot read the model's periodic response: {err}") from None
 
 
 @dataclass(frozen=True)
