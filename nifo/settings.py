@@ -1,7 +1,7 @@
 """The settings of every command: the same flags everywhere, one merge, choices read off the data.
 
 :func:`add_settings_arguments` gives every data command the same settings
-flags (``--block``, ``--overlap``, ``--window``, ``--band``, ``--freq-range``,
+flags (``--block``, ``--overlap``, ``--window``, ``--integration-band``, ``--analysis-band``,
 ``--cond-limit``; ``--period-samples``, ``--skip-periods``, ``--skip-seconds``
 come with the input options of :func:`nifo.io.loader.add_input_arguments`).
 :func:`resolve` merges them — command line > model file > chosen from the
@@ -9,8 +9,10 @@ data > default — through :func:`nifo_core.settings.resolve_settings`: the
 data are probed once (the first :data:`PROBE_SAMPLES` samples of each file,
 bounded memory whatever the recording's length) for a periodic excitation,
 its transient and the excited band (:mod:`nifo_core.signal.excitation`). It returns
-the :class:`~nifo_core.settings.AnalysisSettings` and the input options with
-the period and transient filled in, for the loaders.
+the :class:`~nifo_core.settings.AnalysisSettings`, once per command (``nifo run``: once
+per job); :func:`loader_options` gives the loaders the period and transient it chose.
+:func:`for_records` takes resolved settings on some of their records (a level, a file):
+their checks and excitation, every value and its source unchanged.
 
 Before any setting is chosen, each record is checked for what would make any
 answer wrong (:func:`check_record`, on the same probed samples): a channel that
@@ -20,7 +22,7 @@ channel, the spindle and the body read from the same channel; the constant
 offsets of the accelerations are measured and reported (every step removes them
 before it computes). When the settings are to be read off the data and no
 excited band can be found, the command is refused (exit 10) rather than run on
-fixed defaults; ``--freq-range`` (and ``--band``) or ``--no-settings-from-data``
+fixed defaults; ``--analysis-band`` (and ``--integration-band``) or ``--no-settings-from-data``
 say where to look instead.
 """
 
@@ -37,16 +39,19 @@ import numpy as np
 
 from nifo.io.loader import iter_record_chunks
 from nifo.io.memo import nbytes, remembered
-from nifo_core.defaults import DEFAULT_COND_LIMIT
+from nifo_core.defaults import DEFAULT_ANALYSIS_BAND_HZ, DEFAULT_COND_LIMIT
 from nifo_core.errors import ClippedSignalError, IllConditionedError, InputError, NifoError, RecordTooShortError
 from nifo_core.signal.clipping import REFUSE_FRACTION, ClippingWarning, clipping
 from nifo_core.signal.record import acceleration_means, concatenate
 from nifo_core.signal.excitation import Excitation, analyse_excitation, combine_excitations
 from nifo_core.characterize.restoring import suggest_band
-from nifo_core.settings import PAPER_BLOCK_S, AnalysisSettings, GivenSettings, merge_given, resolve_settings
+from nifo_core.settings import (PAPER_BLOCK_S, AnalysisSettings, GivenSettings, merge_given, period_and_transient,
+                                resolve_settings, shortest_after_transient)
 
-__all__ = ["add_settings_arguments", "forget_step", "given_from_args", "given_from_file", "resolve", "loader_options",
+__all__ = ["add_settings_arguments", "forget_step", "given_from_args", "given_from_file", "resolve", "for_records", "loader_options",
            "check_record", "in_context", "explain", "PROBE_SAMPLES"]
+
+_DEFAULT_BAND = "{:g}-{:g}".format(*DEFAULT_ANALYSIS_BAND_HZ)
 
 #: samples of each file read to choose settings from the data (58 min at 600 Hz: a whole sweep or road test; the
 #: periods of a multisine), in chunks of PROBE_CHUNK (bags are decoded chunk by chunk)
@@ -55,9 +60,10 @@ PROBE_CHUNK = 2 ** 18
 
 
 def add_settings_arguments(p: argparse.ArgumentParser, *, cond_limit: bool = True, band: bool = True,
-                           freq_range: bool = True) -> None:
+                           analysis_band: bool = True) -> None:
     """The spectral and band settings every data command takes (each chosen from the data when not given); a command
-    leaves out the ones it has no use for (``band``: the integration band; ``freq_range``; ``cond_limit``)."""
+    leaves out the ones it has no use for (``band``: the integration band; ``analysis_band``; ``cond_limit``). Each
+    flag has the setting's one name (docs/CONTRACTS.md, "One name per setting"); the old flags stay as aliases."""
     g = p.add_argument_group("settings (each overrides the model file's; chosen from the data when neither gives it)")
     g.add_argument("--block", type=int, metavar="N",
                    help="samples per spectral block (periodic data: one period; random: the paper's 10.24 s)")
@@ -66,25 +72,27 @@ def add_settings_arguments(p: argparse.ArgumentParser, *, cond_limit: bool = Tru
     g.add_argument("--window", metavar="W", help="window: flattop, hann, boxcar, ... (periodic: boxcar; random: "
                                                  "flattop)")
     if band:
-        g.add_argument("--band", type=float, nargs=2, metavar=("LO", "HI"),
+        g.add_argument("--integration-band", "--band", type=float, nargs=2, metavar=("LO", "HI"),
+                       dest="integration_band_hz",
                        help="integration band for z, ż [Hz] (from below the excited band to 3× its top)")
-    if freq_range:
-        g.add_argument("--freq-range", type=float, nargs=2, metavar=("LO", "HI"),
+    if analysis_band:
+        g.add_argument("--analysis-band", "--freq-range", type=float, nargs=2, metavar=("LO", "HI"),
+                       dest="analysis_band_hz",
                        help="analysis band [Hz]: NIFO's pooled fit, the linear part, the prediction error (the "
                             "excited band)")
     if cond_limit:
         g.add_argument("--cond-limit", type=float, metavar="C",
                        help=f"scaled cond(G_UU) counted as ill-conditioned (default {DEFAULT_COND_LIMIT:g})")
     g.add_argument("--no-settings-from-data", action="store_true", dest="no_settings_from_data",
-                   help="settings not given take the defaults (paper Table 2, 2-30 Hz, 0.5-200 Hz), not choices read "
-                        "off the data: what nifo fleet and the identifier node use")
+                   help=f"settings not given take the defaults (paper Table 2, {_DEFAULT_BAND} Hz, 0.5-200 Hz), not "
+                        "choices read off the data: what nifo fleet and the identifier node use")
 
 
 def given_from_args(args: argparse.Namespace) -> GivenSettings:
     """What the command line gives (None where not given)."""
     get = lambda k: getattr(args, k, None)   # noqa: E731
-    return GivenSettings(block=get("block"), overlap=get("overlap"), window=get("window"), band_hz=get("band"),
-                         analysis_band_hz=get("freq_range"), period_samples=get("period_samples"),
+    return GivenSettings(block=get("block"), overlap=get("overlap"), window=get("window"), integration_band_hz=get("integration_band_hz"),
+                         analysis_band_hz=get("analysis_band_hz"), period_samples=get("period_samples"),
                          skip_periods=get("skip_periods"), skip_seconds=get("skip_seconds"),
                          cond_limit=get("cond_limit"))
 
@@ -93,7 +101,8 @@ def given_from_file(settings) -> GivenSettings:
     """A model file's ``settings:`` (validated by :mod:`nifo.io.modelfile`) as given settings."""
     s = dict(settings or {})
     return GivenSettings(block=s.get("block"), overlap=s.get("overlap"), window=s.get("window"),
-                         band_hz=s.get("band_hz"), analysis_band_hz=s.get("freq_range_hz"))
+                         integration_band_hz=s.get("integration_band_hz"),
+                         analysis_band_hz=s.get("analysis_band_hz"))
 
 
 #: bytes of probed records kept inside :func:`nifo.io.memo.reuse_reads` (an hour at 600 Hz probed is 2**21 samples
@@ -207,40 +216,32 @@ def check_record(path: Path, rec) -> tuple[dict, list[str]]:
 def resolve(paths: Sequence[Path], args: argparse.Namespace | None = None, *, file_settings=None,
             opts: dict | None = None, given: GivenSettings | None = None,
             from_data: bool = True) -> AnalysisSettings:
-    """The settings for ``paths``: command line (``args`` or ``given``) > model file > data > default.
+    """The settings for ``paths``: command line (``args`` or ``given``) > model file > data > default — once per
+    command (``nifo run``: once per job; its steps take the result through :func:`for_records`).
 
-    Every record is checked first (:func:`check_record`). ``from_data=False``: no probing for settings (the merge
-    of what is given with the defaults). ``args.setting_sources`` (``nifo run``'s steps): where the settings it
-    fills in really came from, so each step says so rather than "command line".
+    Every record is checked first (:func:`check_record`). ``from_data=False`` (or ``--no-settings-from-data``): no
+    probing for settings (the merge of what is given with the defaults).
     """
     cli = given if given is not None else (given_from_args(args) if args is not None else GivenSettings())
     merged, origin = merge_given(cli, given_from_file(file_settings))
     origins = {k: ("command line", "model file")[i] for k, i in origin.items()}
-    reasons: dict[str, str] = {}
-    for k, (src, why) in dict(getattr(args, "setting_sources", None) or {}).items():
-        if origins.get(k) == "command line":
-            origins[k], reasons[k] = src, why
     opts = dict(opts or {})
-    inputs, notes, reads = {}, [], []
-    for p in paths:
-        reads.append(_probe_read(Path(p), _load_options(opts, merged)))
-        found, said = check_record(Path(p), reads[-1][0])
-        inputs[str(p)] = found
-        notes += said
+    paths = [Path(p) for p in paths]
+    inputs, notes, reads = _checked(paths, _load_options(opts, merged))
     excitation, snr, fs, durations = None, None, None, []
     if args is not None and getattr(args, "no_settings_from_data", False):
         from_data = False
     if from_data and paths:
         parts, probes = [], []
         for p, read in zip(paths, reads):
-            ex, fs_p, dur, rec = _probe(Path(p), opts, merged, read)
+            ex, fs_p, dur, rec = _probe(p, opts, merged, read)
             if ex is None and merged.analysis_band_hz is None:
-                _too_short_to_tell(Path(p), rec)
+                _too_short_to_tell(p, rec)
                 why = rec.meta.get("settings_not_from_data", "")
                 raise IllConditionedError(
                     f"no excited band found in the data ({why}): the analysis band cannot be chosen from them",
                     source=str(p), hint="check the channels (--columns/--topics) and that the excitation was on; "
-                    "or give the band yourself: --freq-range LO HI (and --band LO HI)")
+                    "or give the band yourself: --analysis-band LO HI (and --integration-band LO HI)")
             parts.append(ex)
             durations.append(dur)
             fs = fs_p if fs is None else fs
@@ -258,14 +259,66 @@ def resolve(paths: Sequence[Path], args: argparse.Namespace | None = None, *, fi
     # records it reads (default_band of the shortest, or characterize's noise edge), as before settings existed
     try:
         st = resolve_settings(merged, fs_hz=fs, durations_s=durations, excitation=excitation, snr_lo_hz=snr,
-                              origins=origins, reasons=reasons)
+                              origins=origins)
     except NifoError as err:     # a setting the data cannot take (e.g. a band edge too low): name the data
-        shortest = paths[int(min(range(len(durations)), key=lambda i: durations[i]))] if durations else \
-            (paths[0] if paths else None)
-        raise in_context(err, _Origins(origins), source=None if shortest is None else str(shortest)) from None
+        raise in_context(err, _Origins(origins), source=_shortest(paths, durations)) from None
     st = replace(st, inputs=inputs, notes=tuple(notes))
     _step.set((st, [str(p) for p in paths]))
     return st
+
+
+def for_records(settings: AnalysisSettings, paths: Sequence[Path], *, opts: dict | None = None,
+                from_data: bool = True) -> AnalysisSettings:
+    """The settings resolved once (:func:`resolve`) on some of their records: a level ``nifo run`` characterizes
+    alone, each file ``nifo predict`` predicts. Not a second resolution: every value stays the resolved one and keeps
+    its source; what belongs to these records is theirs — their checks and notes (:func:`check_record`), their
+    excitation (``from_data``), and the period and transient where the resolved settings left them to the data and
+    found none (a periodic file among random ones: :func:`nifo_core.settings.period_and_transient`). The integration
+    band is checked against the shortest of them (refused, naming it, when it cannot resolve the band's edge)."""
+    opts = dict(opts or {})
+    paths = [Path(p) for p in paths]
+    fixed = GivenSettings(period_samples=settings.period_samples)
+    inputs, notes, reads = _checked(paths, _load_options(opts, fixed))
+    out: dict = {"inputs": inputs, "notes": tuple(notes), "excitation": None}
+    probes = [_probe(p, opts, fixed, read) for p, read in zip(paths, reads)] if from_data else []
+    if probes and all(ex is not None for ex, *_ in probes):
+        out["excitation"] = combine_excitations([ex for ex, *_ in probes])
+    try:
+        if settings.period_samples is None and out["excitation"] is not None:
+            choices = dict(settings.choices)
+            left = GivenSettings(skip_seconds=settings.skip_seconds)
+            period, skip_periods, _ = period_and_transient(left, out["excitation"], choices,
+                                                           lambda value, name: settings.choices[name])
+            out.update(period_samples=period, skip_periods=skip_periods, choices=choices)
+        durations = [dur for _, _, dur, _ in probes]
+        if settings.band is not None and probes:
+            now = replace(settings, **out)
+            fs = probes[0][1]
+            shortest = shortest_after_transient(durations, fs, now.period_samples, now.skip_periods, now.skip_seconds)
+            settings.band.validate(fs, n_samples=int(shortest * fs))
+    except NifoError as err:
+        raise in_context(err, settings, source=_shortest(paths, durations)) from None
+    st = replace(settings, **out)
+    _step.set((st, [str(p) for p in paths]))
+    return st
+
+
+def _checked(paths: list[Path], load: dict) -> tuple[dict, list[str], list]:
+    """({path: what :func:`check_record` found}, its notes, the probed reads) of ``paths``."""
+    inputs, notes, reads = {}, [], []
+    for p in paths:
+        reads.append(_probe_read(p, load))
+        found, said = check_record(p, reads[-1][0])
+        inputs[str(p)] = found
+        notes += said
+    return inputs, notes, reads
+
+
+def _shortest(paths: list[Path], durations: list[float]) -> str | None:
+    """The shortest record of ``paths`` (the one a band edge is about), else the first."""
+    if durations:
+        return str(paths[int(min(range(len(durations)), key=lambda i: durations[i]))])
+    return str(paths[0]) if paths else None
 
 
 #: fewer samples than this many of the paper's blocks (10.24 s) say nothing about a band: the record is too short
@@ -278,7 +331,7 @@ def _too_short_to_tell(path: Path, rec) -> None:
     if rec.n < need:
         raise RecordTooShortError(f"{rec.n} samples ({rec.duration_s:.3g} s) are too few to tell the excited band "
                                   f"(at least {need}, {need / rec.fs_hz:.3g} s)", source=str(path),
-                                  hint="record longer, or give the band yourself: --freq-range LO HI")
+                                  hint="record longer, or give the band yourself: --analysis-band LO HI")
 
 
 class _Origins:
@@ -288,12 +341,13 @@ class _Origins:
         self.origins = origins
 
     def source_of(self, name: str) -> str:
-        src = self.origins.get({"band": "band_hz"}.get(name, name))
+        src = self.origins.get({"band": "integration_band_hz"}.get(name, name))
         return "chosen from the data" if src in (None, "data") else src
 
 
 #: the settings an error may be about: (its flag, its name in the settings' choices, the words for it)
-_SETTINGS_NAMED = (("--freq-range", "analysis_band_hz", "analysis band"), ("--band", "band", "integration band"))
+_SETTINGS_NAMED = (("--analysis-band", "analysis_band_hz", "analysis band"),
+                   ("--integration-band", "band", "integration band"))
 
 #: the settings of the step running in this context and the files it reads (:func:`explain`)
 _step: contextvars.ContextVar[tuple[object, list[str]] | None] = contextvars.ContextVar("nifo_step", default=None)
@@ -301,7 +355,7 @@ _step: contextvars.ContextVar[tuple[object, list[str]] | None] = contextvars.Con
 
 def in_context(err: NifoError, settings, *, source: str | None = None) -> NifoError:
     """``err`` naming ``source`` (the data it is about) when it names none, and a setting by where it really came
-    from: ``--freq-range`` only when the user gave that flag, else "analysis band (chosen from the data)" or "(model
+    from: ``--analysis-band`` only when the user gave that flag, else "analysis band (chosen from the data)" or "(model
     file)", with a fix that fits (issue 56: a band nifo chose was reported as the user's flag, and no file named)."""
     msg, channel, hint = err.message, err.channel, err.hint
     for flag, name, words in _SETTINGS_NAMED:

@@ -41,12 +41,14 @@ import numpy as np
 
 from .defaults import DEFAULT_ANALYSIS_BAND_HZ, DEFAULT_COND_LIMIT
 from .errors import ConfigError
+from .setting_rules import check_timing
 from .signal.excitation import Excitation
 from .signal.integrate import IntegrationBand, default_band, lowest_edge_hz
 from .signal.spectral import SpectralSettings
 
 __all__ = ["Choice", "GivenSettings", "AnalysisSettings", "DEFAULT_ANALYSIS_BAND_HZ", "DEFAULT_COND_LIMIT",
-           "PAPER_BLOCK_S", "resolve_settings", "merge_given"]
+           "PAPER_BLOCK_S", "resolve_settings", "merge_given", "period_and_transient",
+           "shortest_after_transient"]
 
 #: random data: at least this many spectral averages before the paper's block is shortened
 MIN_AVERAGES = 8
@@ -86,7 +88,7 @@ class GivenSettings:
     block: int | None = None
     overlap: float | None = None
     window: str | None = None
-    band_hz: tuple[float, float] | None = None
+    integration_band_hz: tuple[float, float] | None = None
     analysis_band_hz: tuple[float, float] | None = None
     period_samples: int | None = None
     skip_periods: int | None = None
@@ -94,26 +96,17 @@ class GivenSettings:
     cond_limit: float | None = None
 
     def __post_init__(self) -> None:
-        for name in ("band_hz", "analysis_band_hz"):
+        for name in ("integration_band_hz", "analysis_band_hz"):
             v = getattr(self, name)
             if v is not None:
                 object.__setattr__(self, name, _pair(v, name))
-        if self.period_samples is not None and (isinstance(self.period_samples, bool)
-                                                or int(self.period_samples) != self.period_samples
-                                                or self.period_samples < 8):
-            raise ConfigError(f"period_samples={self.period_samples!r} must be a whole number of samples ≥ 8",
-                              channel="--period-samples", hint="e.g. --period-samples 8192")
-        if self.skip_periods is not None and (int(self.skip_periods) != self.skip_periods or self.skip_periods < 0):
-            raise ConfigError(f"skip_periods={self.skip_periods!r} must be a whole number ≥ 0",
-                              channel="--skip-periods")
-        if self.skip_seconds is not None and not (np.isfinite(self.skip_seconds) and self.skip_seconds >= 0):
-            raise ConfigError(f"skip_seconds={self.skip_seconds!r} must be a number of seconds ≥ 0",
-                              channel="--skip-seconds")
+        check_timing(period_samples=self.period_samples, skip_periods=self.skip_periods, skip_seconds=self.skip_seconds)
         if self.cond_limit is not None and not (np.isfinite(self.cond_limit) and self.cond_limit > 1):
             raise ConfigError(f"cond_limit={self.cond_limit!r} must be a number > 1", channel="--cond-limit")
-        if self.band_hz is not None and self.band_hz[0] <= 0:
-            raise ConfigError(f"integration band {self.band_hz[0]:g}-{self.band_hz[1]:g} Hz needs LO > 0",
-                              channel="--band", hint="e.g. --band 0.5 200")
+        if self.integration_band_hz is not None and self.integration_band_hz[0] <= 0:
+            lo, hi = self.integration_band_hz
+            raise ConfigError(f"integration band {lo:g}-{hi:g} Hz needs LO > 0",
+                              channel="--integration-band", hint="e.g. --integration-band 0.5 200")
         spectral = {k: getattr(self, k) for k in ("block", "overlap", "window") if getattr(self, k) is not None}
         if spectral:    # the spectral engine's own rules, checked here once for every caller
             replace(SpectralSettings(), **spectral)
@@ -122,13 +115,19 @@ class GivenSettings:
         return {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None}
 
 
+#: a band setting's flag and its name in words (the messages of every source: flag, model file, node parameter)
+_BANDS = {"integration_band_hz": ("--integration-band", "integration band"),
+          "analysis_band_hz": ("--analysis-band", "analysis band")}
+
+
 def _pair(value, name: str) -> tuple[float, float]:
+    flag, words = _BANDS[name]
     try:
         lo, hi = (float(v) for v in value)
     except (TypeError, ValueError):
-        raise ConfigError(f"{name}={value!r} must be two numbers [Hz]", channel=name, hint="e.g. 2 30") from None
+        raise ConfigError(f"{words} {value!r} must be two numbers [Hz]", channel=flag, hint="e.g. 2 30") from None
     if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):
-        raise ConfigError(f"{name} {lo:g}-{hi:g} Hz must satisfy 0 <= LO < HI", channel=name, hint="e.g. 2 30")
+        raise ConfigError(f"{words} {lo:g}-{hi:g} Hz must satisfy 0 <= LO < HI", channel=flag, hint="e.g. 2 30")
     return lo, hi
 
 
@@ -226,6 +225,46 @@ def _random_block(fs_hz: float, n_samples: int, lowest_hz: float, overlap: float
     return block, f"{why}: {averages(block)} averages, {block / fs_hz * lowest_hz:.3g} cycles of the lowest line"
 
 
+def period_and_transient(given: GivenSettings, excitation: Excitation | None, choices: dict[str, Choice],
+                         given_choice) -> tuple[int | None, int | None, float | None]:
+    """The period and the transient: as given, else read off ``excitation``; (period_samples, skip_periods,
+    skip_seconds), their :class:`Choice` entered in ``choices`` (``given_choice(value, name)``: the choice of a given
+    value). The one place both are decided: :func:`resolve_settings` for a job, and the job's settings on some of its
+    records (:func:`nifo.settings.for_records`: a level, a file) where the job left them to the data."""
+    ex = excitation
+    period = given.period_samples
+    if period is not None:
+        choices["period_samples"] = given_choice(int(period), "period_samples")
+    elif ex is not None and ex.periodic:
+        period = ex.period_samples
+        choices["period_samples"] = Choice(int(period), "data", ex.reasons.get("period", ""))
+    elif ex is not None:
+        choices["period_samples"] = Choice(None, "data", ex.reasons.get("period", ""))
+    skip_periods, skip_seconds = given.skip_periods, given.skip_seconds
+    if skip_periods is not None:
+        choices["skip_periods"] = given_choice(int(skip_periods), "skip_periods")
+    elif skip_seconds is not None:
+        choices["skip_seconds"] = given_choice(float(skip_seconds), "skip_seconds")
+    elif ex is not None and ex.periodic and ex.period_samples == period:
+        skip_periods = int(ex.transient_periods)
+        choices["skip_periods"] = Choice(skip_periods, "data", ex.reasons.get("transient", ""))
+    if skip_periods and not period:
+        raise ConfigError("--skip-periods needs the period: give --period-samples too", channel="--skip-periods")
+    return period, skip_periods, skip_seconds
+
+
+def shortest_after_transient(durations_s: Sequence[float], fs_hz: float | None, period_samples: int | None,
+                             skip_periods: int | None, skip_seconds: float | None) -> float | None:
+    """The shortest record's duration once its transient is dropped [s] (None without records): what bounds the
+    blocks and the integration band's lower edge."""
+    shortest = min(durations_s) if durations_s else None
+    if shortest is not None and period_samples and skip_periods:
+        shortest = shortest - skip_periods * period_samples / fs_hz
+    elif shortest is not None and skip_seconds:
+        shortest = shortest - skip_seconds
+    return shortest
+
+
 def resolve_settings(given: GivenSettings, *, fs_hz: float | None, durations_s: Sequence[float] = (),
                      excitation: Excitation | None = None, snr_lo_hz: float | None = None,
                      origins: Mapping[str, str] | None = None,
@@ -265,31 +304,9 @@ def resolve_settings(given: GivenSettings, *, fs_hz: float | None, durations_s: 
         return Choice(value, from_user(name), reasons.get(name, ""))
 
     ex = excitation
-    period = g.period_samples
+    period, skip_periods, skip_seconds = period_and_transient(g, ex, choices, given_choice)
     periodic = period is not None or (ex is not None and ex.periodic)
-    if period is not None:
-        choices["period_samples"] = given_choice(int(period), "period_samples")
-    elif ex is not None and ex.periodic:
-        period = ex.period_samples
-        choices["period_samples"] = Choice(int(period), "data", ex.reasons.get("period", ""))
-    elif ex is not None:
-        choices["period_samples"] = Choice(None, "data", ex.reasons.get("period", ""))
-    # the transient
-    skip_periods, skip_seconds = g.skip_periods, g.skip_seconds
-    if skip_periods is not None:
-        choices["skip_periods"] = given_choice(int(skip_periods), "skip_periods")
-    elif skip_seconds is not None:
-        choices["skip_seconds"] = given_choice(float(skip_seconds), "skip_seconds")
-    elif ex is not None and ex.periodic and ex.period_samples == period:
-        skip_periods = int(ex.transient_periods)
-        choices["skip_periods"] = Choice(skip_periods, "data", ex.reasons.get("transient", ""))
-    if skip_periods and not period:
-        raise ConfigError("--skip-periods needs the period: give --period-samples too", channel="--skip-periods")
-    shortest = min(durations_s) if durations_s else None
-    if shortest is not None and period and skip_periods:
-        shortest = shortest - skip_periods * period / fs_hz
-    elif shortest is not None and skip_seconds:
-        shortest = shortest - skip_seconds
+    shortest = shortest_after_transient(durations_s, fs_hz, period, skip_periods, skip_seconds)
     # blocks
     if periodic and period:
         auto = SpectralSettings(block=int(period), overlap=0.0, window="boxcar")
@@ -327,9 +344,9 @@ def resolve_settings(given: GivenSettings, *, fs_hz: float | None, durations_s: 
         analysis = DEFAULT_ANALYSIS_BAND_HZ
         choices["analysis_band_hz"] = Choice(analysis, "default", "paper Table 2's figures")
     floor = lowest_edge_hz(shortest) if shortest else 0.0
-    if g.band_hz is not None:
-        band = IntegrationBand(*g.band_hz)
-        choices["band"] = given_choice(band, "band_hz")
+    if g.integration_band_hz is not None:
+        band = IntegrationBand(*g.integration_band_hz)
+        choices["band"] = given_choice(band, "integration_band_hz")
     elif ex is not None:
         lo = analysis[0] / EXACT_FROM
         why = [f"from 1/{EXACT_FROM:g} of the lowest analysed line"]
@@ -356,7 +373,7 @@ def resolve_settings(given: GivenSettings, *, fs_hz: float | None, durations_s: 
         if not lo < hi:
             raise ConfigError(f"the excited band {analysis[0]:.4g}-{analysis[1]:.4g} Hz lies outside what the "
                               f"record can integrate ({band.f_lo_hz:.4g}-{band.f_hi_hz:.4g} Hz)",
-                              hint="record longer, or give --freq-range and --band")
+                              hint="record longer, or give --analysis-band and --integration-band")
         note = ex.reasons.get("band", "the excited band")
         if lo > analysis[0]:
             note += f"; from {lo:.4g} Hz, the integration band's lower edge"

@@ -43,7 +43,7 @@ from nifo.io.ros_qos import publish_blocking, reliable_input_qos, sensor_qos  # 
 
 __all__ = ["TOPICS", "sensor_qos", "reliable_input_qos", "input_qos", "block_qos", "result_qos", "run_node", "declare_parameters",
            "BLOCK_DEPTH", "IDENTIFIER_BLOCK_DEPTH", "RELIABILITIES", "polled_group", "take_raw", "publish_blocking", "Param",
-           "DIAGNOSTICS_TOPIC", "Diagnostics"]
+           "DIAGNOSTICS_TOPIC", "Diagnostics", "INTEGRATION_BAND_PARAMS", "integration_edges"]
 
 #: values of the integrator's ``input_reliability`` parameter
 RELIABILITIES = ("best_effort", "reliable")
@@ -151,6 +151,31 @@ class Param:
     lo: float | None = None
     hi: float | None = None
     read_only: bool = False
+
+
+#: the integration band's parameter (the setting's one name) and, after it, its old names, still read
+INTEGRATION_BAND_PARAMS = {
+    "integration_band_hz": Param([0.0, 0.0], "[lo, hi] integration band for z, zdot [Hz]; an edge 0: its default "
+                                 "(0.5 Hz; min(200, fs/2.5)); also read as f_lo_hz/f_hi_hz", read_only=True),
+    "f_lo_hz": Param(0.0, "old name of integration_band_hz[0] [Hz]", 0.0, 1e5, read_only=True),
+    "f_hi_hz": Param(0.0, "old name of integration_band_hz[1] [Hz]", 0.0, 1e5, read_only=True),
+}
+
+
+def integration_edges(p: dict) -> tuple[float, float]:
+    """The integration band's edges from a node's parameters (0: that edge's default): ``integration_band_hz``, or
+    its old names ``f_lo_hz``/``f_hi_hz``; :class:`ConfigError` when both are given or the pair is not two edges."""
+    from nifo_core.errors import ConfigError
+
+    new = [float(x) for x in p.get("integration_band_hz", (0.0, 0.0))]
+    old = (float(p.get("f_lo_hz", 0.0)), float(p.get("f_hi_hz", 0.0)))
+    if len(new) != 2 or min(new) < 0:
+        raise ConfigError(f"integration_band_hz={new} must be two edges [lo, hi] >= 0 [Hz] (0: the default edge)",
+                          channel="integration_band_hz")
+    if any(new) and any(old):
+        raise ConfigError("integration_band_hz and f_lo_hz/f_hi_hz are one setting (the old names): give it once, "
+                          "as integration_band_hz", channel="integration_band_hz")
+    return (new[0], new[1]) if any(new) else old
 
 
 def _descriptor(name: str, p: Param):

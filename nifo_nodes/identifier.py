@@ -31,7 +31,7 @@ data again, reset first.
 
 Parameters: ``model_file`` (YAML model file, ``nifo_model: 1``; its
 ``settings`` give the defaults of the next four), ``block``, ``overlap``,
-``window``, ``f_lo_hz``/``f_hi_hz`` (integration band; 0: default),
+``window``, ``integration_band_hz`` (an edge 0: its default; also read as ``f_lo_hz``/``f_hi_hz``),
 ``analysis_band_hz``, ``cond_limit``, ``publish_period_s``, ``checkpoint_file``
 (``""``: none), ``checkpoint_period_s``, ``result_file`` (``""``: beside the
 checkpoint, else ``$ROS_HOME/nifo/identifier_result.json``), ``frame_id``,
@@ -57,8 +57,8 @@ import numpy as np
 from nifo_core.defaults import DEFAULT_ANALYSIS_BAND_HZ, DEFAULT_COND_LIMIT
 from nifo_core.errors import ConfigError, NifoError
 
-from .common import (IDENTIFIER_BLOCK_DEPTH, TOPICS, Diagnostics, Param, block_qos, declare_parameters, result_qos,
-                     run_node)
+from .common import (IDENTIFIER_BLOCK_DEPTH, INTEGRATION_BAND_PARAMS, TOPICS, Diagnostics, Param, block_qos,
+                     declare_parameters, integration_edges, result_qos, run_node)
 from .integrator import ACCEL_CHANNELS
 from .messages import block_from_msg
 from .results import (StreamStats, coefficients_msg, msg_types, state_of, status_msg, transmissibility_msg,
@@ -141,8 +141,7 @@ PARAMS = {
                    read_only=True),
     "overlap": Param(-1.0, "block overlap fraction; -1: model file, else 0.52", -1.0, 0.99, read_only=True),
     "window": Param("", "spectral window; '': model file, else flattop", read_only=True),
-    "f_lo_hz": Param(0.0, "integration band low edge for z, zdot [Hz]; 0: default 0.5 Hz", 0.0, 1e5, read_only=True),
-    "f_hi_hz": Param(0.0, "integration band high edge [Hz]; 0: default min(200, fs/2.5)", 0.0, 1e5, read_only=True),
+    **INTEGRATION_BAND_PARAMS,
     "analysis_band_hz": Param(list(DEFAULT_ANALYSIS_BAND_HZ), "[lo, hi] band of the pooled fit, conditioning and summary [Hz]",
                               read_only=True),
     "cond_limit": Param(DEFAULT_COND_LIMIT, "scaled cond(G_UU) counted as ill-conditioned [-]", 1.0, 1e300, read_only=True),
@@ -220,6 +219,7 @@ class IdentifierNode(Node):
         else:
             try:
                 GivenSettings(**IdentifierNode._given_fields(p))
+                integration_edges(p)
             except ConfigError as err:
                 bad.append(err.message)
         return "; ".join(bad)
@@ -235,9 +235,9 @@ class IdentifierNode(Node):
             out["overlap"] = float(p["overlap"])
         if str(p.get("window", "")):
             out["window"] = str(p["window"])
-        lo, hi = float(p.get("f_lo_hz", 0.0)), float(p.get("f_hi_hz", 0.0))
+        lo, hi = integration_edges(p)
         if lo > 0 and hi > 0:
-            out["band_hz"] = (lo, hi)
+            out["integration_band_hz"] = (lo, hi)
         if "analysis_band_hz" in p:
             out["analysis_band_hz"] = tuple(float(x) for x in p["analysis_band_hz"])
         if "cond_limit" in p:
@@ -261,7 +261,7 @@ class IdentifierNode(Node):
             terms, ms = spec.terms, dict(spec.settings)
         if not terms:
             self.get_logger().warning("no nonlinearities given (model_file): estimating the linear T21 only")
-        lo, hi = float(p["f_lo_hz"]), float(p["f_hi_hz"])
+        lo, hi = integration_edges(p)
         node = GivenSettings(**self._given_fields(p))
         self._given, _ = merge_given(node, given_from_file(ms))
         self._band_edges = (lo, hi)

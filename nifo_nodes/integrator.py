@@ -26,7 +26,8 @@ as the batch form's edges); the last ``delay_samples`` of a segment are
 published (zero-padded, as the batch form does) only when the segment ends.
 
 Parameters: ``fs_hz`` (0: infer from the first 64 spindle stamps, snapped to
-1 mHz), ``f_lo_hz``/``f_hi_hz`` (0: :func:`nifo_core.signal.integrate.default_band`),
+1 mHz), ``integration_band_hz`` (an edge 0: :func:`nifo_core.signal.integrate.default_band`'s; also read as
+``f_lo_hz``/``f_hi_hz``),
 ``block_s`` (samples per published block, as seconds), ``flush_s`` (publish a
 partial block after this much wall time), ``max_lag_s`` (how long a missing
 sample is waited for), ``restart_s``, ``qos_depth``, ``axis``, ``input_reliability`` (``best_effort``:
@@ -40,11 +41,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from nifo_core.errors import NifoError
+from nifo_core.errors import ConfigError, NifoError
 
 from .align import SampleAligner
-from .common import (RELIABILITIES, TOPICS, Diagnostics, Param, block_qos, declare_parameters, input_qos,
-                     polled_group, publish_blocking, run_node, take_raw)
+from .common import (INTEGRATION_BAND_PARAMS, RELIABILITIES, TOPICS, Diagnostics, Param, block_qos,
+                     declare_parameters, input_qos, integration_edges, polled_group, publish_blocking, run_node,
+                     take_raw)
 from .messages import Block, block_to_msg, decode_imu_batch
 
 __all__ = ["IntegratorNode", "main", "ACCEL_CHANNELS", "MOTION_CHANNELS"]
@@ -52,15 +54,14 @@ __all__ = ["IntegratorNode", "main", "ACCEL_CHANNELS", "MOTION_CHANNELS"]
 ACCEL_CHANNELS = ("spindle_accel", "body_accel")
 MOTION_CHANNELS = ("spindle_vel", "spindle_disp", "body_vel", "body_disp", "rel_vel", "rel_disp")
 _INFER_N = 64
-_STARTUP_ONLY = ("fs_hz", "f_lo_hz", "f_hi_hz", "axis", "qos_depth", "input_reliability", "drain_s")
+_STARTUP_ONLY = ("fs_hz", *INTEGRATION_BAND_PARAMS, "axis", "qos_depth", "input_reliability", "drain_s")
 #: most messages taken per channel per drain (bounds one timer callback)
 _TAKE_MAX = 20_000
 
 #: the integrator's parameters (descriptors: ``ros2 param describe /nifo/integrator <name>``)
 PARAMS = {
     "fs_hz": Param(0.0, "sample rate [Hz]; 0: infer from the first 64 spindle stamps", 0.0, 1e6, read_only=True),
-    "f_lo_hz": Param(0.0, "integration band low edge [Hz]; 0: default 0.5 Hz", 0.0, 1e5, read_only=True),
-    "f_hi_hz": Param(0.0, "integration band high edge [Hz]; 0: default min(200, fs/2.5)", 0.0, 1e5, read_only=True),
+    **INTEGRATION_BAND_PARAMS,
     "block_s": Param(0.1, "samples per published block [s of data]", 1e-4, 60.0),
     "flush_s": Param(0.2, "publish a partial block after this long without a full one [s, wall]", 1e-3, 60.0),
     "max_lag_s": Param(0.25, "how long a missing sample is waited for before a gap is declared [s of data]",
@@ -131,6 +132,10 @@ class IntegratorNode(Node):
             bad.append(f"qos_depth={v['qos_depth']} must be in 1..100000")
         if "axis" in v and v["axis"] not in ("x", "y", "z"):
             bad.append(f"axis={v['axis']!r} must be x, y or z")
+        try:
+            integration_edges(v)
+        except ConfigError as err:
+            bad.append(err.message)
         if "input_reliability" in v and v["input_reliability"] not in RELIABILITIES:
             bad.append(f"input_reliability={v['input_reliability']!r} must be one of {', '.join(RELIABILITIES)}")
         if "drain_s" in v and v["drain_s"] > 0.1:
@@ -230,7 +235,7 @@ class IntegratorNode(Node):
     def _new_integrators(self):
         from nifo_core.signal.integrate import IntegrationBand, StreamingIntegrator, default_band
 
-        lo, hi = float(self.get_parameter("f_lo_hz").value), float(self.get_parameter("f_hi_hz").value)
+        lo, hi = integration_edges({k: self.get_parameter(k).value for k in INTEGRATION_BAND_PARAMS})
         d = default_band(self._fs)
         band = IntegrationBand(lo or d.f_lo_hz, hi or d.f_hi_hz)
         return [StreamingIntegrator(self._fs, band) for _ in range(3)]

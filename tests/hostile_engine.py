@@ -523,8 +523,8 @@ def messages(nifo: Nifo, inp: Inputs, tally: Tally, rng: random.Random, trials: 
             tally.add("wrong", case, f"a library warning reached the user: {library[0][:200]}")
             continue
         bad = None
-        if code != 0 and "--freq-range" in err and "--freq-range" not in argv:
-            bad = "names --freq-range, which was not given"
+        if code != 0 and "--analysis-band" in err and not {"--analysis-band", "--freq-range"} & set(argv):
+            bad = "names --analysis-band, which was not given"
         elif name == "a 10-sample record" and code != 0 and "10 samples" not in err:
             bad = f"does not say 10 samples: {err[-200:]}"
         if bad:

@@ -53,7 +53,7 @@ def test_paper_chirp_protocol_runs_end_to_end_with_frequency_slices(chirp_file, 
     assert doc["band"]["f_lo_hz"] > 0 and doc["band_choice"]["chosen_by"] == "data"
     spec = load_model_spec(out / "suggested_model.yaml")
     assert [t.kind for t in spec.terms] == ["velocity_deadzone"]
-    assert spec.settings["band_hz"] == [doc["band"]["f_lo_hz"], doc["band"]["f_hi_hz"]]
+    assert spec.settings["integration_band_hz"] == [doc["band"]["f_lo_hz"], doc["band"]["f_hi_hz"]]
     text = capsys.readouterr().out
     assert "velocity_deadzone" in text and "suggested model" in text
     assert not list(tmp_path.glob(".char.partial-*"))

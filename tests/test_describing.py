@@ -66,5 +66,5 @@ def test_bad_specs_say_what_to_write():
         Term("velocity_deadzone")
     with pytest.raises(ConfigError, match="has no parameter"):
         Term("coulomb", {"knee": 1})
-    with pytest.raises(ConfigError, match="must be finite and positive"):
+    with pytest.raises(ConfigError, match=r"clearance.gap=-1 must be positive \[m\]"):
         Term("clearance", {"gap": -1})

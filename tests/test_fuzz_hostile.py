@@ -93,14 +93,14 @@ def test_a_band_nifo_chose_is_never_reported_as_the_users_flag():
     err = ConfigError("analysis band 0.0156-0.078 Hz holds no frequency line", hint="widen it")
     chosen = in_context(err, _Origins({}), source="slow.csv")
     assert str(chosen).startswith("slow.csv: analysis band 0.0156-0.078 Hz holds no frequency line (the analysis "
-                                  "band was chosen from the data, not given). Fix: give --freq-range LO HI")
-    flag = ConfigError("--freq-range 47.75 4.39 must satisfy 0 <= LO < HI", channel="--freq-range")
+                                  "band was chosen from the data, not given). Fix: give --analysis-band LO HI")
+    flag = ConfigError("--analysis-band 47.75 4.39 must satisfy 0 <= LO < HI", channel="--analysis-band")
     from_file = in_context(flag, _Origins({"analysis_band_hz": "model file"}), source="m.yaml")
     assert str(from_file) == ("m.yaml: analysis band 47.75 4.39 must satisfy 0 <= LO < HI (the analysis band was given "
-                              "in the model file). Fix: correct it in the model file's settings, or give --freq-range "
+                              "in the model file). Fix: correct it in the model file's settings, or give --analysis-band "
                               "LO HI")
     given = in_context(flag, _Origins({"analysis_band_hz": "command line"}), source="rec.csv")
-    assert "--freq-range 47.75 4.39" in str(given)
+    assert "--analysis-band 47.75 4.39" in str(given)
 
 
 def test_a_command_does_not_take_the_settings_chosen_before_it_in_this_process(inputs, tmp_path):
@@ -125,4 +125,4 @@ def test_a_command_does_not_take_the_settings_chosen_before_it_in_this_process(i
                             "--no-plots", "--out", str(tmp_path / "out")])
     finally:
         settings._step.reset(token)
-    assert code == 9 and "model.json" in err and "--freq-range" not in err and "earlier.csv" not in err, err
+    assert code == 9 and "model.json" in err and "--analysis-band" not in err and "earlier.csv" not in err, err

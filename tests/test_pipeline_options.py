@@ -30,8 +30,8 @@ def test_step_options_have_the_command_lines_names_and_defaults(name):
 
 
 def test_run_passes_on_only_the_input_and_settings_options_a_step_has():
-    given = o.RunOptions(block=4096, band=[0.5, 60.0], cond_limit=1e3, columns="a=b", no_loop=True)
+    given = o.RunOptions(block=4096, integration_band_hz=[0.5, 60.0], cond_limit=1e3, columns="a=b", no_loop=True)
     pred = o.PredictOptions(out="x").taking(given)
-    assert (pred.block, pred.columns, pred.out) == (4096, "a=b", "x") and not hasattr(pred, "band")
+    assert (pred.block, pred.columns, pred.out) == (4096, "a=b", "x") and not hasattr(pred, "integration_band_hz")
     ident = o.IdentifyOptions().taking(given)
-    assert (ident.band, ident.cond_limit) == ([0.5, 60.0], 1e3)
+    assert (ident.integration_band_hz, ident.cond_limit) == ([0.5, 60.0], 1e3)

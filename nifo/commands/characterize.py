@@ -43,7 +43,7 @@ a sweep (e.g. around one mode of a multi-mode structure).
 Example (the F-16 ground vibration test, nonlinearbenchmark.org):
   nifo characterize F16Data_SineSw_Level7.mat --out l7 \\
       --columns spindle_accel=Acceleration[1],body_accel=Acceleration[2],fs=Fs \\
-      --band 5 160 --freq-window 6.8 7.8 --slices-hz 5.3 7.3 9.2"""
+      --integration-band 5 160 --freq-window 6.8 7.8 --slices-hz 5.3 7.3 9.2"""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

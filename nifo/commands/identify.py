@@ -44,7 +44,8 @@ MODEL.yaml names the nonlinearities (see nifo/io/modelfile.py):
   nonlinearities:
     - {{kind: velocity_deadzone, params: {{knee: 0.03}}}}
     - {{kind: backlash, params: {{deadband: 0.00043}}}}
-  settings: {{block: 6144, overlap: 0.52, window: flattop, band_hz: [0.5, 200], freq_range_hz: [2, 30]}}
+  settings: {{block: 6144, overlap: 0.52, window: flattop, integration_band_hz: [0.5, 200],
+              analysis_band_hz: [2, 30]}}
 
 Kinds (g of z = x2 - x1 [m] or ż [m/s]): cubic_stiffness, clearance(gap),
 saturation(limit), bump_stop(gap, side, offset), backlash(deadband),

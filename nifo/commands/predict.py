@@ -34,7 +34,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "a rational fit of them in time)")
     p.add_argument("--no-plots", action="store_true", help="write predict.json only")
     add_input_arguments(p)
-    add_settings_arguments(p, cond_limit=False, band=False)   # --freq-range: default the model's analysis band
+    add_settings_arguments(p, cond_limit=False, band=False)   # --analysis-band: default the model's analysis band
     add_system_argument(p)
 
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from nifo.io.loader import save_record
 from nifo.io.modelfile import write_model_spec
-from nifo_core.kinds.describing import Term
+from nifo_core.kinds.describing import LIBRARY, Term
 from nifo_core.simulate.quarter_car import RandomRoad, SimConfig, StrutForce, simulate
 from nifo_core.simulate.vehicle import QuarterCar
 
@@ -30,12 +30,14 @@ __all__ = ["write_simulated_fleet", "NOMINAL_KNEE", "NOMINAL_DEADZONE"]
 
 NOMINAL_KNEE = 0.03        # m/s
 NOMINAL_DEADZONE = -700.0  # N·s/m
+#: the fleet's one strut nonlinearity: the paper's damper knee
+KNEE = LIBRARY.velocity_deadzone.name
 
 
 def _vehicle(rng: np.random.Generator, spread: float, *, worn_loss: float, knee_factor: float):
     f = 1 + rng.uniform(-spread, spread, size=5)
     car = QuarterCar(m2=300.0 * f[0], k1=250e3 * f[1], k2=22e3 * f[2], c2=1400.0 * f[3] * (1 - worn_loss))
-    strut = (StrutForce(Term("velocity_deadzone", {"knee": NOMINAL_KNEE * knee_factor}), NOMINAL_DEADZONE * f[4]),)
+    strut = (StrutForce(Term(KNEE, {"knee": NOMINAL_KNEE * knee_factor}), NOMINAL_DEADZONE * f[4]),)
     return car, strut
 
 
@@ -91,7 +93,7 @@ def write_simulated_fleet(root: str | Path, *, n_vehicles: int = 20, bags_per_ve
         w = csv.DictWriter(f, fieldnames=["vehicle", "corner", "date", "path", "m2_kg"])
         w.writeheader()
         w.writerows(rows)
-    write_model_spec(root / "model.yaml", [Term("velocity_deadzone", {"knee": NOMINAL_KNEE})],
+    write_model_spec(root / "model.yaml", [Term(KNEE, {"knee": NOMINAL_KNEE})],
                      settings={"block": int(block)})
     (root / "fleet_truth.json").write_text(json.dumps(truth, indent=1) + "\n")
     return root / "manifest.csv"

@@ -57,6 +57,7 @@ from typing import Literal
 import numpy as np
 
 from nifo_core.errors import ConfigError, DataFileError
+from nifo_core.setting_rules import check_timing
 from nifo_core.signal.record import Record
 
 from . import bag   # a lazy front door: rosbags and mcap are imported when a bag is first read or written
@@ -221,19 +222,13 @@ def _with_meta(rec: Record, **items) -> Record:
 
 
 def _skip(seconds, periods, period_samples, *, source: str) -> Skip:
-    if seconds is not None and not (np.isfinite(seconds) and seconds >= 0):
-        raise ConfigError(f"--skip-seconds {seconds!r} must be a time >= 0 [s]", source=source,
-                          channel="--skip-seconds", hint="e.g. --skip-seconds 2")
-    if period_samples is not None and int(period_samples) < 1:
-        raise ConfigError(f"--period-samples {period_samples!r} must be a positive number of samples",
-                          source=source, channel="--period-samples", hint="e.g. --period-samples 8192")
-    if periods is not None:
-        if int(periods) < 0:
-            raise ConfigError(f"--skip-periods {periods!r} must be >= 0", source=source, channel="--skip-periods",
-                              hint="e.g. --skip-periods 1")
-        if period_samples is None:
-            raise ConfigError("--skip-periods needs the period's length", source=source, channel="--skip-periods",
-                              hint="add --period-samples N (samples per period, e.g. 8192)")
+    try:    # the values by the settings' own rules (one validator per field, every caller alike)
+        check_timing(skip_seconds=seconds, skip_periods=periods, period_samples=period_samples)
+    except ConfigError as err:
+        raise err.with_context(source=source) from None
+    if periods is not None and period_samples is None:     # the loader cuts whole periods: it needs their length
+        raise ConfigError("--skip-periods needs the period's length", source=source, channel="--skip-periods",
+                          hint="add --period-samples N (samples per period, e.g. 8192)")
     return Skip(seconds, None if periods is None else int(periods),
                 None if period_samples is None else int(period_samples))
 

@@ -12,7 +12,8 @@ Format (``nifo_model: 1``)::
       block: 6144                 # samples per spectral block
       overlap: 0.52
       window: flattop
-      band_hz: [0.5, 200]         # integration band for z, ż
+      integration_band_hz: [0.5, 200]   # integration band for z, ż (also read as band_hz)
+      analysis_band_hz: [2, 30]         # analysis band (also read as freq_range_hz)
 
 Two-step identification (paper §3.3): list ``steps`` instead of
 ``nonlinearities``; each step names its nonlinearities and the data it is
@@ -38,10 +39,12 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Mapping
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import AliasChoices, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from nifo_core.kinds.describing import KINDS, Term, kind as _kind, make_term
 from nifo_core.errors import ConfigError, DataFileError, NifoError
+from nifo_core.settings import GivenSettings
+from nifo_core.signal.spectral import MAX_BLOCK
 
 from .atomic import staged_file
 from .ownership import YAML_MARK_PREFIX
@@ -49,21 +52,19 @@ from .ownership import YAML_MARK_PREFIX
 __all__ = ["ModelSpec", "Step", "load_model_spec", "parse_model_spec", "write_model_spec", "SETTINGS_KEYS",
            "MAX_MODEL_BYTES", "MAX_BLOCK"]
 
-SETTINGS_KEYS = ("block", "overlap", "window", "band_hz", "freq_range_hz")
+SETTINGS_KEYS = ("block", "overlap", "window", "integration_band_hz", "analysis_band_hz")
+#: the settings' old names, still read (docs/CONTRACTS.md, "One name per setting")
+SETTINGS_ALIASES = {"band_hz": "integration_band_hz", "freq_range_hz": "analysis_band_hz"}
 
 #: a model file is a few hundred bytes; anything above this is not one
 MAX_MODEL_BYTES = 1 << 20
 #: YAML nodes (scalars, lists, maps) a model file may hold
 MAX_NODES = 20_000
-#: the largest spectral block accepted [samples] (2^22: 4.2 M; the paper uses 6144)
-MAX_BLOCK = 1 << 22
 #: the most nonlinearities per step / steps per file
 MAX_TERMS = 64
 
-_WINDOW = Literal["flattop", "hann", "hamming", "boxcar", "blackman", "blackmanharris", "nuttall"]
 _Text = Annotated[str, Field(max_length=10_000)]
 _Name = Annotated[str, Field(min_length=1, max_length=200)]
-_Hz = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
 
 
 # -----------------------------------------------------------------------------
@@ -75,28 +76,39 @@ class _Strict(BaseModel):
 
 
 class Settings(_Strict):
-    """``settings:`` of a model file; the command line overrides each."""
+    """``settings:`` of a model file; the command line overrides each. The types are checked here (strict); the
+    values by the settings' own rules, one validator per field for every source
+    (:class:`nifo_core.settings.GivenSettings`: the command line, a model file, the identifier node)."""
 
-    block: Annotated[int, Field(ge=8, le=MAX_BLOCK)] | None = None
-    overlap: Annotated[float, Field(ge=0.0, lt=1.0, allow_inf_nan=False)] | None = None
-    window: _WINDOW | None = None
-    band_hz: tuple[_Hz, _Hz] | None = None
-    freq_range_hz: tuple[_Hz, _Hz] | None = None
+    block: int | None = None
+    overlap: float | None = None
+    window: Annotated[str, Field(max_length=100)] | None = None
+    integration_band_hz: tuple[float, float] | None = Field(
+        None, validation_alias=AliasChoices("integration_band_hz", "band_hz"))
+    analysis_band_hz: tuple[float, float] | None = Field(
+        None, validation_alias=AliasChoices("analysis_band_hz", "freq_range_hz"))
 
-    @field_validator("band_hz", "freq_range_hz", mode="before")
+    @model_validator(mode="before")
+    @classmethod
+    def _one_name(cls, v: Any) -> Any:
+        if isinstance(v, dict):
+            for old, new in SETTINGS_ALIASES.items():
+                if old in v and new in v:
+                    raise ValueError(f"{new} and {old} are one setting (the old name): give it once, as {new}")
+        return v
+
+    @field_validator("integration_band_hz", "analysis_band_hz", mode="before")
     @classmethod
     def _list_pair(cls, v: Any) -> Any:
         return tuple(v) if isinstance(v, list) else v
 
     @model_validator(mode="after")
-    def _bands(self) -> "Settings":
-        for name in ("band_hz", "freq_range_hz"):
-            pair = getattr(self, name)
-            if pair is not None and not pair[0] < pair[1]:
-                raise ValueError(f"{name} [{pair[0]:g}, {pair[1]:g}] must be [LO, HI] with LO < HI")
-        if self.band_hz is not None and self.band_hz[0] <= 0:
-            raise ValueError(f"band_hz [{self.band_hz[0]:g}, {self.band_hz[1]:g}] needs LO > 0 "
-                             "(integration cannot reach 0 Hz)")
+    def _values(self) -> "Settings":
+        try:
+            GivenSettings(block=self.block, overlap=self.overlap, window=self.window,
+                          integration_band_hz=self.integration_band_hz, analysis_band_hz=self.analysis_band_hz)
+        except ConfigError as err:
+            raise ValueError(err.message) from None
         return self
 
 
@@ -158,27 +170,17 @@ class TermSpec(_Strict):
             k = _kind(self.kind)
         except ConfigError as err:
             raise ValueError(f"{err.message}; {err.hint}") from None
-        for name, (default, unit) in k.params.items():
-            if default is None and name not in self.params:
-                raise ValueError(f"{k.name} needs parameter {name!r} [{unit}], e.g. {k.name}: {{{name}: ...}}")
-        if len(self.params) > len(k.params) or (self.coefficient is not None and not _is_number(self.coefficient)):
-            raise ValueError(f"{k.name} takes parameters {list(k.params) or 'none'}; coefficient must be a number")
-        for name, value in self.params.items():
-            if name not in k.params:
-                raise ValueError(f"{k.name} has no parameter {name!r}; it takes {list(k.params) or 'none'}")
-            default, unit = k.params[name]
-            if "|" in unit:   # a choice (side)
-                if not isinstance(value, str) or value not in unit.split("|"):
-                    raise ValueError(f"{k.name}.{name}={_short(value)} must be one of {unit.replace('|', ', ')}")
-            elif not _is_number(value):
-                raise ValueError(f"{k.name}.{name}={_short(value)} must be a number [{unit}]"
-                                 + (" (true/false is not a number)" if isinstance(value, bool) else "")
-                                 + text_number_note(value))
-            elif abs(value) > 1e300 or not math.isfinite(value):
-                raise ValueError(f"{k.name}.{name}={_short(value)} must be finite [{unit}]")
-            elif name != "offset" and (value < 0 or (value == 0 and not (k.name == "bump_stop" and name == "gap"))):
-                raise ValueError(f"{k.name}.{name}={_short(value)} must be positive [{unit}]"
-                                 + (" (0 makes the term the linear one)" if value == 0 else ""))
+        if self.coefficient is not None and not _is_number(self.coefficient):
+            raise ValueError(f"{k.name} coefficient={_short(self.coefficient)} must be a number")
+        note = ""
+        try:    # the kind's own rule (Kind.check), the one every caller of the core goes through
+            for name, value in self.params.items():
+                note = text_number_note(value)
+                k.check_value(name, value)
+            note = ""
+            k.check(self.params)
+        except ConfigError as err:
+            raise ValueError(err.message + note + (f", {err.hint}" if err.hint else "")) from None
         return self
 
 
@@ -333,7 +335,7 @@ def parse_model_spec(text: str, *, source: str = "model", base: Path | None = No
     except RecursionError:
         raise ConfigError("the YAML nests too deeply", source=src, hint=_FIX) from None
     settings = model.settings.model_dump(exclude_none=True) if model.settings else {}
-    for k in ("band_hz", "freq_range_hz"):
+    for k in ("integration_band_hz", "analysis_band_hz"):
         if k in settings:
             settings[k] = [float(v) for v in settings[k]]
     base = base or Path(".")

@@ -33,22 +33,26 @@ from nifo.io.provenance import input_provenance, system_of, true_strut_model
 from nifo.io.results import write_json
 from nifo.pipeline.options import CharacterizeOptions
 from nifo.progress import Progress
-from nifo.settings import loader_options, resolve
+from nifo.settings import for_records, loader_options, resolve
 from nifo_core import __version__
 from nifo_core.characterize.automatic import Characterization, DEFAULT_KINDS, FittedModel, Thresholds, characterize_restoring
 from nifo_core.errors import ConfigError
+from nifo_core.settings import AnalysisSettings
 from nifo_core.signal.integrate import band_for_records
 from nifo_core.characterize.restoring import (FrequencyTrack, RestoringForce, amplitude_slices, frequency_slices, restoring_force,
                                  suggest_band, track_frequency)
 
 
-def run_characterize(args: CharacterizeOptions, *, echo: Callable[[str], None] = print,
-                     show_progress: bool = True) -> dict:
+def run_characterize(args: CharacterizeOptions, *, settings: AnalysisSettings | None = None,
+                     echo: Callable[[str], None] = print, show_progress: bool = True) -> dict:
     """The step (module docstring); what it reports goes to ``echo`` (``nifo run`` collects the lines of steps it
-    runs side by side and prints them in order), its progress bar only with ``show_progress``."""
+    runs side by side and prints them in order), its progress bar only with ``show_progress``. ``settings``: the
+    job's, resolved once (``nifo run``), taken on these records; None: resolved here."""
     # before any work: a file, a foreign folder or one holding an input of the command is refused
     check_output(args.out, reads=args.data)
-    settings = resolve([Path(p) for p in args.data], args, opts=input_options(args))
+    paths = [Path(p) for p in args.data]
+    settings = (resolve(paths, args, opts=input_options(args)) if settings is None else
+                for_records(settings, paths, opts=input_options(args), from_data=not args.no_settings_from_data))
     opts = loader_options(input_options(args), settings)
     records = [load_record(p, **opts, centred=True) for p in args.data]   # offsets of any size alike
     rates = {r.fs_hz for r in records}
@@ -82,7 +86,7 @@ def run_characterize(args: CharacterizeOptions, *, echo: Callable[[str], None] =
         doc["settings"] = settings.to_dict()
         write_json(tmp / "characterize.json", doc, atomic=False, indent=2)
         write_model_spec(tmp / "suggested_model.yaml", char.suggested_terms,
-                         settings={"band_hz": [band.f_lo_hz, band.f_hi_hz]},
+                         settings={"integration_band_hz": [band.f_lo_hz, band.f_hi_hz]},
                          note=_model_note(char), suggested_by=f"nifo characterize {__version__}")
     echo(_table(char, args.top, [str(p) for p in args.data], len(rates) > 1))
     echo(f"wrote {args.out}/ (characterize.json, suggested_model.yaml, {', '.join(figures)})")

@@ -24,7 +24,7 @@ from nifo.io.results import IDENTIFY_JSON, MODEL_JSON, data_entry, identify_docu
 from nifo.pipeline.options import CHUNK_SAMPLES, IdentifyOptions
 from nifo.pipeline.refine import fit_feedback_paths, refine, with_scope
 from nifo.progress import Progress
-from nifo.settings import loader_options, resolve
+from nifo.settings import for_records, loader_options, resolve
 from nifo_core.errors import ConfigError, IllConditionedError, InputError, NifoError, RecordTooShortError
 from nifo_core.signal.frf import h1
 from nifo_core.predict.linear_part import RecordLines
@@ -198,9 +198,10 @@ def _two_step(args, spec, cfg, opts):
     return res, data, per_file, caught
 
 
-def run_identify(args: IdentifyOptions) -> dict:
+def run_identify(args: IdentifyOptions, *, settings: AnalysisSettings | None = None) -> dict:
     """``nifo identify`` (module docstring): writes identify.json, model.json and the figures into ``args.out``,
-    prints the summary; the command's summary dict."""
+    prints the summary; the command's summary dict. ``settings``: the job's, resolved once (``nifo run``), taken on
+    these records; None: resolved here (the command line > the model file's ``settings:`` > the data)."""
     # before any work: a file, a foreign folder or one holding an input of the command is refused
     check_output(args.out, reads=[*args.data, args.model])
     if getattr(args, "feedback_paths", False) and (getattr(args, "refine", False)
@@ -214,7 +215,8 @@ def run_identify(args: IdentifyOptions) -> dict:
     if not spec.two_step and not args.data:
         raise InputError("no data files given", hint="nifo identify DATA... --model MODEL.yaml --out DIR")
     all_paths = [p for ps in _step_paths(args, spec) for p in ps] if spec.two_step else list(args.data)
-    cfg = resolve(all_paths, args, file_settings=spec.settings, opts=input_options(args))
+    cfg = (resolve(all_paths, args, file_settings=spec.settings, opts=input_options(args)) if settings is None else
+           for_records(settings, all_paths, opts=input_options(args), from_data=not args.no_settings_from_data))
     opts = loader_options(input_options(args), cfg)
     if not getattr(args, "quiet", False):
         print("settings:\n  " + "\n  ".join(cfg.describe()))

@@ -50,6 +50,7 @@ from nifo.settings import explain, resolve
 from nifo.viz.report_html import write_report
 from nifo.viz.results import read_results
 from nifo_core.errors import NifoError
+from nifo_core.settings import AnalysisSettings
 from nifo_core.signal.parallel import max_threads
 
 __all__ = ["run_job", "loop_available"]
@@ -66,7 +67,8 @@ def _levels(char_dir: Path, data: list[Path]) -> list[Path]:
     return sorted(data, key=lambda p: rms.get(str(p), 0.0))
 
 
-def _two_step_model(ordered: list[Path], char_dir: Path, given: RunOptions) -> tuple[Path, str] | None:
+def _two_step_model(ordered: list[Path], char_dir: Path, given: RunOptions, settings: AnalysisSettings
+                    ) -> tuple[Path, str] | None:
     """The paper's two-step model (§3.3) when the levels call for it, else None.
 
     The lowest and the highest level are characterized alone. The terms the
@@ -83,7 +85,7 @@ def _two_step_model(ordered: list[Path], char_dir: Path, given: RunOptions) -> t
     def one(level: tuple[str, Path]) -> list[str]:
         lines: list[str] = []
         run_characterize(CharacterizeOptions(data=[str(level[1])], out=base / level[0]).taking(given),
-                         echo=lines.append, show_progress=False)
+                         settings=settings, echo=lines.append, show_progress=False)
         return lines
 
     # the two levels side by side on threads (independent steps into their own folders; each thread in a copy of
@@ -143,33 +145,16 @@ def run_job(args: RunOptions) -> dict:
         return _run(args, data, out)
 
 
-def _with_settings(args: RunOptions, st) -> RunOptions:
-    """``args`` with the settings chosen once from the data filled in where not given, so every step uses them, and
-    where each came from (``setting_sources``), so every step says so."""
-    out, told = {}, {}
-
-    def tell(name: str, choice: str) -> None:
-        c = st.choices.get(choice)
-        if c is not None:
-            told[name] = (c.source, c.reason)
-
-    if args.block is None and args.window is None and args.overlap is None:
-        out.update(block=st.spectral.block, overlap=st.spectral.overlap, window=st.spectral.window)
-        for k in ("block", "overlap", "window"):
-            tell(k, "spectral")
-    if args.band is None and st.band is not None:
-        out["band"] = [st.band.f_lo_hz, st.band.f_hi_hz]
-        tell("band_hz", "band")
-    if args.freq_range is None:
-        out["freq_range"] = list(st.analysis_band_hz)
-        tell("analysis_band_hz", "analysis_band_hz")
-    if args.period_samples is None and st.period_samples:
-        out["period_samples"] = st.period_samples
-        tell("period_samples", "period_samples")
-        if args.skip_periods is None and args.skip_seconds is None:
-            out["skip_periods"] = st.skip_periods
-            tell("skip_periods", "skip_periods")
-    return replace(args, **out, setting_sources=told)
+def _read_as_chosen(args: RunOptions, st: AnalysisSettings) -> RunOptions:
+    """``args`` with the period and transient the job chose as its input options: they are also how the records are
+    read, and every step records its input options (``"input"`` of its JSON) for whoever reads the records again
+    (the report, the viewer: :func:`nifo.io.provenance.reader_options`). The settings themselves travel as ``st``."""
+    if args.period_samples is not None or not st.period_samples:
+        return args
+    chosen = {"period_samples": st.period_samples}
+    if args.skip_periods is None and args.skip_seconds is None:
+        chosen["skip_periods"] = st.skip_periods
+    return replace(args, **chosen)
 
 
 def _run(args: RunOptions, data: list[Path], out: Path) -> dict:
@@ -190,15 +175,16 @@ def _run(args: RunOptions, data: list[Path], out: Path) -> dict:
     t = begin(f"settings from the data of {len(data)} record(s)")
     st = resolve(data, args, opts=input_options(args))
     print("\n".join("  " + line for line in st.describe()))
-    args = _with_settings(args, st)
+    args = _read_as_chosen(args, st)
     timings["settings"] = time.monotonic() - t
 
     t = begin(f"characterize {len(data)} record(s): restoring force, suggested model")
-    run_characterize(CharacterizeOptions(data=[*map(str, data)], out=dirs["characterize"]).taking(args))
+    run_characterize(CharacterizeOptions(data=[*map(str, data)], out=dirs["characterize"]).taking(args),
+                     settings=st)
     model = dirs["characterize"] / "suggested_model.yaml"
     ordered = _levels(dirs["characterize"], data)
 
-    two = _two_step_model(ordered, dirs["characterize"], args) if len(ordered) >= 2 else None
+    two = _two_step_model(ordered, dirs["characterize"], args, st) if len(ordered) >= 2 else None
     timings["characterize"] = time.monotonic() - t     # with the lowest and highest level alone
     # identify's output-error refinement on the first 60 s of each record, unless --no-refine
     refine = {} if args.no_refine else {"refine": True, "refine_seconds": 60.0}
@@ -206,12 +192,13 @@ def _run(args: RunOptions, data: list[Path], out: Path) -> dict:
         model, text = two
         t = begin(f"identify (NIFO) in two steps: {text}")
         print(text)
-        run_identify(IdentifyOptions(data=[], model=Path(model), out=dirs["identify"], **refine).taking(args))
+        run_identify(IdentifyOptions(data=[], model=Path(model), out=dirs["identify"], **refine).taking(args),
+                     settings=st)
         notes.append(f"Two-step model chosen from the data: {text}")
     else:
         t = begin(f"identify (NIFO) on {', '.join(p.name for p in ordered)} with the suggested model")
         run_identify(IdentifyOptions(data=[Path(p) for p in ordered], model=Path(model), out=dirs["identify"],
-                                     **refine).taking(args))
+                                     **refine).taking(args), settings=st)
     timings["identify"] = time.monotonic() - t
 
     results = [dirs["characterize"], dirs["identify"]]
@@ -220,7 +207,8 @@ def _run(args: RunOptions, data: list[Path], out: Path) -> dict:
         t = begin("loop: from the linear model, what the data need; error before and after")
         try:
             run_loop = importlib.import_module("nifo.pipeline.loop").run_loop
-            run_loop(LoopOptions(data=[*map(str, ordered)], out=dirs["loop"], no_refine=not refine).taking(args))
+            run_loop(LoopOptions(data=[*map(str, ordered)], out=dirs["loop"], no_refine=not refine).taking(args),
+                     settings=st)
             results.append(dirs["loop"])
             if (dirs["loop"] / "model.json").is_file():
                 final = dirs["loop"]
@@ -238,7 +226,7 @@ def _run(args: RunOptions, data: list[Path], out: Path) -> dict:
         t = begin(f"predict every record with the final model ({final.name}/model.json) and the linear model of "
                   f"the same data")
         run_predict(PredictOptions(data=[Path(p) for p in ordered], model=Path(final), out=dirs["predict"])
-                    .taking(args))
+                    .taking(args), settings=st)
         timings["predict"] = time.monotonic() - t
         results.append(dirs["predict"])
     else:

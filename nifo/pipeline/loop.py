@@ -34,21 +34,26 @@ from nifo.io.provenance import input_provenance, system_of
 from nifo.io.results import MODEL_JSON, data_entry, write_json, write_model
 from nifo.pipeline.options import LoopOptions
 from nifo.progress import Progress
-from nifo.settings import loader_options, resolve
+from nifo.settings import for_records, loader_options, resolve
 from nifo_core import __version__
 from nifo_core.characterize.automatic import DEFAULT_KINDS, Thresholds
 from nifo_core.signal.integrate import band_for_records
 from nifo_core.loop.closing import LoopResult, LoopSettings, close_loop
+from nifo_core.settings import AnalysisSettings
 
 
-def run_loop(args: LoopOptions) -> dict:
+def run_loop(args: LoopOptions, *, settings: AnalysisSettings | None = None) -> dict:
+    """``nifo loop`` (module docstring). ``settings``: the job's, resolved once (``nifo run``), taken on these
+    records; None: resolved here."""
     # before any work: a file, a foreign folder or one holding an input of the command is refused
     check_output(args.out, reads=[*args.data, args.model])
     start_helpers()          # the figure helpers import matplotlib while the records are read (one core busy)
     spec = load_model_spec(args.model) if args.model else None
     declared = list(spec.terms) if spec else []
-    data = resolve([Path(p) for p in args.data], args, file_settings=spec.settings if spec else None,
-                   opts=input_options(args))
+    paths = [Path(p) for p in args.data]
+    data = (resolve(paths, args, file_settings=spec.settings if spec else None, opts=input_options(args))
+            if settings is None else
+            for_records(settings, paths, opts=input_options(args), from_data=not args.no_settings_from_data))
     if not getattr(args, "quiet", False):
         print("settings:\n  " + "\n  ".join(data.describe()))
     opts = loader_options(input_options(args), data)
@@ -80,8 +85,8 @@ def run_loop(args: LoopOptions) -> dict:
         doc["figures"] = figures
         write_json(tmp / "loop.json", doc, atomic=False, indent=2)
         model_settings = {"block": data.spectral.block, "overlap": data.spectral.overlap,
-                          "window": data.spectral.window, "band_hz": [res.band.f_lo_hz, res.band.f_hi_hz],
-                          "freq_range_hz": list(data.analysis_band_hz)}
+                          "window": data.spectral.window, "integration_band_hz": [res.band.f_lo_hz, res.band.f_hi_hz],
+                          "analysis_band_hz": list(data.analysis_band_hz)}
         write_model_spec(tmp / "refined_model.yaml", res.terms, settings=model_settings,
                          note=_note(res), suggested_by=f"nifo loop {__version__}")
         written = ["loop.json", "refined_model.yaml", *figures]

@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Sequence
 
 __all__ = ["Inputs", "CharacterizeOptions", "IdentifyOptions", "LoopOptions", "PredictOptions", "RunOptions",
            "ExportOptions"]
@@ -47,14 +47,11 @@ class Inputs(_FromArgs):
     block: int | None = None
     overlap: float | None = None
     window: str | None = None
-    freq_range: Sequence[float] | None = None
+    analysis_band_hz: Sequence[float] | None = None
     no_settings_from_data: bool = False
     system: str | None = None
     #: the CLI's ``--quiet`` (no settings printout)
     quiet: bool = False
-    #: settings given here that no user typed: the settings' name -> (where it came from, why); ``nifo run`` chooses
-    #: the settings once and hands them to every step, which then says "data: ..." rather than "command line"
-    setting_sources: Mapping[str, tuple[str, str]] | None = None
 
     def taking(self, given: Inputs):
         """These options with the input and settings options of ``given`` that this step also has (``nifo run``
@@ -70,7 +67,7 @@ class CharacterizeOptions(Inputs):
 
     data: Sequence[str] = ()
     out: Path | None = None
-    band: Sequence[float] | None = None
+    integration_band_hz: Sequence[float] | None = None
     m2: float | None = None
     top: int = 5
     max_terms: int = 3
@@ -89,7 +86,7 @@ class IdentifyOptions(Inputs):
     data: Sequence[Path] = ()
     model: Path | None = None
     out: Path | None = None
-    band: Sequence[float] | None = None
+    integration_band_hz: Sequence[float] | None = None
     cond_limit: float | None = None
     step_data: Sequence[Sequence[Path]] | None = None
     chunk_samples: int = CHUNK_SAMPLES
@@ -107,7 +104,7 @@ class LoopOptions(Inputs):
     data: Sequence[str] = ()
     model: Path | None = None
     out: Path | None = None
-    band: Sequence[float] | None = None
+    integration_band_hz: Sequence[float] | None = None
     cond_limit: float | None = None
     max_rounds: int = 4
     m2: float | None = None
@@ -138,7 +135,7 @@ class RunOptions(Inputs):
 
     data: Sequence[Path] = ()
     out: Path = Path("results")
-    band: Sequence[float] | None = None
+    integration_band_hz: Sequence[float] | None = None
     cond_limit: float | None = None
     no_loop: bool = False
     no_refine: bool = False
@@ -158,8 +155,8 @@ class ExportOptions(_FromArgs):
 
 
 #: the fields of the options that no flag gives (the command's --quiet; what nifo run tells its steps)
-NOT_FLAGS = frozenset({"quiet", "setting_sources"})
-#: the options ``nifo run`` passes on to every step that has them (the flags of the input and settings groups, and
-#: where the settings it filled in came from)
-INPUT_FIELDS = frozenset({f.name for f in fields(Inputs)} - {"quiet"} | {"band", "cond_limit"})
+NOT_FLAGS = frozenset({"quiet"})
+#: the options ``nifo run`` passes on to every step that has them (the flags of the input and settings groups; the
+#: settings themselves travel resolved, as one AnalysisSettings)
+INPUT_FIELDS = frozenset({f.name for f in fields(Inputs)} - {"quiet"} | {"integration_band_hz", "cond_limit"})
 

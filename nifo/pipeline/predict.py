@@ -9,13 +9,13 @@ compared with the measured one:
 
 - NMSE in time, 100·Σ(y - ŷ)²/(N·σ_y²) % over the prediction's valid part
   (start-up edges left out; below 5 % good, below 1 % excellent);
-- the band NMSE, 100·Σ|Y - Ŷ|²/Σ|Y|² over the DFT lines of ``--freq-range``
+- the band NMSE, 100·Σ|Y - Ŷ|²/Σ|Y|² over the DFT lines of ``--analysis-band``
   (:mod:`nifo_core.predict.prediction_error`; the same number ``nifo identify --refine``
   minimises): after the start-up edge, or — with ``--period-samples`` — on the
   period average after the first, transient period of the prediction (the
   multisine benchmarks' convention);
 - the transmissibility error |T_pred/T_meas - 1|, median and max over the
-  lines of ``--freq-range`` (default: the model's analysis band), where T is the H1 from the
+  lines of ``--analysis-band`` (default: the model's analysis band), where T is the H1 from the
   measured spindle signal to the predicted or the measured body signal, on
   the same spectral settings.
 
@@ -49,7 +49,7 @@ from nifo.io.results import PREDICT_JSON, read_model, write_json
 from nifo.io.signals import write_signals
 from nifo.io.truth import truth_for
 from nifo.pipeline.options import PredictOptions
-from nifo.settings import loader_options, resolve
+from nifo.settings import for_records, given_from_args, loader_options, resolve
 from nifo_core.errors import ConfigError, InputError, MissingChannelError, NifoError, RecordTooShortError
 from nifo_core.signal.frf import coherence, h1
 from nifo_core.predict.model import predict_body, record_inputs
@@ -58,7 +58,7 @@ from nifo_core.predict.periodic import record_periodic_response
 from nifo_core.predict.whole_signal import DistortionError, distortion_error, whole_signal_error
 from nifo_core.predict.prediction_bounds import Z95, half_width, line_spread, prediction_spread
 from nifo_core.predict.prediction_error import band_nmse, band_spectra
-from nifo_core.settings import GivenSettings
+from nifo_core.settings import AnalysisSettings
 from nifo_core.signal.spectral import cross_spectra
 from nifo_core.simulate.vehicle import QuarterCar
 
@@ -155,7 +155,7 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
             raise InputError(f"the record is sampled at {fs:g} Hz (Nyquist {0.5 * fs:g} Hz) and the band scored, "
                              f"{band_hz[0]:g}-{band_hz[1]:g} Hz, reaches beyond it (the model was identified at "
                              f"{model.fs_hz:g} Hz)", source=str(path),
-                             hint=f"give --freq-range LO HI with HI below {0.5 * fs:g} Hz")
+                             hint=f"give --analysis-band LO HI with HI below {0.5 * fs:g} Hz")
         rate_note = (f"predicted at the record's rate, {fs:g} Hz; the model was identified at {model.fs_hz:g} Hz "
                      f"(its parameters are continuous-time)")
     if record.n < model.settings.block:    # the transmissibility needs one block of the model's settings
@@ -337,21 +337,28 @@ def _linear_part(model):
                    source="linear part")
 
 
-def run_predict(args: PredictOptions) -> dict:
+def run_predict(args: PredictOptions, *, settings: AnalysisSettings | None = None) -> dict:
+    """``nifo predict`` (module docstring). ``settings``: the job's, resolved once (``nifo run``: its analysis band,
+    blocks, period and transient); None: resolved here from the command line and the model (its analysis band and
+    blocks). Each file takes them through :func:`nifo.settings.for_records` (its own period and transient where
+    none was given or chosen)."""
     # before any work: a file, a foreign folder or one holding an input of the command is refused
     check_output(args.out, reads=[*args.data, args.model])
 
     model, linear = read_model(args.model)
     if linear is None:
         linear = _linear_part(model)
-    lo, hi = args.freq_range if args.freq_range is not None else model.analysis_band_hz   # the model's: checked
-    if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):                         # by read_model
-        raise ConfigError(f"--freq-range {lo:g} {hi:g} must satisfy 0 <= LO < HI", channel="--freq-range")
-    given = GivenSettings(period_samples=args.period_samples, skip_periods=args.skip_periods,
-                          skip_seconds=args.skip_seconds, analysis_band_hz=(lo, hi))
-    spectral = [k for k in ("block", "overlap", "window") if getattr(args, k) is not None]
+    if settings is None:    # the analysis band: the command line's, else the model's (checked by read_model)
+        band = args.analysis_band_hz if args.analysis_band_hz is not None else model.analysis_band_hz
+        given = replace(given_from_args(args), analysis_band_hz=band, integration_band_hz=None)
+        settings = resolve([], given=given, from_data=False)
+        spectral = [k for k in ("block", "overlap", "window") if getattr(args, k) is not None]
+    else:
+        spectral = ["block", "overlap", "window"]
+    lo, hi = settings.analysis_band_hz
     if spectral:    # the transmissibilities on other blocks than the model's
-        model = replace(model, settings=replace(model.settings, **{k: getattr(args, k) for k in spectral}))
+        model = replace(model, settings=replace(model.settings,
+                                                **{k: getattr(settings.spectral, k) for k in spectral}))
     results, failed, figures, tables = [], [], [], []
     labels = record_labels(args.data)     # the file's name, told apart from a record of the same name elsewhere
     with staged_dir(args.out) as tmp, figure_batch():   # figures rendered by helpers, all written before the commit
@@ -359,9 +366,9 @@ def run_predict(args: PredictOptions) -> dict:
             path = Path(p)                                                    # others are named at the end
             try:
                 try:                                                           # its period and transient
-                    st = resolve([path], given=given, opts=input_options(args))
+                    st = for_records(settings, [path], opts=input_options(args))
                 except NifoError:        # nothing to choose from these data (e.g. no clear excited band): as given
-                    st = resolve([path], given=given, opts=input_options(args), from_data=False)
+                    st = for_records(settings, [path], opts=input_options(args), from_data=False)
                 opts = loader_options(input_options(args), st)
                 opts.update(skip_periods=None, skip_seconds=None)              # from rest, from the first sample
                 record = load_record(path, **opts)
@@ -413,7 +420,7 @@ def _num(x, fmt: str) -> str:
 def _summary(results: list[dict], band, out: Path) -> str:
     w = max([24] + [len(r["name"]) for r in results])     # the whole name: records often differ at its end
     # the whole signal first: what the field scores (the raw predicted signal over all frequencies, offset
-    # included); the band NMSE beside it is the diagnosis over --freq-range
+    # included); the band NMSE beside it is the diagnosis over --analysis-band
     periodic = any("distortion" in r["model"] for r in results)
     lines = [f"{'record':<{w}} RMS error model | linear   NMSE all frequencies model | linear   "
              f"band NMSE {band[0]:.4g}-{band[1]:.4g} Hz model | linear   "

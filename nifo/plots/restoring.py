@@ -288,8 +288,7 @@ def term_words(term, *, units: str = SI) -> str:
     else:
         text = f"{v:.3f} m/s"
     side = f" ({term.params['side']})" if "side" in term.params else ""
-    joined = {"backlash": " ", "clearance": " ", "saturation": " at ±"}.get(term.kind, " at ")
-    return f"{spec.noun or term.kind}{joined}{text}{side}"
+    return f"{spec.noun or term.kind}{spec.joiner}{text}{side}"
 
 
 def plot_ranking(candidates: Sequence[dict], path: str | Path, *, title: str, min_err: float,

@@ -71,7 +71,7 @@ def _strut_facts(model: Model, law: ForceLaw | None, system: Mapping) -> str:
         bits.append(f"a flexible linear part (rational, {m.linear.order} states; modes at "
                     + ", ".join(f"{f:.3g}" for f in hz[:4]) + " Hz)")
     for t, g in zip(m.terms, m.c_over_m2):
-        what = "beyond it" if t.kind in ("clearance", "bump_stop", "velocity_deadzone", "velocity_saturation") else ""
+        what = "beyond it" if t.spec.beyond else ""
         bits.append(f"{term_words(t, units=model.units)}: {_fmt(scale * g)} {t.spec.coef_unit} {what}".rstrip())
     head = ("" if mass is not None else
             f"per kg of {'sprung mass' if system.get('vehicle', True) else 'output-side mass'}: ")

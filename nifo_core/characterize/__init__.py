@@ -23,7 +23,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
                   "BandSuggestion", "FrequencyTrack", "track_frequency", "instantaneous_frequency", "Slice",
                   "frequency_slices", "amplitude_slices", "local_amplitude"],
     "automatic": ["Thresholds", "Candidate", "FittedModel", "Characterization", "RecordSummary", "characterize",
-                  "characterize_restoring", "rank_beyond", "grid_search", "DEFAULT_KINDS", "POSITIVE_KINDS",
+                  "characterize_restoring", "rank_beyond", "grid_search", "DEFAULT_KINDS",
                   "candidate_grid"],
     "data": ["RegressionData", "GridSearch", "refine_grid"],
     "score": ["score_candidate", "lstsq"],

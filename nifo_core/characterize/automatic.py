@@ -71,7 +71,7 @@ import numpy as np
 from scipy import stats
 
 from .data import GridSearch, RegressionData, candidate_grid
-from .result import (DEFAULT_KINDS, POSITIVE_KINDS, Candidate, Characterization, Equivalence, FittedModel,
+from .result import (DEFAULT_KINDS, Candidate, Characterization, Equivalence, FittedModel,
                      RecordSummary, Thresholds)
 from .score import base_fit, detection_limit, lstsq, score_candidate
 from .static import shifted_offsets, static_bump_stops
@@ -84,7 +84,7 @@ from ..signal.record import Record
 from .restoring import RestoringForce, instantaneous_frequency, restoring_force, suggest_band
 
 __all__ = ["Thresholds", "Candidate", "FittedModel", "Characterization", "RecordSummary", "characterize",
-           "characterize_restoring", "rank_beyond", "grid_search", "DEFAULT_KINDS", "POSITIVE_KINDS",
+           "characterize_restoring", "rank_beyond", "grid_search", "DEFAULT_KINDS",
            "candidate_grid"]
 
 #: kinds re-scored at full length per selection step (the best ones on the subsample)
@@ -206,7 +206,8 @@ def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None
         if c.offsets:
             where = ", ".join(f"{1e3 * -o:+.2f} mm ({rf.source or f'record {i}'})"
                               for i, (o, rf) in enumerate(zip(c.offsets, rfs)))
-            what = "gap from the static position" if c.kind == "bump_stop" else "z measured from the static position"
+            what = ("gap from the static position" if c.term.spec.static_frame == "threshold"
+                    else "z measured from the static position")
             notes.append(f"{c.term.label}: {what}; the mean position sat {where} from it (rebound positive), "
                          f"found from the balance of the mean force")
     unseen = []

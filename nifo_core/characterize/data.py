@@ -13,7 +13,6 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .result import POSITIVE_KINDS
 from ..kinds.describing import Term, kind as lookup_kind
 from ..errors import ConfigError, InputError
 from .restoring import RestoringForce, bandpass, bandpass_settle_samples
@@ -144,48 +143,18 @@ def candidate_grid(kind_name: str, *, z_range: float, zdot_range: float, z_neg: 
     ``z_range``/``zdot_range`` are robust peaks of |z| [m] and |ż| [m/s];
     ``z_neg``/``z_pos`` the peaks in compression/rebound (bump stops; the
     threshold is measured from the mean position, static offsets being lost).
-    Scale parameters get geometric grids (equal relative steps):
-
-    ========================  ==================================
-    clearance ``gap``          3-90 % of the |z| peak
-    bump_stop ``gap``          0-92 % of the peak on each side
-    backlash ``deadband``      1-70 % of the |z| peak
-    velocity_deadzone ``knee`` 2-90 % of the |ż| peak
-    coulomb ``eps``            0.1-30 % of the |ż| peak
-    ========================  ==================================
+    Each kind holds its own grid (``Kind.grid_spec``: which parameter, over what fraction of which peak, e.g. a
+    clearance's gap over 3-90 % of the |z| peak, a bump stop's over 0-92 % of each side's); a kind without one
+    gives one term.
     """
     k = lookup_kind(kind_name)
-    name = k.name
     zr, vr = float(z_range), float(zdot_range)
     if not (zr > 0 and vr > 0):
         raise InputError(f"motion range z={zr:g} m, ż={vr:g} m/s must be positive to build a grid",
                          hint="the record holds no relative motion in the band")
     if points < 2:
         raise ConfigError(f"grid points={points} must be at least 2")
-
-    def geo(lo, hi):
-        return np.geomspace(lo, hi, points)
-
-    if name in ("cubic_stiffness", "quadratic_stiffness", "quadratic_damping"):
-        return [Term(name)]
-    if name == "asymmetric_damping":
-        return [Term(name, {"side": "rebound"})]
-    if name in ("clearance", "saturation"):
-        key = "gap" if name == "clearance" else "limit"
-        return [Term(name, {key: g}) for g in geo(0.03, 0.9) * zr]
-    if name == "bump_stop":
-        out = []
-        for side, peak in (("compression", z_neg or zr), ("rebound", z_pos or zr)):
-            out += [Term(name, {"gap": g, "side": side}) for g in np.linspace(0.0, 0.92, points) * peak]
-        return out
-    if name == "backlash":
-        return [Term(name, {"deadband": d}) for d in geo(0.01, 0.7) * zr]
-    if name in ("velocity_deadzone", "velocity_saturation"):
-        key = "knee" if name == "velocity_deadzone" else "limit"
-        return [Term(name, {key: g}) for g in geo(0.02, 0.9) * vr]
-    if name == "coulomb":
-        return [Term(name, {"eps": e}) for e in geo(0.001, 0.3) * vr]
-    raise ConfigError(f"no parameter grid for kind {name!r}")  # pragma: no cover - every kind has one
+    return k.grid(z_range=zr, zdot_range=vr, points=points, z_neg=z_neg, z_pos=z_pos)
 
 
 def refine_grid(term: Term, grid: list[Term], points: int = 7) -> list[Term]:
@@ -201,7 +170,7 @@ def refine_grid(term: Term, grid: list[Term], points: int = 7) -> list[Term]:
     lo, hi = vals[max(i - 1, 0)], vals[min(i + 1, vals.size - 1)]
     new = np.linspace(lo, hi, points + 2)[1:-1]
     return [Term(term.kind, {**term.params, kp: float(x)}) for x in new
-            if not np.isclose(x, v) and (x > 0 or term.kind == "bump_stop")]
+            if not np.isclose(x, v) and term.spec.may_be(kp, x)]
 
 
 
@@ -279,7 +248,7 @@ class GridSearch:
 
     def best_of(self, kind_name: str, err: np.ndarray, sign: np.ndarray) -> int | None:
         ok = self.kind_of == kind_name
-        if kind_name in POSITIVE_KINDS:
+        if lookup_kind(kind_name).positive:
             ok &= sign > 0
         idx = np.nonzero(ok)[0]
         return int(idx[np.argmax(err[idx])]) if idx.size else None

@@ -221,7 +221,7 @@ def restoring_force(record: Record, *, band: IntegrationBand | None = None,
         raise RecordTooShortError(
             f"{record.duration_s:.1f} s leaves {max(v.stop - v.start, 0)} samples once the integrator's edges "
             f"({it.edge_samples} samples each) are dropped", source=record.source or "record",
-            hint="record longer or raise the band's lower edge (--band)")
+            hint="record longer or raise the band's lower edge (--integration-band)")
     force = -bandpass(record.body_accel, fs, band)
     t = np.arange(record.n) / fs
     x2 = integrate(record.body_accel, fs, band=band).displacement[v] if body_displacement else None

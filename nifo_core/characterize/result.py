@@ -8,20 +8,13 @@ from typing import Mapping
 
 import numpy as np
 
-from ..kinds.describing import Term, kind as lookup_kind
+from ..kinds.describing import DEFAULT_KINDS, Term, kind as lookup_kind
 from ..errors import ConfigError
 from ..signal.integrate import IntegrationBand
 from .restoring import bandpass
 
 __all__ = ["Thresholds", "Candidate", "Equivalence", "FittedModel", "Characterization", "RecordSummary",
-           "DEFAULT_KINDS",
-           "POSITIVE_KINDS"]
-
-#: kinds searched by default (saturation/velocity_saturation are exact equivalents, named as such)
-DEFAULT_KINDS = ("cubic_stiffness", "quadratic_stiffness", "clearance", "bump_stop", "backlash", "velocity_deadzone", "coulomb",
-                 "quadratic_damping", "asymmetric_damping")
-#: kinds whose coefficient must be positive to be physical
-POSITIVE_KINDS = frozenset({"coulomb"})
+           "DEFAULT_KINDS"]
 
 
 @dataclass(frozen=True)
@@ -290,34 +283,5 @@ class Characterization:
 
 
 def describe(c: Candidate) -> str:
-    t, th = c.term, c.theta
-    p = t.params
-    if t.kind == "cubic_stiffness":
-        return f"{'hardening' if th > 0 else 'softening'} cubic stiffness"
-    if t.kind == "quadratic_stiffness":
-        return f"asymmetric stiffness: stiffer in {'rebound (z > 0)' if th > 0 else 'compression (z < 0)'}"
-    if t.kind == "clearance":
-        how = "stiffens (clearance/contact)" if th > 0 else "softens (saturation)"
-        return f"stiffness {how} beyond ±{1e3 * p['gap']:.3g} mm"
-    if t.kind == "saturation":
-        return f"stiffness saturates beyond ±{1e3 * p['limit']:.3g} mm"
-    if t.kind == "bump_stop":
-        return (f"one-sided {'stiffening' if th > 0 else 'softening'} beyond {1e3 * p['gap']:.3g} mm "
-                f"of {p['side']} from the {'static' if c.offsets else 'mean'} position")
-    if t.kind == "backlash":
-        if th < 0:
-            return (f"spring in series with dry friction (stick-slip, Jenkins element): slips after "
-                    f"{1e3 * p['deadband']:.3g} mm of reversal")
-        return f"hysteretic stiffness through a play of {1e3 * p['deadband']:.3g} mm"
-    if t.kind == "velocity_deadzone":
-        how = "rises (progressive)" if th > 0 else "drops (digressive, blow-off)"
-        return f"damping {how} beyond ±{p['knee']:.3g} m/s"
-    if t.kind == "velocity_saturation":
-        return f"damping force saturates beyond ±{p['limit']:.3g} m/s"
-    if t.kind == "coulomb":
-        return "dry friction"
-    if t.kind == "quadratic_damping":
-        return f"velocity-squared damping ({'adds' if th > 0 else 'removes'} damping at speed)"
-    if t.kind == "asymmetric_damping":
-        return f"extra damping in {p['side']}"
-    return t.spec.description  # pragma: no cover
+    """What a candidate means in a test engineer's words (``Kind.describe``)."""
+    return c.term.spec.describe(c.term, c.theta, from_static=bool(c.offsets))

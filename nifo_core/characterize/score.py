@@ -9,16 +9,12 @@ import numpy as np
 from scipy import stats
 
 from .data import RegressionData
-from .result import POSITIVE_KINDS, Candidate, Thresholds
+from .result import Candidate, Thresholds
 from ..kinds.describing import Term
 from ..signal.least_squares import lstsq
 from ..signal.uncertainty import effective_samples
 
 __all__ = ["score_candidate", "lstsq", "base_fit", "detection_limit", "smallest_visible"]
-
-_EQUIVALENT = {"clearance": ("saturation", "gap", "limit"),
-               "velocity_deadzone": ("velocity_saturation", "knee", "limit")}
-
 
 
 # --------------------------------------------------------------------------------------------
@@ -151,9 +147,9 @@ def score_candidate(data: RegressionData, base: list[np.ndarray], term: Term, *,
     dr2 = max(rss0 - rss1, 0.0) / tss if tss > 0 else 0.0
     if dr2 < thresholds.min_delta_r2:
         failed.append(f"ΔR² {dr2:.1e} < {thresholds.min_delta_r2:g}")
-    if term.kind in POSITIVE_KINDS and theta <= 0:
+    if term.spec.positive and theta <= 0:
         failed.append(f"coefficient {theta:.3g} has the unphysical sign")
-    term, sign, equiv = _canonical(term, theta)
+    term, sign, equiv = term.spec.canonical(term, theta)
     return Candidate(term=term, theta=sign * theta, coefficient=None if m2 is None else sign * theta * m2,
                      theta_half_width=half,
                      err=err, delta_r2=dr2, err_cv=float(err_cv),
@@ -166,25 +162,8 @@ def _relative(term: Term, data: RegressionData) -> float | None:
     kp = term.spec.key_param
     if kp is None:
         return None
-    v = float(term.params[kp])
-    if term.spec.variable == "zdot":
-        return v / data.vmax
-    if term.kind == "bump_stop":
-        peak = data.zneg if term.params["side"] == "compression" else data.zpos
-        return v / peak if peak > 0 else None
-    return v / data.zmax
-
-
-def _canonical(term: Term, theta: float) -> tuple[Term, float, str | None]:
-    """(reported term, sign to apply to θ, equivalent form)."""
-    if term.kind == "asymmetric_damping" and theta < 0:
-        # c·max(ż,0) = c·ż - c·min(ż,0): the other side with -c, plus a linear term
-        other = "compression" if term.params["side"] == "rebound" else "rebound"
-        return Term("asymmetric_damping", {"side": other}), -1.0, None
-    if term.kind in _EQUIVALENT:
-        name, kp, kq = _EQUIVALENT[term.kind]
-        return term, 1.0, f"{name}({kq}={float(term.params[kp]):.4g}) with the opposite coefficient"
-    return term, 1.0, None
+    peak = term.spec.reach(term, z_max=data.zmax, zdot_max=data.vmax, z_neg=data.zneg, z_pos=data.zpos)
+    return None if peak is None else float(term.params[kp]) / peak
 
 
 def base_fit(data: RegressionData, base: list[np.ndarray]) -> tuple[np.ndarray, float, float]:

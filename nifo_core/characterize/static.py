@@ -39,12 +39,17 @@ from ..kinds.describing import Term
 from ..signal.least_squares import lstsq
 from ..signal.parallel import thread_map
 
-__all__ = ["mean_shift", "static_bump_stops", "shifted_offsets", "STATIC_KINDS", "SHIFTED_KINDS"]
+__all__ = ["mean_shift", "static_bump_stops", "shifted_offsets"]
 
-#: kinds whose threshold is measured from the static position (one-sided: they move the mean)
-STATIC_KINDS = frozenset({"bump_stop"})
-#: kinds without a threshold that are evaluated on z from the static position (even: they move the mean)
-SHIFTED_KINDS = frozenset({"quadratic_stiffness"})
+
+def _threshold_from_static(t: Term) -> bool:
+    """A one-sided kind whose threshold counts from the static position (``Kind.static_frame``: a bump stop)."""
+    return t.spec.static_frame == "threshold"
+
+
+def _shifted(t: Term) -> bool:
+    """An even kind without a threshold evaluated on z from the static position (a quadratic stiffness)."""
+    return t.spec.static_frame == "position"
 
 
 def mean_shift(z: np.ndarray, zdot: np.ndarray, k_per_kg: float, terms: Sequence[tuple[Term, float]]) -> float:
@@ -66,7 +71,7 @@ def mean_shift(z: np.ndarray, zdot: np.ndarray, k_per_kg: float, terms: Sequence
         m such that k·m + Σ θ·mean g(z + m, ż) = 0; 0.0 when no root lies within the motion's range.
     """
     z, zdot = np.asarray(z, float), np.asarray(zdot, float)
-    terms = [(Term(t.kind, {**t.params, "offset": 0.0}) if t.kind in STATIC_KINDS else t, th) for t, th in terms]
+    terms = [(Term(t.kind, {**t.params, "offset": 0.0}) if _threshold_from_static(t) else t, th) for t, th in terms]
     # a term of ż does not move with m: its mean force is computed once, not at every step of the root search
     # (the same numbers, summed in the same order; it was 2/3 of the loop's static bump-stop search)
     moving = [t.spec.variable == "z" for t, _ in terms]
@@ -88,21 +93,22 @@ def mean_shift(z: np.ndarray, zdot: np.ndarray, k_per_kg: float, terms: Sequence
 
 def shifted_offsets(data: RegressionData, terms: Sequence[Term], *,
                     iterations: int = 4) -> list[tuple[float, ...] | None]:
-    """Per term, the offsets -m_i of every record for the :data:`SHIFTED_KINDS` terms, else None (module docstring).
+    """Per term, the offsets -m_i of every record for the shifted terms (``Kind.static_frame`` "position"), else
+    None (module docstring).
 
     A fixed point: fit k, θ with the current offsets, solve the mean balance of every record
     (:func:`mean_shift`, with the terms other than bump stops, whose gap is still from the mean),
     repeat. All None when ``terms`` hold no shifted kind.
     """
     terms = list(terms)
-    which = [t.kind in SHIFTED_KINDS for t in terms]
+    which = [_shifted(t) for t in terms]
     if not any(which):
         return [None] * len(terms)
     nl = len(data.lin)
     off = [0.0] * len(data.rfs)
     for _ in range(iterations):
         c, _ = _fit(data, terms, [tuple(off) if w else None for w in which])
-        pairs = [(t, float(c[nl + i])) for i, t in enumerate(terms) if t.kind not in STATIC_KINDS]
+        pairs = [(t, float(c[nl + i])) for i, t in enumerate(terms) if not _threshold_from_static(t)]
         off = [-mean_shift(rf.z, rf.zdot, float(c[0]), pairs) for rf in data.rfs]
     return [tuple(off) if w else None for w in which]
 
@@ -117,7 +123,8 @@ def _fit(data: RegressionData, terms: list[Term], offsets: list[list[float] | No
 def _offsets(data: RegressionData, terms: list[Term], c: np.ndarray, j: int, gap: float) -> list[float]:
     """offset = -m per record for term ``j`` at static gap ``gap``, given the fit ``c``."""
     nl = len(data.lin)
-    pairs = [(Term(t.kind, {**t.params, "gap": gap}) if i == j else t, float(c[nl + i])) for i, t in enumerate(terms)]
+    pairs = [(Term(t.kind, {**t.params, t.spec.key_param: gap}) if i == j else t, float(c[nl + i]))
+             for i, t in enumerate(terms)]
     return [-mean_shift(rf.z, rf.zdot, float(c[0]), pairs) for rf in data.rfs]
 
 
@@ -143,11 +150,12 @@ def static_bump_stops(data: RegressionData, terms: Sequence[Term], *,
     """
     terms = list(terms)
     offsets: list = list(shifted_offsets(data, terms))
-    shifted = [t.kind in SHIFTED_KINDS for t in terms]
+    shifted = [_shifted(t) for t in terms]
     for j, t in enumerate(terms):
-        if t.kind not in STATIC_KINDS:
+        if not _threshold_from_static(t):
             continue
-        g_mean = float(t.params["gap"])
+        key = t.spec.key_param       # the gap, counted from the static position
+        g_mean = float(t.params[key])
         c, _ = _fit(data, terms, offsets)
         best = (np.inf, g_mean, [0.0] * len(data.rfs))
 
@@ -155,7 +163,7 @@ def static_bump_stops(data: RegressionData, terms: Sequence[Term], *,
             cc, off = c0, None
             for _ in range(3):  # m depends on k and θ, which depend on the offsets: a few fixed-point steps
                 off = _offsets(data, terms, cc, j, s)
-                trial_terms = terms[:j] + [Term(t.kind, {**t.params, "gap": s})] + terms[j + 1:]
+                trial_terms = terms[:j] + [Term(t.kind, {**t.params, key: s})] + terms[j + 1:]
                 trial_off = [off if (i == j or shifted[i]) else o for i, o in enumerate(offsets)]
                 cc, rss = _fit(data, trial_terms, trial_off)
             return rss, s, off
@@ -173,6 +181,6 @@ def static_bump_stops(data: RegressionData, terms: Sequence[Term], *,
         tried([s for s in np.linspace(best[1] - step, best[1] + step, 9) if s > 0])
         _, s, off = best
         main = int(np.argmax([float(np.std(rf.z)) for rf in data.rfs]))
-        terms[j] = Term(t.kind, {**t.params, "gap": float(s), "offset": float(off[main])})
+        terms[j] = Term(t.kind, {**t.params, key: float(s), "offset": float(off[main])})
         offsets = [off if (i == j or shifted[i]) else o for i, o in enumerate(offsets)]
     return terms, [None if o is None else tuple(float(v) for v in o) for o in offsets]

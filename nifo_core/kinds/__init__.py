@@ -15,7 +15,7 @@ is first used, so importing one module of the package does not import the others
 import lazy_loader
 
 __getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
-    "describing": ["Kind", "Term", "KINDS", "ALIASES", "kind", "make_term", "evaluate_terms", "play_operator",
-                   "path_slopes", "CODES"],
-    "strut_forces": ["PLAY", "kind_code", "strut_arrays", "g_one", "strut_force", "lipschitz"],
+    "describing": ["Kind", "GridSpec", "Term", "KINDS", "LIBRARY", "DEFAULT_KINDS", "ALIASES", "kind", "make_term",
+                   "evaluate_terms", "play_operator", "path_slopes", "linear_twin", "CODES"],
+    "strut_forces": ["PLAY", "kind_code", "strut_arrays", "g_one", "strut_force", "lipschitz", "slopes_within"],
 })

@@ -29,7 +29,7 @@ import numpy as np
 from .describing import CODES, Term
 from ..errors import ConfigError
 
-__all__ = ["PLAY", "kind_code", "strut_arrays", "g_one", "strut_force", "lipschitz"]
+__all__ = ["PLAY", "kind_code", "strut_arrays", "g_one", "strut_force", "lipschitz", "slopes_within"]
 
 # kind codes, from the kind registry (numba reads these module globals as constants)
 _CUBIC, _CLEAR, _SAT, _BUMP_C, _BUMP_R, _PLAY, _VDZ, _VSAT, _COUL, _QUAD, _ASYM_R, _ASYM_C, _QSTIFF = (
@@ -70,6 +70,14 @@ def lipschitz(t: Term) -> tuple[float, float]:
     if t.spec.lipschitz is not None:
         return t.spec.lipschitz(t.params)
     return (1.0, 0.0) if t.variable == "z" else (0.0, 1.0)
+
+
+def slopes_within(t: Term, z_max: float, zdot_max: float) -> tuple[float, float]:
+    """Upper bounds of |dg/dz| and |dg/dż| for motions up to |z| ≤ ``z_max`` [m] and |ż| ≤ ``zdot_max`` [m/s]: the
+    Lipschitz constants (:func:`lipschitz`), or ``Kind.slopes_within`` for a g without one (cubic, quadratic)."""
+    if t.spec.slopes_within is not None:
+        return t.spec.slopes_within(t.params, z_max, zdot_max)
+    return lipschitz(t)
 
 
 @numba.njit(cache=True, inline="always")

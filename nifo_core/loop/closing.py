@@ -95,14 +95,15 @@ Haroon & Adams (paper Eq. 2, 7-9).
 from __future__ import annotations
 
 import copy
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from functools import partial
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
 from ..characterize.automatic import grid_search, rank_beyond
 from ..characterize.subsets import best_subsets, subset_rss
-from ..kinds.describing import Term, make_term
+from ..kinds.describing import Term, kind as lookup_kind, linear_twin, make_term
 from .detection import confounded_pairs, detection_limits, undetermined_terms
 from ..errors import ConfigError, InputError, NifoError, RecordTooShortError
 from ..signal.integrate import IntegrationBand
@@ -315,24 +316,17 @@ def _path_grid(ev: _Evaluator, kinds: Sequence[str], points: int) -> list[Term]:
     for kind in kinds:
         if kind not in PATH_KINDS or not hi > lo > 0:
             continue
-        key = {"backlash": "deadband", "clearance": "gap", "saturation": "limit"}[kind]
-        scale = 1.0 if kind == "backlash" else 0.5
-        out += [Term(kind, {key: float(w)}) for w in np.geomspace(scale * lo, scale * hi, points)]
+        k = lookup_kind(kind)
+        scale = k.path_width
+        out += [Term(kind, {k.key_param: float(w)}) for w in np.geomspace(scale * lo, scale * hi, points)]
     return out
-
-
-def linear_twin(ev: _Evaluator) -> Term:
-    """A term whose remainder is z itself (a saturation far beyond the motion): through a feedback path it adds only
-    linear flexibility — what a candidate must beat to count as a nonlinearity."""
-    peak = max(float(np.max(np.abs(p.z))) for p in ev.fit_parts)
-    return Term("saturation", {"limit": 100.0 * peak})
 
 
 def _grid_candidates(ev: _Evaluator, pred: _Predictor, terms: Sequence[Term], s: LoopSettings,
                      m2_kg: float | None) -> list:
     """Plays over a grid of widths for a flexible body (a discrete Iwan model: patches of a joint that slip one
     after another), with their equation-error statistics. Clearances and saturations come from the ranking."""
-    grid = _path_grid(ev, ["backlash"] if "backlash" in s.kinds else [], int(s.path_widths))
+    grid = _path_grid(ev, [k for k in s.kinds if _iwan(k)], int(s.path_widths))
     if not grid or pred.linear is None:
         return []
     chosen = [t for t in grid if all(t.label != u.label for u in terms)]
@@ -342,13 +336,24 @@ def _grid_candidates(ev: _Evaluator, pred: _Predictor, terms: Sequence[Term], s:
                             names=tuple(t.label for t in terms)) for t in chosen]
 
 
+def _reach(ev: _Evaluator) -> float:
+    """The peak |z| of the fitted records [m]."""
+    return max(float(np.max(np.abs(p.z))) for p in ev.fit_parts)
+
+
+def _iwan(kind: str) -> bool:
+    """A kind tried over a grid of widths on a flexible body: a hysteretic one a feedback path carries (a play)."""
+    k = lookup_kind(kind)
+    return k.hysteretic and k.path_slopes is not None
+
+
 def _round_candidates(ev, pred, terms, ranked, s, m2_kg) -> list:
     """What a round tries: on a one-mass body the significant ranked candidates in rank order; on a flexible body
     (rational linear part, where the one-mass equation error is mis-specified and only the held-out prediction
     judges) plays over a grid of widths and the best ranked candidates of the other kinds."""
     if not pred.flexible:
         return [c for c in ranked if c.present][: s.top_tried]
-    others = [c for c in ranked if c.kind != "backlash"][: s.top_tried]
+    others = [c for c in ranked if not _iwan(c.kind)][: s.top_tried]
     seen = {c.term.label for c in others}
     return [c for c in _grid_candidates(ev, pred, terms, s, m2_kg) if c.term.label not in seen] + others
 
@@ -356,12 +361,86 @@ def _round_candidates(ev, pred, terms, ranked, s, m2_kg) -> list:
 def _data_settings(recs: Sequence[Record], band: IntegrationBand | None, s: LoopSettings) -> AnalysisSettings:
     """Without explicit data settings: the loop's spectral settings and analysis band, its integration band."""
     fs = float(recs[0].fs_hz)
-    return AnalysisSettings(spectral=s.spectral, band=band, analysis_band_hz=s.analysis_band_hz, cond_limit=1e4)
+    return AnalysisSettings(spectral=s.spectral, band=band, analysis_band_hz=s.analysis_band_hz)
 
 
 # Long (over 100 lines): each round's fit, residual, ranking, acceptance tests and refit share the round's
 # state. Left whole here while the noise branch (issue 28) edits its body; to split after
 # the merge.
+@dataclass(frozen=True)
+class _Setup:
+    """What every round of :func:`close_loop` works on: the records (as measured and centred), the declared model
+    fitted as declared, the settings, the held-out split, the evaluator and the linear part's predictor."""
+
+    raw: tuple[Record, ...]
+    recs: tuple[Record, ...]
+    declared_terms: tuple[Term, ...]
+    decl_theta: Sequence[float]
+    m2_kg: float | None
+    s: LoopSettings
+    band: IntegrationBand
+    band_note: str | None
+    adapted: str | None
+    held: HeldOut
+    ev: _Evaluator
+    pred: _Predictor
+    floor: object
+    retune_ok: bool
+    initial: Errors
+
+    @property
+    def n_decl(self) -> int:
+        return len(self.declared_terms)
+
+    def keeps(self, errs: Errors) -> tuple[bool, str]:
+        """Whether the model of ``errs`` keeps the declared physics (every declared term within the stated factor of
+        its declared parameter, its coefficient with the sign of the declared fit), and how it changes it."""
+        fates = [DeclaredTerm(d, float(t0), t, float(t1), self.m2_kg)
+                 for d, t0, t, t1 in zip(self.declared_terms, self.decl_theta, errs.terms, errs.theta_per_kg)]
+        changed = [f for f in fates if f.changed_meaning]
+        return not changed, " ".join(f.text() for f in changed)
+
+    def explanation(self, what: str, errs: Errors) -> Explanation:
+        return Explanation(what, tuple(errs.terms), tuple(errs.theta_per_kg), errs.prediction_nmse_pct, self.m2_kg)
+
+
+@dataclass(frozen=True)
+class _Found:
+    """The model the rounds arrived at: its terms and errors, the rounds, what the data could not tell apart, the
+    verdict so far and the candidates' grid (None: no round traced the residual)."""
+
+    terms: tuple[Term, ...]
+    current: Errors
+    rounds: tuple[Round, ...]
+    ambiguities: tuple[Ambiguity, ...]
+    verdict: str
+    search: object = None
+
+
+@dataclass(frozen=True)
+class _Tried:
+    """A round's trials, the one added (None: none) and the model's errors they were judged against."""
+
+    trials: tuple[Trial, ...]
+    added: Trial | None
+    current: Errors
+    ambiguity: Ambiguity | None = None
+
+
+@dataclass(frozen=True)
+class _Final:
+    """The predictive model at the end (None with the reason), its refinement, the declared terms' fates and the
+    held-out score the result reports."""
+
+    model: IdentifiedModel | None
+    linear: IdentifiedModel | None
+    unavailable: str | None
+    refinement: LoopRefinement | None
+    fates: tuple[DeclaredTerm, ...]
+    verdict: str
+    score: float | None
+
+
 def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Mapping | str] = (), *,
                m2_kg: float | None = None, band: IntegrationBand | None = None,
                settings: LoopSettings = LoopSettings(), data: AnalysisSettings | None = None,
@@ -390,6 +469,53 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
     -------
     LoopResult
     """
+    say = progress or (lambda f, w: None)
+    u = _set_up(records, declared, m2_kg, band, settings, data, say)
+    found = _run_rounds(u, say)
+    if u.retune_ok and found.search is not None and len(found.terms) > u.n_decl:
+        found = _best_set_pass(u, found, say)
+    found, retuned = _retune_declared(u, found)
+    say(0.95, "rounds done")
+    terms, current, ev, pred, s = list(found.terms), found.current, u.ev, u.pred, u.s
+    verdict = found.verdict
+    n_added = len(terms) - u.n_decl
+    if n_added:
+        verdict = (f"Added {n_added} effect(s): " + ", ".join(t.label for t in terms[u.n_decl:])
+                   + f"; {before_after_text(u.initial, current)}. "
+                   + verdict)
+    if found.ambiguities:   # never "nothing significant is missing" when the data cannot decide
+        verdict = "".join(f"Ambiguity: {a.text()}. " for a in found.ambiguities) + verdict
+    notes = _notes(u, retuned)
+    limits, confounded, verdict = _limits(u, found, verdict, say)
+    bounds = ev.bounds(terms)
+    bias_note = _bias_note(ev, terms)
+    if bias_note:
+        notes.append(bias_note)
+    n = ev.n_lin
+    undetermined = undetermined_terms(ev.fit_rfs, terms, bounds.half_width[n:n + len(terms)] /
+                                      np.maximum(np.abs(bounds.theta[n:n + len(terms)]), 1e-300)) if terms else ()
+    if undetermined and verdict.endswith(NOTHING_MISSING):  # not the same as "nothing is missing": say so
+        verdict = (verdict[: -len(NOTHING_MISSING)] + "Nothing these data can separate is missing, but "
+                   + "; ".join(x.text() for x in undetermined) + ".")
+    fin = _final_model(u, found, verdict, say)
+    say(1.0, "done")
+    return LoopResult(declared=tuple(make_term(t) for t in declared), terms=tuple(terms), rounds=found.rounds,
+                      initial=u.initial, final=current, verdict=fin.verdict, band=u.band, m2_kg=m2_kg, settings=s,
+                      sources=tuple(r.source for r in u.recs),
+                      fit_seconds=tuple(a.duration_s for a in ev.fit_recs),
+                      test_seconds=tuple(b.duration_s for b in ev.test_recs), notes=tuple(notes), model=fin.model,
+                      linear_model=fin.linear, model_unavailable=fin.unavailable, detection_limits=limits,
+                      confounded=confounded, bounds=bounds, undetermined=undetermined, refinement=fin.refinement,
+                      linear_heldout_pct=None if pred.linear is None else pred.linear.score, noise=ev.noise,
+                      bias_corrected=ev.corrected(terms) is not None,
+                      final_heldout_pct=fin.score, ambiguities=found.ambiguities, declared_terms=fin.fates)
+
+
+def _set_up(records: Record | Sequence[Record], declared: Sequence[Term | Mapping | str], m2_kg: float | None,
+            band: IntegrationBand | None, settings: LoopSettings, data: AnalysisSettings | None,
+            say: Callable[[float, str], None]) -> _Setup:
+    """The records checked and centred, the band, the held-out split, the evaluator and the predictor, the declared
+    model fitted as declared (:func:`close_loop`'s arguments)."""
     raw = [records] if isinstance(records, Record) else list(records)
     if not raw:
         raise InputError("no records to run the loop on")
@@ -422,261 +548,296 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
             adapted = (f"spectral block {data.spectral.block} → {block} samples for the models fitted on the fit "
                        f"parts and the per-band residual: the shortest fit part is {shortest / fs:.1f} s")
             data = replace(data, spectral=replace(data.spectral, block=block))
-    say = progress or (lambda f, w: None)
     say(0.0, "restoring force and the declared model")
     ev = _Evaluator(held, band, s, spectral=data.spectral if data.period_samples is None else None)
     say(0.02, "the linear part: one-mass body or rational, by held-out prediction")
     pred = _Predictor(held, data, s, ev)
     floor = held.noise_floor()
     declared_terms = tuple(terms)
-    n_decl = len(terms)
     retune_ok = s.retune and not pred.flexible   # re-tuning by the one-mass equation error: a one-mass body only
     # the declared model fitted as declared: the signs its terms mean (a falling knee, a hardening spring...). The
     # declared parameters are not re-tuned before the rounds: with effects still missing the re-tune takes them up
     # (measured, a hidden quadratic damping beside the paper's knee: the knee walked from 0.03 to 0.055 m/s)
     decl_theta = ev.equation(declared_terms)["theta_per_kg"] if terms else ()
-    current = _errors(ev, pred, terms)
-    initial = current
+    return _Setup(raw=tuple(raw), recs=tuple(recs), declared_terms=declared_terms, decl_theta=decl_theta, m2_kg=m2_kg,
+                  s=s, band=band, band_note=band_note, adapted=adapted, held=held, ev=ev, pred=pred, floor=floor,
+                  retune_ok=retune_ok, initial=_errors(ev, pred, terms))
+
+
+def _run_rounds(u: _Setup, say: Callable[[float, str], None]) -> _Found:
+    """Round after round, the best candidate that passes every gate added, until none does or the rounds run out."""
+    terms, current = list(u.declared_terms), u.initial
     rounds: list[Round] = []
-    ambiguities: list[Ambiguity] = []
-    verdict = ""
-    total = s.max_rounds + 1
+    ambiguities: tuple[Ambiguity, ...] = ()
     search = None
-
-    def keeps(errs: Errors) -> tuple[bool, str]:
-        """Whether the model of ``errs`` keeps the declared physics (every declared term within the stated factor of
-        its declared parameter, its coefficient with the sign of the declared fit), and how it changes it."""
-        fates = [DeclaredTerm(d, float(t0), t, float(t1), m2_kg)
-                 for d, t0, t, t1 in zip(declared_terms, decl_theta, errs.terms, errs.theta_per_kg)]
-        changed = [f for f in fates if f.changed_meaning]
-        return not changed, " ".join(f.text() for f in changed)
-
-    def explanation(what: str, errs: Errors) -> Explanation:
-        return Explanation(what, tuple(errs.terms), tuple(errs.theta_per_kg), errs.prediction_nmse_pct, m2_kg)
-
-    for i in range(1, s.max_rounds + 1):
-        base = (i - 1) / total
-        tuned: list[str] = []
-        if retune_ok and i > 1 and len(terms) > n_decl:   # the terms the loop added (a declared one: at the end)
-            say(base, f"round {i}: re-tuning the model's parameters")
-            terms, tuned = _retune(ev, terms, s, which=range(n_decl, len(terms)))
-            if tuned:
-                current = _errors(ev, pred, terms)
-        say(base, f"round {i}: tracing the residual")
-        if search is None:      # the candidates' grid on the fit parts: the data's, the same in every round
-            search = grid_search(ev.fit_rfs, kinds=s.kinds, grid_points=s.grid_points,
-                                 progress=lambda f, b=base: say(b + 0.5 * f / total, f"round {i}: tracing"))
-        ranked = rank_beyond(ev.fit_rfs, terms, m2_kg=m2_kg, kinds=s.kinds, thresholds=s.thresholds,
-                             grid_points=s.grid_points, offsets=[ev.static.get(t.label) for t in terms],
-                             search=search)
-        trials: list[Trial] = []
-        added = None
-        cands = _round_candidates(ev, pred, terms, ranked, s, m2_kg)
-        twin = None
-        if pred.flexible and cands and all(t.kind in PATH_KINDS for t in terms):
-            say(base + 0.5 / total, f"round {i}: the linear twin (one more linear path)")
-            twin = _errors(ev, pred, [*terms, linear_twin(ev)])
-
-        def judging(pred: _Predictor, current: Errors) -> Callable[[Candidate], Trial]:
-            """The acceptance of a candidate with ``pred``'s linear form, against the model ``current``."""
-            return lambda c: judge_in(pred, current, c)
-
-        def judge_in(pred: _Predictor, current: Errors, c: Candidate) -> Trial:
-            c = _static_candidate(ev, terms, c, s, m2_kg)  # a bump stop: its gap from the static position
-            failed = []
-            r2 = acts_linearly(ev, c.term)
-            if r2 >= LINEAR_R2:
-                failed.append(f"it acts linearly on these data (z and ż explain {100 * r2:.2f} % of it: it never "
-                              f"leaves one regime)")
-            shift, frac = _tire_check(ev, terms, c.term, s)
-            if not shift <= s.max_tire_shift and not pred.flexible:   # impacts: a vehicle's tire, a one-mass body
-                failed.append(f"impact check: the coefficient moves {100 * shift:.0f} % without the samples near "
-                              f"the input side's impacts (> {100 * s.max_tire_shift:.0f} %): an artefact of impacts "
-                              f"(tire events on a vehicle), not an effect of the nonlinear element")
-            after = _errors(ev, pred, [*terms, c.term])
-            gain = 1 - after.equation_nmse_pct / current.equation_nmse_pct if current.equation_nmse_pct > 0 else 0.0
-            if pred.flexible:
-                eq_failed, pred_failed = [], prediction_failures(current, after, s, twin, floor)
-            else:
-                eq_failed, pred_failed = heldout_failures(current, after, s, compare_errors(held, after, current))
-            failed += eq_failed + pred_failed + whole_signal_failures(current, after, s)
-            ties = instead = ()
-            passed = not failed
-            # failing the prediction alone makes a candidate "unconfirmed" (maybe missing), unless a term of a kind
-            # already present, re-placed, does as well: then it only stands in for that one (measured: a declared
-            # friction at eps 0.005 m/s, the truth, and a second friction at 0.01 m/s "unconfirmed")
-            only_pred = bool(pred_failed) and len(failed) == len(pred_failed) and not pred.flexible
-            more: list[str] = []
-            if (passed or only_pred) and not pred.flexible:  # one term of a kind already present must not do as well
-                alts = []
-                for k, a in one_of_kind_alternatives(terms, c.term, [r.term for r in ranked], ev.static):
-                    e = _errors(ev, pred, [*terms[:k], a, *terms[k + 1:]])
-                    alts.append(Alternative(k, a, e, compare_errors(held, after, e), *keeps(e)))
-                more, ties, instead = judge_alternatives(terms, c.term, alts, s, candidate_keeps=keeps(after)[0])
-                failed += more
-            return Trial(candidate=c, tire_shift=shift, tire_excluded_fraction=frac, heldout_gain=gain, after=after,
-                         accepted=not failed, failed=tuple(failed), unconfirmed=only_pred and not more,
-                         ties=tuple(ties), instead=tuple(instead), gates_passed=passed)
-
-        judge = judging(pred, current)
-        if pred.flexible:      # every candidate judged on the one metric, side by side: the best that passes
-            say(base + 0.5 / total, f"round {i}: checking {len(cands)} candidates side by side")
-            trials = thread_map(judge, cands)
-            ok = [t for t in trials if t.accepted]
-            added = min(ok, key=lambda t: t.after.prediction_nmse_pct) if ok else None
-        else:                  # in rank order, the first that passes
-            for j, c in enumerate(cands):
-                say(base + (0.5 + 0.45 * j / max(len(cands), 1)) / total, f"round {i}: checking {c.term.label}")
-                trials.append(judge(c))
-                if trials[-1].accepted:
-                    added = trials[-1]
-                    break
-            if added is not None:   # another kind that explains as much and predicts as well: named beside it
-                added, amb = _rival(i, held, ev.fit_rfs, added, cands[len(trials):], judge, trials, s, explanation)
-                if amb is not None:
-                    ambiguities.append(amb)
-        if added is None and pred.flexible:   # the one-mass body again, with a term in (:meth:`_Predictor.reconsider`)
-            got = _body_round(ev, pred, terms, ranked, s, m2_kg, judge_in, say, base + 0.9 / total, i)
-            if got is not None:
-                body_trials, added, current = got
-                trials += body_trials
-        pre = "".join(f"(Re-tuned first: {n}.) " for n in tuned)
-        if added is None:
-            text = pre + _nothing_text(i, ranked, trials)
-            retune = _retune_instead(trials, current)
-            if retune is not None:      # a term re-placed does as well as (or better than) a term added
-                t, a, is_better = retune
-                old, model_before, before = terms[a.index], tuple(terms), current
-                text = text.replace(f" {NOTHING_MISSING}", "")     # the round found something: said below
-                if s.retune:
-                    terms = [*terms[:a.index], a.term, *terms[a.index + 1:]]
-                    current = a.errors
-                if not is_better:
-                    why = ("re-tuning is off: the model is kept as it was" if not s.retune else
-                           f"it keeps the declared physics within the stated factor {RETUNE_FACTOR:g} and adds no term"
-                           if a.keeps_declared else "it adds no term (neither keeps the declared physics)")
-                    ambiguities.append(Ambiguity(i, (explanation(f"{old.label} re-placed by {a.term.label}", a.errors),
-                                                     explanation(f"{t.candidate.term.label} added", t.after)),
-                                                 (compare_errors(held, a.errors, t.after),), why,
-                                                 separating_record(ev.fit_rfs, t.candidate.term, a.term)))
-                    text += (f" {old.label} re-placed by {a.term.label} instead: these data cannot tell it from "
-                             f"{t.candidate.term.label} added." if s.retune else
-                             f" These data cannot tell {t.candidate.term.label} added from {old.label} re-placed by "
-                             f"{a.term.label}; re-tuning is off.")
-                    rounds.append(Round(i, model_before, ranked, tuple(trials), before, None, None, text))
-                    verdict = NOTHING_ELSE
-                    break
-                if s.retune:
-                    text += (f" {old.label} re-placed by {a.term.label} instead: it predicts the held-out parts "
-                             f"better than {t.candidate.term.label} added ({a.comparison.nmse_b:.3g} % against "
-                             f"{a.comparison.nmse_a:.3g} %, paired t {a.comparison.t:+.2g}).")
-                    rounds.append(Round(i, model_before, ranked, tuple(trials), before, None, None, text))
-                    continue
-            rounds.append(Round(i, tuple(terms), ranked, tuple(trials), current, None, None, text))
-            unconfirmed = [t for t in trials if t.unconfirmed]
-            if unconfirmed:
-                verdict = unconfirmed_text(unconfirmed, current)
-            elif ambiguities:
-                verdict = NOTHING_ELSE
-            else:
-                verdict = NOTHING_MISSING if i > 1 else f"The declared model lacks nothing the library can name. " \
-                                                         f"{NOTHING_MISSING}"
+    for i in range(1, u.s.max_rounds + 1):
+        step = _round(u, i, terms, current, search, ambiguities, say)
+        rounds += step.rounds
+        terms, current, ambiguities, search = list(step.terms), step.current, step.ambiguities, step.search
+        if step.verdict:
+            verdict = step.verdict
             break
-        if added.ties:   # a declared term changed in meaning would do as well: the declared physics kept, both named
-            ambiguities.append(Ambiguity(
-                i, (explanation(f"{added.candidate.term.label} added", added.after),
-                    *[explanation(f"{terms[a.index].label} re-placed by {a.term.label} ({a.changes})", a.errors)
-                      for a in added.ties]),
-                tuple(a.comparison for a in added.ties), "it keeps the declared physics",
-                separating_record(ev.fit_rfs, added.candidate.term, added.ties[0].term)))
-        added = _with_corrected_coefficient(ev, terms, added, m2_kg)
-        evid = _evidence(ev, terms, added.candidate.term, s)
-        text = pre + _round_text(i, added, current, evid, m2_kg, len(recs), ranked)
-        text += "".join(f" Ambiguity: {a.text()}." for a in ambiguities if a.round == i)
-        rounds.append(Round(i, tuple(terms), ranked, tuple(trials), current, added, evid, text))
-        terms = [*terms, added.candidate.term]
-        current = added.after
-        if pred.reconsider(terms):
-            current = _errors(ev, pred, terms)
     else:
-        verdict = (f"Stopped after the limit of {s.max_rounds} round(s); more may be missing: run again with more "
+        verdict = (f"Stopped after the limit of {u.s.max_rounds} round(s); more may be missing: run again with more "
                    f"rounds.")
-    if retune_ok and search is not None and len(terms) > n_decl:    # the best set of effects, fewer or as many
-        say(0.95, "the best set of effects")
-        swapped = []
-        for _ in range(len(terms) - n_decl + 1):
-            changed = False
-            for fewer, new, e, comp in _best_sets(ev, pred, search, terms, n_decl, current, s, m2_kg):
-                if (fewer and not comp.better("b", s.min_prediction_gain)) or (not fewer and comp.better("a")):
-                    how = ("one effect fewer predicts the held-out parts as well" if fewer else
-                           "that set predicts the held-out parts better; one effect added at a time had stopped "
-                           "short of it")
-                    swapped.append(f"{', '.join(t.label for t in terms[n_decl:])} re-chosen as "
-                                   f"{', '.join(t.label for t in new[n_decl:]) or 'nothing'}: {how} "
-                                   f"({comp.nmse_a:.3g} % against {comp.nmse_b:.3g} %, paired t {comp.t:+.2g})")
-                    terms, current, changed = new, e, True
-                    labels = {t.label for t in terms}    # what the rounds could not tell apart, if still held
-                    ambiguities = [a for a in ambiguities if {t.label for t in a.options[0].terms} <= labels]
-                    break
-                if not fewer and not comp.apart():
-                    ambiguities.append(Ambiguity(len(rounds), (explanation("as found, one effect at a time", current),
-                                                               explanation("the best set of as many effects", e)),
-                                                 (compare_errors(held, current, e),), "found first",
-                                                 separating_record(ev.fit_rfs, terms[-1], new[-1])))
-            if not changed or len(terms) == n_decl:
+    return _Found(tuple(terms), current, tuple(rounds), ambiguities, verdict, search)
+
+
+def _round(u: _Setup, i: int, terms: list[Term], current: Errors, search, ambiguities: tuple[Ambiguity, ...],
+           say: Callable[[float, str], None]) -> _Found:
+    """Round ``i``: re-tune what the loop added, trace and rank the residual, judge the candidates, add the best
+    that passes. Its ``verdict`` is set when the loop stops here."""
+    s, ev, pred = u.s, u.ev, u.pred
+    total = s.max_rounds + 1
+    base = (i - 1) / total
+    tuned: list[str] = []
+    if u.retune_ok and i > 1 and len(terms) > u.n_decl:   # the terms the loop added (a declared one: at the end)
+        say(base, f"round {i}: re-tuning the model's parameters")
+        terms, tuned = _retune(ev, terms, s, which=range(u.n_decl, len(terms)))
+        if tuned:
+            current = _errors(ev, pred, terms)
+    say(base, f"round {i}: tracing the residual")
+    if search is None:      # the candidates' grid on the fit parts: the data's, the same in every round
+        search = grid_search(ev.fit_rfs, kinds=s.kinds, grid_points=s.grid_points,
+                             progress=lambda f, b=base: say(b + 0.5 * f / total, f"round {i}: tracing"))
+    ranked = rank_beyond(ev.fit_rfs, terms, m2_kg=u.m2_kg, kinds=s.kinds, thresholds=s.thresholds,
+                         grid_points=s.grid_points, offsets=[ev.static.get(t.label) for t in terms],
+                         search=search)
+    cands = _round_candidates(ev, pred, terms, ranked, s, u.m2_kg)
+    twin = None
+    if pred.flexible and cands and all(t.kind in PATH_KINDS for t in terms):
+        say(base + 0.5 / total, f"round {i}: the linear twin (one more linear path)")
+        twin = _errors(ev, pred, [*terms, linear_twin(_reach(ev))])
+    tried = _try_candidates(u, i, terms, ranked, cands, current, partial(_judge, u, terms, ranked, twin), say)
+    trials, added, current = list(tried.trials), tried.added, tried.current
+    ambiguities += () if tried.ambiguity is None else (tried.ambiguity,)
+    pre = "".join(f"(Re-tuned first: {n}.) " for n in tuned)
+    if added is None:
+        return replace(_nothing_added(u, i, terms, current, ranked, trials, ambiguities, pre), search=search)
+    if added.ties:   # a declared term changed in meaning would do as well: the declared physics kept, both named
+        ambiguities += (Ambiguity(
+            i, (u.explanation(f"{added.candidate.term.label} added", added.after),
+                *[u.explanation(f"{terms[a.index].label} re-placed by {a.term.label} ({a.changes})", a.errors)
+                  for a in added.ties]),
+            tuple(a.comparison for a in added.ties), "it keeps the declared physics",
+            separating_record(ev.fit_rfs, added.candidate.term, added.ties[0].term)),)
+    added = _with_corrected_coefficient(ev, terms, added, u.m2_kg)
+    evid = _evidence(ev, terms, added.candidate.term, s)
+    text = pre + _round_text(i, added, current, evid, u.m2_kg, len(u.recs), ranked)
+    text += "".join(f" Ambiguity: {a.text()}." for a in ambiguities if a.round == i)
+    done = Round(i, tuple(terms), ranked, tuple(trials), current, added, evid, text)
+    terms = [*terms, added.candidate.term]
+    current = added.after
+    if pred.reconsider(terms):
+        current = _errors(ev, pred, terms)
+    return _Found(tuple(terms), current, (done,), ambiguities, "", search)
+
+
+def _try_candidates(u: _Setup, i: int, terms: Sequence[Term], ranked: Sequence[Candidate],
+                    cands: Sequence[Candidate], current: Errors, judge_in: Callable[..., Trial],
+                    say: Callable[[float, str], None]) -> _Tried:
+    """A round's candidates judged: on a flexible body side by side (the best that passes), on a one-mass body in
+    rank order (the first that passes, with a rival that does as well named); on a flexible body that accepts
+    nothing, the round again on the one-mass body."""
+    s, pred = u.s, u.pred
+    total = s.max_rounds + 1
+    base = (i - 1) / total
+    judge = partial(judge_in, pred, current)
+    trials: list[Trial] = []
+    added = amb = None
+    if pred.flexible:      # every candidate judged on the one metric, side by side: the best that passes
+        say(base + 0.5 / total, f"round {i}: checking {len(cands)} candidates side by side")
+        trials = thread_map(judge, cands)
+        ok = [t for t in trials if t.accepted]
+        added = min(ok, key=lambda t: t.after.prediction_nmse_pct) if ok else None
+    else:                  # in rank order, the first that passes
+        for j, c in enumerate(cands):
+            say(base + (0.5 + 0.45 * j / max(len(cands), 1)) / total, f"round {i}: checking {c.term.label}")
+            trials.append(judge(c))
+            if trials[-1].accepted:
+                added = trials[-1]
                 break
-        if swapped:
-            verdict = "Effects re-chosen: " + "; then ".join(swapped) + ". " + verdict
-    if retune_ok and n_decl and terms:   # with every effect found, the declared parameters set by the data
-        new, retuned = _retune(ev, terms, s, which=range(n_decl), declared=declared_terms)
-        if retuned:
-            e = _errors(ev, pred, new)
-            if e.prediction_nmse_pct is not None and current.prediction_nmse_pct is not None and \
-                    e.prediction_nmse_pct <= current.prediction_nmse_pct:
-                terms, current = new, e
-            else:
-                retuned = []
+        if added is not None:   # another kind that explains as much and predicts as well: named beside it
+            added, amb = _rival(i, u.held, u.ev.fit_rfs, added, cands[len(trials):], judge, trials, s,
+                                u.explanation)
+    if added is None and pred.flexible:   # the one-mass body again, with a term in (:meth:`_Predictor.reconsider`)
+        got = _body_round(u.ev, pred, terms, ranked, s, u.m2_kg, judge_in, say, base + 0.9 / total, i)
+        if got is not None:
+            body_trials, added, current = got
+            trials += body_trials
+    return _Tried(tuple(trials), added, current, amb)
+
+
+def _judge(u: _Setup, terms: Sequence[Term], ranked: Sequence[Candidate], twin: Errors | None, pred: _Predictor,
+           current: Errors, c: Candidate) -> Trial:
+    """The acceptance of a candidate with ``pred``'s linear form, against the model ``current`` (every gate)."""
+    ev, s, held = u.ev, u.s, u.held
+    c = _static_candidate(ev, terms, c, s, u.m2_kg)  # a bump stop: its gap from the static position
+    failed = []
+    r2 = acts_linearly(ev, c.term)
+    if r2 >= LINEAR_R2:
+        failed.append(f"it acts linearly on these data (z and ż explain {100 * r2:.2f} % of it: it never "
+                      f"leaves one regime)")
+    shift, frac = _tire_check(ev, terms, c.term, s)
+    if not shift <= s.max_tire_shift and not pred.flexible:   # impacts: a vehicle's tire, a one-mass body
+        failed.append(f"impact check: the coefficient moves {100 * shift:.0f} % without the samples near "
+                      f"the input side's impacts (> {100 * s.max_tire_shift:.0f} %): an artefact of impacts "
+                      f"(tire events on a vehicle), not an effect of the nonlinear element")
+    after = _errors(ev, pred, [*terms, c.term])
+    gain = 1 - after.equation_nmse_pct / current.equation_nmse_pct if current.equation_nmse_pct > 0 else 0.0
+    if pred.flexible:
+        eq_failed, pred_failed = [], prediction_failures(current, after, s, twin, u.floor)
     else:
-        retuned = []
-    say(0.95, "rounds done")
-    n_added = len(terms) - n_decl
-    if n_added:
-        verdict = (f"Added {n_added} effect(s): " + ", ".join(t.label for t in terms[n_decl:])
-                   + f"; {before_after_text(initial, current)}. "
-                   + verdict)
-    if ambiguities:   # never "nothing significant is missing" when the data cannot decide
-        verdict = "".join(f"Ambiguity: {a.text()}. " for a in ambiguities) + verdict
+        eq_failed, pred_failed = heldout_failures(current, after, s, compare_errors(held, after, current))
+    failed += eq_failed + pred_failed + whole_signal_failures(current, after, s)
+    ties = instead = ()
+    passed = not failed
+    # failing the prediction alone makes a candidate "unconfirmed" (maybe missing), unless a term of a kind
+    # already present, re-placed, does as well: then it only stands in for that one (measured: a declared
+    # friction at eps 0.005 m/s, the truth, and a second friction at 0.01 m/s "unconfirmed")
+    only_pred = bool(pred_failed) and len(failed) == len(pred_failed) and not pred.flexible
+    more: list[str] = []
+    if (passed or only_pred) and not pred.flexible:  # one term of a kind already present must not do as well
+        alts = []
+        for k, a in one_of_kind_alternatives(terms, c.term, [r.term for r in ranked], ev.static):
+            e = _errors(ev, pred, [*terms[:k], a, *terms[k + 1:]])
+            alts.append(Alternative(k, a, e, compare_errors(held, after, e), *u.keeps(e)))
+        more, ties, instead = judge_alternatives(terms, c.term, alts, s, candidate_keeps=u.keeps(after)[0])
+        failed += more
+    return Trial(candidate=c, tire_shift=shift, tire_excluded_fraction=frac, heldout_gain=gain, after=after,
+                 accepted=not failed, failed=tuple(failed), unconfirmed=only_pred and not more,
+                 ties=tuple(ties), instead=tuple(instead), gates_passed=passed)
+
+
+def _nothing_added(u: _Setup, i: int, terms: list[Term], current: Errors, ranked: Sequence[Candidate],
+                   trials: Sequence[Trial], ambiguities: tuple[Ambiguity, ...], pre: str) -> _Found:
+    """A round that adds nothing: a term re-placed instead when one does as well or better (the loop goes on when it
+    does better and re-tuning is on), else the verdict."""
+    s = u.s
+    text = pre + _nothing_text(i, ranked, trials)
+    retune = _retune_instead(trials, current)
+    if retune is not None:      # a term re-placed does as well as (or better than) a term added
+        t, a, is_better = retune
+        old, model_before, before = terms[a.index], tuple(terms), current
+        text = text.replace(f" {NOTHING_MISSING}", "")     # the round found something: said below
+        if s.retune:
+            terms = [*terms[:a.index], a.term, *terms[a.index + 1:]]
+            current = a.errors
+        if not is_better:
+            why = ("re-tuning is off: the model is kept as it was" if not s.retune else
+                   f"it keeps the declared physics within the stated factor {RETUNE_FACTOR:g} and adds no term"
+                   if a.keeps_declared else "it adds no term (neither keeps the declared physics)")
+            ambiguities += (Ambiguity(i, (u.explanation(f"{old.label} re-placed by {a.term.label}", a.errors),
+                                          u.explanation(f"{t.candidate.term.label} added", t.after)),
+                                      (compare_errors(u.held, a.errors, t.after),), why,
+                                      separating_record(u.ev.fit_rfs, t.candidate.term, a.term)),)
+            text += (f" {old.label} re-placed by {a.term.label} instead: these data cannot tell it from "
+                     f"{t.candidate.term.label} added." if s.retune else
+                     f" These data cannot tell {t.candidate.term.label} added from {old.label} re-placed by "
+                     f"{a.term.label}; re-tuning is off.")
+            done = Round(i, model_before, ranked, tuple(trials), before, None, None, text)
+            return _Found(tuple(terms), current, (done,), ambiguities, NOTHING_ELSE)
+        if s.retune:
+            text += (f" {old.label} re-placed by {a.term.label} instead: it predicts the held-out parts "
+                     f"better than {t.candidate.term.label} added ({a.comparison.nmse_b:.3g} % against "
+                     f"{a.comparison.nmse_a:.3g} %, paired t {a.comparison.t:+.2g}).")
+            done = Round(i, model_before, ranked, tuple(trials), before, None, None, text)
+            return _Found(tuple(terms), current, (done,), ambiguities, "")
+    done = Round(i, tuple(terms), ranked, tuple(trials), current, None, None, text)
+    unconfirmed = [t for t in trials if t.unconfirmed]
+    if unconfirmed:
+        verdict = unconfirmed_text(unconfirmed, current)
+    elif ambiguities:
+        verdict = NOTHING_ELSE
+    else:
+        verdict = NOTHING_MISSING if i > 1 else f"The declared model lacks nothing the library can name. " \
+                                                 f"{NOTHING_MISSING}"
+    return _Found(tuple(terms), current, (done,), ambiguities, verdict)
+
+
+def _best_set_pass(u: _Setup, found: _Found, say: Callable[[float, str], None]) -> _Found:
+    """The best set of effects, fewer or as many than the rounds added one at a time (a one-mass body)."""
+    say(0.95, "the best set of effects")
+    terms, current, ambiguities, n_decl = list(found.terms), found.current, list(found.ambiguities), u.n_decl
+    swapped = []
+    for _ in range(len(terms) - n_decl + 1):
+        changed = False
+        for fewer, new, e, comp in _best_sets(u.ev, u.pred, found.search, terms, n_decl, current, u.s, u.m2_kg):
+            if (fewer and not comp.better("b", u.s.min_prediction_gain)) or (not fewer and comp.better("a")):
+                how = ("one effect fewer predicts the held-out parts as well" if fewer else
+                       "that set predicts the held-out parts better; one effect added at a time had stopped "
+                       "short of it")
+                swapped.append(f"{', '.join(t.label for t in terms[n_decl:])} re-chosen as "
+                               f"{', '.join(t.label for t in new[n_decl:]) or 'nothing'}: {how} "
+                               f"({comp.nmse_a:.3g} % against {comp.nmse_b:.3g} %, paired t {comp.t:+.2g})")
+                terms, current, changed = new, e, True
+                labels = {t.label for t in terms}    # what the rounds could not tell apart, if still held
+                ambiguities = [a for a in ambiguities if {t.label for t in a.options[0].terms} <= labels]
+                break
+            if not fewer and not comp.apart():
+                options = (u.explanation("as found, one effect at a time", current),
+                           u.explanation("the best set of as many effects", e))
+                ambiguities.append(Ambiguity(len(found.rounds), options, (compare_errors(u.held, current, e),),
+                                             "found first", separating_record(u.ev.fit_rfs, terms[-1], new[-1])))
+        if not changed or len(terms) == n_decl:
+            break
+    verdict = found.verdict
+    if swapped:
+        verdict = "Effects re-chosen: " + "; then ".join(swapped) + ". " + verdict
+    return replace(found, terms=tuple(terms), current=current, ambiguities=tuple(ambiguities), verdict=verdict)
+
+
+def _retune_declared(u: _Setup, found: _Found) -> tuple[_Found, list[str]]:
+    """With every effect found, the declared parameters set by the data (kept when the held-out prediction is no
+    worse); the model and what was re-tuned."""
+    if not (u.retune_ok and u.n_decl and found.terms):
+        return found, []
+    new, retuned = _retune(u.ev, list(found.terms), u.s, which=range(u.n_decl), declared=u.declared_terms)
+    if retuned:
+        e = _errors(u.ev, u.pred, new)
+        if e.prediction_nmse_pct is not None and found.current.prediction_nmse_pct is not None and \
+                e.prediction_nmse_pct <= found.current.prediction_nmse_pct:
+            return replace(found, terms=tuple(new), current=e), retuned
+    return found, []
+
+
+def _notes(u: _Setup, retuned: Sequence[str]) -> list[str]:
+    """The result's notes on the declared terms re-tuned, the band, the block, the evaluator and the linear form."""
     notes = [f"declared {n} at the end (within the stated factor {RETUNE_FACTOR:g} of the declared value; the "
              f"declared form is kept, the data set its parameter)" for n in retuned]
-    notes += ([band_note] if band_note else []) + ([adapted] if adapted else []) + ev.notes
-    if pred.choice is not None:
-        notes.append(pred.choice.reason)
-    if pred.switched:
-        notes.append(pred.switched)
-    if band.f_lo_hz > 1.0:
-        notes.append(f"the integration band starts at {band.f_lo_hz:g} Hz: motion below it is only partly in z, ż")
-    limits, confounded = (), ()
-    last = rounds[-1] if rounds else None
-    if last is not None and last.added is None:  # its ranking is on the final model's residual
-        say(0.97, "detection limits and confounding")
-        seen = {t.kind for t in terms} | {t.candidate.kind for t in last.trials}  # modelled, or seen and refused
-        others = [c for c in last.ranked if c.kind not in seen]
-        limits = detection_limits(ev.fit_rfs, terms, others, m2_kg=m2_kg, thresholds=s.thresholds,
-                                  n_grid=s.grid_points)
-        confounded = confounded_pairs(ev.fit_rfs, terms, [c.term for c in last.ranked] + list(terms))
-        if confounded and verdict.endswith(NOTHING_MISSING):
-            verdict = (verdict[: -len(NOTHING_MISSING)] + "Nothing these data can separate is missing, but "
-                       + "; ".join(c.text() for c in confounded) + ".")
-    bounds = ev.bounds(terms)
-    bias_note = _bias_note(ev, terms)
-    if bias_note:
-        notes.append(bias_note)
-    n = ev.n_lin
-    undetermined = undetermined_terms(ev.fit_rfs, terms, bounds.half_width[n:n + len(terms)] /
-                                      np.maximum(np.abs(bounds.theta[n:n + len(terms)]), 1e-300)) if terms else ()
-    if undetermined and verdict.endswith(NOTHING_MISSING):  # not the same as "nothing is missing": say so
+    notes += ([u.band_note] if u.band_note else []) + ([u.adapted] if u.adapted else []) + u.ev.notes
+    if u.pred.choice is not None:
+        notes.append(u.pred.choice.reason)
+    if u.pred.switched:
+        notes.append(u.pred.switched)
+    if u.band.f_lo_hz > 1.0:
+        notes.append(f"the integration band starts at {u.band.f_lo_hz:g} Hz: motion below it is only partly in z, ż")
+    return notes
+
+
+def _limits(u: _Setup, found: _Found, verdict: str, say: Callable[[float, str], None]) -> tuple[tuple, tuple, str]:
+    """The detection limits of the kinds not modelled and the confounded pairs, when the last round added nothing
+    (its ranking is on the final model's residual), and the verdict saying so."""
+    last = found.rounds[-1] if found.rounds else None
+    if last is None or last.added is not None:
+        return (), (), verdict
+    say(0.97, "detection limits and confounding")
+    terms = list(found.terms)
+    seen = {t.kind for t in terms} | {t.candidate.kind for t in last.trials}  # modelled, or seen and refused
+    others = [c for c in last.ranked if c.kind not in seen]
+    limits = detection_limits(u.ev.fit_rfs, terms, others, m2_kg=u.m2_kg, thresholds=u.s.thresholds,
+                              n_grid=u.s.grid_points)
+    confounded = confounded_pairs(u.ev.fit_rfs, terms, [c.term for c in last.ranked] + list(terms))
+    if confounded and verdict.endswith(NOTHING_MISSING):
         verdict = (verdict[: -len(NOTHING_MISSING)] + "Nothing these data can separate is missing, but "
-                   + "; ".join(u.text() for u in undetermined) + ".")
+                   + "; ".join(c.text() for c in confounded) + ".")
+    return limits, confounded, verdict
+
+
+def _final_model(u: _Setup, found: _Found, verdict: str, say: Callable[[float, str], None]) -> _Final:
+    """The predictive model, refined by output error when that keeps the declared physics, with its static part and
+    the band it covers; the declared terms' fates and the verdict with them."""
+    terms, current, pred, s, m2_kg = list(found.terms), found.current, u.pred, u.s, u.m2_kg
     model = linear = unavailable = refinement = None
     if current.fitted is not None and current.prediction_unavailable is None:
         model, linear = current.fitted.model, pred.linear.model
@@ -684,18 +845,18 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
         unavailable = f"no predictive model: {current.prediction_unavailable}"
     if model is not None and terms and s.refine and current.structure == "constant":
         say(0.98, "output-error refinement")
-        refinement, refined = refine_final(ev, pred.held, model, linear, m2_kg, say, current)
-        already = {f.declared.label for f in _fates(declared_terms, decl_theta, model, m2_kg) if f.changed_meaning}
-        changed = [f for f in _fates(declared_terms, decl_theta, refined, m2_kg)
+        refinement, refined = refine_final(u.ev, pred.held, model, linear, m2_kg, say, current)
+        already = {f.declared.label for f in _fates(u.declared_terms, u.decl_theta, model, m2_kg) if f.changed_meaning}
+        changed = [f for f in _fates(u.declared_terms, u.decl_theta, refined, m2_kg)
                    if f.changed_meaning and f.declared.label not in already]
         if refinement.kept and changed:   # a refinement never silently replaces the user's term by another physics
             refinement = replace(refinement, kept=False, refused="it changes a declared term: " + " ".join(
                 f.text() for f in changed))
         else:
             model = refined
-    fates = _fates(declared_terms, decl_theta, model, m2_kg) if model is not None else tuple(
+    fates = _fates(u.declared_terms, u.decl_theta, model, m2_kg) if model is not None else tuple(
         DeclaredTerm(d, float(t0), t, float(t1), m2_kg)
-        for d, t0, t, t1 in zip(declared_terms, decl_theta, terms, current.theta_per_kg))
+        for d, t0, t, t1 in zip(u.declared_terms, u.decl_theta, terms, current.theta_per_kg))
     changed = [f for f in fates if f.changed_meaning]
     if changed:
         verdict = " ".join(f.text() for f in changed) + " " + verdict
@@ -707,24 +868,14 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
         final_score = refinement.heldout_after_pct
     if model is not None:   # what the model carries besides its dynamics: offsets, the band it covers, its range
         say(0.99, "the static part and the band the prediction covers")
-        held_raw = replace(held, records=tuple(raw))
+        held_raw = replace(u.held, records=u.raw)
         linear = None if linear is None else fit_scope(linear, held_raw)
         model = fit_scope(model, held_raw, linear=linear)
     floor_note = _floors(final_score, pred, terms)
     if floor_note:
         verdict = floor_note + " " + verdict.replace(NOTHING_MISSING, "").replace(
             "The declared model lacks nothing the library can name. ", "").strip()
-    say(1.0, "done")
-    return LoopResult(declared=tuple(make_term(t) for t in declared), terms=tuple(terms), rounds=tuple(rounds),
-                      initial=initial, final=current, verdict=verdict, band=band, m2_kg=m2_kg, settings=s,
-                      sources=tuple(r.source for r in recs),
-                      fit_seconds=tuple(a.duration_s for a in ev.fit_recs),
-                      test_seconds=tuple(b.duration_s for b in ev.test_recs), notes=tuple(notes), model=model,
-                      linear_model=linear, model_unavailable=unavailable, detection_limits=limits,
-                      confounded=confounded, bounds=bounds, undetermined=undetermined, refinement=refinement,
-                      linear_heldout_pct=None if pred.linear is None else pred.linear.score, noise=ev.noise,
-                      bias_corrected=ev.corrected(terms) is not None,
-                      final_heldout_pct=final_score, ambiguities=tuple(ambiguities), declared_terms=fates)
+    return _Final(model, linear, unavailable, refinement, tuple(fates), verdict, final_score)
 
 
 def _with_corrected_coefficient(ev: _Evaluator, terms: Sequence[Term], trial: Trial,

@@ -22,7 +22,7 @@ from ..characterize.automatic import candidate_grid
 from ..characterize.data import RegressionData
 from ..characterize.result import Candidate
 from ..characterize.score import score_candidate
-from ..characterize.static import SHIFTED_KINDS, STATIC_KINDS, shifted_offsets, static_bump_stops
+from ..characterize.static import shifted_offsets, static_bump_stops
 from ..kinds.describing import Term
 from ..errors import InputError
 from ..signal.integrate import IntegrationBand
@@ -358,11 +358,12 @@ def _static_candidate(ev: _Evaluator, terms: Sequence[Term], cand: Candidate, s:
     Measured without it: a hidden even stiffness beside a clearance (the fleet of issue 54) had its level-dependent
     linear part taken up by two spurious bump stops.
     """
-    if cand.kind not in STATIC_KINDS and cand.kind not in SHIFTED_KINDS:
+    frame = cand.term.spec.static_frame
+    if not frame:
         return cand
     data = ev.regression()
     # the other terms keep their own (already static) frame; only the candidate is re-measured
-    if cand.kind in STATIC_KINDS:
+    if frame == "threshold":
         new, offs = static_bump_stops(data, [*terms, cand.term])
         term, off = new[-1], offs[-1]
     else:
@@ -463,7 +464,7 @@ def _retune(ev: "_Evaluator", terms: Sequence[Term], s: LoopSettings, *, which: 
         scores = [err(Term(t.kind, {**t.params, key: x})) for x in vals]
         j = int(np.argmax(scores))
         a, b = vals[max(j - 1, 0)], vals[min(j + 1, len(vals) - 1)]
-        fine = [x for x in np.linspace(a, b, 9)[1:-1] if (x > 0 or t.kind == "bump_stop") and lo <= x <= hi]
+        fine = [x for x in np.linspace(a, b, 9)[1:-1] if t.spec.may_be(key, x) and lo <= x <= hi]
         cands = [(scores[j], vals[j])] + [(err(Term(t.kind, {**t.params, key: x})), x) for x in fine]
         cands.append((err(t), float(t.params[key])))
         best_score, best = max(cands)

@@ -18,6 +18,7 @@ from ..characterize.automatic import DEFAULT_KINDS, Candidate, Thresholds
 from ..kinds.describing import Term
 from ..signal.uncertainty import CoefficientBounds
 from .detection import Confounding, DetectionLimit, Undetermined
+from ..defaults import DEFAULT_ANALYSIS_BAND_HZ
 from ..errors import ConfigError
 from ..signal.integrate import IntegrationBand
 from ..predict.model import IdentifiedModel
@@ -117,7 +118,7 @@ class LoopSettings:
     max_tire_shift: float = 0.5
     top_tried: int = 3
     spectral: SpectralSettings = field(default_factory=SpectralSettings)
-    analysis_band_hz: tuple[float, float] = (2.0, 30.0)
+    analysis_band_hz: tuple[float, float] = DEFAULT_ANALYSIS_BAND_HZ
     prediction: Prediction = "model"
     retune: bool = True
     refine: bool = True
@@ -694,8 +695,8 @@ def _effect_words(c: Candidate, m2: float | None) -> str:
         size = f"{c.coefficient:.3g} {unit} (θ = {c.theta:.3g} {unit}/kg × M2 = {m2:g} kg)"
     else:
         size = f"{c.theta:.3g} {unit} per kg of the output-side mass M2 (give --m2 for newtons)"
-    if c.kind == "coulomb":
-        return f"Coulomb friction of {size}"
+    if c.term.spec.sentence:
+        return f"{c.term.spec.sentence} of {size}"
     return f"{c.describe()}{where}: {c.term.label}, coefficient {size}"
 
 

@@ -30,8 +30,8 @@ def _as_terms(terms) -> tuple[Term, ...]:
         terms = [terms]
     out = tuple(make_term(t) for t in terms)
     for t in out:
-        if t.spec.hysteretic and t.kind != "backlash":
-            raise ConfigError(f"{t.label}: streaming NIFO knows how to carry the state of 'backlash' only")
+        if t.spec.hysteretic and not t.spec.play_state:
+            raise ConfigError(f"{t.label}: streaming NIFO knows how to carry the state of a play operator only")
     return out
 
 
@@ -186,7 +186,7 @@ class StreamingNifo:
         for i, t in enumerate(self.all_terms):
             if t.spec.hysteretic:   # the play operator's state carries over chunks
                 y0 = None if np.isnan(self._play[i]) else float(self._play[i])
-                g = play_operator(z, t.params["deadband"], y0=y0)
+                g = play_operator(z, t.params[t.spec.key_param], y0=y0)
                 self._play[i] = g[-1]
             else:
                 g = t.evaluate(z, zdot)

@@ -51,7 +51,7 @@ def contraction_bound(terms: Sequence[Term], bz: np.ndarray, freq_hz: np.ndarray
 def _evaluate(terms: Sequence[Term], z: np.ndarray, zdot: np.ndarray) -> np.ndarray:
     out = np.empty((len(terms), z.size))
     for i, t in enumerate(terms):
-        out[i] = play_operator(z, t.params["deadband"]) if t.spec.hysteretic else t.evaluate(z, zdot)
+        out[i] = play_operator(z, t.params[t.spec.key_param]) if t.spec.hysteretic else t.evaluate(z, zdot)
     return out
 
 

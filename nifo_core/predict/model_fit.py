@@ -152,7 +152,7 @@ def choose_linear_form(held: HeldOut, settings: AnalysisSettings) -> LinearChoic
     if not cands:
         raise ConfigError("no linear part can be fitted to these data: " + "; ".join(f"{k}: {v}" for k, v in
                                                                                       why.items()),
-                          hint="check the analysis band (--freq-range) and the channels")
+                          hint="check the analysis band (--analysis-band) and the channels")
     best = min(cands, key=lambda k: cands[k].score)
     body = cands.get("body")
     if best == "rational" and body is not None and body.model.linear.kind == "body" and body.model.linear.physical \

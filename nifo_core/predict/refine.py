@@ -88,8 +88,6 @@ __all__ = ["Refinement", "refine_model", "refine_jointly", "model_nmse", "parame
 _DIVERGED = 10.0
 #: range of a key parameter around its start (factor)
 _SHAPE_RANGE = 4.0
-#: kinds whose force is bounded whatever the motion (no absorbed slope needed for a bounded feedback)
-_BOUNDED = frozenset({"coulomb", "saturation", "velocity_saturation"})
 
 
 @dataclass(frozen=True)
@@ -389,7 +387,7 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
                                                          absorbed_rates(model.terms, model.c_over_m2))
     # residues move only where the terms' feedback is bounded (their slope absorbed into the realised linear part,
     # or a bounded force): the realised part keeps its poles, so no θ can destabilise the model at any level
-    bounded = tracked or all(t.kind in _BOUNDED for t in model.terms)
+    bounded = tracked or all(t.spec.bounded for t in model.terms)
     starts = {"nifo": _space(model, model, shape=shape, linear_params=linear_params, track_absorbed=tracked,
                              residues=linear_residues and bounded)}
     if linear is not None and model.terms:

@@ -203,7 +203,7 @@ def _static_frame(terms) -> list[Term]:
     moves the mean); the simulation measures z from the static position itself, where
     the gap is, and its own mean moves with the stop as the strut's does.
     """
-    return [Term(t.kind, {**dict(t.params), "offset": 0.0}) if t.kind == "bump_stop" else t for t in terms]
+    return [Term(t.kind, {**dict(t.params), "offset": 0.0}) if t.spec.static_frame == "threshold" else t for t in terms]
 
 
 def fine_factor(fs_hz: float, model_fs_hz: float | None = None) -> int:

@@ -46,12 +46,12 @@ class IntegrationBand:
         """
         if not (0 < self.f_lo_hz < self.f_hi_hz):
             raise ConfigError(f"integration band {self.f_lo_hz}-{self.f_hi_hz} Hz must satisfy 0 < f_lo < f_hi",
-                              hint="e.g. --band 0.5 200")
+                              hint="e.g. --integration-band 0.5 200")
         if self.f_hi_hz * 1.25 > fs_hz / 2 + 1e-9:
             raise ConfigError(f"integration band upper edge {self.f_hi_hz} Hz is too close to Nyquist "
                               f"({fs_hz / 2:g} Hz at fs={fs_hz:g} Hz)", hint=f"use f_hi <= {fs_hz / 2.5:g} Hz")
         taps = integrator_length(fs_hz, self.f_lo_hz)
-        fix = "raise the band's lower edge to at least {lo} Hz (--band {lo} {hi:g}, or settings.band_hz in the model file)"
+        fix = "raise the band's lower edge to at least {lo} Hz (--integration-band {lo} {hi:g}, or settings.integration_band_hz in the model file)"
         if n_samples is not None and taps > n_samples:
             lo = lowest_resolvable_hz(fs_hz, n_samples)
             raise ConfigError(

@@ -50,8 +50,11 @@ from ._block_products import accumulate_block_products
 
 __all__ = [
     "Window", "Detrend", "SpectralSettings", "CrossSpectra", "CrossSpectralAccumulator", "cross_spectra",
-    "auto_spectrum", "cross_spectrum", "block_ffts",
+    "auto_spectrum", "cross_spectrum", "block_ffts", "MAX_BLOCK",
 ]
+
+#: the largest spectral block accepted [samples] (2^22: 4.2 M, 2 h at 600 Hz; the paper uses 6144)
+MAX_BLOCK = 1 << 22
 
 Window = Literal["flattop", "hann", "hamming", "boxcar", "blackman", "blackmanharris", "nuttall"]
 Detrend = Literal["constant", "none"]
@@ -83,8 +86,9 @@ class SpectralSettings:
     detrend: Detrend = "constant"
 
     def __post_init__(self) -> None:
-        if isinstance(self.block, bool) or not isinstance(self.block, (int, np.integer)) or self.block < 8:
-            raise ConfigError(f"spectral block={self.block!r} must be an integer >= 8 samples",
+        if isinstance(self.block, bool) or not isinstance(self.block, (int, np.integer)) or \
+                not 8 <= self.block <= MAX_BLOCK:
+            raise ConfigError(f"spectral block={self.block!r} must be an integer of 8 to {MAX_BLOCK} samples",
                               hint="e.g. --block 6144 (paper Table 2)")
         object.__setattr__(self, "block", int(self.block))
         try:

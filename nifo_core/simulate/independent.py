@@ -1,7 +1,7 @@
 """A second quarter-car simulator, written apart from :mod:`nifo_core.simulate.quarter_car` (issue 54).
 
-Nothing of the first simulator is used: not its strut forces (:mod:`nifo_core.kinds`), not its road
-(:mod:`nifo_core.simulate.road`), not its integrator or its anti-aliasing. What the estimators are checked on
+Nothing of the first simulator is used: not its strut forces (of :mod:`nifo_core.kinds` only the kinds' names), not
+its road (:mod:`nifo_core.simulate.road`), not its integrator or its anti-aliasing. What the estimators are checked on
 then rests on two discretisations, two force codes and two road generators:
 
 ==================  ==============================================  ==============================================
@@ -40,6 +40,7 @@ import numpy as np
 from scipy import signal
 
 from ..errors import ConfigError
+from ..kinds.describing import LIBRARY as K
 from ..signal.record import Record
 
 __all__ = ["Corner", "Element", "HarmonicRoad", "Sensors", "IndependentConfig", "IndependentRun",
@@ -68,15 +69,16 @@ class SimulationStoppedError(ArithmeticError):
 
 #: element kind → (code, what its value is, its parameter's meaning)
 ELEMENT_KINDS: Mapping[str, tuple[int, str, str]] = {
-    "velocity_deadzone": (0, "change of damping beyond the knee [N·s/m]", "knee velocity [m/s]"),
-    "quadratic_damping": (1, "orifice coefficient [N·s²/m²]", "—"),
-    "coulomb": (2, "friction force [N]", "regularising velocity v_s [m/s]"),
-    "asymmetric_damping": (3, "extra damping on one side [N·s/m]", "side: +1 rebound, -1 compression"),
-    "cubic_stiffness": (4, "cubic stiffness [N/m³]", "—"),
-    "quadratic_stiffness": (5, "even (quadratic) stiffness [N/m²]", "—"),
-    "clearance": (6, "stiffness beyond ±gap [N/m]", "gap [m]"),
-    "bump_stop": (7, "contact stiffness [N/m]", "gap from static equilibrium [m]; side -1 compression, +1 rebound"),
-    "backlash": (8, "stiffness through the play [N/m]", "total width of the play [m]"),
+    K.velocity_deadzone.name: (0, "change of damping beyond the knee [N·s/m]", "knee velocity [m/s]"),
+    K.quadratic_damping.name: (1, "orifice coefficient [N·s²/m²]", "—"),
+    K.coulomb.name: (2, "friction force [N]", "regularising velocity v_s [m/s]"),
+    K.asymmetric_damping.name: (3, "extra damping on one side [N·s/m]", "side: +1 rebound, -1 compression"),
+    K.cubic_stiffness.name: (4, "cubic stiffness [N/m³]", "—"),
+    K.quadratic_stiffness.name: (5, "even (quadratic) stiffness [N/m²]", "—"),
+    K.clearance.name: (6, "stiffness beyond ±gap [N/m]", "gap [m]"),
+    K.bump_stop.name: (7, "contact stiffness [N/m]",
+                       "gap from static equilibrium [m]; side -1 compression, +1 rebound"),
+    K.backlash.name: (8, "stiffness through the play [N/m]", "total width of the play [m]"),
 }
 
 
@@ -118,31 +120,32 @@ class Element:
             raise ConfigError(f"unknown strut element {self.kind!r}", hint=f"use one of {', '.join(ELEMENT_KINDS)}")
         if not np.isfinite(self.value) or not np.isfinite(self.param):
             raise ConfigError(f"strut element {self.kind}: value and parameter must be finite")
-        if self.kind in ("velocity_deadzone", "clearance", "bump_stop", "backlash", "coulomb") and not self.param > 0:
+        if self.kind in (K.velocity_deadzone.name, K.clearance.name, K.bump_stop.name, K.backlash.name,
+                         K.coulomb.name) and not self.param > 0:
             raise ConfigError(f"strut element {self.kind} needs a positive parameter "
                               f"({ELEMENT_KINDS[self.kind][2]})")
-        if self.kind in ("asymmetric_damping", "bump_stop") and self.side not in (-1, 1):
+        if self.kind in (K.asymmetric_damping.name, K.bump_stop.name) and self.side not in (-1, 1):
             raise ConfigError(f"strut element {self.kind} needs side=+1 (rebound) or -1 (compression)")
 
     def force(self, z: np.ndarray, zd: np.ndarray, slider: np.ndarray | None = None) -> np.ndarray:
         """The element's force on the motion [N] (numpy; the integrator has its own compiled copy)."""
         z, zd = np.asarray(z, float), np.asarray(zd, float)
         k, c, p = self.kind, self.value, self.param
-        if k == "velocity_deadzone":
+        if k == K.velocity_deadzone.name:
             return c * np.where(np.abs(zd) > p, zd - p * np.sign(zd), 0.0)
-        if k == "quadratic_damping":
+        if k == K.quadratic_damping.name:
             return c * zd * np.abs(zd)
-        if k == "coulomb":
+        if k == K.coulomb.name:
             return c * zd / np.sqrt(zd * zd + p * p)
-        if k == "asymmetric_damping":
+        if k == K.asymmetric_damping.name:
             return c * (np.maximum(zd, 0.0) if self.side > 0 else np.minimum(zd, 0.0))
-        if k == "cubic_stiffness":
+        if k == K.cubic_stiffness.name:
             return c * z ** 3
-        if k == "quadratic_stiffness":
+        if k == K.quadratic_stiffness.name:
             return c * z * z
-        if k == "clearance":
+        if k == K.clearance.name:
             return c * np.where(np.abs(z) > p, z - p * np.sign(z), 0.0)
-        if k == "bump_stop":
+        if k == K.bump_stop.name:
             return c * (np.maximum(z - p, 0.0) if self.side > 0 else np.minimum(z + p, 0.0))
         if slider is None:
             raise ConfigError("a play's force needs its slider state")

@@ -39,11 +39,11 @@ import numpy as np
 from scipy import signal
 
 from .. import __version__
-from ..kinds.describing import Term, make_term
+from ..kinds.describing import LIBRARY as K, Kind, Term, make_term
 from ..errors import ConfigError
 from ..signal.record import Record
 from .road import ChirpRoad, RandomRoad, Road, road_from_dict, road_signal
-from ..kinds.strut_forces import strut_arrays
+from ..kinds.strut_forces import slopes_within, strut_arrays
 from ..kinds.strut_forces import strut_force as _strut_force
 from .vehicle import QuarterCar
 
@@ -257,19 +257,10 @@ def _stiffest_rates(cfg: SimConfig) -> tuple[float, float]:
     """Upper bounds of the strut's stiffness [N/m] and damping [N·s/m] slopes, nonlinear terms included."""
     k, c = cfg.vehicle.k2, cfg.vehicle.c2
     for s in cfg.strut:
-        p, a = s.term.params, abs(s.coefficient)
-        if s.term.kind == "coulomb":
-            c += a / p["eps"]
-        elif s.term.kind == "quadratic_damping":
-            c += 2 * a * 2.0  # slope 2·c·|ż| up to |ż| = 2 m/s
-        elif s.term.kind == "cubic_stiffness":
-            k += 3 * a * 0.05**2  # slope 3·c·z² up to |z| = 50 mm
-        elif s.term.kind == "quadratic_stiffness":
-            k += 2 * a * 0.05  # slope 2·c·|z| up to |z| = 50 mm
-        elif s.term.variable == "zdot":
-            c += a
-        else:
-            k += a
+        # slopes up to |z| = 50 mm and |ż| = 2 m/s where g has no global bound (cubic, quadratic)
+        lz, lzd = slopes_within(s.term, 0.05, 2.0)
+        k += abs(s.coefficient) * lz
+        c += abs(s.coefficient) * lzd
     return k, c
 
 
@@ -290,37 +281,37 @@ def _check_step(cfg: SimConfig) -> None:
 # --------------------------------------------------------------------------------------------
 # presets
 # --------------------------------------------------------------------------------------------
-def _sf(kind: str, coef: float, **params) -> StrutForce:
-    return StrutForce(Term(kind, params), coef)
+def _sf(kind: Kind, coef: float, **params) -> StrutForce:
+    return StrutForce(Term(kind.name, params), coef)
 
 
 #: name -> (strut forces, description)
 PRESETS: Mapping[str, tuple[tuple[StrutForce, ...], str]] = MappingProxyType({
     "linear": ((), "no strut nonlinearity: the linear QuarterCar"),
-    "paper_deadzone": ((_sf("velocity_deadzone", -700.0, knee=0.03),),
+    "paper_deadzone": ((_sf(K.velocity_deadzone, -700.0, knee=0.03),),
                        "paper's velocity deadzone: damping drops from C2=1400 to 700 N·s/m above |ż| = 0.03 m/s"),
-    "paper_backlash": ((_sf("backlash", 8e3, deadband=0.00043),),
+    "paper_backlash": ((_sf(K.backlash, 8e3, deadband=0.00043),),
                        "paper's backlash: 8 kN/m through a 0.43 mm play (hysteretic stiffness)"),
-    "paper": ((_sf("backlash", 8e3, deadband=0.00043), _sf("velocity_deadzone", -700.0, knee=0.03)),
+    "paper": ((_sf(K.backlash, 8e3, deadband=0.00043), _sf(K.velocity_deadzone, -700.0, knee=0.03)),
               "paper_backlash + paper_deadzone (the paper's strut)"),
-    "digressive_damper": ((_sf("asymmetric_damping", 1400.0, side="rebound"),
-                           _sf("velocity_deadzone", -840.0, knee=0.1),
-                           _sf("coulomb", 50.0, eps=0.005)),
+    "digressive_damper": ((_sf(K.asymmetric_damping, 1400.0, side="rebound"),
+                           _sf(K.velocity_deadzone, -840.0, knee=0.1),
+                           _sf(K.coulomb, 50.0, eps=0.005)),
                           "realistic damper: rebound 2× compression below 0.1 m/s, 840 N·s/m less above "
                           "(blow-off), 50 N seal friction"),
-    "friction": ((_sf("coulomb", 100.0, eps=0.005),), "100 N strut friction (tanh, eps 5 mm/s)"),
-    "bump_stop": ((_sf("bump_stop", 50e3, gap=0.008, side="compression"),),
-                  "50 kN/m bump stop contacting 8 mm into compression"),
-    "all": ((_sf("cubic_stiffness", 2e7),
-             _sf("clearance", 5e3, gap=0.005),
-             _sf("saturation", 4e3, limit=0.002),
-             _sf("bump_stop", 50e3, gap=0.008, side="compression"),
-             _sf("backlash", 8e3, deadband=0.00043),
-             _sf("velocity_deadzone", -700.0, knee=0.1),
-             _sf("velocity_saturation", 300.0, limit=0.05),
-             _sf("coulomb", 80.0, eps=0.005),
-             _sf("quadratic_damping", 500.0),
-             _sf("asymmetric_damping", 1400.0, side="rebound")),
+    "friction": ((_sf(K.coulomb, 100.0, eps=0.005),), "100 N strut friction (tanh, eps 5 mm/s)"),
+    K.bump_stop.name: ((_sf(K.bump_stop, 50e3, gap=0.008, side="compression"),),
+                       "50 kN/m bump stop contacting 8 mm into compression"),
+    "all": ((_sf(K.cubic_stiffness, 2e7),
+             _sf(K.clearance, 5e3, gap=0.005),
+             _sf(K.saturation, 4e3, limit=0.002),
+             _sf(K.bump_stop, 50e3, gap=0.008, side="compression"),
+             _sf(K.backlash, 8e3, deadband=0.00043),
+             _sf(K.velocity_deadzone, -700.0, knee=0.1),
+             _sf(K.velocity_saturation, 300.0, limit=0.05),
+             _sf(K.coulomb, 80.0, eps=0.005),
+             _sf(K.quadratic_damping, 500.0),
+             _sf(K.asymmetric_damping, 1400.0, side="rebound")),
             "every kind on: cubic 2e7 N/m³, +5 kN/m beyond ±5 mm, 4 kN/m saturating at ±2 mm, "
             "50 kN/m bump stop at -8 mm, 8 kN/m backlash (0.43 mm), -700 N·s/m above 0.1 m/s, "
             "300 N·s/m saturating at 0.05 m/s, 80 N friction, 500 N·s²/m² quadratic, "
