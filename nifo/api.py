@@ -37,7 +37,7 @@ from nifo_core.errors import ConfigError, DataFileError
 from nifo_core.predict.force_law import (Characteristic, characteristic, force_law_bounds, strut_law, truth_law)
 from nifo_core.predict.model import IdentifiedModel, predict_body, record_inputs
 from nifo_core.predict.output_signal import output_name, predicted_output
-from nifo_core.predict.periodic import record_periodic_response
+from nifo_core.predict.periodic import predicts_periodic, record_periodic_response
 from nifo_core.signal.record import Record
 
 __all__ = ["Model", "Simulation", "ForceLaw", "Curve", "load_record", "find_model"]
@@ -247,8 +247,7 @@ class Model:
         m = self.identified
         a1, force = record_inputs(record, m)
         pred = predict_body(m, a1, record.fs_hz, force=force)
-        pr = m.periodic_response
-        if period_samples and m.terms and pr is not None and pr.periodic and self.linear is not None:
+        if predicts_periodic(m, period_samples) and self.linear is not None:
             la1, lforce = record_inputs(record, self.linear)
             lin = predict_body(self.linear, la1, record.fs_hz, force=lforce)
             pred = record_periodic_response(m, record, pred, lin, period_samples=period_samples,

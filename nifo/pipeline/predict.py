@@ -54,7 +54,7 @@ from nifo_core.errors import ConfigError, InputError, MissingChannelError, NifoE
 from nifo_core.signal.frf import coherence, h1
 from nifo_core.predict.model import predict_body, record_inputs
 from nifo_core.predict.output_signal import measured_output, predicted_output
-from nifo_core.predict.periodic import record_periodic_response
+from nifo_core.predict.periodic import predicts_periodic, record_periodic_response
 from nifo_core.predict.whole_signal import DistortionError, distortion_error, whole_signal_error
 from nifo_core.predict.prediction_bounds import Z95, half_width, line_spread, prediction_spread
 from nifo_core.predict.prediction_error import band_nmse, band_spectra
@@ -170,8 +170,7 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
     sim = predict_body(model, a1, fs, force=force, method=method, label=str(path))
     pl = predict_body(linear, a1, fs, force=force, method=method, label=str(path))
     skip = _skip(sim, period_samples, transient)
-    periodic_model = bool(period_samples and model.terms and model.periodic_response is not None
-                          and model.periodic_response.periodic)
+    periodic_model = predicts_periodic(model, period_samples)
     # the model's prediction: its periodic response to a periodic input when it predicts one (model.json)
     pm = (record_periodic_response(model, record, sim, pl, period_samples=period_samples, start=skip,
                                    band_hz=tuple(band_hz)) if periodic_model else sim)

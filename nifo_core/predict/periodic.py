@@ -35,7 +35,7 @@ from .scope import input_name
 from .time_prediction import Prediction
 from .whole_signal import excited_lines
 
-__all__ = ["steady_state", "periodic_prediction", "model_lines", "record_periodic_response"]
+__all__ = ["steady_state", "periodic_prediction", "model_lines", "predicts_periodic", "record_periodic_response"]
 
 
 def _average(x: np.ndarray, period: int, start: int) -> np.ndarray | None:
@@ -95,6 +95,13 @@ def periodic_prediction(prediction: Prediction, linear_prediction: Prediction, *
         y[:start] = m[:start]                 # the start-up from rest, as simulated
         out[k] = y
     return replace(prediction, **out, method=prediction.method + "; periodic response")
+
+
+def predicts_periodic(model, period_samples: int | None) -> bool:
+    """Whether ``model``'s prediction of a record of ``period_samples`` (None: not periodic) is its periodic response:
+    a model with terms whose ``periodic_response`` says so (a linear model's simulation is periodic as it comes)."""
+    pr = getattr(model, "periodic_response", None)
+    return bool(period_samples and model.terms and pr is not None and pr.periodic)
 
 
 def record_periodic_response(model, record, prediction: Prediction, linear_prediction: Prediction, *,
