@@ -2,7 +2,7 @@
 
 Each command first runs once to completion (the reference "new" file set), then
 once more, timed (a fresh checkout compiles its kernels in the first run). Then,
-20 times each, the output directory is given an old content (the
+4 times each (20 with ``NIFO_SLOW_TESTS=1``), the output directory is given an old content (the
 previous result plus ``sentinel.json``, listed in the folder's ``.nifo-output``
 marker as nifo's own), the command is started as a real
 process and sent SIGINT, SIGTERM or SIGKILL after a random delay drawn
@@ -36,7 +36,9 @@ from conftest import REPO
 
 pytestmark = pytest.mark.usefixtures("sigint_deliverable")   # (conftest.py)
 
-KILLS = int(os.environ.get("NIFO_KILLS", 20))   # the acceptance: 20 kills of each command
+#: ./test.sh kills each command 4 times (issue 58: a short random series stays in the suite); the full series of
+#: 20 (issue 56's acceptance) runs with NIFO_SLOW_TESTS=1, and NIFO_KILLS=N sets any other count
+KILLS = int(os.environ.get("NIFO_KILLS", 20 if os.environ.get("NIFO_SLOW_TESTS") == "1" else 4))
 #: how Python reports an interrupt while it is still starting up (importing site), before it runs any module
 INTERPRETER_STARTING = "Fatal Python error: init_import_site"
 SEED = 14
