@@ -160,20 +160,21 @@ def _warm(path: str, group: tuple, setup) -> bool:
 
 def warm_up(client, entries) -> None:
     """Run one bag and one group's solve in every worker process, then a small fleet (not timed)."""
-    from nifo.fleet.runner import base_setups
+    from nifo.fleet.runner import base_setups, fleet_settings
 
     e = entries[0]
-    setup = base_setups([e], opts=OPTS, chunk_samples=2 ** 18)[e.group]
+    setup = base_setups([e], fleet_settings([e]), opts=OPTS, chunk_samples=2 ** 18)[e.group]
     client.run(_warm, str(e.path), e.group, setup)
     first = [x for x in entries if x.group == e.group]
     run(client, first)
 
 
 def run(client, entries, cache_dir=None):
-    from nifo.fleet.runner import FleetSettings, run_fleet
+    from nifo.fleet.runner import FleetSettings, fleet_settings, run_fleet
 
     t0 = time.perf_counter()
-    res = run_fleet(client, entries, opts=OPTS, settings=FleetSettings(cache_dir=cache_dir), quiet=True)
+    res = run_fleet(client, entries, analysis=fleet_settings(entries), opts=OPTS,
+                    settings=FleetSettings(cache_dir=cache_dir), quiet=True)
     return res, time.perf_counter() - t0
 
 
@@ -333,10 +334,10 @@ def startup_child(mode: str, n: int, root: str) -> dict:
         c_fs = time.process_time()
         start_worker_server()
     from nifo.fleet.manifest import load_fleet_input
-    from nifo.fleet.runner import base_setups
+    from nifo.fleet.runner import base_setups, fleet_settings
 
     entries = load_fleet_input(Path(root) / "manifest.csv", default_model=Path(root) / "model.yaml")
-    base_setups(entries, opts=OPTS, chunk_samples=2 ** 18)
+    base_setups(entries, fleet_settings(entries), opts=OPTS, chunk_samples=2 ** 18)
     t0, c0 = time.perf_counter(), time.process_time()
     cm = _spawn_client(n) if mode == "spawn" else fleet_client(workers=n, dashboard_address=None)
     with cm as client:

@@ -153,13 +153,13 @@ def test_group_coefficients_equal_nifo_identify_on_the_groups_bags(result, fleet
 
 def test_a_batch_of_several_bags_gives_the_partials_of_one_bag_per_task(fleet, tmp_path):
     from nifo.fleet.manifest import load_fleet_input
-    from nifo.fleet.runner import base_setups
+    from nifo.fleet.runner import base_setups, fleet_settings
     from nifo.fleet.tasks import compute_batch, group_setup, merge_outcomes
 
     entries = [e for e in load_fleet_input(fleet / "manifest.csv", default_model=fleet / "model.yaml")
                if e.vehicle == "vmix"]
     g = entries[0].group
-    base = base_setups(entries, opts={}, chunk_samples=2 ** 18)[g]
+    base = base_setups(entries, fleet_settings(entries), opts={}, chunk_samples=2 ** 18)[g]
     bags = [(i, str(e.path)) for i, e in enumerate(entries)]
     batch = compute_batch([(g, base, bags, True)], str(tmp_path / "batched"))
     # the group's set-up (band of the 30-s bag) fixed in the task, as nifo identify fixes it
@@ -207,13 +207,14 @@ def test_one_bag_per_task_accumulates_again_the_bags_whose_set_up_differs(fleet,
     from distributed import Client
 
     from nifo.fleet.manifest import load_fleet_input
-    from nifo.fleet.runner import FleetSettings, run_fleet
+    from nifo.fleet.runner import FleetSettings, fleet_settings, run_fleet
 
     entries = [e for e in load_fleet_input(fleet / "manifest.csv", default_model=fleet / "model.yaml")
                if e.vehicle in ("vmix", "v00")]
+    analysis = fleet_settings(entries)
     with Client(cluster) as client:
-        one = run_fleet(client, entries, opts={}, settings=FleetSettings(batch=1), quiet=True)
-        batched = run_fleet(client, entries, opts={}, settings=FleetSettings(), quiet=True)
+        one = run_fleet(client, entries, analysis=analysis, opts={}, settings=FleetSettings(batch=1), quiet=True)
+        batched = run_fleet(client, entries, analysis=analysis, opts={}, settings=FleetSettings(), quiet=True)
     # split over tasks, vmix's 45-s bag first takes its own band, then its group's (the 30-s bag's)
     assert {Path(b["path"]).name: b["passes"] for b in one.bags if b["vehicle"] == "vmix"} == {
         "bag00.mcap": 1, "bag01.mcap": 2}
@@ -282,7 +283,7 @@ def test_an_unreachable_scheduler_is_one_line_and_its_exit_code(fleet, capsys):
 
 def test_a_bag_too_short_to_integrate_fails_alone_in_its_groups_task(fleet, tmp_path):
     from nifo.fleet.manifest import load_fleet_input
-    from nifo.fleet.runner import base_setups
+    from nifo.fleet.runner import base_setups, fleet_settings
     from nifo.fleet.simulated import NOMINAL_DEADZONE, NOMINAL_KNEE, _write_bag
     from nifo.fleet.tasks import compute_batch
     from nifo_core.kinds.describing import Term
@@ -294,7 +295,7 @@ def test_a_bag_too_short_to_integrate_fails_alone_in_its_groups_task(fleet, tmp_
                 "path": str(short)})
     e = [x for x in load_fleet_input(fleet / "manifest.csv", default_model=fleet / "model.yaml")
          if x.vehicle == "v00"][0]
-    base = base_setups([e], opts={}, chunk_samples=2 ** 18)[e.group]
+    base = base_setups([e], fleet_settings([e]), opts={}, chunk_samples=2 ** 18)[e.group]
     out = compute_batch([(e.group, base, [(0, str(e.path)), (1, str(short))], True)], None)
     st = dict(out["status"])
     assert st[0]["ok"] and not st[1]["ok"] and "too short" in st[1]["reason"] and "\n" not in st[1]["reason"]

@@ -25,12 +25,12 @@ CHILD = r"""
 import json, sys
 from nifo.fleet.cluster import fleet_client
 from nifo.fleet.manifest import load_fleet_input
-from nifo.fleet.runner import base_setups
+from nifo.fleet.runner import base_setups, fleet_settings
 
 root = sys.argv[1]
 entries = load_fleet_input(root + "/manifest.csv", default_model=root + "/model.yaml")
 e = entries[0]
-setup = base_setups([e], opts={"topics": None, "columns": None, "fs_hz": None, "axis": "z"},
+setup = base_setups([e], fleet_settings([e]), opts={"topics": None, "columns": None, "fs_hz": None, "axis": "z"},
                     chunk_samples=2 ** 18)[e.group]
 
 

@@ -31,6 +31,10 @@ Each coefficient (K2/M2, C2/M2, c_i/M2) is compared with the fleet by a robust
 z-score; a group is flagged where |z| exceeds --z-limit and the deviation is
 resolved by its own data (never from fewer than --min-bags bags).
 
+Settings: --block, --overlap, --window, --integration-band, --analysis-band and
+--cond-limit override every model file's settings (then its defaults); they are
+never read off the data (one set of settings compares the bags of a fleet).
+
 Dask: with no --scheduler a LocalCluster of --workers processes (default: one
 per core) runs on this machine; --scheduler tcp://HOST:8786 uses an existing
 cluster (its workers must see the bags, the cache folder and have nifo installed).
@@ -81,6 +85,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     o.add_argument("--no-plots", action="store_true", help="no HTML page and figures")
     o.add_argument("--no-rerun", action="store_true", help="no Rerun recording")
     add_input_arguments(p)
+    from nifo.settings import add_settings_arguments
+
+    add_settings_arguments(p, from_data=False)
 
 
 def _check(args) -> None:
@@ -108,11 +115,13 @@ def run(args: argparse.Namespace) -> dict:
     if not args.scheduler:
         start_worker_server()      # the workers' fork server imports and warms while this process reads the manifest
     from nifo.fleet.manifest import load_fleet_input
-    from nifo.fleet.runner import FleetSettings, run_fleet
+    from nifo.fleet.runner import FleetSettings, fleet_settings, run_fleet
+    from nifo.settings import given_from_args
     from nifo_core.fleet import HealthSettings
 
     _check(args)
     entries = load_fleet_input(args.input, default_model=args.model)
+    analysis = fleet_settings(entries, given=given_from_args(args))     # once per model file, for every worker
     health = HealthSettings(z_limit=args.z_limit, min_records=args.min_bags, min_duration_s=args.min_duration,
                             min_groups=args.min_groups)
     cache = None if args.no_cache else str((args.cache or Path(str(args.out) + ".cache")).resolve())
@@ -126,7 +135,8 @@ def run(args: argparse.Namespace) -> dict:
             print(dashboard_line(client), file=sys.stderr, flush=True)
             print(f"fleet: {len(entries)} bags in {n_groups} vehicle/corner groups; cache "
                   f"{cache or 'off'}", file=sys.stderr, flush=True)
-        result = run_fleet(client, entries, opts=input_options(args), settings=settings, quiet=args.quiet)
+        result = run_fleet(client, entries, analysis=analysis, opts=input_options(args), settings=settings,
+                           quiet=args.quiet)
     solved = [g for g, r in result.groups.items() if r["ok"]]
     if not solved:
         reasons = sorted({b["reason"] for b in result.bags if b["reason"]} |

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Mapping
 
 from nifo.fleet.cache import settings_hash
 from nifo.fleet.manifest import BagEntry
@@ -40,9 +41,10 @@ from nifo.io.modelfile import load_model_spec
 from nifo.progress import Progress
 from nifo.settings import resolve
 from nifo_core.errors import ConfigError
+from nifo_core.settings import AnalysisSettings, GivenSettings
 from nifo_core.fleet import Estimate, HealthSettings, assess_health, batch_plan, reduction_plan
 
-__all__ = ["FleetSettings", "FleetRun", "run_fleet", "base_setups", "group_setup"]
+__all__ = ["FleetSettings", "FleetRun", "run_fleet", "fleet_settings", "base_setups", "group_setup"]
 
 
 @dataclass(frozen=True)
@@ -105,37 +107,51 @@ class FleetRun:
         return sum(1 for b in self.bags if b.get("cached"))
 
 
-def _model_cfgs(entries: list[BagEntry]) -> dict[Path, tuple]:
-    """Per model file, its spec and the settings it gives merged with the defaults (one fleet, one set of settings:
-    a vehicle's bags are compared on the same blocks and bands)."""
+def fleet_settings(entries: list[BagEntry], *, given: GivenSettings | None = None) -> dict[Path, AnalysisSettings]:
+    """Per model file of ``entries``, its :class:`~nifo_core.settings.AnalysisSettings`, resolved once by the
+    precedence function every command uses (:func:`nifo.settings.resolve`: ``given`` > the model file's
+    ``settings:`` > defaults; not read off the data: one fleet, one set of settings, so a vehicle's bags are compared
+    on the same blocks and bands). The caller (``nifo fleet``, a benchmark) hands them to :func:`run_fleet`."""
     out = {}
     for model in dict.fromkeys(e.model for e in entries):
-        spec = load_model_spec(model)
-        if spec.two_step:
-            raise ConfigError("nifo fleet takes single-step model files (nonlinearities:), not steps:",
-                              source=str(model), hint="identify two-step models per vehicle with nifo identify")
-        out[model] = (spec, resolve([], file_settings=spec.settings, from_data=False))
+        out[model] = resolve([], given=given, file_settings=_single_step(model).settings, from_data=False)
     return out
 
 
-def base_setups(entries: list[BagEntry], *, opts: dict, chunk_samples: int) -> dict[tuple[str, str], GroupSetup]:
-    """Per group, the set-up from its model file; band and tire patch still open (None) unless the file fixes the band."""
-    cfgs = _model_cfgs(entries)
+def _single_step(model: Path):
+    spec = load_model_spec(model)
+    if spec.two_step:
+        raise ConfigError("nifo fleet takes single-step model files (nonlinearities:), not steps:",
+                          source=str(model), hint="identify two-step models per vehicle with nifo identify")
+    return spec
+
+
+def base_setups(entries: list[BagEntry], analysis: Mapping[Path, AnalysisSettings], *, opts: dict,
+                chunk_samples: int) -> dict[tuple[str, str], GroupSetup]:
+    """Per group, the set-up from its model file's terms and the settings resolved for it (``analysis``:
+    :func:`fleet_settings`, never resolved here); band and tire patch still open (None) unless the settings fix
+    the band."""
+    terms = {model: tuple(_single_step(model).terms) for model in dict.fromkeys(e.model for e in entries)}
     out = {}
     for e in entries:
         if e.group in out:
             continue
-        spec, cfg = cfgs[e.model]
-        out[e.group] = GroupSetup(terms=tuple(spec.terms), spectral=cfg.spectral, band=cfg.band,
+        try:
+            cfg = analysis[e.model]
+        except KeyError:
+            raise ConfigError("no resolved settings for this model file", source=str(e.model),
+                              hint="resolve them with nifo.fleet.runner.fleet_settings(entries)") from None
+        out[e.group] = GroupSetup(terms=terms[e.model], spectral=cfg.spectral, band=cfg.band,
                                   with_tire_patch=None, analysis_band_hz=tuple(cfg.analysis_band_hz),
                                   cond_limit=cfg.cond_limit, chunk_samples=int(chunk_samples), opts=dict(opts),
                                   band_from_model=cfg.band is not None)
     return out
 
 
-def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSettings = FleetSettings(),
-              quiet: bool = False) -> FleetRun:
-    """Run the fleet on ``client`` (module docstring); failed bags are recorded, never raised.
+def run_fleet(client, entries: list[BagEntry], *, analysis: Mapping[Path, AnalysisSettings], opts: dict,
+              settings: FleetSettings = FleetSettings(), quiet: bool = False) -> FleetRun:
+    """Run the fleet on ``client`` (module docstring); failed bags are recorded, never raised. ``analysis``: the
+    settings of each model file, resolved once by the caller (:func:`fleet_settings`).
 
     Long because the scheduler's state (which task holds which bag's partial, which group still waits for which
     bag, each group's fixed set-up) is shared by the ``submit`` and ``group_ready`` closures and the completion
@@ -145,7 +161,7 @@ def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSet
 
 
     s = settings
-    bases = base_setups(entries, opts=opts, chunk_samples=s.chunk_samples)
+    bases = base_setups(entries, analysis, opts=opts, chunk_samples=s.chunk_samples)
     paths = [str(e.path) for e in entries]
     rows = [{"vehicle": e.vehicle, "corner": e.corner, "date": e.date, "path": p, "status": "pending",
              "reason": "", "cached": False, "seconds": float("nan"), "hash": "", "key": "", "passes": 0}
