@@ -595,13 +595,13 @@ def main() -> int:
 
     # flags and equality, on the 2-worker result
     res = results[2]
-    flagged = sorted(g[0] for g, r in res.groups.items() if r["ok"] and r["health"].flagged)
+    flagged = sorted(g[0] for g, r in res.groups.items() if r.ok and r.health.flagged)
     planted = sorted(v for v, t in truth.items() if t["planted"])
     print(f"flagged: {flagged}; planted: {planted}")
     if not args.quick and not args.vehicles:
         verdicts.append(("flagged = planted", ", ".join(flagged) or "none", ", ".join(planted), flagged == planted,
                          ""))
-    worst = max(abs(res.groups[g]["coefficients"][k]["value"] / v - 1)
+    worst = max(abs(res.groups[g].coefficients[k].value / v - 1)
                 for g, vals in base["values"].items() for k, v in vals.items())
     verdicts.append(("coefficients vs nifo identify, largest rel. difference", f"{worst:.1e}", "<= 1e-9",
                      worst <= 1e-9, ""))

@@ -163,27 +163,27 @@ def test_a_batch_of_several_bags_gives_the_partials_of_one_bag_per_task(fleet, t
     bags = [(i, str(e.path)) for i, e in enumerate(entries)]
     batch = compute_batch([(g, base, bags, True)], str(tmp_path / "batched"))
     # the group's set-up (band of the 30-s bag) fixed in the task, as nifo identify fixes it
-    probes = {i: st["probe"] for i, st in batch["status"]}
+    probes = {i: st.probe for i, st in batch.status}
     fixed, left = group_setup(base, probes, label="vmix")
-    assert not left and {st["setup_hash"] for _, st in batch["status"]} == {
-        next(iter(batch["parts"]))[2]} and len(batch["parts"]) == 1
+    assert not left and {st.setup_hash for _, st in batch.status} == {
+        next(iter(batch.parts))[2]} and len(batch.parts) == 1
     alone = [compute_batch([(g, fixed, [b], False)], str(tmp_path / "alone")) for b in bags]
-    part = next(iter(batch["parts"]))
+    part = next(iter(batch.parts))
     merged = merge_outcomes(*alone, part=part)
-    assert merged["ok"] and [b["path"] for b in merged["bags"]] == [p for _, p in bags]
-    a, b = batch["parts"][part]["state"], merged["state"]
+    assert merged.ok and [b.path for b in merged.bags] == [p for _, p in bags]
+    a, b = batch.parts[part].state, merged.state
     assert a.keys() == b.keys()
     for k in a:
         if np.asarray(a[k]).dtype.kind in "fc":
             np.testing.assert_allclose(a[k], b[k], rtol=1e-13, atol=0, err_msg=k)
         else:
             assert np.array_equal(a[k], b[k]), k
-    for x, y in zip(batch["parts"][part]["bags"], merged["bags"]):
-        assert x["coefs"] == pytest.approx(y["coefs"], rel=1e-12)
+    for x, y in zip(batch.parts[part].bags, merged.bags):
+        assert x.coefs == pytest.approx(y.coefs, rel=1e-12)
     # one cache entry per bag (named by its key), the same key whether batched or alone
     entries_b = sorted(p.stem for p in (tmp_path / "batched").rglob("*.npz"))
     entries_a = sorted(p.stem for p in (tmp_path / "alone").rglob("*.npz"))
-    assert entries_b == entries_a == sorted(st["key"] for _, st in batch["status"]) and len(entries_b) == 2
+    assert entries_b == entries_a == sorted(st.key for _, st in batch.status) and len(entries_b) == 2
     # the whole group's rates, lengths and channels in one note; bags cut over tasks in one note each
     assert len(list((tmp_path / "batched" / "notes").glob("*.json"))) == 1
     assert len(list((tmp_path / "alone" / "notes").glob("*.json"))) == 2
@@ -197,10 +197,10 @@ def test_a_batch_of_several_bags_gives_the_partials_of_one_bag_per_task(fleet, t
         again = compute_batch([(g, base, bags, True)], str(tmp_path / "batched"))
     finally:
         tasks._open = opener
-    assert all(st["cached"] for _, st in again["status"])
-    np.testing.assert_array_equal(again["parts"][part]["state"]["acc.sum"], a["acc.sum"])
-    for x, y in zip(again["parts"][part]["bags"], batch["parts"][part]["bags"]):
-        assert x["coefs"] == y["coefs"]           # a bag's own coefficients: the same from its cached partial
+    assert all(st.cached for _, st in again.status)
+    np.testing.assert_array_equal(again.parts[part].state["acc.sum"], a["acc.sum"])
+    for x, y in zip(again.parts[part].bags, batch.parts[part].bags):
+        assert x.coefs == y.coefs           # a bag's own coefficients: the same from its cached partial
 
 
 def test_one_bag_per_task_accumulates_again_the_bags_whose_set_up_differs(fleet, cluster):
@@ -220,9 +220,9 @@ def test_one_bag_per_task_accumulates_again_the_bags_whose_set_up_differs(fleet,
         "bag00.mcap": 1, "bag01.mcap": 2}
     assert all(b["passes"] == 1 for b in batched.bags)
     for g, r in batched.groups.items():
-        assert r["ok"] and one.groups[g]["n_avg"] == r["n_avg"]
-        for name, c in r["coefficients"].items():
-            assert one.groups[g]["coefficients"][name]["value"] == pytest.approx(c["value"], rel=1e-12), (g, name)
+        assert r.ok and one.groups[g].n_avg == r.n_avg
+        for name, c in r.coefficients.items():
+            assert one.groups[g].coefficients[name].value == pytest.approx(c.value, rel=1e-12), (g, name)
 
 
 def test_a_killed_fleet_run_resumes_without_recomputing_finished_bags(result, fleet, tmp_path):
@@ -297,6 +297,6 @@ def test_a_bag_too_short_to_integrate_fails_alone_in_its_groups_task(fleet, tmp_
          if x.vehicle == "v00"][0]
     base = base_setups([e], fleet_settings([e]), opts={}, chunk_samples=2 ** 18)[e.group]
     out = compute_batch([(e.group, base, [(0, str(e.path)), (1, str(short))], True)], None)
-    st = dict(out["status"])
-    assert st[0]["ok"] and not st[1]["ok"] and "too short" in st[1]["reason"] and "\n" not in st[1]["reason"]
-    assert len(out["parts"]) == 1
+    st = dict(out.status)
+    assert st[0].ok and not st[1].ok and "too short" in st[1].reason and "\n" not in st[1].reason
+    assert len(out.parts) == 1

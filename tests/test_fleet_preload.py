@@ -48,7 +48,7 @@ def probe(path, group, setup):
     return {"cpu_s": cpu, "kernels": kernel_stats(), "omp": os.environ.get("OMP_NUM_THREADS"),
             "blas_threads": sorted({i["num_threads"] for i in threadpool_info()}), "failed": WARM["failed"],
             "new_modules": sorted(set(sys.modules) - before), "first_bag_s": time.perf_counter() - t0,
-            "bag_ok": out["status"][0][1]["ok"]}
+            "bag_ok": out.status[0][1].ok}
 
 
 with fleet_client(workers=1, dashboard_address=None) as client:

@@ -137,10 +137,10 @@ def run(args: argparse.Namespace) -> dict:
                   f"{cache or 'off'}", file=sys.stderr, flush=True)
         result = run_fleet(client, entries, analysis=analysis, opts=input_options(args), settings=settings,
                            quiet=args.quiet)
-    solved = [g for g, r in result.groups.items() if r["ok"]]
+    solved = [g for g, r in result.groups.items() if r.ok]
     if not solved:
         reasons = sorted({b["reason"] for b in result.bags if b["reason"]} |
-                         {r["reason"] for r in result.groups.values()})
+                         {r.reason for r in result.groups.values()})
         raise FleetError(f"no group could be identified ({len(result.bags)} bags; first reasons: "
                          f"{' | '.join(reasons[:3])})", source=str(args.input),
                          hint="fix the bags listed, or check the model file and the manifest")
@@ -150,7 +150,7 @@ def run(args: argparse.Namespace) -> dict:
     failed = [b for b in result.bags if b["reason"]]
     return {"out": str(args.out), "files": files, "bags": len(result.bags), "bags_failed": len(failed),
             "groups": len(result.groups), "groups_identified": len(solved),
-            "flagged": sorted(str(g) for g, r in result.groups.items() if r["ok"] and r["health"].flagged)}
+            "flagged": sorted(str(g) for g, r in result.groups.items() if r.ok and r.health.flagged)}
 
 
 def write_outputs(out: Path, result, *, inputs: str, plots: bool = True, rerun: bool = True) -> list[str]:
@@ -172,7 +172,7 @@ def write_outputs(out: Path, result, *, inputs: str, plots: bool = True, rerun: 
 
 
 def format_summary(result, *, out: Path, files: list[str]) -> str:
-    ok = {g: r for g, r in result.groups.items() if r["ok"]}
+    ok = {g: r for g, r in result.groups.items() if r.ok}
     lines = [f"fleet: {len(ok)} of {len(result.groups)} groups identified from {len(result.bags)} bags "
              f"({result.n_cached} from the cache, {result.n_failed} failed)"]
     if result.n_redone:
@@ -182,13 +182,13 @@ def format_summary(result, *, out: Path, files: list[str]) -> str:
         if b["status"] != "ok":
             lines.append(f"  FAILED bag {b['vehicle']}/{b['corner']} {b['path']}: {b['reason']}")
     for g, r in result.groups.items():
-        if not r["ok"]:
-            lines.append(f"  FAILED group {g[0]}/{g[1]}: {r['reason']}")
-    flagged = [(g, r) for g, r in ok.items() if r["health"].flagged]
-    not_assessed = [g for g, r in ok.items() if not r["health"].assessed]
+        if not r.ok:
+            lines.append(f"  FAILED group {g[0]}/{g[1]}: {r.reason}")
+    flagged = [(g, r) for g, r in ok.items() if r.health.flagged]
+    not_assessed = [g for g, r in ok.items() if not r.health.assessed]
     lines.append(f"strut health: {len(flagged)} group(s) flagged, {len(not_assessed)} not assessed (too little data)")
     for g, r in flagged:
-        for t in r["health"].evidence:
+        for t in r.health.evidence:
             lines.append(f"  FLAGGED {g[0]}/{g[1]}: {t}")
     lines.append(f"wrote {out}/ ({', '.join(files)})")
     return "\n".join(lines)

@@ -35,6 +35,7 @@ from typing import Mapping
 
 from nifo.fleet.cache import settings_hash
 from nifo.fleet.manifest import BagEntry
+from nifo.fleet.results import BagStatus, CharacterizeOutcome, GroupResult, LoopOutcome
 from nifo.fleet.tasks import (GroupSetup, batch_status, characterize_group, compute_batch, group_setup, loop_group,
                               merge_outcomes, solve_group)
 from nifo.io.modelfile import load_model_spec
@@ -89,7 +90,7 @@ class FleetRun:
     """What a fleet run produced: one row per bag, one result per group (with its health)."""
 
     bags: list[dict]
-    groups: dict[tuple[str, str], dict]
+    groups: dict[tuple[str, str], GroupResult]
     settings: FleetSettings
     setups: dict[tuple[str, str], dict]
 
@@ -255,16 +256,14 @@ def run_fleet(client, entries: list[BagEntry], *, analysis: Mapping[Path, Analys
                         rows[i]["passes"] -= 1
                     submit(chunk, lambda i: used[i], batch=1)
                     continue
-                r = _result(fut)
-                results = [(chunk[0], {**r, "reason": f"{paths[chunk[0]]}: {r['reason']}"})]
+                results = [(chunk[0], _result(fut, lambda why: BagStatus.failed(f"{paths[chunk[0]]}: {why}")))]
             bar.advance(len(chunk))
             for i, r in results:
-                if r["ok"]:
-                    rows[i].update(status="ok", reason="", cached=r["cached"], seconds=r["seconds"], key=r["key"],
-                                   hash=r["hash"])
-                    probes[i] = {**r["probe"], "setup_hash": r["setup_hash"]}
+                if r.ok:
+                    rows[i].update(status="ok", reason="", cached=r.cached, seconds=r.seconds, key=r.key, hash=r.hash)
+                    probes[i] = {**r.probe, "setup_hash": r.setup_hash}
                 else:
-                    rows[i].update(status="failed", reason=r["reason"])
+                    rows[i].update(status="failed", reason=r.reason)
                 g = group_of[i]
                 waiting[g].discard(i)
                 if not waiting[g]:
@@ -276,41 +275,40 @@ def run_fleet(client, entries: list[BagEntry], *, analysis: Mapping[Path, Analys
                     setups={g: st.cache_settings() for g, st in final_setup.items() if st is not None})
 
 
-def _collect(solves: dict, loops: dict, chars: dict, members: dict) -> dict:
+def _collect(solves: dict, loops: dict, chars: dict, members: dict) -> dict[tuple[str, str], GroupResult]:
     """Every group's result in the manifest's order (not completion order), with its loop and characterization;
     a group with no usable bag at all says so."""
-    groups = {g: _result(f) for g, f in solves.items()}
+    groups = {g: _result(f, GroupResult.failed) for g, f in solves.items()}
     for g, f in loops.items():
-        lr = _result(f)
-        groups[g]["loop"] = lr if "verdict" in lr else {"ok": False, "verdict": f"loop not run: {lr['reason']}"}
+        loop = _result(f, lambda why: LoopOutcome(ok=False, verdict=f"loop not run: {why}"))
+        groups[g] = groups[g].with_(loop=loop)
     for g, f in chars.items():
-        cr = _result(f)
-        groups[g]["characterization"] = cr if "text" in cr else {
-            "ok": False, "text": f"characterization not run: {cr['reason']}", "suggested": []}
+        ch = _result(f, lambda why: CharacterizeOutcome(ok=False, text=f"characterization not run: {why}"))
+        groups[g] = groups[g].with_(characterization=ch)
     for g in members:
         if g not in groups:
-            groups[g] = {"ok": False, "reason": "no usable bag", "bags": []}
+            groups[g] = GroupResult.failed("no usable bag")
     return {g: groups[g] for g in members}
 
 
-def _result(fut) -> dict:
-    """A task's result; a task that died (worker lost, bug) becomes a one-line failure, not the fleet's end."""
+def _result(fut, failed):
+    """A task's result; a task that died (worker lost, bug) becomes ``failed(one line)``, not the fleet's end."""
     try:
         return fut.result()
     except Exception as err:  # noqa: BLE001
         first = str(err).splitlines()[0] if str(err) else "no message"
-        return {"ok": False, "reason": f"task failed on the cluster ({type(err).__name__}: {first})", "bags": []}
+        return failed(f"task failed on the cluster ({type(err).__name__}: {first})")
 
 
-def _health(groups: dict, hs: HealthSettings) -> None:
+def _health(groups: dict[tuple[str, str], GroupResult], hs: HealthSettings) -> None:
     """Strut health over SI coefficients when every solved group has its sprung mass, else per body mass."""
-    ok = {g: r for g, r in groups.items() if r["ok"]}
-    si = bool(ok) and all(r.get("m2_kg") is not None for r in ok.values())
+    ok = {g: r for g, r in groups.items() if r.ok}
+    si = bool(ok) and all(r.m2_kg is not None for r in ok.values())
     est, units = {}, {}
     for g, r in ok.items():
-        names = r["names"]["si" if si else "per_mass"]
-        est[g] = {n: Estimate(r["coefficients"][n]["value"], r["coefficients"][n]["se"], len(r["bags"]),
-                              r["duration_s"]) for n in names}
-        units.update({n: r["coefficients"][n]["unit"] for n in names})
+        names = r.names["si" if si else "per_mass"]
+        est[g] = {n: Estimate(r.coefficients[n].value, r.coefficients[n].se, len(r.bags), r.duration_s)
+                  for n in names}
+        units.update({n: r.coefficients[n].unit for n in names})
     for g, h in assess_health(est, settings=hs, units=units).items():
-        groups[g]["health"] = h
+        groups[g] = groups[g].with_(health=h)
