@@ -290,9 +290,8 @@ def for_records(settings: AnalysisSettings, paths: Sequence[Path], *, opts: dict
         if settings.period_samples is None and out["excitation"] is not None:
             choices = dict(settings.choices)
             left = GivenSettings(skip_seconds=settings.skip_seconds)
-            period, skip_periods, _ = period_and_transient(left, out["excitation"], choices,
-                                                           lambda value, name: settings.choices[name])
-            out.update(period_samples=period, skip_periods=skip_periods, choices=choices)
+            timing = period_and_transient(left, out["excitation"], choices, lambda value, name: settings.choices[name])
+            out.update(period_samples=timing.period_samples, skip_periods=timing.skip_periods, choices=choices)
         durations = [dur for _, _, dur, _ in probes]
         if settings.band is not None and probes:
             now = replace(settings, **out)
