@@ -35,7 +35,13 @@ Parameters: ``model_file`` (YAML model file, ``nifo_model: 1``; its
 ``analysis_band_hz``, ``cond_limit``, ``publish_period_s``, ``checkpoint_file``
 (``""``: none), ``checkpoint_period_s``, ``result_file`` (``""``: beside the
 checkpoint, else ``$ROS_HOME/nifo/identifier_result.json``), ``frame_id``,
-``reset`` (set true to drop everything accumulated; reads back false). Every
+``reset`` (set true to drop everything accumulated; reads back false). The
+settings parameters and the model file's ``settings`` are resolved once at
+start-up, by the precedence function of every command (:func:`node_settings`:
+parameter > model file > default), into the one
+:class:`~nifo_core.settings.AnalysisSettings` the accumulator is built from
+when the stream's rate is known (:func:`identify_setup`), as ``nifo fleet``
+builds its workers' set-ups from it. Every
 parameter has a descriptor (description, range; ``ros2 param describe``). With ``std_srvs`` installed there is also the service
 ``~/reset`` (``std_srvs/srv/Trigger``).
 
