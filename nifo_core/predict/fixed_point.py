@@ -68,7 +68,8 @@ def _evaluate(terms: Sequence[Term], z: np.ndarray, zdot: np.ndarray) -> np.ndar
 
 def fixed_point_solve(terms: Sequence[Term], hz: np.ndarray, bz: np.ndarray, v_spec: np.ndarray, nfft: int,
                       fs_hz: float, sl: slice, *, tol: float, max_iter: int) -> FixedPoint:
-    """Picard iteration Z ← Hz·V + Σ Bz_i·G_i(z) on the FFT lines (:class:`FixedPoint`: Z, iterations, last change).
+    """Picard iteration Z ← Hz·V + Σ Bz_i·G_i(z) on the FFT lines: :class:`FixedPoint` (Z, iterations, last
+    change).
 
     ``sl`` selects the record inside the padding (the change is measured there).
     Call only where :func:`contraction_bound` < 1 (then it converges geometrically).
