@@ -153,7 +153,7 @@ def _warm(path: str, group: tuple, setup) -> bool:
     from nifo.fleet.tasks import compute_batch, solve_group
 
     b = compute_batch([(group, setup, [(0, path)], True)], None)
-    part = next(iter(b["parts"]))
+    part = next(iter(b.parts))
     solve_group(b, freqs_hz=(2.0,), plot_max_hz=50.0, part=part)
     return True
 
