@@ -151,6 +151,35 @@ def test_group_coefficients_equal_nifo_identify_on_the_groups_bags(result, fleet
         assert passes == {"bag00.mcap": 1, "bag01.mcap": 1}
 
 
+def test_settings_flags_given_to_nifo_fleet_reach_every_group_as_they_reach_nifo_identify(fleet, cluster, tmp_path):
+    """nifo fleet takes the settings flags of every command, resolved once over the model file's (issue 57: the
+    fleet and the node take the same object): a group's set-up and its coefficients are nifo identify's with the
+    same flags."""
+    rows = [r for r in csv.DictReader((fleet / "manifest.csv").open()) if r["vehicle"] == "v03"]
+    part = tmp_path / "v03.csv"
+    with part.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows([{**r, "path": str(fleet / r["path"])} for r in rows])
+    flags = ["--analysis-band", "3", "20", "--block", "2048", "--cond-limit", "1e7"]
+    out = tmp_path / "out"
+    assert main(["fleet", str(part), "--model", str(fleet / "model.yaml"), "--out", str(out), "--scheduler",
+                 cluster.scheduler_address, "--quiet", "--no-plots", "--no-rerun", "--no-cache", *flags]) == 0
+    doc = read_json(out / "fleet.json", what="fleet")
+    setup = doc["settings"]["groups"]["v03/FL"]
+    assert setup["analysis_band_hz"] == [3.0, 20.0] and setup["spectral"]["block"] == 2048
+    assert setup["cond_limit"] == 1e7
+    bags = sorted((fleet / "v03" / "FL").glob("bag0*.mcap"))
+    ident = tmp_path / "ident"
+    assert main(["identify", *map(str, bags), "--model", str(fleet / "model.yaml"), "--out", str(ident),
+                 "--no-plots", "--quiet", "--no-settings-from-data", *flags]) == 0
+    model, _ = read_model(ident)
+    g = _groups(out)["v03"]
+    assert g["k2_over_m2"] == pytest.approx(model.body.k, rel=1e-9, abs=0)
+    assert g["c2_over_m2"] == pytest.approx(model.body.c, rel=1e-9, abs=0)
+    assert g["n_avg"] == read_json(ident / "identify.json", what="identify")["summary"]["n_avg"]
+
+
 def test_a_batch_of_several_bags_gives_the_partials_of_one_bag_per_task(fleet, tmp_path):
     from nifo.fleet.manifest import load_fleet_input
     from nifo.fleet.runner import base_setups, fleet_settings
