@@ -153,27 +153,28 @@ def _warm(path: str, group: tuple, setup) -> bool:
     from nifo.fleet.tasks import compute_batch, solve_group
 
     b = compute_batch([(group, setup, [(0, path)], True)], None)
-    part = next(iter(b["parts"]))
+    part = next(iter(b.parts))
     solve_group(b, freqs_hz=(2.0,), plot_max_hz=50.0, part=part)
     return True
 
 
 def warm_up(client, entries) -> None:
     """Run one bag and one group's solve in every worker process, then a small fleet (not timed)."""
-    from nifo.fleet.runner import base_setups
+    from nifo.fleet.runner import base_setups, fleet_settings
 
     e = entries[0]
-    setup = base_setups([e], opts=OPTS, chunk_samples=2 ** 18)[e.group]
+    setup = base_setups([e], fleet_settings([e]), opts=OPTS, chunk_samples=2 ** 18)[e.group]
     client.run(_warm, str(e.path), e.group, setup)
     first = [x for x in entries if x.group == e.group]
     run(client, first)
 
 
 def run(client, entries, cache_dir=None):
-    from nifo.fleet.runner import FleetSettings, run_fleet
+    from nifo.fleet.runner import FleetSettings, fleet_settings, run_fleet
 
     t0 = time.perf_counter()
-    res = run_fleet(client, entries, opts=OPTS, settings=FleetSettings(cache_dir=cache_dir), quiet=True)
+    res = run_fleet(client, entries, analysis=fleet_settings(entries), opts=OPTS,
+                    settings=FleetSettings(cache_dir=cache_dir), quiet=True)
     return res, time.perf_counter() - t0
 
 
@@ -333,10 +334,10 @@ def startup_child(mode: str, n: int, root: str) -> dict:
         c_fs = time.process_time()
         start_worker_server()
     from nifo.fleet.manifest import load_fleet_input
-    from nifo.fleet.runner import base_setups
+    from nifo.fleet.runner import base_setups, fleet_settings
 
     entries = load_fleet_input(Path(root) / "manifest.csv", default_model=Path(root) / "model.yaml")
-    base_setups(entries, opts=OPTS, chunk_samples=2 ** 18)
+    base_setups(entries, fleet_settings(entries), opts=OPTS, chunk_samples=2 ** 18)
     t0, c0 = time.perf_counter(), time.process_time()
     cm = _spawn_client(n) if mode == "spawn" else fleet_client(workers=n, dashboard_address=None)
     with cm as client:
@@ -594,13 +595,13 @@ def main() -> int:
 
     # flags and equality, on the 2-worker result
     res = results[2]
-    flagged = sorted(g[0] for g, r in res.groups.items() if r["ok"] and r["health"].flagged)
+    flagged = sorted(g[0] for g, r in res.groups.items() if r.ok and r.health.flagged)
     planted = sorted(v for v, t in truth.items() if t["planted"])
     print(f"flagged: {flagged}; planted: {planted}")
     if not args.quick and not args.vehicles:
         verdicts.append(("flagged = planted", ", ".join(flagged) or "none", ", ".join(planted), flagged == planted,
                          ""))
-    worst = max(abs(res.groups[g]["coefficients"][k]["value"] / v - 1)
+    worst = max(abs(res.groups[g].coefficients[k].value / v - 1)
                 for g, vals in base["values"].items() for k, v in vals.items())
     verdicts.append(("coefficients vs nifo identify, largest rel. difference", f"{worst:.1e}", "<= 1e-9",
                      worst <= 1e-9, ""))

@@ -60,9 +60,10 @@ PROBE_CHUNK = 2 ** 18
 
 
 def add_settings_arguments(p: argparse.ArgumentParser, *, cond_limit: bool = True, band: bool = True,
-                           analysis_band: bool = True) -> None:
+                           analysis_band: bool = True, from_data: bool = True) -> None:
     """The spectral and band settings every data command takes (each chosen from the data when not given); a command
-    leaves out the ones it has no use for (``band``: the integration band; ``analysis_band``; ``cond_limit``). Each
+    leaves out the ones it has no use for (``band``: the integration band; ``analysis_band``; ``cond_limit``;
+    ``from_data``: ``--no-settings-from-data``, for a command that never reads settings off the data). Each
     flag has the setting's one name (docs/CONTRACTS.md, "One name per setting"); the old flags stay as aliases."""
     g = p.add_argument_group("settings (each overrides the model file's; chosen from the data when neither gives it)")
     g.add_argument("--block", type=int, metavar="N",
@@ -83,6 +84,8 @@ def add_settings_arguments(p: argparse.ArgumentParser, *, cond_limit: bool = Tru
     if cond_limit:
         g.add_argument("--cond-limit", type=float, metavar="C",
                        help=f"scaled cond(G_UU) counted as ill-conditioned (default {DEFAULT_COND_LIMIT:g})")
+    if not from_data:
+        return
     g.add_argument("--no-settings-from-data", action="store_true", dest="no_settings_from_data",
                    help=f"settings not given take the defaults (paper Table 2, {_DEFAULT_BAND} Hz, 0.5-200 Hz), not "
                         "choices read off the data: what nifo fleet and the identifier node use")
@@ -287,9 +290,8 @@ def for_records(settings: AnalysisSettings, paths: Sequence[Path], *, opts: dict
         if settings.period_samples is None and out["excitation"] is not None:
             choices = dict(settings.choices)
             left = GivenSettings(skip_seconds=settings.skip_seconds)
-            period, skip_periods, _ = period_and_transient(left, out["excitation"], choices,
-                                                           lambda value, name: settings.choices[name])
-            out.update(period_samples=period, skip_periods=skip_periods, choices=choices)
+            timing = period_and_transient(left, out["excitation"], choices, lambda value, name: settings.choices[name])
+            out.update(period_samples=timing.period_samples, skip_periods=timing.skip_periods, choices=choices)
         durations = [dur for _, _, dur, _ in probes]
         if settings.band is not None and probes:
             now = replace(settings, **out)

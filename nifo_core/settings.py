@@ -47,7 +47,7 @@ from .signal.integrate import IntegrationBand, default_band, lowest_edge_hz
 from .signal.spectral import SpectralSettings
 
 __all__ = ["Choice", "GivenSettings", "AnalysisSettings", "DEFAULT_ANALYSIS_BAND_HZ", "DEFAULT_COND_LIMIT",
-           "PAPER_BLOCK_S", "resolve_settings", "merge_given", "period_and_transient",
+           "PAPER_BLOCK_S", "resolve_settings", "merge_given", "period_and_transient", "Timing",
            "shortest_after_transient"]
 
 #: random data: at least this many spectral averages before the paper's block is shortened
@@ -225,10 +225,19 @@ def _random_block(fs_hz: float, n_samples: int, lowest_hz: float, overlap: float
     return block, f"{why}: {averages(block)} averages, {block / fs_hz * lowest_hz:.3g} cycles of the lowest line"
 
 
+@dataclass(frozen=True)
+class Timing:
+    """A periodic excitation's period and the transient dropped before any block (None: none)."""
+
+    period_samples: int | None
+    skip_periods: int | None
+    skip_seconds: float | None
+
+
 def period_and_transient(given: GivenSettings, excitation: Excitation | None, choices: dict[str, Choice],
-                         given_choice) -> tuple[int | None, int | None, float | None]:
-    """The period and the transient: as given, else read off ``excitation``; (period_samples, skip_periods,
-    skip_seconds), their :class:`Choice` entered in ``choices`` (``given_choice(value, name)``: the choice of a given
+                         given_choice) -> Timing:
+    """The period and the transient: as given, else read off ``excitation``; their :class:`Choice` entered in
+    ``choices`` (``given_choice(value, name)``: the choice of a given
     value). The one place both are decided: :func:`resolve_settings` for a job, and the job's settings on some of its
     records (:func:`nifo.settings.for_records`: a level, a file) where the job left them to the data."""
     ex = excitation
@@ -250,7 +259,7 @@ def period_and_transient(given: GivenSettings, excitation: Excitation | None, ch
         choices["skip_periods"] = Choice(skip_periods, "data", ex.reasons.get("transient", ""))
     if skip_periods and not period:
         raise ConfigError("--skip-periods needs the period: give --period-samples too", channel="--skip-periods")
-    return period, skip_periods, skip_seconds
+    return Timing(period, skip_periods, skip_seconds)
 
 
 def shortest_after_transient(durations_s: Sequence[float], fs_hz: float | None, period_samples: int | None,
@@ -304,7 +313,8 @@ def resolve_settings(given: GivenSettings, *, fs_hz: float | None, durations_s: 
         return Choice(value, from_user(name), reasons.get(name, ""))
 
     ex = excitation
-    period, skip_periods, skip_seconds = period_and_transient(g, ex, choices, given_choice)
+    timing = period_and_transient(g, ex, choices, given_choice)
+    period, skip_periods, skip_seconds = timing.period_samples, timing.skip_periods, timing.skip_seconds
     periodic = period is not None or (ex is not None and ex.periodic)
     shortest = shortest_after_transient(durations_s, fs_hz, period, skip_periods, skip_seconds)
     # blocks

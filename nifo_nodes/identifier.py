@@ -35,7 +35,13 @@ Parameters: ``model_file`` (YAML model file, ``nifo_model: 1``; its
 ``analysis_band_hz``, ``cond_limit``, ``publish_period_s``, ``checkpoint_file``
 (``""``: none), ``checkpoint_period_s``, ``result_file`` (``""``: beside the
 checkpoint, else ``$ROS_HOME/nifo/identifier_result.json``), ``frame_id``,
-``reset`` (set true to drop everything accumulated; reads back false). Every
+``reset`` (set true to drop everything accumulated; reads back false). The
+settings parameters and the model file's ``settings`` are resolved once at
+start-up, by the precedence function of every command (:func:`node_settings`:
+parameter > model file > default), into the one
+:class:`~nifo_core.settings.AnalysisSettings` the accumulator is built from
+when the stream's rate is known (:func:`identify_setup`), as ``nifo fleet``
+builds its workers' set-ups from it. Every
 parameter has a descriptor (description, range; ``ros2 param describe``). With ``std_srvs`` installed there is also the service
 ``~/reset`` (``std_srvs/srv/Trigger``).
 
@@ -64,7 +70,8 @@ from .messages import block_from_msg
 from .results import (StreamStats, coefficients_msg, msg_types, state_of, status_msg, transmissibility_msg,
                       write_result_file)
 
-__all__ = ["IdentifierNode", "main", "load_checkpoint", "save_checkpoint"]
+__all__ = ["IdentifierNode", "main", "load_checkpoint", "save_checkpoint", "node_settings", "identify_setup",
+           "given_fields"]
 
 try:
     from rclpy.node import Node
@@ -133,6 +140,64 @@ def default_result_file(checkpoint: str) -> Path:
     return home / "nifo" / "identifier_result.json"
 
 
+def given_fields(p: dict) -> dict:
+    """The node's parameters as settings given (0 / -1 / empty: not given — the model file's or the
+    default)."""
+    out: dict = {}
+    if int(p.get("block", 0)):
+        out["block"] = int(p["block"])
+    if float(p.get("overlap", -1.0)) >= 0:
+        out["overlap"] = float(p["overlap"])
+    if str(p.get("window", "")):
+        out["window"] = str(p["window"])
+    lo, hi = integration_edges(p)
+    if lo > 0 and hi > 0:
+        out["integration_band_hz"] = (lo, hi)
+    if "analysis_band_hz" in p:
+        out["analysis_band_hz"] = tuple(float(x) for x in p["analysis_band_hz"])
+    if "cond_limit" in p:
+        out["cond_limit"] = float(p["cond_limit"])
+    return out
+
+
+def node_settings(p: dict, *, log=None):
+    """The identifier's terms and its :class:`~nifo_core.settings.AnalysisSettings`, resolved once at start-up by the
+    precedence function every command uses (:func:`nifo.settings.resolve`: node parameters > model file > defaults;
+    no data yet, so an integration band not given stays open until the stream's rate is known: :func:`identify_setup`).
+    ``p``: the node's parameters (:data:`PARAMS`)."""
+    from nifo.io.modelfile import load_model_spec
+    from nifo.settings import resolve
+    from nifo_core.settings import GivenSettings
+
+    terms, ms = (), {}
+    if p["model_file"]:
+        spec = load_model_spec(p["model_file"])
+        if spec.two_step:
+            raise ConfigError("the identifier node runs single-step models only", source=p["model_file"],
+                              hint="identify step 1 offline (nifo identify) and list step 2's terms")
+        terms, ms = spec.terms, dict(spec.settings)
+    if not terms and log is not None:
+        log.warning("no nonlinearities given (model_file): estimating the linear T21 only")
+    settings = resolve([], given=GivenSettings(**given_fields(p)), file_settings=ms, from_data=False)
+    return tuple(terms), settings
+
+
+def identify_setup(settings, terms, fs_hz: float, *, edges: tuple[float, float] = (0.0, 0.0)):
+    """The core's set-up (:class:`~nifo_core.nifo.engine.IdentifySetup`: the conditioning limit included) of a stream
+    at ``fs_hz`` with the resolved ``settings``; the integration band not given is the default of this rate, and one
+    edge given alone (``edges``: the node's integration-band parameters, 0 an edge not given) replaces that edge of
+    it. The live stream carries the two accelerations only (:data:`ACCEL_CHANNELS`)."""
+    from nifo_core.nifo.engine import IdentifySetup
+    from nifo_core.signal.integrate import IntegrationBand, default_band
+
+    band = (settings.band or default_band(fs_hz)).validate(fs_hz)
+    lo, hi = edges
+    if (lo or hi) and not (lo and hi):
+        band = IntegrationBand(lo or band.f_lo_hz, hi or band.f_hi_hz)
+    return IdentifySetup(fs_hz=fs_hz, terms=tuple(terms), spectral=settings.spectral, band=band,
+                         analysis_band_hz=settings.analysis_band_hz, cond_limit=settings.cond_limit)
+
+
 #: the identifier's parameters (descriptors: ``ros2 param describe /nifo/identifier <name>``)
 PARAMS = {
     "model_file": Param("", "YAML model file (nifo_model: 1): nonlinear terms; its settings give the defaults of "
@@ -164,9 +229,9 @@ class IdentifierNode(Node):
         Transmissibility, Coefficients, LoopStatus = msg_types()
         self._SetParametersResult = SetParametersResult
         p = declare_parameters(self, PARAMS, self._problems)
-        self._terms, self._settings = self._model(p)
-        self._analysis = tuple(float(x) for x in p["analysis_band_hz"])
-        self._cond_limit = float(p["cond_limit"])
+        self._terms, self._settings = node_settings(p, log=self.get_logger())
+        self._band_edges = integration_edges(p)
+        self._cond_limit = self._settings.cond_limit
         self._frame_id = str(p["frame_id"])
         self._ckpt = Path(p["checkpoint_file"]) if p["checkpoint_file"] else None
         self._result_file = Path(p["result_file"] or default_result_file(p["checkpoint_file"]))
@@ -218,70 +283,17 @@ class IdentifierNode(Node):
             bad.append(f"block={p['block']} must be 0 (model file / default) or >= 8")
         else:
             try:
-                GivenSettings(**IdentifierNode._given_fields(p))
+                GivenSettings(**given_fields(p))
                 integration_edges(p)
             except ConfigError as err:
                 bad.append(err.message)
         return "; ".join(bad)
 
-    @staticmethod
-    def _given_fields(p: dict) -> dict:
-        """The node's parameters as settings given (0 / -1 / empty: not given — the model file's or the
-        default)."""
-        out: dict = {}
-        if int(p.get("block", 0)):
-            out["block"] = int(p["block"])
-        if float(p.get("overlap", -1.0)) >= 0:
-            out["overlap"] = float(p["overlap"])
-        if str(p.get("window", "")):
-            out["window"] = str(p["window"])
-        lo, hi = integration_edges(p)
-        if lo > 0 and hi > 0:
-            out["integration_band_hz"] = (lo, hi)
-        if "analysis_band_hz" in p:
-            out["analysis_band_hz"] = tuple(float(x) for x in p["analysis_band_hz"])
-        if "cond_limit" in p:
-            out["cond_limit"] = float(p["cond_limit"])
-        return out
-
-    def _model(self, p: dict):
-        """The terms, and the settings merged once (node parameters > model file > defaults:
-        :func:`nifo_core.settings.merge_given`); integration-band edges left 0 take the default of the data's
-        rate once it is known (:meth:`_new_nifo`)."""
-        from nifo.io.modelfile import load_model_spec
-        from nifo.settings import given_from_file
-        from nifo_core.settings import GivenSettings, merge_given, resolve_settings
-
-        terms, ms = (), {}
-        if p["model_file"]:
-            spec = load_model_spec(p["model_file"])
-            if spec.two_step:
-                raise ConfigError("the identifier node runs single-step models only", source=p["model_file"],
-                                  hint="identify step 1 offline (nifo identify) and list step 2's terms")
-            terms, ms = spec.terms, dict(spec.settings)
-        if not terms:
-            self.get_logger().warning("no nonlinearities given (model_file): estimating the linear T21 only")
-        lo, hi = integration_edges(p)
-        node = GivenSettings(**self._given_fields(p))
-        self._given, _ = merge_given(node, given_from_file(ms))
-        self._band_edges = (lo, hi)
-        return tuple(terms), resolve_settings(self._given, fs_hz=None).spectral
-
     def _new_nifo(self, fs_hz: float):
-        """The accumulator, built by the identification engine every shell uses
-        (:class:`~nifo_core.nifo.engine.IdentifySetup`: the conditioning limit included). The live stream carries
-        the two accelerations only (:data:`ACCEL_CHANNELS`)."""
-        from nifo_core.nifo.engine import IdentifySetup
-        from nifo_core.signal.integrate import IntegrationBand
-        from nifo_core.settings import resolve_settings
-
-        st = resolve_settings(self._given, fs_hz=fs_hz)
-        lo, hi = self._band_edges       # one edge given as a parameter, the other the default of this rate
-        band = IntegrationBand(lo or st.band.f_lo_hz, hi or st.band.f_hi_hz) if (lo or hi) and not (lo and hi) \
-            else st.band
-        setup = IdentifySetup(fs_hz=fs_hz, terms=self._terms, spectral=st.spectral, band=band,
-                              analysis_band_hz=st.analysis_band_hz, cond_limit=self._cond_limit)
-        return setup.accumulator(on_ill_conditioned="ignore")
+        """The accumulator of a stream at ``fs_hz``, from the settings resolved once at start-up
+        (:func:`identify_setup`: no second resolution when the rate is known)."""
+        return identify_setup(self._settings, self._terms, fs_hz, edges=self._band_edges).accumulator(
+            on_ill_conditioned="ignore")
 
     def _resume(self) -> None:
         nifo, next_ns, stream = load_checkpoint(self._ckpt)

@@ -151,39 +151,68 @@ def test_group_coefficients_equal_nifo_identify_on_the_groups_bags(result, fleet
         assert passes == {"bag00.mcap": 1, "bag01.mcap": 1}
 
 
+def test_settings_flags_given_to_nifo_fleet_reach_every_group_as_they_reach_nifo_identify(fleet, cluster, tmp_path):
+    """nifo fleet takes the settings flags of every command, resolved once over the model file's (issue 57: the
+    fleet and the node take the same object): a group's set-up and its coefficients are nifo identify's with the
+    same flags."""
+    rows = [r for r in csv.DictReader((fleet / "manifest.csv").open()) if r["vehicle"] == "v03"]
+    part = tmp_path / "v03.csv"
+    with part.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows([{**r, "path": str(fleet / r["path"])} for r in rows])
+    flags = ["--analysis-band", "3", "20", "--block", "2048", "--cond-limit", "1e7"]
+    out = tmp_path / "out"
+    assert main(["fleet", str(part), "--model", str(fleet / "model.yaml"), "--out", str(out), "--scheduler",
+                 cluster.scheduler_address, "--quiet", "--no-plots", "--no-rerun", "--no-cache", *flags]) == 0
+    doc = read_json(out / "fleet.json", what="fleet")
+    setup = doc["settings"]["groups"]["v03/FL"]
+    assert setup["analysis_band_hz"] == [3.0, 20.0] and setup["spectral"]["block"] == 2048
+    assert setup["cond_limit"] == 1e7
+    bags = sorted((fleet / "v03" / "FL").glob("bag0*.mcap"))
+    ident = tmp_path / "ident"
+    assert main(["identify", *map(str, bags), "--model", str(fleet / "model.yaml"), "--out", str(ident),
+                 "--no-plots", "--quiet", "--no-settings-from-data", *flags]) == 0
+    model, _ = read_model(ident)
+    g = _groups(out)["v03"]
+    assert g["k2_over_m2"] == pytest.approx(model.body.k, rel=1e-9, abs=0)
+    assert g["c2_over_m2"] == pytest.approx(model.body.c, rel=1e-9, abs=0)
+    assert g["n_avg"] == read_json(ident / "identify.json", what="identify")["summary"]["n_avg"]
+
+
 def test_a_batch_of_several_bags_gives_the_partials_of_one_bag_per_task(fleet, tmp_path):
     from nifo.fleet.manifest import load_fleet_input
-    from nifo.fleet.runner import base_setups
+    from nifo.fleet.runner import base_setups, fleet_settings
     from nifo.fleet.tasks import compute_batch, group_setup, merge_outcomes
 
     entries = [e for e in load_fleet_input(fleet / "manifest.csv", default_model=fleet / "model.yaml")
                if e.vehicle == "vmix"]
     g = entries[0].group
-    base = base_setups(entries, opts={}, chunk_samples=2 ** 18)[g]
+    base = base_setups(entries, fleet_settings(entries), opts={}, chunk_samples=2 ** 18)[g]
     bags = [(i, str(e.path)) for i, e in enumerate(entries)]
     batch = compute_batch([(g, base, bags, True)], str(tmp_path / "batched"))
     # the group's set-up (band of the 30-s bag) fixed in the task, as nifo identify fixes it
-    probes = {i: st["probe"] for i, st in batch["status"]}
+    probes = {i: st.probe for i, st in batch.status}
     fixed, left = group_setup(base, probes, label="vmix")
-    assert not left and {st["setup_hash"] for _, st in batch["status"]} == {
-        next(iter(batch["parts"]))[2]} and len(batch["parts"]) == 1
+    assert not left and {st.setup_hash for _, st in batch.status} == {
+        next(iter(batch.parts))[2]} and len(batch.parts) == 1
     alone = [compute_batch([(g, fixed, [b], False)], str(tmp_path / "alone")) for b in bags]
-    part = next(iter(batch["parts"]))
+    part = next(iter(batch.parts))
     merged = merge_outcomes(*alone, part=part)
-    assert merged["ok"] and [b["path"] for b in merged["bags"]] == [p for _, p in bags]
-    a, b = batch["parts"][part]["state"], merged["state"]
+    assert merged.ok and [b.path for b in merged.bags] == [p for _, p in bags]
+    a, b = batch.parts[part].state, merged.state
     assert a.keys() == b.keys()
     for k in a:
         if np.asarray(a[k]).dtype.kind in "fc":
             np.testing.assert_allclose(a[k], b[k], rtol=1e-13, atol=0, err_msg=k)
         else:
             assert np.array_equal(a[k], b[k]), k
-    for x, y in zip(batch["parts"][part]["bags"], merged["bags"]):
-        assert x["coefs"] == pytest.approx(y["coefs"], rel=1e-12)
+    for x, y in zip(batch.parts[part].bags, merged.bags):
+        assert x.coefs == pytest.approx(y.coefs, rel=1e-12)
     # one cache entry per bag (named by its key), the same key whether batched or alone
     entries_b = sorted(p.stem for p in (tmp_path / "batched").rglob("*.npz"))
     entries_a = sorted(p.stem for p in (tmp_path / "alone").rglob("*.npz"))
-    assert entries_b == entries_a == sorted(st["key"] for _, st in batch["status"]) and len(entries_b) == 2
+    assert entries_b == entries_a == sorted(st.key for _, st in batch.status) and len(entries_b) == 2
     # the whole group's rates, lengths and channels in one note; bags cut over tasks in one note each
     assert len(list((tmp_path / "batched" / "notes").glob("*.json"))) == 1
     assert len(list((tmp_path / "alone" / "notes").glob("*.json"))) == 2
@@ -197,31 +226,32 @@ def test_a_batch_of_several_bags_gives_the_partials_of_one_bag_per_task(fleet, t
         again = compute_batch([(g, base, bags, True)], str(tmp_path / "batched"))
     finally:
         tasks._open = opener
-    assert all(st["cached"] for _, st in again["status"])
-    np.testing.assert_array_equal(again["parts"][part]["state"]["acc.sum"], a["acc.sum"])
-    for x, y in zip(again["parts"][part]["bags"], batch["parts"][part]["bags"]):
-        assert x["coefs"] == y["coefs"]           # a bag's own coefficients: the same from its cached partial
+    assert all(st.cached for _, st in again.status)
+    np.testing.assert_array_equal(again.parts[part].state["acc.sum"], a["acc.sum"])
+    for x, y in zip(again.parts[part].bags, batch.parts[part].bags):
+        assert x.coefs == y.coefs           # a bag's own coefficients: the same from its cached partial
 
 
 def test_one_bag_per_task_accumulates_again_the_bags_whose_set_up_differs(fleet, cluster):
     from distributed import Client
 
     from nifo.fleet.manifest import load_fleet_input
-    from nifo.fleet.runner import FleetSettings, run_fleet
+    from nifo.fleet.runner import FleetSettings, fleet_settings, run_fleet
 
     entries = [e for e in load_fleet_input(fleet / "manifest.csv", default_model=fleet / "model.yaml")
                if e.vehicle in ("vmix", "v00")]
+    analysis = fleet_settings(entries)
     with Client(cluster) as client:
-        one = run_fleet(client, entries, opts={}, settings=FleetSettings(batch=1), quiet=True)
-        batched = run_fleet(client, entries, opts={}, settings=FleetSettings(), quiet=True)
+        one = run_fleet(client, entries, analysis=analysis, opts={}, settings=FleetSettings(batch=1), quiet=True)
+        batched = run_fleet(client, entries, analysis=analysis, opts={}, settings=FleetSettings(), quiet=True)
     # split over tasks, vmix's 45-s bag first takes its own band, then its group's (the 30-s bag's)
     assert {Path(b["path"]).name: b["passes"] for b in one.bags if b["vehicle"] == "vmix"} == {
         "bag00.mcap": 1, "bag01.mcap": 2}
     assert all(b["passes"] == 1 for b in batched.bags)
     for g, r in batched.groups.items():
-        assert r["ok"] and one.groups[g]["n_avg"] == r["n_avg"]
-        for name, c in r["coefficients"].items():
-            assert one.groups[g]["coefficients"][name]["value"] == pytest.approx(c["value"], rel=1e-12), (g, name)
+        assert r.ok and one.groups[g].n_avg == r.n_avg
+        for name, c in r.coefficients.items():
+            assert one.groups[g].coefficients[name].value == pytest.approx(c.value, rel=1e-12), (g, name)
 
 
 def test_a_killed_fleet_run_resumes_without_recomputing_finished_bags(result, fleet, tmp_path):
@@ -282,7 +312,7 @@ def test_an_unreachable_scheduler_is_one_line_and_its_exit_code(fleet, capsys):
 
 def test_a_bag_too_short_to_integrate_fails_alone_in_its_groups_task(fleet, tmp_path):
     from nifo.fleet.manifest import load_fleet_input
-    from nifo.fleet.runner import base_setups
+    from nifo.fleet.runner import base_setups, fleet_settings
     from nifo.fleet.simulated import NOMINAL_DEADZONE, NOMINAL_KNEE, _write_bag
     from nifo.fleet.tasks import compute_batch
     from nifo_core.kinds.describing import Term
@@ -294,8 +324,8 @@ def test_a_bag_too_short_to_integrate_fails_alone_in_its_groups_task(fleet, tmp_
                 "path": str(short)})
     e = [x for x in load_fleet_input(fleet / "manifest.csv", default_model=fleet / "model.yaml")
          if x.vehicle == "v00"][0]
-    base = base_setups([e], opts={}, chunk_samples=2 ** 18)[e.group]
+    base = base_setups([e], fleet_settings([e]), opts={}, chunk_samples=2 ** 18)[e.group]
     out = compute_batch([(e.group, base, [(0, str(e.path)), (1, str(short))], True)], None)
-    st = dict(out["status"])
-    assert st[0]["ok"] and not st[1]["ok"] and "too short" in st[1]["reason"] and "\n" not in st[1]["reason"]
-    assert len(out["parts"]) == 1
+    st = dict(out.status)
+    assert st[0].ok and not st[1].ok and "too short" in st[1].reason and "\n" not in st[1].reason
+    assert len(out.parts) == 1

@@ -25,12 +25,12 @@ CHILD = r"""
 import json, sys
 from nifo.fleet.cluster import fleet_client
 from nifo.fleet.manifest import load_fleet_input
-from nifo.fleet.runner import base_setups
+from nifo.fleet.runner import base_setups, fleet_settings
 
 root = sys.argv[1]
 entries = load_fleet_input(root + "/manifest.csv", default_model=root + "/model.yaml")
 e = entries[0]
-setup = base_setups([e], opts={"topics": None, "columns": None, "fs_hz": None, "axis": "z"},
+setup = base_setups([e], fleet_settings([e]), opts={"topics": None, "columns": None, "fs_hz": None, "axis": "z"},
                     chunk_samples=2 ** 18)[e.group]
 
 
@@ -48,7 +48,7 @@ def probe(path, group, setup):
     return {"cpu_s": cpu, "kernels": kernel_stats(), "omp": os.environ.get("OMP_NUM_THREADS"),
             "blas_threads": sorted({i["num_threads"] for i in threadpool_info()}), "failed": WARM["failed"],
             "new_modules": sorted(set(sys.modules) - before), "first_bag_s": time.perf_counter() - t0,
-            "bag_ok": out["status"][0][1]["ok"]}
+            "bag_ok": out.status[0][1].ok}
 
 
 with fleet_client(workers=1, dashboard_address=None) as client:

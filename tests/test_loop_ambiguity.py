@@ -10,7 +10,7 @@ import numpy as np
 
 from nifo_core.kinds.describing import Term
 from nifo_core.loop.ambiguity import T_DISTINCT, Comparison, compare
-from nifo_core.loop.gates import Alternative, judge_alternatives
+from nifo_core.loop.gates import Alternative, Judgement, judge_alternatives
 from nifo_core.loop.results import RETUNE_FACTOR, DeclaredTerm, Errors, LoopSettings
 from nifo_core.predict.heldout import split_records
 from nifo_core.signal.record import Record
@@ -53,32 +53,37 @@ def _alt(comp: Comparison, keeps: bool, term: Term = Term("velocity_deadzone", {
     return Alternative(0, term, _errors([term], [3.5], comp.nmse_b), comp, keeps, "" if keeps else "sign flipped")
 
 
+def _judged(*args, **kw):
+    j = judge_alternatives(*args, **kw)
+    return j.failed, j.ties, j.instead
+
+
 def test_adding_a_term_or_re_placing_a_declared_one_is_decided_by_the_held_out_data_and_the_declaration():
     better = Comparison(0.30, 0.40, 6.0, 60)          # the candidate's model predicts clearly better
     worse = Comparison(0.40, 0.30, -6.0, 60)          # the re-placed term predicts clearly better
     tie = Comparison(0.30, 0.31, 0.4, 60)             # these data cannot tell them apart
     # the candidate wins: added, nothing named
-    assert judge_alternatives([KNEE], QUAD, [_alt(better, keeps=False)], S) == ([], [], [])
+    assert judge_alternatives([KNEE], QUAD, [_alt(better, keeps=False)], S) == Judgement((), (), ())
     # the re-placed knee predicts better: taken instead (and said to change the declared term when it does)
-    failed, ties, instead = judge_alternatives([KNEE], QUAD, [_alt(worse, keeps=False)], S)
+    failed, ties, instead = _judged([KNEE], QUAD, [_alt(worse, keeps=False)], S)
     assert len(instead) == 1 and "better" in failed[0] and "changes the declared term" in failed[0]
     # cannot tell apart, the re-placed knee changes the declared physics: the candidate is added, the tie named
-    failed, ties, instead = judge_alternatives([KNEE], QUAD, [_alt(tie, keeps=False)], S)
+    failed, ties, instead = _judged([KNEE], QUAD, [_alt(tie, keeps=False)], S)
     assert not failed and len(ties) == 1 and not instead
     # ... a re-tune within the stated factor keeps it: the re-tune is taken (no term added), the tie named
-    failed, ties, instead = judge_alternatives([KNEE], QUAD, [_alt(tie, keeps=True, term=Term(
+    failed, ties, instead = _judged([KNEE], QUAD, [_alt(tie, keeps=True, term=Term(
         "velocity_deadzone", {"knee": 0.045}))], S)
     assert len(failed) == 1 and len(ties) == 1 and len(instead) == 1
     # ... neither keeps it: fewer terms
-    failed, ties, instead = judge_alternatives([KNEE], QUAD, [_alt(tie, keeps=False)], S, candidate_keeps=False)
+    failed, ties, instead = _judged([KNEE], QUAD, [_alt(tie, keeps=False)], S, candidate_keeps=False)
     assert len(failed) == 1 and len(instead) == 1
     # a second knee a few per cent from the first is the same feature re-placed, however it predicts
     second = Term("velocity_deadzone", {"knee": 0.035})
-    failed, ties, instead = judge_alternatives([KNEE], second, [_alt(better, keeps=True, term=second)], S)
+    failed, ties, instead = _judged([KNEE], second, [_alt(better, keeps=True, term=second)], S)
     assert "the same feature re-placed" in failed[0] and len(instead) == 1
     # ... two knees a factor 3 apart are two valve stages
     stage = Term("velocity_deadzone", {"knee": 0.1})
-    assert judge_alternatives([KNEE], stage, [_alt(better, keeps=True, term=stage)], S) == ([], [], [])
+    assert judge_alternatives([KNEE], stage, [_alt(better, keeps=True, term=stage)], S) == Judgement((), (), ())
 
 
 def test_a_declared_term_that_changed_its_meaning_says_so():

@@ -54,7 +54,7 @@ def test_a_refined_model_carries_its_covariance_and_rebuilds_itself_from_model_j
     back = IdentifiedModel.from_dict(json.loads(json.dumps(model.to_dict())))
     space = parameter_space(back)
     assert space is not None
-    to_model, x, cov = space
+    to_model, x, cov = space.to_model, space.theta, space.cov
     assert cov.shape == (x.size, x.size) and np.all(np.linalg.eigvalsh(cov) > -1e-12 * np.abs(cov).max())
     rebuilt = to_model(x)
     np.testing.assert_allclose(rebuilt.c_over_m2, model.c_over_m2, rtol=1e-12)

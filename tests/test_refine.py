@@ -218,7 +218,7 @@ def test_a_rational_linear_part_misfitted_by_ten_percent_is_refined_jointly_with
     assert joint.model.c_over_m2[0] * sim.truth.vehicle.m2 == pytest.approx(30.0, rel=0.1)
     space = parameter_space(joint.model)                   # the covariance rebuilds the refined model itself
     if space is not None:
-        to_model, theta, cov = space
+        to_model, theta, cov = space.to_model, space.theta, space.cov
         assert cov.shape == (theta.size, theta.size) and theta.size == 1 + 2 * (lin.order // 2)
         np.testing.assert_allclose(to_model(theta).linear.residues, joint.model.linear.residues, atol=1e-12)
     linear = IdentifiedModel.from_nifo(res, source="h1", linear_form="rational", order=6)

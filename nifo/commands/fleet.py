@@ -31,6 +31,10 @@ Each coefficient (K2/M2, C2/M2, c_i/M2) is compared with the fleet by a robust
 z-score; a group is flagged where |z| exceeds --z-limit and the deviation is
 resolved by its own data (never from fewer than --min-bags bags).
 
+Settings: --block, --overlap, --window, --integration-band, --analysis-band and
+--cond-limit override every model file's settings (then its defaults); they are
+never read off the data (one set of settings compares the bags of a fleet).
+
 Dask: with no --scheduler a LocalCluster of --workers processes (default: one
 per core) runs on this machine; --scheduler tcp://HOST:8786 uses an existing
 cluster (its workers must see the bags, the cache folder and have nifo installed).
@@ -81,6 +85,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     o.add_argument("--no-plots", action="store_true", help="no HTML page and figures")
     o.add_argument("--no-rerun", action="store_true", help="no Rerun recording")
     add_input_arguments(p)
+    from nifo.settings import add_settings_arguments
+
+    add_settings_arguments(p, from_data=False)
 
 
 def _check(args) -> None:
@@ -108,11 +115,13 @@ def run(args: argparse.Namespace) -> dict:
     if not args.scheduler:
         start_worker_server()      # the workers' fork server imports and warms while this process reads the manifest
     from nifo.fleet.manifest import load_fleet_input
-    from nifo.fleet.runner import FleetSettings, run_fleet
+    from nifo.fleet.runner import FleetSettings, fleet_settings, run_fleet
+    from nifo.settings import given_from_args
     from nifo_core.fleet import HealthSettings
 
     _check(args)
     entries = load_fleet_input(args.input, default_model=args.model)
+    analysis = fleet_settings(entries, given=given_from_args(args))     # once per model file, for every worker
     health = HealthSettings(z_limit=args.z_limit, min_records=args.min_bags, min_duration_s=args.min_duration,
                             min_groups=args.min_groups)
     cache = None if args.no_cache else str((args.cache or Path(str(args.out) + ".cache")).resolve())
@@ -126,11 +135,12 @@ def run(args: argparse.Namespace) -> dict:
             print(dashboard_line(client), file=sys.stderr, flush=True)
             print(f"fleet: {len(entries)} bags in {n_groups} vehicle/corner groups; cache "
                   f"{cache or 'off'}", file=sys.stderr, flush=True)
-        result = run_fleet(client, entries, opts=input_options(args), settings=settings, quiet=args.quiet)
-    solved = [g for g, r in result.groups.items() if r["ok"]]
+        result = run_fleet(client, entries, analysis=analysis, opts=input_options(args), settings=settings,
+                           quiet=args.quiet)
+    solved = [g for g, r in result.groups.items() if r.ok]
     if not solved:
         reasons = sorted({b["reason"] for b in result.bags if b["reason"]} |
-                         {r["reason"] for r in result.groups.values()})
+                         {r.reason for r in result.groups.values()})
         raise FleetError(f"no group could be identified ({len(result.bags)} bags; first reasons: "
                          f"{' | '.join(reasons[:3])})", source=str(args.input),
                          hint="fix the bags listed, or check the model file and the manifest")
@@ -140,7 +150,7 @@ def run(args: argparse.Namespace) -> dict:
     failed = [b for b in result.bags if b["reason"]]
     return {"out": str(args.out), "files": files, "bags": len(result.bags), "bags_failed": len(failed),
             "groups": len(result.groups), "groups_identified": len(solved),
-            "flagged": sorted(str(g) for g, r in result.groups.items() if r["ok"] and r["health"].flagged)}
+            "flagged": sorted(str(g) for g, r in result.groups.items() if r.ok and r.health.flagged)}
 
 
 def write_outputs(out: Path, result, *, inputs: str, plots: bool = True, rerun: bool = True) -> list[str]:
@@ -162,7 +172,7 @@ def write_outputs(out: Path, result, *, inputs: str, plots: bool = True, rerun: 
 
 
 def format_summary(result, *, out: Path, files: list[str]) -> str:
-    ok = {g: r for g, r in result.groups.items() if r["ok"]}
+    ok = {g: r for g, r in result.groups.items() if r.ok}
     lines = [f"fleet: {len(ok)} of {len(result.groups)} groups identified from {len(result.bags)} bags "
              f"({result.n_cached} from the cache, {result.n_failed} failed)"]
     if result.n_redone:
@@ -172,13 +182,13 @@ def format_summary(result, *, out: Path, files: list[str]) -> str:
         if b["status"] != "ok":
             lines.append(f"  FAILED bag {b['vehicle']}/{b['corner']} {b['path']}: {b['reason']}")
     for g, r in result.groups.items():
-        if not r["ok"]:
-            lines.append(f"  FAILED group {g[0]}/{g[1]}: {r['reason']}")
-    flagged = [(g, r) for g, r in ok.items() if r["health"].flagged]
-    not_assessed = [g for g, r in ok.items() if not r["health"].assessed]
+        if not r.ok:
+            lines.append(f"  FAILED group {g[0]}/{g[1]}: {r.reason}")
+    flagged = [(g, r) for g, r in ok.items() if r.health.flagged]
+    not_assessed = [g for g, r in ok.items() if not r.health.assessed]
     lines.append(f"strut health: {len(flagged)} group(s) flagged, {len(not_assessed)} not assessed (too little data)")
     for g, r in flagged:
-        for t in r["health"].evidence:
+        for t in r.health.evidence:
             lines.append(f"  FLAGGED {g[0]}/{g[1]}: {t}")
     lines.append(f"wrote {out}/ ({', '.join(files)})")
     return "\n".join(lines)

@@ -43,31 +43,31 @@ def group_rows(run: FleetRun) -> list[dict]:
     rows = []
     for (vehicle, corner), r in run.groups.items():
         bags = [b for b in run.bags if (b["vehicle"], b["corner"]) == (vehicle, corner)]
-        row = {"vehicle": vehicle, "corner": corner, "status": "ok" if r["ok"] else "failed",
-               "reason": "" if r["ok"] else r["reason"], "n_bags": sum(b["status"] == "ok" for b in bags),
+        row = {"vehicle": vehicle, "corner": corner, "status": "ok" if r.ok else "failed",
+               "reason": "" if r.ok else r.reason, "n_bags": sum(b["status"] == "ok" for b in bags),
                "n_bags_failed": sum(b["status"] != "ok" for b in bags),
                "n_bags_cached": sum(bool(b["cached"]) for b in bags)}
-        if r["ok"]:
-            h = r.get("health")
+        if r.ok:
+            h = r.health
             z = {c.name: c.z for c in h.coefficients} if h else {}
-            row.update(duration_s=r["duration_s"], n_avg=r["n_avg"], fs_hz=r["fs_hz"])
-            for name, c in r["coefficients"].items():
-                row.update({name: c["value"], f"{name}_lo": c["lo"], f"{name}_hi": c["hi"], f"{name}_se": c["se"],
+            row.update(duration_s=r.duration_s, n_avg=r.n_avg, fs_hz=r.fs_hz)
+            for name, c in r.coefficients.items():
+                row.update({name: c.value, f"{name}_lo": c.lo, f"{name}_hi": c.hi, f"{name}_se": c.se,
                             f"{name}_z": _nan(z.get(name))})
-            row.update(r["t21"])
-            row.update(coherence_h1_median=r["summary"]["coherence_h1_median"],
-                       cond_median=r["summary"]["cond_median"],
+            row.update(r.t21)
+            row.update(coherence_h1_median=r.summary["coherence_h1_median"],
+                       cond_median=r.summary["cond_median"],
                        flagged=bool(h and h.flagged), flag_evidence="; ".join(h.evidence) if h else "",
                        health_note="" if (h is None or h.assessed) else f"not assessed: {h.reason}",
-                       warnings=" | ".join(r["warnings"]))
+                       warnings=" | ".join(r.warnings))
         else:
             row.update(flagged=False, flag_evidence="", health_note="not assessed: no result")
-        loop = r.get("loop")
-        row["loop_verdict"] = loop["verdict"] if loop else "loop not run (give --loop)"
+        loop = r.loop
+        row["loop_verdict"] = loop.verdict if loop else "loop not run (give --loop)"
         for key in LOOP_SCORES:        # the loop's held-out band and whole-signal NMSE before and after [%]
-            row[f"loop_{key}"] = _nan((loop or {}).get(key))
-        ch = r.get("characterization")
-        row["characterization"] = ch["text"] if ch else "not run (give --characterize)"
+            row[f"loop_{key}"] = _nan(loop.scores.get(key) if loop else None)
+        ch = r.characterization
+        row["characterization"] = ch.text if ch else "not run (give --characterize)"
         rows.append(row)
     return rows
 
@@ -103,16 +103,16 @@ def fleet_document(run: FleetRun, *, figures: list[str], inputs: str) -> dict:
     groups = []
     units = {}
     for (vehicle, corner), r in run.groups.items():
-        g = {"vehicle": vehicle, "corner": corner, "ok": r["ok"], "reason": r.get("reason", "")}
-        if r["ok"]:
-            units.update({n: u for n, u, _ in r["specs"]})
-            g.update(coefficients=r["coefficients"], t21=r["t21"], summary=r["summary"], warnings=r["warnings"],
-                     n_avg=r["n_avg"], duration_s=r["duration_s"], health=r["health"].to_dict(),
-                     meanings={n: m for n, _, m in r["specs"]})
-        if r.get("loop"):
-            g["loop"] = r["loop"]
-        if r.get("characterization"):
-            g["characterization"] = r["characterization"]
+        g = {"vehicle": vehicle, "corner": corner, "ok": r.ok, "reason": r.reason}
+        if r.ok:
+            units.update({n: u for n, u, _ in r.specs})
+            g.update(coefficients={n: c.to_dict() for n, c in r.coefficients.items()}, t21=dict(r.t21),
+                     summary=r.summary, warnings=list(r.warnings), n_avg=r.n_avg, duration_s=r.duration_s,
+                     health=r.health.to_dict(), meanings={n: m for n, _, m in r.specs})
+        if r.loop:
+            g["loop"] = r.loop.to_dict()
+        if r.characterization:
+            g["characterization"] = r.characterization.to_dict()
         groups.append(g)
     return _clean({"nifo_fleet": 1, "input": inputs, "units": units,
                    "settings": {"health": run.settings.health.to_dict(), "freqs_hz": list(run.settings.freqs_hz),

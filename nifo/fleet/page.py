@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nifo.fleet.results import Coefficient
 from nifo.fleet.runner import FleetRun
 from nifo.plots import VECTOR_SUFFIXES, pyplot, save_figure
 from nifo_core import __version__
@@ -57,7 +58,7 @@ def _label(g) -> str:
 
 
 def _ok_groups(run: FleetRun):
-    return [(g, r) for g, r in run.groups.items() if r["ok"]]
+    return [(g, r) for g, r in run.groups.items() if r.ok]
 
 
 def plot_t21(path: Path, run: FleetRun) -> Path:
@@ -68,16 +69,16 @@ def plot_t21(path: Path, run: FleetRun) -> Path:
     band = None
     styles = iter(["-", "--", ":", "-."] * 1000)
     for g, r in _ok_groups(run):
-        c = r["curves"]
-        f, t = np.asarray(c["freq_hz"]), np.asarray(c["t21"])
+        c = r.curves
+        f, t = np.asarray(c.freq_hz), np.asarray(c.t21)
         m = f > 0
-        flagged = r["health"].flagged
+        flagged = r.health.flagged
         kw = {"color": _FLAG if flagged else _OK, "lw": 1.4 if flagged else 0.7, "alpha": 1 if flagged else 0.5,
               "zorder": 3 if flagged else 2, "label": _label(g) if flagged else None,
               "ls": next(styles) if flagged else "-"}
         am.loglog(f[m], np.abs(t[m]), **kw)
         ap.semilogx(f[m], np.degrees(np.angle(t[m])), **kw)
-        band = r["analysis_band_hz"]
+        band = r.analysis_band_hz
     if band:
         for ax in (am, ap):
             ax.axvspan(*band, color="0.93", zorder=0, label=None)
@@ -98,7 +99,7 @@ def plot_coefficients(path: Path, run: FleetRun) -> Path:
     plt = pyplot()
 
     ok = _ok_groups(run)
-    names = list(dict.fromkeys(c.name for _, r in ok for c in r["health"].coefficients))  # the assessed set
+    names = list(dict.fromkeys(c.name for _, r in ok for c in r.health.coefficients))  # the assessed set
     fig, axes = plt.subplots(len(names), 1, figsize=(max(8.0, 0.35 * len(ok) + 3), 1.9 * len(names) + 1),
                              sharex=True, constrained_layout=True, squeeze=False)
     x = np.arange(len(ok))
@@ -106,14 +107,14 @@ def plot_coefficients(path: Path, run: FleetRun) -> Path:
     for ax, name in zip(axes[:, 0], names):
         unit, ref = "", None
         for i, (g, r) in enumerate(ok):
-            c = r["coefficients"].get(name)
+            c = r.coefficients.get(name)
             if c is None:
                 continue
-            unit = c["unit"]
-            ch = next((h for h in r["health"].coefficients if h.name == name), None)
-            col = _FLAG if (ch and ch.flagged) else (_OK if r["health"].assessed else _NA)
-            err = (c["hi"] - c["lo"]) / 2 if np.isfinite(c["hi"] - c["lo"]) else 0.0
-            ax.errorbar(i, c["value"], yerr=err, fmt="o", ms=4, color=col, capsize=2)
+            unit = c.unit
+            ch = next((h for h in r.health.coefficients if h.name == name), None)
+            col = _FLAG if (ch and ch.flagged) else (_OK if r.health.assessed else _NA)
+            err = (c.hi - c.lo) / 2 if np.isfinite(c.hi - c.lo) else 0.0
+            ax.errorbar(i, c.value, yerr=err, fmt="o", ms=4, color=col, capsize=2)
             if ch is not None and np.isfinite(ch.fleet_median):
                 ref = (ch.fleet_median, ch.fleet_scale)
         if ref is not None:
@@ -130,10 +131,10 @@ def plot_coefficients(path: Path, run: FleetRun) -> Path:
     return save_figure(fig, path)
 
 
-def _fmt(c: dict, z: float) -> str:
-    v = f"{c['value']:.4g}"
-    if np.isfinite(c["hi"] - c["lo"]):
-        v += f" ± {(c['hi'] - c['lo']) / 2:.2g}"
+def _fmt(c: Coefficient, z: float) -> str:
+    v = f"{c.value:.4g}"
+    if np.isfinite(c.hi - c.lo):
+        v += f" ± {(c.hi - c.lo) / 2:.2g}"
     if np.isfinite(z):
         v += f" [{z:+.1f}]"
     return v
@@ -147,18 +148,18 @@ def write_page(out: Path, run: FleetRun, *, title: str) -> list[str]:
     plot_t21(out / "t21.png", run)
     plot_coefficients(out / "coefficients.png", run)
     ok = _ok_groups(run)
-    heads = list(dict.fromkeys(f"{n} [{u}]" for _, r in ok for n, u, _ in r["specs"]))
-    names = list(dict.fromkeys(n for _, r in ok for n in r["coefficients"]))
+    heads = list(dict.fromkeys(f"{n} [{u}]" for _, r in ok for n, u, _ in r.specs))
+    names = list(dict.fromkeys(n for _, r in ok for n in r.coefficients))
     rows, flags = [], []
     for g, r in run.groups.items():
-        row = {"vehicle": g[0], "corner": g[1], "cls": "", "loop": (r.get("loop") or {}).get("verdict", "not run")}
-        if not r["ok"]:
-            row.update(cls="fail", bags=0, duration="", coefs=[""] * len(names), health=f"failed: {r['reason']}")
+        row = {"vehicle": g[0], "corner": g[1], "cls": "", "loop": r.loop.verdict if r.loop else "not run"}
+        if not r.ok:
+            row.update(cls="fail", bags=0, duration="", coefs=[""] * len(names), health=f"failed: {r.reason}")
         else:
-            h = r["health"]
+            h = r.health
             z = {c.name: c.z for c in h.coefficients}
-            row.update(bags=len(r["bags"]), duration=f"{r['duration_s']:.0f}",
-                       coefs=[_fmt(r["coefficients"][n], z.get(n, np.nan)) if n in r["coefficients"] else ""
+            row.update(bags=len(r.bags), duration=f"{r.duration_s:.0f}",
+                       coefs=[_fmt(r.coefficients[n], z.get(n, np.nan)) if n in r.coefficients else ""
                               for n in names],
                        health="FLAGGED" if h.flagged else ("ok" if h.assessed else f"not assessed: {h.reason}"))
             if h.flagged:
@@ -168,7 +169,7 @@ def write_page(out: Path, run: FleetRun, *, title: str) -> list[str]:
     env = jinja2.Environment(autoescape=True, undefined=jinja2.StrictUndefined)
     text = env.from_string(_TEMPLATE).render(
         title=title, version=__version__, n_groups=len(run.groups), n_bags=len(run.bags), n_failed=run.n_failed,
-        n_cached=run.n_cached, n_flagged=sum(1 for _, r in ok if r["health"].flagged), health=run.settings.health,
+        n_cached=run.n_cached, n_flagged=sum(1 for _, r in ok if r.health.flagged), health=run.settings.health,
         flags=flags, t21_png="t21.png", coef_png="coefficients.png", coef_heads=heads, rows=rows,
         failed=[b for b in run.bags if b["status"] != "ok"])
     (out / FLEET_HTML).write_text(text)

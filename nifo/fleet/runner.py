@@ -31,18 +31,21 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Mapping
 
 from nifo.fleet.cache import settings_hash
 from nifo.fleet.manifest import BagEntry
+from nifo.fleet.results import BagStatus, CharacterizeOutcome, GroupResult, LoopOutcome
 from nifo.fleet.tasks import (GroupSetup, batch_status, characterize_group, compute_batch, group_setup, loop_group,
                               merge_outcomes, solve_group)
 from nifo.io.modelfile import load_model_spec
 from nifo.progress import Progress
 from nifo.settings import resolve
 from nifo_core.errors import ConfigError
+from nifo_core.settings import AnalysisSettings, GivenSettings
 from nifo_core.fleet import Estimate, HealthSettings, assess_health, batch_plan, reduction_plan
 
-__all__ = ["FleetSettings", "FleetRun", "run_fleet", "base_setups", "group_setup"]
+__all__ = ["FleetSettings", "FleetRun", "run_fleet", "fleet_settings", "base_setups", "group_setup"]
 
 
 @dataclass(frozen=True)
@@ -87,7 +90,7 @@ class FleetRun:
     """What a fleet run produced: one row per bag, one result per group (with its health)."""
 
     bags: list[dict]
-    groups: dict[tuple[str, str], dict]
+    groups: dict[tuple[str, str], GroupResult]
     settings: FleetSettings
     setups: dict[tuple[str, str], dict]
 
@@ -105,196 +108,239 @@ class FleetRun:
         return sum(1 for b in self.bags if b.get("cached"))
 
 
-def _model_cfgs(entries: list[BagEntry]) -> dict[Path, tuple]:
-    """Per model file, its spec and the settings it gives merged with the defaults (one fleet, one set of settings:
-    a vehicle's bags are compared on the same blocks and bands)."""
+def fleet_settings(entries: list[BagEntry], *, given: GivenSettings | None = None) -> dict[Path, AnalysisSettings]:
+    """Per model file of ``entries``, its :class:`~nifo_core.settings.AnalysisSettings`, resolved once by the
+    precedence function every command uses (:func:`nifo.settings.resolve`: ``given`` > the model file's
+    ``settings:`` > defaults; not read off the data: one fleet, one set of settings, so a vehicle's bags are compared
+    on the same blocks and bands). The caller (``nifo fleet``, a benchmark) hands them to :func:`run_fleet`."""
     out = {}
     for model in dict.fromkeys(e.model for e in entries):
-        spec = load_model_spec(model)
-        if spec.two_step:
-            raise ConfigError("nifo fleet takes single-step model files (nonlinearities:), not steps:",
-                              source=str(model), hint="identify two-step models per vehicle with nifo identify")
-        out[model] = (spec, resolve([], file_settings=spec.settings, from_data=False))
+        out[model] = resolve([], given=given, file_settings=_single_step(model).settings, from_data=False)
     return out
 
 
-def base_setups(entries: list[BagEntry], *, opts: dict, chunk_samples: int) -> dict[tuple[str, str], GroupSetup]:
-    """Per group, the set-up from its model file; band and tire patch still open (None) unless the file fixes the band."""
-    cfgs = _model_cfgs(entries)
+def _single_step(model: Path):
+    spec = load_model_spec(model)
+    if spec.two_step:
+        raise ConfigError("nifo fleet takes single-step model files (nonlinearities:), not steps:",
+                          source=str(model), hint="identify two-step models per vehicle with nifo identify")
+    return spec
+
+
+def base_setups(entries: list[BagEntry], analysis: Mapping[Path, AnalysisSettings], *, opts: dict,
+                chunk_samples: int) -> dict[tuple[str, str], GroupSetup]:
+    """Per group, the set-up from its model file's terms and the settings resolved for it (``analysis``:
+    :func:`fleet_settings`, never resolved here); band and tire patch still open (None) unless the settings fix
+    the band."""
+    terms = {model: tuple(_single_step(model).terms) for model in dict.fromkeys(e.model for e in entries)}
     out = {}
     for e in entries:
         if e.group in out:
             continue
-        spec, cfg = cfgs[e.model]
-        out[e.group] = GroupSetup(terms=tuple(spec.terms), spectral=cfg.spectral, band=cfg.band,
+        try:
+            cfg = analysis[e.model]
+        except KeyError:
+            raise ConfigError("no resolved settings for this model file", source=str(e.model),
+                              hint="resolve them with nifo.fleet.runner.fleet_settings(entries)") from None
+        out[e.group] = GroupSetup(terms=terms[e.model], spectral=cfg.spectral, band=cfg.band,
                                   with_tire_patch=None, analysis_band_hz=tuple(cfg.analysis_band_hz),
                                   cond_limit=cfg.cond_limit, chunk_samples=int(chunk_samples), opts=dict(opts),
                                   band_from_model=cfg.band is not None)
     return out
 
 
-def run_fleet(client, entries: list[BagEntry], *, opts: dict, settings: FleetSettings = FleetSettings(),
-              quiet: bool = False) -> FleetRun:
-    """Run the fleet on ``client`` (module docstring); failed bags are recorded, never raised.
+def run_fleet(client, entries: list[BagEntry], *, analysis: Mapping[Path, AnalysisSettings], opts: dict,
+              settings: FleetSettings = FleetSettings(), quiet: bool = False) -> FleetRun:
+    """Run the fleet on ``client`` (module docstring); failed bags are recorded, never raised. ``analysis``: the
+    settings of each model file, resolved once by the caller (:func:`fleet_settings`)."""
+    bases = base_setups(entries, analysis, opts=opts, chunk_samples=settings.chunk_samples)
+    return _Scheduler(client, entries, bases, settings).run(quiet=quiet)
 
-    Long because the scheduler's state (which task holds which bag's partial, which group still waits for which
-    bag, each group's fixed set-up) is shared by the ``submit`` and ``group_ready`` closures and the completion
-    loop that drives them; splitting it further means turning that state into a class.
+
+class _Scheduler:
+    """The client's state of one fleet run, and the completion loop that drives it (:meth:`run`).
+
+    Which task holds which bag's partial of its latest pass (``holder``), the set-up each bag was last submitted
+    with (``used``), which bags each status task reports (``status``), which bags each group still waits for
+    (``waiting``), each bag's probe and each group's fixed set-up (``final_setup``, ``digests``), and the futures
+    of every group's solve, loop and characterization.
     """
-    from distributed import as_completed
 
+    def __init__(self, client, entries: list[BagEntry], bases: dict[tuple[str, str], GroupSetup],
+                 s: FleetSettings) -> None:
+        from distributed import as_completed
 
-    s = settings
-    bases = base_setups(entries, opts=opts, chunk_samples=s.chunk_samples)
-    paths = [str(e.path) for e in entries]
-    rows = [{"vehicle": e.vehicle, "corner": e.corner, "date": e.date, "path": p, "status": "pending",
-             "reason": "", "cached": False, "seconds": float("nan"), "hash": "", "key": "", "passes": 0}
-            for e, p in zip(entries, paths)]
-    members: dict[tuple[str, str], list[int]] = {}
-    for i, e in enumerate(entries):
-        members.setdefault(e.group, []).append(i)
-    group_of = {i: e.group for i, e in enumerate(entries)}
-    n_threads = max(1, sum(client.nthreads().values()))
-    holder, used, status, waiting, probes, final_setup, digests = {}, {}, {}, {}, {}, {}, {}
-    solves, loops, chars = {}, {}, {}
-    ac = as_completed()
+        self.client, self.entries, self.bases, self.s = client, entries, bases, s
+        self.paths = [str(e.path) for e in entries]
+        self.rows = [{"vehicle": e.vehicle, "corner": e.corner, "date": e.date, "path": p, "status": "pending",
+                      "reason": "", "cached": False, "seconds": float("nan"), "hash": "", "key": "", "passes": 0}
+                     for e, p in zip(entries, self.paths)]
+        self.members: dict[tuple[str, str], list[int]] = {}
+        for i, e in enumerate(entries):
+            self.members.setdefault(e.group, []).append(i)
+        self.group_of = {i: e.group for i, e in enumerate(entries)}
+        self.n_threads = max(1, sum(client.nthreads().values()))
+        self.holder, self.used, self.status, self.probes, self.final_setup, self.digests = {}, {}, {}, {}, {}, {}
+        self.waiting = {g: set(idx) for g, idx in self.members.items()}
+        self.solves, self.loops, self.chars = {}, {}, {}
+        self.ac = as_completed()
+        self.bar = None
 
-    def submit(idx: list[int], setup_of, *, batch: int | None = s.batch) -> None:
+    def run(self, *, quiet: bool) -> FleetRun:
+        self.submit([i for idx in self.members.values() for i in idx], lambda i: self.bases[self.group_of[i]])
+        with Progress(float(len(self.entries) + len(self.members)), "fleet: bags and groups",
+                      enabled=not quiet) as self.bar:
+            for fut in self.ac:
+                if fut in self.status:
+                    self.take(fut)
+                else:                     # a group's solve
+                    self.bar.advance(1)
+        groups = _collect(self.solves, self.loops, self.chars, self.members)
+        _health(groups, self.s.health)
+        return FleetRun(bags=self.rows, groups=groups, settings=self.s,
+                        setups={g: st.cache_settings() for g, st in self.final_setup.items() if st is not None})
+
+    def submit(self, idx: list[int], setup_of, *, one_per_task: bool = False) -> None:
         """Accumulation tasks for bags ``idx`` (in groups' order), batched by :func:`batch_plan`."""
         by_group: dict[tuple[str, str], list[int]] = {}
         for i in idx:
-            by_group.setdefault(group_of[i], []).append(i)
+            by_group.setdefault(self.group_of[i], []).append(i)
         keys = list(by_group)
-        for task in batch_plan([len(by_group[g]) for g in keys], n_workers=n_threads, batch=batch):
+        batch = 1 if one_per_task else self.s.batch
+        for task in batch_plan([len(by_group[g]) for g in keys], n_workers=self.n_threads, batch=batch):
             spec, chunk = [], []
             for k, r, whole in task:
                 g = keys[k]
                 these = [by_group[g][j] for j in r]
-                whole = whole and set(these) == set(members[g])    # all the group's bags: set-up fixed there
+                whole = whole and set(these) == set(self.members[g])    # all the group's bags: set-up fixed there
                 for i in these:
-                    rows[i]["passes"] += 1
-                    used[i] = setup_of(i)
-                spec.append((g, used[these[0]], [(i, paths[i]) for i in these], whole))
+                    self.rows[i]["passes"] += 1
+                    self.used[i] = setup_of(i)
+                spec.append((g, self.used[these[0]], [(i, self.paths[i]) for i in these], whole))
                 chunk += these
-            fut = client.submit(compute_batch, spec, s.cache_dir, pure=False)
-            st = client.submit(batch_status, fut, pure=False)
-            status[st] = chunk
+            fut = self.client.submit(compute_batch, spec, self.s.cache_dir, pure=False)
+            st = self.client.submit(batch_status, fut, pure=False)
+            self.status[st] = chunk
             for i in chunk:
-                holder[i] = fut       # the task holding this bag's partial of its latest pass
-            ac.add(st)
+                self.holder[i] = fut       # the task holding this bag's partial of its latest pass
+            self.ac.add(st)
 
-    for g, idx in members.items():
-        waiting[g] = set(idx)
-    submit([i for idx in members.values() for i in idx], lambda i: bases[group_of[i]])
-
-    def group_ready(g) -> None:
-        ok = [i for i in members[g] if rows[i]["status"] == "ok"]
-        if g not in final_setup:            # first pass done: fix the group's set-up
-            setup, left = group_setup(bases[g], {i: probes[i] for i in ok}, label=f"{g[0]}/{g[1]}")
-            for i, why in left.items():
-                rows[i].update(status="failed", reason=f"{paths[i]}: {why}")
-            final_setup[g] = setup
-            digests[g] = None if setup is None else settings_hash(setup.cache_settings())
-            redo = [i for i in ok if i not in left and probes[i]["setup_hash"] != digests[g]]
-            if redo:
-                bar.total += len(redo)
-                waiting[g] = set(redo)
-                submit(redo, lambda i: setup)
+    def take(self, fut) -> None:
+        """A batch's statuses into the bags' rows; a group whose bags are all in is made ready. A batch whose task
+        died (a worker lost) is run again one bag per task."""
+        chunk = self.status.pop(fut)
+        try:
+            results = fut.result()
+        except Exception:  # noqa: BLE001 - the task died (worker lost): each bag again on its own
+            if len(chunk) > 1:
+                for i in chunk:
+                    self.rows[i]["passes"] -= 1
+                self.submit(chunk, lambda i: self.used[i], one_per_task=True)
                 return
-        ok = [i for i in members[g] if rows[i]["status"] == "ok"]
-        for i in ok:
-            if probes[i]["setup_hash"] != digests[g]:     # never expected: say so rather than merge it wrongly
-                rows[i].update(status="failed", reason=f"{paths[i]}: accumulated with another set-up than its "
-                                                       "group's (internal error; please report)")
-        ok = [i for i in ok if rows[i]["status"] == "ok"]
-        parts = list(dict.fromkeys(holder[i] for i in ok))     # the batches holding this group's partials
-        for i in members[g]:
-            holder.pop(i, None)
-        if not parts:
+            results = [(chunk[0], _result(fut, lambda why: BagStatus.failed(f"{self.paths[chunk[0]]}: {why}")))]
+        self.bar.advance(len(chunk))
+        for i, r in results:
+            if r.ok:
+                self.rows[i].update(status="ok", reason="", cached=r.cached, seconds=r.seconds, key=r.key,
+                                    hash=r.hash)
+                self.probes[i] = {**r.probe, "setup_hash": r.setup_hash}
+            else:
+                self.rows[i].update(status="failed", reason=r.reason)
+            g = self.group_of[i]
+            self.waiting[g].discard(i)
+            if not self.waiting[g]:
+                self.group_ready(g)
+
+    def _ok(self, idx) -> list[int]:
+        return [i for i in idx if self.rows[i]["status"] == "ok"]
+
+    def group_ready(self, g) -> None:
+        """All of group ``g``'s bags are in: on the first pass fix its set-up (and accumulate again the bags whose
+        set-up differs), else merge its partials and solve it."""
+        if g not in self.final_setup and self._fix_setup(g):
             return
-        part = (*g, digests[g])
+        ok = self._ok(self.members[g])
+        for i in ok:
+            if self.probes[i]["setup_hash"] != self.digests[g]:   # never expected: say so rather than merge wrongly
+                self.rows[i].update(status="failed", reason=f"{self.paths[i]}: accumulated with another set-up "
+                                                            "than its group's (internal error; please report)")
+        ok = self._ok(ok)
+        parts = list(dict.fromkeys(self.holder[i] for i in ok))     # the batches holding this group's partials
+        for i in self.members[g]:
+            self.holder.pop(i, None)
+        if parts:
+            self._solve(g, parts, ok)
+
+    def _fix_setup(self, g) -> bool:
+        """Fix group ``g``'s set-up from its bags' probes (:func:`group_setup`); True when bags are accumulated
+        again with it (the group is then ready again when they are in)."""
+        ok = self._ok(self.members[g])
+        setup, left = group_setup(self.bases[g], {i: self.probes[i] for i in ok}, label=f"{g[0]}/{g[1]}")
+        for i, why in left.items():
+            self.rows[i].update(status="failed", reason=f"{self.paths[i]}: {why}")
+        self.final_setup[g] = setup
+        self.digests[g] = None if setup is None else settings_hash(setup.cache_settings())
+        redo = [i for i in ok if i not in left and self.probes[i]["setup_hash"] != self.digests[g]]
+        if not redo:
+            return False
+        self.bar.total += len(redo)
+        self.waiting[g] = set(redo)
+        self.submit(redo, lambda i: setup)
+        return True
+
+    def _solve(self, g, parts: list, ok: list[int]) -> None:
+        """Tree-merge group ``g``'s partials (held by the tasks ``parts``) and solve it; its loop and
+        characterization on the records of its usable bags ``ok`` when asked."""
+        s, client = self.s, self.client
+        part = (*g, self.digests[g])
         for level in reduction_plan(len(parts), fanout=s.fanout):
             parts = [parts[ix[0]] if len(ix) == 1 else
                      client.submit(merge_outcomes, *[parts[j] for j in ix], part=part, pure=False) for ix in level]
-        m2 = entries[members[g][0]].m2_kg
-        solves[g] = client.submit(solve_group, parts[0], freqs_hz=tuple(s.freqs_hz), plot_max_hz=s.plot_max_hz,
-                                  m2_kg=m2, part=part, pure=False)
-        ac.add(solves[g])
+        m2 = self.entries[self.members[g][0]].m2_kg
+        self.solves[g] = client.submit(solve_group, parts[0], freqs_hz=tuple(s.freqs_hz), plot_max_hz=s.plot_max_hz,
+                                       m2_kg=m2, part=part, pure=False)
+        self.ac.add(self.solves[g])
+        paths = [self.paths[i] for i in ok]
         if s.loop:
-            loops[g] = client.submit(loop_group, [paths[i] for i in ok], final_setup[g], pure=False)
+            self.loops[g] = client.submit(loop_group, paths, self.final_setup[g], pure=False)
         if s.characterize:
-            chars[g] = client.submit(characterize_group, [paths[i] for i in ok], final_setup[g], m2, pure=False)
-
-    with Progress(float(len(entries) + len(members)), "fleet: bags and groups", enabled=not quiet) as bar:
-        for fut in ac:
-            if fut not in status:
-                bar.advance(1)
-                continue
-            chunk = status.pop(fut)
-            try:
-                results = fut.result()
-            except Exception:  # noqa: BLE001 - the task died (worker lost): each bag again on its own
-                if len(chunk) > 1:
-                    for i in chunk:
-                        rows[i]["passes"] -= 1
-                    submit(chunk, lambda i: used[i], batch=1)
-                    continue
-                r = _result(fut)
-                results = [(chunk[0], {**r, "reason": f"{paths[chunk[0]]}: {r['reason']}"})]
-            bar.advance(len(chunk))
-            for i, r in results:
-                if r["ok"]:
-                    rows[i].update(status="ok", reason="", cached=r["cached"], seconds=r["seconds"], key=r["key"],
-                                   hash=r["hash"])
-                    probes[i] = {**r["probe"], "setup_hash": r["setup_hash"]}
-                else:
-                    rows[i].update(status="failed", reason=r["reason"])
-                g = group_of[i]
-                waiting[g].discard(i)
-                if not waiting[g]:
-                    group_ready(g)
-    groups = _collect(solves, loops, chars, members)
-    del solves, loops, chars, holder, status
-    _health(groups, s.health)
-    return FleetRun(bags=rows, groups=groups, settings=s,
-                    setups={g: st.cache_settings() for g, st in final_setup.items() if st is not None})
+            self.chars[g] = client.submit(characterize_group, paths, self.final_setup[g], m2, pure=False)
 
 
-def _collect(solves: dict, loops: dict, chars: dict, members: dict) -> dict:
+def _collect(solves: dict, loops: dict, chars: dict, members: dict) -> dict[tuple[str, str], GroupResult]:
     """Every group's result in the manifest's order (not completion order), with its loop and characterization;
     a group with no usable bag at all says so."""
-    groups = {g: _result(f) for g, f in solves.items()}
+    groups = {g: _result(f, GroupResult.failed) for g, f in solves.items()}
     for g, f in loops.items():
-        lr = _result(f)
-        groups[g]["loop"] = lr if "verdict" in lr else {"ok": False, "verdict": f"loop not run: {lr['reason']}"}
+        loop = _result(f, lambda why: LoopOutcome(ok=False, verdict=f"loop not run: {why}"))
+        groups[g] = groups[g].with_(loop=loop)
     for g, f in chars.items():
-        cr = _result(f)
-        groups[g]["characterization"] = cr if "text" in cr else {
-            "ok": False, "text": f"characterization not run: {cr['reason']}", "suggested": []}
+        ch = _result(f, lambda why: CharacterizeOutcome(ok=False, text=f"characterization not run: {why}"))
+        groups[g] = groups[g].with_(characterization=ch)
     for g in members:
         if g not in groups:
-            groups[g] = {"ok": False, "reason": "no usable bag", "bags": []}
+            groups[g] = GroupResult.failed("no usable bag")
     return {g: groups[g] for g in members}
 
 
-def _result(fut) -> dict:
-    """A task's result; a task that died (worker lost, bug) becomes a one-line failure, not the fleet's end."""
+def _result(fut, failed):
+    """A task's result; a task that died (worker lost, bug) becomes ``failed(one line)``, not the fleet's end."""
     try:
         return fut.result()
     except Exception as err:  # noqa: BLE001
         first = str(err).splitlines()[0] if str(err) else "no message"
-        return {"ok": False, "reason": f"task failed on the cluster ({type(err).__name__}: {first})", "bags": []}
+        return failed(f"task failed on the cluster ({type(err).__name__}: {first})")
 
 
-def _health(groups: dict, hs: HealthSettings) -> None:
+def _health(groups: dict[tuple[str, str], GroupResult], hs: HealthSettings) -> None:
     """Strut health over SI coefficients when every solved group has its sprung mass, else per body mass."""
-    ok = {g: r for g, r in groups.items() if r["ok"]}
-    si = bool(ok) and all(r.get("m2_kg") is not None for r in ok.values())
+    ok = {g: r for g, r in groups.items() if r.ok}
+    si = bool(ok) and all(r.m2_kg is not None for r in ok.values())
     est, units = {}, {}
     for g, r in ok.items():
-        names = r["names"]["si" if si else "per_mass"]
-        est[g] = {n: Estimate(r["coefficients"][n]["value"], r["coefficients"][n]["se"], len(r["bags"]),
-                              r["duration_s"]) for n in names}
-        units.update({n: r["coefficients"][n]["unit"] for n in names})
+        names = r.names["si" if si else "per_mass"]
+        est[g] = {n: Estimate(r.coefficients[n].value, r.coefficients[n].se, len(r.bags), r.duration_s)
+                  for n in names}
+        units.update({n: r.coefficients[n].unit for n in names})
     for g, h in assess_health(est, settings=hs, units=units).items():
-        groups[g]["health"] = h
+        groups[g] = groups[g].with_(health=h)

@@ -7,9 +7,9 @@ every bag's partial on its own, and returns the small per-bag statuses and
 compact partials (a :meth:`StreamingNifo.state_dict`: the block
 cross-spectra of [a1, a2, g_i..] and a few counters) merged per group, which
 stay on the workers until they are merged, and small per-group results.
-Every function is module-level and picklable. A bag that cannot be used
-gets ``{"ok": False, "reason": one line}`` instead of raising, so one bad
-bag never stops its batch or the fleet.
+Every function is module-level and picklable, and hands on the named, frozen objects of
+:mod:`nifo.fleet.results`. A bag that cannot be used gets a :class:`BagStatus` with ``ok`` False and its one-line
+reason instead of raising, so one bad bag never stops its batch or the fleet.
 
 The per-bag accumulation is the one ``nifo identify`` does per file: the core's engine
 (:mod:`nifo_core.nifo.engine`: the same set-up decision from the bags' probes, the same accumulator, the same
@@ -29,6 +29,8 @@ import numpy as np
 
 from nifo.fleet.cache import (cache_key, content_hash, load_note, load_partial, settings_hash, store_note,
                               store_partial)
+from nifo.fleet.results import (Batch, BagStatus, CharacterizeOutcome, Coefficient, Curves, GroupPartial, GroupResult,
+                                LoopOutcome)
 from nifo.io.loader import detect_format, iter_record_chunks, load_record
 from nifo_core.characterize.automatic import characterize
 from nifo_core.kinds.describing import Term
@@ -287,7 +289,8 @@ def _probe_note(note) -> dict | None:
 
 
 def _group_bags(group: tuple, base: GroupSetup, bags: list[tuple[int, str]], whole: bool, cache_dir: str | None):
-    """Yield (index, status, accumulated StreamingNifo or None) for bags of one group, in their order.
+    """Yield (index, :class:`BagStatus`, accumulated StreamingNifo or None, its set-up or None) for bags of one
+    group, in their order.
 
     As ``nifo identify`` does: every bag is opened first (its first chunk tells its
     rate, length and channels; a rerun reads them from a small note in the cache
@@ -347,36 +350,35 @@ def _group_bags(group: tuple, base: GroupSetup, bags: list[tuple[int, str]], who
             failed.update({i: f"{found[i]['path']}: {why}" for i, why in left.items()})
         for index, path in bags:                                  # 4. accumulate (or read the cache)
             if index in failed:
-                yield index, {"ok": False, "reason": failed[index]}, None
+                yield index, BagStatus.failed(failed[index]), None, None
                 continue
             b = found[index]
             t0 = time.perf_counter()
+            own = bag_setup(setup, b["probe"])
             try:
-                one, st = _partial(b, bag_setup(setup, b["probe"]), cache_dir)
+                one, st = _partial(b, own, cache_dir)
             except Exception as err:  # noqa: BLE001
-                yield index, {"ok": False, "reason": _one_line(err)}, None
+                yield index, BagStatus.failed(_one_line(err)), None, None
                 continue
             finally:
                 if b["opened"] is not None:
                     b["opened"][0].close()
                     b["opened"] = None
-            st["seconds"] = spent[index] + time.perf_counter() - t0     # this run's time for the bag
-            yield index, st, one
+            yield index, replace(st, seconds=spent[index] + time.perf_counter() - t0), one, own   # this run's time
     finally:
         for b in found.values():
             if b["opened"] is not None:
                 b["opened"][0].close()
 
 
-def _partial(b: dict, setup: GroupSetup, cache_dir: str | None):
+def _partial(b: dict, setup: GroupSetup, cache_dir: str | None) -> tuple[StreamingNifo, BagStatus]:
     """(StreamingNifo, status) of one opened or recalled bag with its set-up: from the cache, else accumulated."""
     setup_hash = settings_hash(setup.cache_settings())
     key = cache_key(b["hash"], setup_hash)
-    common = {"ok": True, "hash": b["hash"], "key": key, "probe": b["probe"], "setup_hash": setup_hash,
-              "setup": setup}
+    common = {"ok": True, "hash": b["hash"], "key": key, "probe": b["probe"], "setup_hash": setup_hash}
     hit = load_partial(cache_dir, key)
     if hit is not None:
-        return StreamingNifo.from_state(hit["state"]), {**hit["info"], **common, "cached": True}
+        return StreamingNifo.from_state(hit["state"]), _status(hit["info"], common, cached=True)
     if b["opened"] is not None:
         raw, first = b["opened"]
         one, n = _accumulate(chain([first], raw), b["path"], setup)
@@ -392,10 +394,16 @@ def _partial(b: dict, setup: GroupSetup, cache_dir: str | None):
         store_partial(cache_dir, key, one.state_dict(), info)
     except OSError as err:
         info["cache_note"] = f"not cached: {err}"
-    return one, {**info, **common, "cached": False}
+    return one, _status(info, common, cached=False)
 
 
-def compute_batch(groups: list[tuple[tuple, GroupSetup, list[tuple[int, str]], bool]], cache_dir: str | None) -> dict:
+def _status(info: dict, common: dict, *, cached: bool) -> BagStatus:
+    """A usable bag's status from its cached ``info`` (path, samples, rate) and this run's ``common`` facts."""
+    known = {k: v for k, v in info.items() if k in ("path", "n_samples", "fs_hz", "cache_note")}
+    return BagStatus(**known, **common, cached=cached)
+
+
+def compute_batch(groups: list[tuple[tuple, GroupSetup, list[tuple[int, str]], bool]], cache_dir: str | None) -> Batch:
     """Several bags in one task: per-bag statuses, and the partials merged per group and set-up.
 
     Parameters
@@ -409,73 +417,72 @@ def compute_batch(groups: list[tuple[tuple, GroupSetup, list[tuple[int, str]], b
 
     Returns
     -------
-    dict
-        ``status``: [(index, status)] for the client (a bag that cannot be used has
+    Batch
+        ``status``: ((index, :class:`BagStatus`), ...) for the client (a bag that cannot be used has
         ``ok`` False and its one-line reason; the others go on); ``parts``:
-        {(vehicle, corner, set-up hash): {"ok", "state", "bags"}}: the bags of one
+        {(vehicle, corner, set-up hash): :class:`GroupPartial`}: the bags of one
         group accumulated with one set-up, merged in the order given (as ``nifo
         identify`` merges its files), which stay on the worker until a merge or a
         solve picks them (:func:`pick`).
     """
-    acc: dict[tuple, list] = {}
-    status = []
+    acc: dict[tuple, StreamingNifo] = {}
+    members: dict[tuple, list[int]] = {}     # per part: the positions of its bags in ``done``
+    done: list[list] = []                    # per bag: [index, status, band spectra, set-up, seconds spent here]
     for group, base, bags, whole in groups:
-        own: dict[tuple, list] = {}                  # per set-up: (status, band spectra, set-up) of each bag
-        for index, st, one in _group_bags(tuple(group), base, bags, whole, cache_dir):
-            status.append((index, st))
+        own: dict[tuple, list[int]] = {}     # per set-up: the bags whose own coefficients are solved together
+        for index, st, one, setup in _group_bags(tuple(group), base, bags, whole, cache_dir):
             if one is None:
+                done.append([index, st, None, None, 0.0])
                 continue
-            part = (*group, st["setup_hash"])
+            part = (*group, st.setup_hash)
             t0 = time.perf_counter()
-            setup = st.pop("setup")                  # the set-up this bag was accumulated with
             try:
-                own.setdefault(part, []).append((st, _band_spectra(one, setup), setup))
+                spec = _band_spectra(one, setup)
             except NifoError:
-                own.setdefault(part, []).append((st, None, setup))
-            st["seconds"] += time.perf_counter() - t0
-            if part in acc:
-                acc[part][0] = acc[part][0].merge(one)
-                acc[part][1].append(st)
-            else:
-                acc[part] = [one, [st]]
-        for items in own.values():                   # every bag's own coefficients, solved together
+                spec = None
+            own.setdefault(part, []).append(len(done))
+            members.setdefault(part, []).append(len(done))
+            done.append([index, st, spec, setup, time.perf_counter() - t0])
+            acc[part] = acc[part].merge(one) if part in acc else one
+        for ks in own.values():              # every bag's own coefficients, solved together
             t0 = time.perf_counter()
-            specs = [sp for _, sp, _ in items if sp is not None]
-            coefs = iter(bag_coefficients(specs, items[0][2]))
-            nan = {n: float("nan") for n, _, _ in coefficient_specs(items[0][2].terms)}
-            share = (time.perf_counter() - t0) / len(items)
-            for st, sp, _ in items:
-                st["coefs"] = nan if sp is None else next(coefs)
-                st["seconds"] += share
-    return {"status": status,
-            "parts": {p: {"ok": True, "state": a.state_dict(), "bags": bags} for p, (a, bags) in acc.items()}}
+            setup = done[ks[0]][3]
+            coefs = iter(bag_coefficients([done[k][2] for k in ks if done[k][2] is not None], setup))
+            nan = {n: float("nan") for n, _, _ in coefficient_specs(setup.terms)}
+            share = (time.perf_counter() - t0) / len(ks)
+            for k in ks:
+                st, spec = done[k][1], done[k][2]
+                done[k][1] = replace(st, coefs=nan if spec is None else next(coefs),
+                                     seconds=st.seconds + done[k][4] + share)
+    return Batch(status=tuple((d[0], d[1]) for d in done),
+                 parts={p: GroupPartial(ok=True, state=a.state_dict(), bags=tuple(done[k][1] for k in members[p]))
+                        for p, a in acc.items()})
 
 
-def batch_status(batch: dict) -> list[tuple[int, dict]]:
+def batch_status(batch: Batch) -> tuple[tuple[int, BagStatus], ...]:
     """The small part of a batch's outcome the client needs (the partials stay on the worker)."""
-    return batch["status"]
+    return batch.status
 
 
-def pick(x: dict, part: tuple | None) -> dict:
-    """The outcome of group and set-up ``part`` from a batch, or ``x`` itself when it is an outcome already."""
-    if "parts" not in x:
+def pick(x: Batch | GroupPartial, part: tuple | None) -> GroupPartial:
+    """The partial of group and set-up ``part`` from a batch, or ``x`` itself when it is a partial already."""
+    if not isinstance(x, Batch):
         return x
-    return x["parts"].get(part) or {"ok": False, "reason": "no usable bag", "reasons": []}
+    return x.parts.get(part) or GroupPartial.none_usable()
 
 
-def merge_outcomes(*inputs: dict, part: tuple | None = None) -> dict:
+def merge_outcomes(*inputs: Batch | GroupPartial, part: tuple | None = None) -> GroupPartial:
     """Merge the usable partials of one group (``part`` of each batch given; failed bags are reported by status)."""
     outcomes = [pick(x, part) for x in inputs]
-    ok = [o for o in outcomes if o["ok"]]
+    ok = [o for o in outcomes if o.ok]
     if not ok:
-        reasons = sorted({r for o in outcomes for r in o.get("reasons", [o.get("reason", "")])})
-        return {"ok": False, "reason": "no usable bag", "reasons": reasons}
+        return GroupPartial.none_usable(sorted({r for o in outcomes for r in o.reasons}))
     if len(ok) == 1:
         return ok[0]
-    acc = StreamingNifo.from_state(ok[0]["state"])
+    acc = StreamingNifo.from_state(ok[0].state)
     for o in ok[1:]:
-        acc = acc.merge(StreamingNifo.from_state(o["state"]))
-    return {"ok": True, "state": acc.state_dict(), "bags": [b for o in ok for b in o["bags"]]}
+        acc = acc.merge(StreamingNifo.from_state(o.state))
+    return GroupPartial(ok=True, state=acc.state_dict(), bags=tuple(b for o in ok for b in o.bags))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -499,55 +506,51 @@ def _t21_at(res, freqs_hz) -> dict:
     return out
 
 
-def solve_group(outcome: dict, *, freqs_hz: tuple[float, ...], plot_max_hz: float,
-                m2_kg: float | None = None, part: tuple | None = None) -> dict:
+def solve_group(outcome: Batch | GroupPartial, *, freqs_hz: tuple[float, ...], plot_max_hz: float,
+                m2_kg: float | None = None, part: tuple | None = None) -> GroupResult:
     """NIFO on a group's merged partial: coefficients with bounds, T21 at ``freqs_hz``, curves for the page.
 
     Coefficients per body mass always; in SI too when the sprung mass ``m2_kg`` [kg] is given.
     """
     outcome = pick(outcome, part)
-    if not outcome["ok"]:
-        return {"ok": False, "reason": outcome["reason"], "bags": []}
-    bags = outcome["bags"]
+    if not outcome.ok:
+        return GroupResult.failed(outcome.reason)
+    bags = outcome.bags
     try:
-        acc = StreamingNifo.from_state(outcome["state"])
+        acc = StreamingNifo.from_state(outcome.state)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             res = acc.result()
         res.check_usable(acc.cond_limit)
         summary, warn = summarize(res, acc.cond_limit)
     except Exception as err:  # noqa: BLE001 - a group that cannot be solved is reported, not fatal
-        return {"ok": False, "reason": _one_line(err), "bags": bags}
+        return GroupResult.failed(_one_line(err), bags)
     coefs = _coefficients(res)
     specs = coefficient_specs(res.terms)
-    names = {"per_mass": [n for n, _, _ in specs], "si": []}
+    names = {"per_mass": tuple(n for n, _, _ in specs), "si": ()}
     values = {}
     for name, unit, _ in specs:
-        per_bag = [b["coefs"].get(name, np.nan) for b in bags]
+        per_bag = [b.coefs.get(name, np.nan) for b in bags]
         se = standard_error(per_bag)
         half = interval_halfwidth(se, int(np.isfinite(per_bag).sum()))
-        values[name] = {"value": coefs[name], "se": se, "lo": coefs[name] - half, "hi": coefs[name] + half,
-                        "unit": unit}
+        values[name] = Coefficient(coefs[name], se, coefs[name] - half, coefs[name] + half, unit)
     if m2_kg is not None:
         si = coefficient_specs(res.terms, si=True)
         for (name, unit, _), (pm, _, _) in zip(si, specs):
-            v = values[pm]
-            values[name] = {"value": v["value"] * m2_kg, "se": v["se"] * m2_kg, "lo": v["lo"] * m2_kg,
-                            "hi": v["hi"] * m2_kg, "unit": unit}
+            values[name] = values[pm].scaled(m2_kg, unit)
         specs = specs + si
-        names["si"] = [n for n, _, _ in si]
+        names["si"] = tuple(n for n, _, _ in si)
     keep = (res.freq_hz >= 1.5 * res.band.f_lo_hz) & (res.freq_hz <= plot_max_hz)   # integrator exact from 1.5·f_lo
-    lo_b, hi_b = res.bounds("t21")
-    return {"ok": True, "bags": bags, "coefficients": values, "specs": specs, "names": names, "t21": _t21_at(res, freqs_hz),
-            "summary": summary, "warnings": warn, "n_avg": int(res.n_avg), "fs_hz": res.fs_hz,
-            "duration_s": float(sum(b["n_samples"] for b in bags) / res.fs_hz),
-            "curves": {"freq_hz": res.freq_hz[keep], "t21": res.static.t21[keep],
-                       "t21_eps": res.static.random_error[keep], "h1": res.t21_h1[keep],
-                       "coherence": res.coherence_h1[keep]},
-            "analysis_band_hz": list(res.analysis_band_hz), "m2_kg": m2_kg}
+    return GroupResult(ok=True, bags=bags, coefficients=values, specs=tuple(specs), names=names,
+                       t21=_t21_at(res, freqs_hz), summary=summary, warnings=tuple(warn), n_avg=int(res.n_avg),
+                       fs_hz=res.fs_hz, duration_s=float(sum(b.n_samples for b in bags) / res.fs_hz),
+                       curves=Curves(freq_hz=res.freq_hz[keep], t21=res.static.t21[keep],
+                                     t21_eps=res.static.random_error[keep], h1=res.t21_h1[keep],
+                                     coherence=res.coherence_h1[keep]),
+                       analysis_band_hz=tuple(res.analysis_band_hz), m2_kg=m2_kg)
 
 
-def loop_group(paths: list[str], setup: GroupSetup) -> dict:
+def loop_group(paths: list[str], setup: GroupSetup) -> LoopOutcome:
     """``nifo loop``'s residual loop on a group's records (loaded on this worker): its verdict."""
     try:
         recs = [load_record(p, **setup.opts) for p in paths]
@@ -555,9 +558,9 @@ def loop_group(paths: list[str], setup: GroupSetup) -> dict:
         res = close_loop(recs, list(setup.terms), band=band,
                          settings=LoopSettings(spectral=setup.spectral, analysis_band_hz=setup.analysis_band_hz))
     except Exception as err:  # noqa: BLE001
-        return {"ok": False, "verdict": f"loop not run: {_one_line(err)}", "added": []}
-    return {"ok": True, "verdict": res.verdict, "added": [c.term.label for c in res.added],
-            "nothing_missing": res.nothing_missing, **_loop_scores(res)}
+        return LoopOutcome(ok=False, verdict=f"loop not run: {_one_line(err)}")
+    return LoopOutcome(ok=True, verdict=res.verdict, added=tuple(c.term.label for c in res.added),
+                       nothing_missing=res.nothing_missing, scores=_loop_scores(res))
 
 
 #: the loop's held-out scores a group reports: (key, when, the Errors attribute)
@@ -572,14 +575,14 @@ def _loop_scores(res) -> dict:
     return {k: getattr(res.initial if when == "before" else res.final, attr) for k, when, attr in _SCORES}
 
 
-def characterize_group(paths: list[str], setup: GroupSetup, m2_kg: float | None = None) -> dict:
+def characterize_group(paths: list[str], setup: GroupSetup, m2_kg: float | None = None) -> CharacterizeOutcome:
     """``nifo characterize``'s restoring-force ranking on a group's records (loaded on this worker)."""
     try:
         recs = [load_record(p, **setup.opts) for p in paths]
         band = setup.band if setup.band_from_model else None
         ch = characterize(recs, band=band, m2_kg=m2_kg)
     except Exception as err:  # noqa: BLE001
-        return {"ok": False, "text": f"characterization not run: {_one_line(err)}", "suggested": []}
-    labels = [t.label for t in ch.suggested_terms]
+        return CharacterizeOutcome(ok=False, text=f"characterization not run: {_one_line(err)}")
+    labels = tuple(t.label for t in ch.suggested_terms)
     text = "nothing nonlinear found" if ch.nothing_found else "suggested: " + ", ".join(labels)
-    return {"ok": True, "text": text, "suggested": labels}
+    return CharacterizeOutcome(ok=True, text=text, suggested=labels)

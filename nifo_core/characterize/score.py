@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -14,7 +15,7 @@ from ..kinds.describing import Term
 from ..signal.least_squares import lstsq
 from ..signal.uncertainty import effective_samples
 
-__all__ = ["score_candidate", "lstsq", "base_fit", "detection_limit", "smallest_visible"]
+__all__ = ["score_candidate", "lstsq", "base_fit", "BaseFit", "detection_limit", "smallest_visible"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -166,19 +167,28 @@ def _relative(term: Term, data: RegressionData) -> float | None:
     return None if peak is None else float(term.params[kp]) / peak
 
 
-def base_fit(data: RegressionData, base: list[np.ndarray]) -> tuple[np.ndarray, float, float]:
-    """The fit [z, ż, base] every :func:`detection_limit` beside ``base`` is measured against: (orthonormal
-    basis of its columns, its residual sum of squares, its degrees of freedom N_eff - q - 1). Computed once
+@dataclass(frozen=True)
+class BaseFit:
+    """The fit [z, ż, base] a detection limit is measured against: an orthonormal ``basis`` of its columns, its
+    residual sum of squares ``rss`` and its degrees of freedom ``dof`` (N_eff - q - 1)."""
+
+    basis: np.ndarray
+    rss: float
+    dof: float
+
+
+def base_fit(data: RegressionData, base: list[np.ndarray]) -> BaseFit:
+    """The :class:`BaseFit` every :func:`detection_limit` beside ``base`` is measured against. Computed once
     for all the kinds a note covers."""
     a0 = np.column_stack([data.x, *base]) if base else data.x
     res = data.y - a0 @ lstsq(a0, data.y)
     q, _ = np.linalg.qr(a0)
     dof = max(_n_eff(res, data.rec, [rf.fs_hz for rf in data.rfs]) - a0.shape[1] - 1, 1.0)
-    return q, float(res @ res), dof
+    return BaseFit(basis=q, rss=float(res @ res), dof=dof)
 
 
 def detection_limit(data: RegressionData, base: list[np.ndarray], term: Term, *, thresholds: Thresholds,
-                    n_grid: int, fit: tuple[np.ndarray, float, float] | None = None) -> tuple[float, float]:
+                    n_grid: int, fit: BaseFit | None = None) -> tuple[float, float]:
     """Smallest coefficient θ [per kg] of ``term`` that these data would have shown beside ``base``, and its peak g.
 
     Adding θ·g to the truth lowers the residual sum of squares of the fit [z, ż, base] by
@@ -193,7 +203,8 @@ def detection_limit(data: RegressionData, base: list[np.ndarray], term: Term, *,
     is the peak force per kg of M2 of the smallest visible effect); θ_min is inf when g lies in
     the span of the other columns.
     """
-    q, rss, dof = base_fit(data, base) if fit is None else fit
+    fit = base_fit(data, base) if fit is None else fit
+    q, rss, dof = fit.basis, fit.rss, fit.dof
     g = data.regressor(term)
     gp = g - q @ (q.T @ g)
     info = float(gp @ gp)

@@ -14,7 +14,7 @@ from ..kinds.describing import Term
 from .ambiguity import T_DISTINCT, Comparison
 from .results import RETUNE_FACTOR, Errors, LoopSettings
 
-__all__ = ["heldout_failures", "prediction_failures", "one_of_kind_alternatives", "Alternative",
+__all__ = ["heldout_failures", "prediction_failures", "one_of_kind_alternatives", "Alternative", "Judgement",
            "judge_alternatives", "RETUNE_FACTOR", "whole_signal_failures", "WHOLE_RISE"]
 
 #: a term may not raise the held-out whole-signal NMSE by more than this fraction (relative); a smaller rise is
@@ -179,13 +179,22 @@ def _same_feature(present: Term, candidate: Term) -> bool:
     return a > 0 and b > 0 and 1 / RETUNE_FACTOR <= b / a <= RETUNE_FACTOR
 
 
+@dataclass(frozen=True)
+class Judgement:
+    """:func:`judge_alternatives`' answer: why the candidate is not added (``failed``: empty when it is), the
+    alternatives the data cannot tell from it (``ties``), and the alternatives taken instead of it (``instead``)."""
+
+    failed: tuple[str, ...]
+    ties: tuple[Alternative, ...]
+    instead: tuple[Alternative, ...]
+
+
 def judge_alternatives(terms: Sequence[Term], candidate: Term, alternatives: Sequence[Alternative],
                        s: LoopSettings, *, candidate_keeps: bool = True
-                       ) -> tuple[list[str], list[Alternative], list[Alternative]]:
-    """Whether one term of a kind already present does as well as adding ``candidate``.
-
-    Returns (why the candidate is not added, the alternatives the data cannot tell from it, the alternatives taken
-    instead of it). An alternative that predicts the held-out parts better
+                       ) -> Judgement:
+    """Whether one term of a kind already present does as well as adding ``candidate`` (:class:`Judgement`: why
+    the candidate is not added, the alternatives the data cannot tell from it, the alternatives taken instead of
+    it). An alternative that predicts the held-out parts better
     (:meth:`~nifo_core.loop.ambiguity.Comparison.better`, beyond the scatter) is taken instead. The candidate must
     predict better than each alternative, beyond the scatter and by ``min_prediction_gain`` (one term more);
     otherwise the data cannot tell them apart: an ambiguity, resolved towards the declared physics. The
@@ -225,4 +234,4 @@ def judge_alternatives(terms: Sequence[Term], candidate: Term, alternatives: Seq
                 failed.append(f"{what}: {fig}, as well (these data cannot tell them apart: it must be "
                               f"{100 * s.min_prediction_gain:g} % better beyond the scatter){changes} — "
                               f"{present.label} re-placed rather than a term added")
-    return failed, ties, instead
+    return Judgement(failed=tuple(failed), ties=tuple(ties), instead=tuple(instead))

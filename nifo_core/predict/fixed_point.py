@@ -19,6 +19,7 @@ the time-domain engine (:mod:`nifo_core.predict.timesim`) is the one that runs.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -27,7 +28,17 @@ import scipy.fft
 from ..kinds.describing import Term, play_operator
 from ..kinds.strut_forces import lipschitz
 
-__all__ = ["contraction_bound", "fixed_point_solve"]
+__all__ = ["contraction_bound", "fixed_point_solve", "FixedPoint"]
+
+
+@dataclass(frozen=True)
+class FixedPoint:
+    """The Picard iteration's answer: the relative motion's spectrum ``z_spec`` [m·s on the FFT lines], the
+    ``iterations`` taken and the ``change`` of the last one (RMS of the update over RMS of z, inside the record)."""
+
+    z_spec: np.ndarray
+    iterations: int
+    change: float
 
 
 def contraction_bound(terms: Sequence[Term], bz: np.ndarray, freq_hz: np.ndarray) -> float:
@@ -56,8 +67,9 @@ def _evaluate(terms: Sequence[Term], z: np.ndarray, zdot: np.ndarray) -> np.ndar
 
 
 def fixed_point_solve(terms: Sequence[Term], hz: np.ndarray, bz: np.ndarray, v_spec: np.ndarray, nfft: int,
-                      fs_hz: float, sl: slice, *, tol: float, max_iter: int) -> tuple[np.ndarray, int, float]:
-    """Picard iteration Z ← Hz·V + Σ Bz_i·G_i(z) on the FFT lines; returns (Z, iterations, last change).
+                      fs_hz: float, sl: slice, *, tol: float, max_iter: int) -> FixedPoint:
+    """Picard iteration Z ← Hz·V + Σ Bz_i·G_i(z) on the FFT lines: :class:`FixedPoint` (Z, iterations, last
+    change).
 
     ``sl`` selects the record inside the padding (the change is measured there).
     Call only where :func:`contraction_bound` < 1 (then it converges geometrically).
@@ -77,4 +89,4 @@ def fixed_point_solve(terms: Sequence[Term], hz: np.ndarray, bz: np.ndarray, v_s
             z = zn
             if change < tol:
                 break
-    return Z, it, change
+    return FixedPoint(z_spec=Z, iterations=it, change=change)

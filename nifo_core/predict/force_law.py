@@ -144,7 +144,7 @@ def force_law_bounds(model: IdentifiedModel, x, variable: Variable, *, scale: fl
     space = parameter_space(model)
     if space is None:
         return None
-    to_model, theta, cov = space
+    to_model, theta, cov = space.to_model, space.theta, space.cov
 
     def totals(th: np.ndarray) -> np.ndarray:
         return np.array([c.total for c in characteristic(strut_law(to_model(th)), x, variable, scale=scale)])

@@ -379,8 +379,8 @@ def _predict_frequency(model, a1, force, fs_hz, hz, bz, nfft, rho, method, tol, 
     f = np.fft.rfftfreq(nfft, 1.0 / fs_hz)
     w = 2 * np.pi * f
     sl = slice(pad, pad + n)
-    Z, it, change = fixed_point_solve(model.terms, hz, bz, scipy.fft.rfft(x), nfft, fs_hz, sl, tol=tol,
-                                      max_iter=max_iter)
+    solved = fixed_point_solve(model.terms, hz, bz, scipy.fft.rfft(x), nfft, fs_hz, sl, tol=tol, max_iter=max_iter)
+    Z, it, change = solved.z_spec, solved.iterations, solved.change
     a1p = np.zeros(nfft)
     if a1 is not None:
         a1p[pad:pad + n] = a1

@@ -82,7 +82,7 @@ def prediction_spread(model: IdentifiedModel, simulate: Callable[[IdentifiedMode
     if space is None:
         return PredictionSpread([], [], 0, "the model carries no parameter covariance (refine it: "
                                            "nifo identify --refine)")
-    to_model, x, cov = space
+    to_model, x, cov = space.to_model, space.theta, space.cov
     s = _sqrt_cov(cov)
     points = [(k, sign) for k in range(s.shape[1]) for sign in (1.0, -1.0)]
 

@@ -81,8 +81,8 @@ from .prediction_error import band_spectra
 from ..signal.parallel import batch_map, thread_map
 from ..signal.record import Record
 
-__all__ = ["Refinement", "refine_model", "refine_jointly", "model_nmse", "parameter_space", "start_up_samples",
-           "prediction_residual", "prediction_residuals", "moved_refinement"]
+__all__ = ["Refinement", "refine_model", "refine_jointly", "model_nmse", "parameter_space", "ParameterSpace",
+           "start_up_samples", "prediction_residual", "prediction_residuals", "moved_refinement"]
 
 #: relative error a diverged simulation counts as (per record; 1 = predicting zero)
 _DIVERGED = 10.0
@@ -633,18 +633,36 @@ def _stored_space(model: IdentifiedModel) -> tuple[_Space, np.ndarray] | None:
     return sp, cov
 
 
-def parameter_space(model: IdentifiedModel) -> tuple[Callable[[np.ndarray], IdentifiedModel], np.ndarray,
-                                                        np.ndarray] | None:
-    """(θ' → model, θ'* of ``model`` itself, cov(θ')) from a refined model's stored covariance, or None.
+@dataclass(frozen=True)
+class ParameterSpace:
+    """A refined model's parameters θ' (relative coefficients and log factors, the covariance's own coordinates).
+
+    Parameters
+    ----------
+    to_model : callable θ' → IdentifiedModel
+        The model at θ'; ``to_model(theta)`` is the refined model itself.
+    theta : ndarray, shape (p,)
+        θ'* of the refined model.
+    cov : ndarray, shape (p, p)
+        cov(θ') stored with the refinement.
+    """
+
+    to_model: Callable[[np.ndarray], IdentifiedModel]
+    theta: np.ndarray
+    cov: np.ndarray
+
+
+def parameter_space(model: IdentifiedModel) -> ParameterSpace | None:
+    """The :class:`ParameterSpace` of a refined model's stored covariance, or None.
 
     For propagating the refinement's parameter uncertainty to predictions
-    (:mod:`nifo_core.predict.prediction_bounds`): ``to_model(theta_star)`` is ``model``.
+    (:mod:`nifo_core.predict.prediction_bounds`): ``space.to_model(space.theta)`` is ``model``.
     """
     got = _stored_space(model)
     if got is None:
         return None
     sp, cov = got
-    return sp.model, sp.x0(np.asarray(model.c_over_m2, float)), cov
+    return ParameterSpace(to_model=sp.model, theta=sp.x0(np.asarray(model.c_over_m2, float)), cov=cov)
 
 
 def moved_refinement(model: IdentifiedModel, x: np.ndarray, cov: np.ndarray,

@@ -80,7 +80,7 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
         why = "no noise estimate: " + "; ".join(e.text() for e in noise)
     if why is not None:
         return _noted(refinement, f"not bias-corrected ({why})")
-    to_model, x_star, cov = space
+    to_model, x_star, cov = space.to_model, space.theta, space.cov
     info = refinement.model.provenance["refined"]
     band, period = tuple(info["band_hz"]), info.get("period_samples")
     skips = [int(v) for v in info["skip_samples"]]
