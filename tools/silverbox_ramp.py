@@ -39,7 +39,8 @@ def build(data: Path, out: Path, periods: int) -> tuple[Path, int, float]:
     for lv in LEVELS:
         um = scipy.io.loadmat(data / f"SNJP_um_full_FNSI_{lv}.mat")
         ym = scipy.io.loadmat(data / f"SNJP_ym_full_FNSI_{lv}.mat")
-        fs, p = float(np.ravel(um["fs"])[0]), int(np.ravel(um["P"])[0])
+        fs = float(np.ravel(um["fs"])[0])
+        p = np.ravel(um["um"]).size // int(np.ravel(um["P"])[0])      # P: the number of periods
         ys.append(np.ravel(ym["ym"])[-periods * p:])
         us.append(np.ravel(um["um"])[-periods * p:])
     scipy.io.savemat(out / "SNJP_ym_ramp.mat", {"ym": np.concatenate(ys)[:, None]})
