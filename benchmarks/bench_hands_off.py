@@ -212,6 +212,8 @@ def main() -> int:
                          "docs/silverbox.md)")
     ap.add_argument("--skip-f16", action="store_true", help="the Silverbox matrix only (the F-16 part is slow)")
     args = ap.parse_args()
+    if args.skip_f16 and args.img:
+        ap.error("--img draws the F-16 panels too: not with --skip-f16")
     if args.replot:
         figure(json.loads(args.replot.read_text()), (args.img or Path(".")) / "hands_off.png")
         return 0
