@@ -136,13 +136,14 @@ def silverbox(data: Path, tmp: Path, level: int) -> dict:
     cli("predict", *[data / f"SNJP_ym_full_FNSI_{lv}.mat" for lv in SB_LEVELS], "--columns", SB_COLUMNS, "--model",
         out / "loop", "--out", p)
     got = predicted(p)
-    print(f"Silverbox nifo run at {level} mV ({took:.0f} s): added {', '.join(e['label'] for e in loop['effects_added'])}"
-          , flush=True)
+    added = [e["label"] for e in loop["effects_added"]] + [f"{e['term']['kind']} (by output error)"
+                                                           for e in loop.get("effects_added_by_output_error", [])]
+    print(f"Silverbox nifo run at {level} mV ({took:.0f} s): added {', '.join(added)}", flush=True)
     for name, v in got.items():
         print(f"    {name:28} raw RMS error {1e3 * v['rms_model']:.3f} mV (offset {1e3 * v['offset_model']:+.3f} mV) | "
               f"linear {1e3 * v['rms_linear']:.3f} mV; band NMSE {v['model']:.4f} % | linear of the same record "
               f"{v['linear']:.4f} % ({v['linear'] / v['model']:.0f}×)", flush=True)
-    return {"level": level, "exit_code": code, "seconds": took, "added": [e["label"] for e in loop["effects_added"]],
+    return {"level": level, "exit_code": code, "seconds": took, "added": added,
             "refinement": loop.get("refinement"), "predicted": got}
 
 
@@ -209,14 +210,17 @@ def main() -> int:
     ap.add_argument("--silverbox-levels", type=int, nargs="*", default=list(SB_LEVELS),
                     help="identification levels [mV]: nifo run on each, every level predicted (the matrix of "
                          "docs/silverbox.md)")
+    ap.add_argument("--skip-f16", action="store_true", help="the Silverbox matrix only (the F-16 part is slow)")
     args = ap.parse_args()
+    if args.skip_f16 and args.img:
+        ap.error("--img draws the F-16 panels too: not with --skip-f16")
     if args.replot:
         figure(json.loads(args.replot.read_text()), (args.img or Path(".")) / "hands_off.png")
         return 0
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
-        doc = {"f16": f16(args.data / "f16", tmp, args.f16_sets),
-               "f16_level1_alone": f16_level1_alone(args.data / "f16", tmp),
+        doc = {"f16": [] if args.skip_f16 else f16(args.data / "f16", tmp, args.f16_sets),
+               "f16_level1_alone": None if args.skip_f16 else f16_level1_alone(args.data / "f16", tmp),
                "silverbox": [silverbox(args.data / "silverbox_multilevel", tmp, lv) for lv in args.silverbox_levels]}
     if args.json:
         args.json.write_text(json.dumps(doc, indent=1, default=str))

@@ -123,6 +123,11 @@ def test_nifo_run_hands_off_at_150_mv_loops_to_the_cubic_and_predicts_every_othe
                      str(tmp_path / "run" / "loop"), "--out", str(tmp_path / "pred")]) == 0
     loop = json.loads((tmp_path / "run" / "loop" / "loop.json").read_text())
     assert loop["effects_added"] and loop["effects_added"][0]["kind"] == "cubic_stiffness", loop["report"]
+    # below the equation error's reach, a term of ż by output error (measured: a damping knee at 44 V/s; a dry
+    # friction of negative sign predicts within 0.6 % of it, so the kind is not pinned, its variable is)
+    from nifo_core.kinds.describing import KINDS
+    beyond = loop["effects_added_by_output_error"]
+    assert len(beyond) == 1 and KINDS[beyond[0]["term"]["kind"]].variable == "zdot", loop["report"]
     ref = loop["refinement"]
     if ref and ref["kept"]:
         assert ref["heldout_prediction_nmse_after_pct"] <= ref["heldout_prediction_nmse_before_pct"]
@@ -135,7 +140,8 @@ def test_nifo_run_hands_off_at_150_mv_loops_to_the_cubic_and_predicts_every_othe
         assert m["band_nmse"]["percent"] * 10 <= li["band_nmse"]["percent"], r["name"]
         assert m["whole_signal"]["rms_error"] * 3 <= li["whole_signal"]["rms_error"], r["name"]
         # the raw signal, offset included (issue 53): the model carries the circuit's operating point (the force's
-        # mean it was identified about, the output's offset); measured 2026-12-06: 0.67, 1.00, 0.95, 1.04 mV at
-        # 5/20/50/100 mV, offsets 0.39, 0.11, -0.04, 0.001 mV (before: 0.88-1.48 mV, 0.7-1.1 mV of them offset)
-        assert m["whole_signal"]["rms_error"] < 1.25e-3, r["name"]
+        # mean it was identified about, the output's offset), and the damping that rises with the velocity which
+        # the search by output error adds (nifo_core.loop.beyond); measured 2026-12-06: 0.58, 0.50, 0.29, 0.41 mV
+        # at 5/20/50/100 mV (without that search 0.65, 0.98, 0.93, 1.01 mV; before the offsets 0.88-1.48 mV)
+        assert m["whole_signal"]["rms_error"] < 0.75e-3, r["name"]
         assert abs(m["whole_signal"]["offset_error"]) < 0.5e-3, r["name"]

@@ -124,6 +124,7 @@ from .ambiguity import Ambiguity, Comparison, Explanation, compare_errors, separ
 from .gates import (Alternative, heldout_failures, judge_alternatives, one_of_kind_alternatives, prediction_failures,
                     whole_signal_failures)
 from .refine import refine_final
+from .beyond import search_beyond
 from ..signal.record import Record
 from ..characterize.restoring import suggest_band
 
@@ -439,6 +440,7 @@ class _Final:
     fates: tuple[DeclaredTerm, ...]
     verdict: str
     score: float | None
+    beyond: tuple = ()    # BeyondTrial (nifo_core.loop.beyond): the kinds tried by output error
 
 
 def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Mapping | str] = (), *,
@@ -508,7 +510,8 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
                       confounded=confounded, bounds=bounds, undetermined=undetermined, refinement=fin.refinement,
                       linear_heldout_pct=None if pred.linear is None else pred.linear.score, noise=ev.noise,
                       bias_corrected=ev.corrected(terms) is not None,
-                      final_heldout_pct=fin.score, ambiguities=found.ambiguities, declared_terms=fin.fates)
+                      final_heldout_pct=fin.score, ambiguities=found.ambiguities, declared_terms=fin.fates,
+                      beyond=fin.beyond)
 
 
 def _set_up(records: Record | Sequence[Record], declared: Sequence[Term | Mapping | str], m2_kg: float | None,
@@ -855,6 +858,13 @@ def _final_model(u: _Setup, found: _Found, verdict: str, say: Callable[[float, s
                 f.text() for f in changed))
         else:
             model = refined
+    beyond: tuple = ()
+    if model is not None and refinement is not None and refinement.kept and found.rounds:
+        beyond, model = search_beyond(u.ev, pred.held, model, found.rounds[-1].ranked, s, say)
+        added = [b for b in beyond if b.accepted]
+        if added:
+            verdict += (" Added by output error (below the equation error's reach): "
+                        + "; ".join(b.text() for b in added) + ".")
     fates = _fates(u.declared_terms, u.decl_theta, model, m2_kg) if model is not None else tuple(
         DeclaredTerm(d, float(t0), t, float(t1), m2_kg)
         for d, t0, t, t1 in zip(u.declared_terms, u.decl_theta, terms, current.theta_per_kg))
@@ -867,6 +877,8 @@ def _final_model(u: _Setup, found: _Found, verdict: str, say: Callable[[float, s
     final_score = current.prediction_nmse_pct
     if refinement is not None and refinement.kept and refinement.heldout_after_pct is not None:
         final_score = refinement.heldout_after_pct
+    if any(b.accepted for b in beyond):
+        final_score = [b for b in beyond if b.accepted][-1].heldout_after_pct
     if model is not None:   # what the model carries besides its dynamics: offsets, the band it covers, its range
         say(0.99, "the static part and the band the prediction covers")
         held_raw = replace(u.held, records=u.raw)
@@ -876,7 +888,7 @@ def _final_model(u: _Setup, found: _Found, verdict: str, say: Callable[[float, s
     if floor_note:
         verdict = floor_note + " " + verdict.replace(NOTHING_MISSING, "").replace(
             "The declared model lacks nothing the library can name. ", "").strip()
-    return _Final(model, linear, unavailable, refinement, tuple(fates), verdict, final_score)
+    return _Final(model, linear, unavailable, refinement, tuple(fates), verdict, final_score, beyond)
 
 
 def _with_corrected_coefficient(ev: _Evaluator, terms: Sequence[Term], trial: Trial,

@@ -17,7 +17,7 @@ from ..signal.record import Record
 from ..predict.refine import Refinement, refine_model, start_up_samples
 from ..predict.refine_bias import correct_refinement
 
-__all__ = ["refine_final"]
+__all__ = ["refine_final", "refine_parts"]
 
 
 def refine_final(ev: _Evaluator, held: HeldOut, model: IdentifiedModel, linear: IdentifiedModel | None,
@@ -31,7 +31,7 @@ def refine_final(ev: _Evaluator, held: HeldOut, model: IdentifiedModel, linear: 
     the last round's errors of the same terms). Returns the record of it and the model
     the loop keeps: the refined one unless its held-out prediction is worse (or cannot be made).
     """
-    recs = _refine_parts(ev, held)
+    recs = refine_parts(ev, held)
     secs = tuple(float(r.duration_s) for r in recs)
     try:
         ref = _refined(ev, held, model, linear, recs, say)
@@ -46,7 +46,7 @@ def refine_final(ev: _Evaluator, held: HeldOut, model: IdentifiedModel, linear: 
     return out, (ref.model if kept else model)
 
 
-def _refine_parts(ev: _Evaluator, held: HeldOut) -> list[Record]:
+def refine_parts(ev: _Evaluator, held: HeldOut) -> list[Record]:
     """From rest, the fit part of every record, at most ``refine_seconds`` (whole periods of periodic data)."""
     s = ev.settings
     p = held.period_samples

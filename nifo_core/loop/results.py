@@ -522,6 +522,7 @@ class LoopResult:
     bias_corrected: bool = False      # coefficients and bounds with the fit's bias removed (nifo_core.signal.bias_correction)
     ambiguities: tuple = ()           # Ambiguity (nifo_core.loop.ambiguity): explanations the data cannot tell apart
     declared_terms: tuple[DeclaredTerm, ...] = ()   # what became of each declared term
+    beyond: tuple = ()   # BeyondTrial (nifo_core.loop.beyond): the kinds tried by output error after the refinement
 
     def coefficients(self) -> list[dict]:
         """The final model's equation-error coefficients with 95 % random-error bounds (per kg, and × M2).
@@ -586,6 +587,10 @@ class LoopResult:
                 for d in self.coefficients()) + ".")
         if self.refinement is not None:
             lines.append(self.refinement.text())
+        if self.beyond:
+            lines.append("Tried by output error after the refinement (the kinds the last round ranked and did not add; "
+                         "added when it predicts the held-out parts better beyond the scatter of their blocks): "
+                         + "; ".join(b.text() for b in self.beyond) + ".")
         if self.detection_limits:
             lines.append("Could not have been seen in these data (detection limits given the noise, levels, length "
                          "and the model's terms): " + "; ".join(d.text() for d in self.detection_limits) + ".")
@@ -596,7 +601,10 @@ class LoopResult:
         return {"declared_model": [t.to_dict() for t in self.declared],
                 "refined_model": [t.to_dict() for t in self.terms],
                 "effects_added": [_effect_dict(r.added) | {"round": r.index} for r in self.rounds if r.added],
-                "effects_in_final_model": [t.to_dict() for t in self.terms[len(self.declared):]],
+                "effects_in_final_model": [t.to_dict() for t in self.terms[len(self.declared):]]
+                + [b.term.to_dict() for b in self.beyond if b.accepted],
+                "effects_added_by_output_error": [b.to_dict() for b in self.beyond if b.accepted],
+                "tried_by_output_error": [b.to_dict() for b in self.beyond],
                 "effects_unconfirmed": [_effect_dict(t) | {"round": self.rounds[-1].index}
                                         for t in (self.rounds[-1].trials if self.unconfirmed else ()) if t.unconfirmed],
                 "errors_before": self.initial.to_dict(), "errors_after": self.final.to_dict(),
