@@ -36,3 +36,26 @@ def test_a_true_term_characterize_misses_lies_below_the_limit_it_states():
     print(missed)
     assert len(missed) == 1 and "backlash 8e+03 is below its detection limit" in missed[0]
     assert any("could not have been seen" in n and "backlash(" in n for n in ch.notes)
+
+
+def test_a_clearance_beside_a_rebound_damper_is_found_from_the_static_position():
+    # issue 54 (fleet case 56): a damper stiffer in rebound pushes the mean position into compression, the more the
+    # harder the road (here 0.8-3.1 mm at 1-5 mm RMS); a clearance acts about the static position, so measured from
+    # each record's mean it is another function at every level. Measured from the mean, characterize took it for a
+    # one-sided compression stop; with every form of z measured from the static position the balance of the
+    # suggested terms' mean force gives, it names the clearance, at its gap
+    from nifo_core.kinds.describing import Term
+    from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
+
+    strut = (StrutForce(Term("velocity_deadzone", {"knee": 0.03}), -700.0),
+             StrutForce(Term("asymmetric_damping", {"side": "rebound"}), 800.0),
+             StrutForce(Term("clearance", {"gap": 0.003}), 30e3))
+    recs = [simulate(SimConfig(strut=strut, road=RandomRoad(rms_m=r * 1e-3), duration_s=60.0,
+                               noise=SensorNoise(relative=0.02)), rng=4000 + i).record
+            for i, r in enumerate((1.0, 2.0, 3.5, 5.0))]
+    ch = characterize(recs, m2_kg=SimConfig().vehicle.m2)
+    print([c.term.label for c in ch.suggested], ch.notes[0])
+    assert sorted(c.kind for c in ch.suggested) == ["asymmetric_damping", "clearance", "velocity_deadzone"]
+    gap = next(c.term.params["gap"] for c in ch.suggested if c.kind == "clearance")
+    assert abs(gap - 0.003) < 0.1 * 0.003
+    assert ch.notes[0].startswith("every form of z measured from the static position")

@@ -74,7 +74,7 @@ from .data import GridSearch, RegressionData, candidate_grid
 from .result import (DEFAULT_KINDS, Candidate, Characterization, Equivalence, FittedModel,
                      RecordSummary, Thresholds)
 from .score import base_fit, detection_limit, lstsq, score_candidate
-from .static import shifted_offsets, static_bump_stops
+from .static import shifted_offsets, static_bump_stops, static_frame
 from .subsets import best_subsets, subset_rss
 from ..kinds.describing import Term, kind as lookup_kind
 from ..errors import ConfigError, InputError
@@ -125,7 +125,56 @@ def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None
     if masks is not None and len(masks) != len(rfs):
         raise InputError(f"{len(masks)} masks for {len(rfs)} records")
     kinds = _kind_names(kinds)
-    data = RegressionData(rfs, n_groups=n_groups, body_stiffness=body_stiffness, masks=masks)
+
+    def once(frame: tuple[float, ...] | None, progress) -> tuple[Characterization, RegressionData]:
+        data = RegressionData(rfs, n_groups=n_groups, body_stiffness=body_stiffness, masks=masks, frame=frame)
+        return _characterize(data, rfs, m2_kg=m2_kg, kinds=kinds, thresholds=thresholds, grid_points=grid_points,
+                             max_terms=max_terms, body_stiffness=body_stiffness, progress=progress), data
+
+    out, data = once(None, progress)
+    frame = None
+    for _ in range(_FRAME_PASSES):
+        new = _frame_of(out, data)
+        if new is None or (frame is not None and _moved(frame, new) < _FRAME_SETTLED):
+            break
+        frame = new
+        out, data = once(frame, None)
+    if frame is None:
+        return out
+    where = ", ".join(f"{1e3 * -o:+.2f} mm ({rf.source or f'record {i}'})" for i, (o, rf) in enumerate(zip(frame, rfs)))
+    return replace(out, notes=(f"every form of z measured from the static position: the suggested terms' mean "
+                               f"force moves the mean position, which sat {where} from it (rebound positive)",
+                               *out.notes), mean_position_m=tuple(-o for o in frame))
+
+
+#: characterization passes with the forms of z measured from the static position the last pass implies
+_FRAME_PASSES = 3
+#: a mean position this far from the static one, relative to the record's z RMS, moves the frame
+_FRAME_MATERIAL = 0.05
+#: the frame has settled when no record's offset moves by more than this fraction of the largest one
+_FRAME_SETTLED = 0.1
+
+
+def _frame_of(ch: Characterization, data: RegressionData) -> tuple[float, ...] | None:
+    """Where the static position lies in each record given the suggestion made on ``data``
+    (:func:`.static.static_frame`), or None when no record's mean sits more than :data:`_FRAME_MATERIAL` of its
+    z RMS from it."""
+    if not ch.suggested:
+        return None
+    frame = static_frame(data, [c.term for c in ch.suggested], [c.offsets or None for c in ch.suggested])
+    if all(abs(o) <= _FRAME_MATERIAL * float(np.std(rf.z)) for o, rf in zip(frame, data.rfs)):
+        return None
+    return frame
+
+
+def _moved(a: Sequence[float], b: Sequence[float]) -> float:
+    return max(abs(x - y) for x, y in zip(a, b)) / max(max(abs(x) for x in b), 1e-12)
+
+
+def _characterize(data: RegressionData, rfs: Sequence[RestoringForce], *, m2_kg: float | None,
+                  kinds: tuple[str, ...], thresholds: Thresholds, grid_points: int, max_terms: int,
+                  body_stiffness: bool, progress: Callable[[float], None] | None) -> Characterization:
+    """One characterization of ``data`` in its frame (:func:`characterize_restoring`)."""
     search = GridSearch(data, kinds, grid_points, progress)
     n_grid = {k: len(search.grids[k]) for k in kinds}
 

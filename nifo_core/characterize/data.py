@@ -28,8 +28,14 @@ class RegressionData:
     """The regression's rows: every column band-passed once more with the one filter."""
 
     def __init__(self, rfs: Sequence[RestoringForce], *, n_groups: int, body_stiffness: bool,
-                 masks: Sequence[np.ndarray | None] | None = None) -> None:
+                 masks: Sequence[np.ndarray | None] | None = None,
+                 frame: Sequence[float] | None = None) -> None:
         self.rfs = list(rfs)
+        #: one offset [m] per record: every form of z is evaluated on z - offset, z from the static position
+        #: (``offset`` = -m, m the record's mean position from it: :mod:`.static`); None: z from each mean
+        self.frame = None if frame is None else tuple(float(o) for o in frame)
+        if self.frame is not None and len(self.frame) != len(self.rfs):
+            raise ConfigError(f"{len(self.frame)} frame offsets for {len(self.rfs)} records")
         self.n_groups = n_groups
         self.keep: list[np.ndarray] = []
         ys, xs, groups, folds, recs = [], [], [], [], []
@@ -95,7 +101,8 @@ class RegressionData:
 
         ``offsets``: one ``offset`` [m] per record replacing the term's own (a bump stop measured
         from the static position, which sits elsewhere in each record: :mod:`.static`); a kind
-        without an ``offset`` parameter (quadratic stiffness) is evaluated on ``z - offset``.
+        without an ``offset`` parameter (quadratic stiffness) is evaluated on ``z - offset``. Without them a
+        form of z takes :attr:`frame` when the data have one.
         """
         return self.regressors([term], offsets=offsets)[0]
 
@@ -106,10 +113,11 @@ class RegressionData:
         if offsets is not None and len(offsets) != len(self.rfs):
             raise ConfigError(f"{len(offsets)} offsets for {len(self.rfs)} records")
         off = None if offsets is None else tuple(float(o) for o in offsets)
-        keys = [(t.kind, tuple(sorted(t.params.items())), off) for t in terms]
+        offs = [off if off is not None or t.spec.variable != "z" else self.frame for t in terms]
+        keys = [(t.kind, tuple(sorted(t.params.items())), o) for t, o in zip(terms, offs)]
         out: list[np.ndarray | None] = [self._cache.get(k) for k in keys]
         todo = [i for i, got in enumerate(out) if got is None]
-        for i, col in zip(todo, thread_map(lambda i: self._compute(terms[i], off), todo)):
+        for i, col in zip(todo, thread_map(lambda i: self._compute(terms[i], offs[i]), todo)):
             out[i] = col
             if len(self._cache) < 48:
                 self._cache.setdefault(keys[i], col)

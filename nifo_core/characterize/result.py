@@ -253,6 +253,9 @@ class Characterization:
     zdot_range_m_s: float = 0.0
     notes: tuple[str, ...] = ()
     ambiguities: tuple[Equivalence, ...] = ()
+    #: each record's mean position from the static one [m] (rebound positive) when the forms of z were measured
+    #: from the static position (the suggested terms' mean force moves it: :mod:`.static`); None: from the means
+    mean_position_m: tuple[float, ...] | None = None
 
     @property
     def nothing_found(self) -> bool:
@@ -279,7 +282,8 @@ class Characterization:
                 "suggested": [c.to_dict() for c in self.suggested],
                 "ambiguities": [a.to_dict() for a in self.ambiguities],
                 "candidates": [c.to_dict() for c in self.candidates],
-                "records": [r.to_dict() for r in self.records], "notes": list(self.notes)}
+                "records": [r.to_dict() for r in self.records], "notes": list(self.notes),
+                "mean_position_from_static_m": None if self.mean_position_m is None else list(self.mean_position_m)}
 
 
 def describe(c: Candidate) -> str:

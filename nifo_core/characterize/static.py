@@ -39,7 +39,7 @@ from ..kinds.describing import Term
 from ..signal.least_squares import lstsq
 from ..signal.parallel import thread_map
 
-__all__ = ["mean_shift", "static_bump_stops", "shifted_offsets"]
+__all__ = ["mean_shift", "static_bump_stops", "shifted_offsets", "static_frame"]
 
 
 def _threshold_from_static(t: Term) -> bool:
@@ -184,3 +184,22 @@ def static_bump_stops(data: RegressionData, terms: Sequence[Term], *,
         terms[j] = Term(t.kind, {**t.params, key: float(s), "offset": float(off[main])})
         offsets = [off if (i == j or shifted[i]) else o for i, o in enumerate(offsets)]
     return terms, [None if o is None else tuple(float(v) for v in o) for o in offsets]
+
+
+def static_frame(data: RegressionData, terms: Sequence[Term],
+                 offsets: Sequence[Sequence[float] | None]) -> tuple[float, ...]:
+    """One offset -m [m] per record: where the static position lies given ``terms`` (module docstring).
+
+    Any term with a mean force moves the mean position, not only a stop or an even spring: a damper stiffer in
+    rebound than in compression pushes it by -θ·mean g(ż)/k, the more the harder the excitation. A symmetric form
+    of z (a clearance, a cubic) acts about the static position, so measured from the mean it is another function
+    at every level. ``terms`` are fitted with their ``offsets`` (None: the data's own frame), then each record's
+    mean balance is solved with all of them (:func:`mean_shift`; a bump stop's gap counts from the static
+    position).
+    """
+    terms = list(terms)
+    c, _ = _fit(data, terms, list(offsets))
+    nl = len(data.lin)
+    pairs = [(t, float(c[nl + i])) for i, t in enumerate(terms)]
+    return tuple(-mean_shift(rf.z, rf.zdot, float(c[0]), pairs) for rf in data.rfs)
+
