@@ -11,7 +11,7 @@ LIMIT = 100
 KNOWN = {
     "nifo/pipeline/identify.py:run_identify": "the identify step; to split with the one settings path",
     "nifo/pipeline/job.py:_run": "nifo run's steps; to split with the one settings path (resolved once per job)",
-    "nifo_core/characterize/automatic.py:characterize_restoring": "the ranking and the stepwise search share one set "
+    "nifo_core/characterize/automatic.py:_characterize": "the ranking and the stepwise search share one set "
                                                                   "of columns; to split along named results",
     "nifo_core/predict/refine.py:refine_model": "the output-error refinement; to split along named results",
     "nifo_core/predict/timesim_lanes.py:_run_lanes": "one numba loop over lanes: a split costs the inlining",
