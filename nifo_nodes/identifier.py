@@ -153,9 +153,10 @@ def given_fields(p: dict) -> dict:
     lo, hi = integration_edges(p)
     if lo > 0 and hi > 0:
         out["integration_band_hz"] = (lo, hi)
-    if "analysis_band_hz" in p:
-        out["analysis_band_hz"] = tuple(float(x) for x in p["analysis_band_hz"])
-    if "cond_limit" in p:
+    band = tuple(float(x) for x in p.get("analysis_band_hz", (0.0, 0.0)))
+    if any(band):                      # [0, 0]: not given
+        out["analysis_band_hz"] = band
+    if float(p.get("cond_limit", 0.0)) > 0:
         out["cond_limit"] = float(p["cond_limit"])
     return out
 
@@ -207,9 +208,10 @@ PARAMS = {
     "overlap": Param(-1.0, "block overlap fraction; -1: model file, else 0.52", -1.0, 0.99, read_only=True),
     "window": Param("", "spectral window; '': model file, else flattop", read_only=True),
     **INTEGRATION_BAND_PARAMS,
-    "analysis_band_hz": Param(list(DEFAULT_ANALYSIS_BAND_HZ), "[lo, hi] band of the pooled fit, conditioning and summary [Hz]",
-                              read_only=True),
-    "cond_limit": Param(DEFAULT_COND_LIMIT, "scaled cond(G_UU) counted as ill-conditioned [-]", 1.0, 1e300, read_only=True),
+    "analysis_band_hz": Param([0.0, 0.0], "[lo, hi] band of the pooled fit, conditioning and summary [Hz]; "
+                              f"[0, 0]: model file, else {list(DEFAULT_ANALYSIS_BAND_HZ)}", read_only=True),
+    "cond_limit": Param(0.0, f"scaled cond(G_UU) counted as ill-conditioned [-]; 0: model file, else "
+                        f"{DEFAULT_COND_LIMIT:g}", 0.0, 1e300, read_only=True),
     "publish_period_s": Param(2.0, "how often the estimate is published when it changed [s]", 0.01, 3600.0),
     "checkpoint_file": Param("", "checkpoint (.npz) resumed at start-up and written periodically; '': none",
                              read_only=True),

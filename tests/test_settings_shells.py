@@ -150,3 +150,29 @@ def test_the_node_and_the_fleet_build_the_same_set_up_from_the_same_settings(ent
     group = base_setups(entries[:1], analysis, opts={}, chunk_samples=2 ** 16)[entries[0].group]
     fleet = replace(group, band=default_band(600.0), with_tire_patch=False).engine(600.0)
     assert identify_setup(analysis[entries[0].model], group.terms, 600.0) == fleet
+
+
+def test_the_model_files_analysis_band_reaches_the_node_when_its_parameter_is_not_given(
+        node_context, tmp_path):
+    # before, the node's analysis_band_hz parameter defaulted to [2, 30], which counted as given: a model file's band
+    # never reached the live identification, and nothing said so (cond_limit likewise counted as given: now 0 = not)
+    from rclpy.parameter import Parameter
+
+    from nifo_nodes.identifier import IdentifierNode
+
+    (tmp_path / "strut.yaml").write_text(MODEL)
+    node = IdentifierNode(context=node_context,
+                          parameter_overrides=[Parameter("model_file", value=str(tmp_path / "strut.yaml"))])
+    try:
+        st = node._settings
+        assert st.analysis_band_hz == (3.0, 25.0) and st.source_of("analysis_band_hz") == "model file"
+    finally:
+        node.destroy_node()
+    node = IdentifierNode(context=node_context, parameter_overrides=[])    # no model file: the defaults
+    try:
+        from nifo_core.defaults import DEFAULT_ANALYSIS_BAND_HZ, DEFAULT_COND_LIMIT
+
+        assert node._settings.analysis_band_hz == tuple(DEFAULT_ANALYSIS_BAND_HZ)
+        assert node._settings.cond_limit == DEFAULT_COND_LIMIT
+    finally:
+        node.destroy_node()
