@@ -126,19 +126,22 @@ def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None
         raise InputError(f"{len(masks)} masks for {len(rfs)} records")
     kinds = _kind_names(kinds)
 
-    def once(frame: tuple[float, ...] | None, progress) -> tuple[Characterization, RegressionData]:
-        data = RegressionData(rfs, n_groups=n_groups, body_stiffness=body_stiffness, masks=masks, frame=frame)
-        return _characterize(data, rfs, m2_kg=m2_kg, kinds=kinds, thresholds=thresholds, grid_points=grid_points,
-                             max_terms=max_terms, body_stiffness=body_stiffness, progress=progress), data
+    means = RegressionData(rfs, n_groups=n_groups, body_stiffness=body_stiffness, masks=masks)
 
-    out, data = once(None, progress)
+    def once(data: RegressionData, progress) -> Characterization:
+        return _characterize(data, rfs, m2_kg=m2_kg, kinds=kinds, thresholds=thresholds, grid_points=grid_points,
+                             max_terms=max_terms, body_stiffness=body_stiffness, progress=progress)
+
+    data = means
+    out = once(data, progress)
     frame = None
     for _ in range(_FRAME_PASSES):
         new = _frame_of(out, data)
         if new is None or (frame is not None and _moved(frame, new) < _FRAME_SETTLED):
             break
         frame = new
-        out, data = once(frame, None)
+        data = means.in_frame(frame)
+        out = once(data, None)
     if frame is None:
         return out
     where = ", ".join(f"{1e3 * -o:+.2f} mm ({rf.source or f'record {i}'})" for i, (o, rf) in enumerate(zip(frame, rfs)))

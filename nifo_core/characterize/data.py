@@ -9,6 +9,7 @@ a row subsample (one QR of the linear columns).
 
 from __future__ import annotations
 
+import copy
 from typing import Callable, Sequence
 
 import numpy as np
@@ -28,14 +29,11 @@ class RegressionData:
     """The regression's rows: every column band-passed once more with the one filter."""
 
     def __init__(self, rfs: Sequence[RestoringForce], *, n_groups: int, body_stiffness: bool,
-                 masks: Sequence[np.ndarray | None] | None = None,
-                 frame: Sequence[float] | None = None) -> None:
+                 masks: Sequence[np.ndarray | None] | None = None) -> None:
         self.rfs = list(rfs)
         #: one offset [m] per record: every form of z is evaluated on z - offset, z from the static position
         #: (``offset`` = -m, m the record's mean position from it: :mod:`.static`); None: z from each mean
-        self.frame = None if frame is None else tuple(float(o) for o in frame)
-        if self.frame is not None and len(self.frame) != len(self.rfs):
-            raise ConfigError(f"{len(self.frame)} frame offsets for {len(self.rfs)} records")
+        self.frame: tuple[float, ...] | None = None
         self.n_groups = n_groups
         self.keep: list[np.ndarray] = []
         ys, xs, groups, folds, recs = [], [], [], [], []
@@ -121,6 +119,16 @@ class RegressionData:
             out[i] = col
             if len(self._cache) < 48:
                 self._cache.setdefault(keys[i], col)
+        return out
+
+    def in_frame(self, frame: Sequence[float]) -> "RegressionData":
+        """The same rows with every form of z evaluated from the static position (:attr:`frame`); the band-passed
+        force, z and ż are shared, the remembered columns are not."""
+        if len(frame) != len(self.rfs):
+            raise ConfigError(f"{len(frame)} frame offsets for {len(self.rfs)} records")
+        out = copy.copy(self)
+        out.frame = tuple(float(o) for o in frame)
+        out._cache = {}
         return out
 
     def forget(self) -> None:
