@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from scipy.signal import butter, sosfiltfilt
 
-from nifo_core.loop import LoopSettings, close_loop
+from nifo_core.loop import NOTHING_MISSING, LoopSettings, close_loop
 from nifo_core.loop.beyond import searches_beyond
 from nifo_core.signal.integrate import IntegrationBand
 from nifo_core.signal.record import Record
@@ -94,6 +94,9 @@ def test_a_damping_below_the_equation_errors_reach_is_added_by_output_error_and_
         assert rise == pytest.approx(true, abs=0.5 * true), (rise, res.report())
         assert added[0].heldout_after_pct < added[0].heldout_before_pct
         assert res.to_dict()["effects_added_by_output_error"][0]["term"]["kind"] == last.kind
+        # the verdict says what was added and does not also say that nothing is missing
+        assert "Added by output error" in res.verdict and NOTHING_MISSING not in res.verdict
+        assert not res.nothing_missing
     else:
         assert not added, res.report()
         assert [t.kind for t in res.model.terms] == ["cubic_stiffness"]

@@ -903,9 +903,10 @@ def _final_model(u: _Setup, found: _Found, verdict: str, say: Callable[[float, s
     if model is not None and refinement is not None and refinement.kept and found.rounds:
         beyond, model = search_beyond(u.ev, pred.held, model, found.rounds[-1].ranked, s, say)
         added = [b for b in beyond if b.accepted]
-        if added:
-            verdict += (" Added by output error (below the equation error's reach): "
-                        + "; ".join(b.text() for b in added) + ".")
+        if added:   # then something was missing after all: the verdict must not say otherwise
+            verdict = (verdict.replace(NOTHING_MISSING, "The equation error shows nothing more.")
+                       + " Added by output error (below the equation error's reach): "
+                       + "; ".join(b.text() for b in added) + ".")
     fates = _fates(u.declared_terms, u.decl_theta, model, m2_kg) if model is not None else tuple(
         DeclaredTerm(d, float(t0), t, float(t1), m2_kg)
         for d, t0, t, t1 in zip(u.declared_terms, u.decl_theta, terms, current.theta_per_kg))
