@@ -86,6 +86,24 @@ def test_adding_a_term_or_re_placing_a_declared_one_is_decided_by_the_held_out_d
     assert judge_alternatives([KNEE], stage, [_alt(better, keeps=True, term=stage)], S) == Judgement((), (), ())
 
 
+def test_a_re_placed_term_that_predicts_no_better_than_the_model_is_no_rival():
+    """benchmarks/bench_loop.py's records (a hidden friction beside a declared knee): the knee re-placed predicted
+    2.67 % against the model's 1.08 % and the friction's 0.431 %, a tie by the paired t (+1.2, heavy-tailed
+    blocks); the friction was refused for it, the re-placed knee not taken either (worse than the model), and the
+    loop said nothing was missing. A rival must itself predict better than the model without either."""
+    tie = Comparison(0.431, 2.67, 1.2, 100)                  # the candidate against the re-placed knee
+    retuned = Term("velocity_deadzone", {"knee": 0.0257})
+    worse_than_model = Comparison(2.67, 1.08, -3.0, 100)    # the re-placed knee against the model without either
+    alt = Alternative(0, retuned, _errors([retuned], [-2.0], 2.67), tie, True, against_model=worse_than_model)
+    assert not alt.explains
+    assert judge_alternatives([KNEE], Term("coulomb", {"eps": 0.0073}), [alt], S) == Judgement((), (), ())
+    # the same re-placed knee, had it predicted better than the model, is a rival: the tie keeps the declared term
+    helps = Comparison(0.9, 1.08, 3.0, 100)
+    alt = Alternative(0, retuned, _errors([retuned], [-2.0], 0.9), tie, True, against_model=helps)
+    failed, ties, instead = _judged([KNEE], Term("coulomb", {"eps": 0.0073}), [alt], S)
+    assert alt.explains and len(failed) == 1 and len(ties) == 1 and len(instead) == 1
+
+
 def test_a_declared_term_that_changed_its_meaning_says_so():
     same = DeclaredTerm(KNEE, -2.19, Term("velocity_deadzone", {"knee": 0.036}), -2.0, 320.0)
     flipped = DeclaredTerm(KNEE, -2.19, Term("velocity_deadzone", {"knee": 0.227}), 3.5, 320.0)

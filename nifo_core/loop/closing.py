@@ -745,7 +745,8 @@ def _judge(u: _Setup, terms: Sequence[Term], ranked: Sequence[Candidate], twin: 
         alts = []
         for k, a in one_of_kind_alternatives(terms, c.term, [r.term for r in ranked], ev.static):
             e = _errors(ev, pred, [*terms[:k], a, *terms[k + 1:]])
-            alts.append(Alternative(k, a, e, compare_errors(held, after, e), *u.keeps(e)))
+            alts.append(Alternative(k, a, e, compare_errors(held, after, e), *u.keeps(e),
+                                    against_model=compare_errors(held, e, current)))
         judged = judge_alternatives(terms, c.term, alts, s, candidate_keeps=u.keeps(after)[0])
         more, ties, instead = list(judged.failed), list(judged.ties), list(judged.instead)
         failed += more
