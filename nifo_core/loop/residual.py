@@ -237,14 +237,14 @@ class _Evaluator:
         y, x = _design(self.fit_parts, terms, self.static)
         return lstsq(x, y), y, x
 
-    def bounds(self, terms: Sequence[Term], *, level: float = 0.95) -> CoefficientBounds:
+    def bounds(self, terms: Sequence[Term], *, level: float = 0.95, corrected: bool = True) -> CoefficientBounds:
         """θ with bounds: random error (:func:`coefficient_bounds`) and, when the bias is removed
-        (:meth:`corrected`), the corrected θ with what the correction adds to the bound
-        (:meth:`~nifo_core.signal.bias_correction.Correction.half_width`)."""
+        (:meth:`corrected`; ``corrected=False``: not asked), the corrected θ with what the correction adds to the
+        bound (:meth:`~nifo_core.signal.bias_correction.Correction.half_width`)."""
         y, x = _design(self.fit_parts, terms, self.static)
         b = coefficient_bounds(x, y, self.fit_parts[0].rf.fs_hz, level=level,
                                segments=[p.y.size for p in self.fit_parts])
-        cor = self.corrected(terms)
+        cor = self.corrected(terms) if corrected else None
         if cor is None:
             return b
         return replace(b, theta=cor.theta,
