@@ -11,16 +11,9 @@ The remedy is the loop's (:mod:`nifo_core.signal.bias_correction`): synthetic re
 refined model — the measured spindle signal drives it, the estimated noise of each sensor
 (:mod:`nifo_core.signal.noise`) is added to both channels, an antithetic pair — refitted by the same output
 error from that truth; the bias (mean refit − truth) subtracted, twice. Each refit starts at the synthetic
-truth and moves by the bias alone, so one Jacobian (forward differences, as the refinement's) serves all its
-steps: a simplified Gauss-Newton (chord) iteration (:func:`chord_refit`), one simulation per step instead of
-1 + len(θ); its first step is the full one's, and it converges to the same point to first order in the bias.
-The refits of the later step on the same noise draw reuse the first step's Jacobian (issue 58): the synthetic
-truth moved by the bias changes it by that much, which moves the refit's end point at second order. Not across
-draws: the draw's noise in the drive changes the Jacobian at first order (measured on a cubic, 2 % noise, one
-Jacobian for both draws of a pair: the second refit found no step lowering its cost, and the correction fell from
-+19.1 % to +13.2 %; one per draw: +19.4 %, seeds 1 and 2 of ``tests/test_prediction_bounds.py``, 0.59 → 0.40 and
-0.31 → 0.27 CPU-s). A refit stops when a step moves every parameter by less than :data:`REFIT_TOL` of its
-standard deviation, after at most :data:`REFIT_EVALUATIONS` evaluations (all of them before). On noise-free records of its own
+truth and moves by the bias alone, so the Jacobian there (forward differences, as the refinement's) serves
+all its steps: a simplified Gauss-Newton (chord) iteration, one simulation per step instead of 1 + len(θ);
+its first step is the full one's, and it converges to the same point to first order in the bias. On noise-free records of its own
 model the output-error fit returns the model exactly, so the whole bias counts as the noise's
 (``noise_only``): its uncertainty is 30 % of it (the noise level's error) plus the draws' scatter,
 added to the refinement's covariance (inflated by the iteration's contraction). A correction that does
@@ -30,11 +23,11 @@ with a note that says why.
 
 from __future__ import annotations
 
-import threading
 from dataclasses import replace
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
+import scipy.optimize
 
 from ..signal.bias_correction import MAX_RELATIVE_BIAS, Correction, simulated_correction
 from ..errors import NifoError
@@ -45,13 +38,10 @@ from ..signal.parallel import forward_jacobian
 from ..signal.record import Record
 from .refine import Refinement, moved_refinement, parameter_space, prediction_residuals
 
-__all__ = ["REFIT_EVALUATIONS", "REFIT_TOL", "chord_refit", "correct_refinement"]
+__all__ = ["REFIT_EVALUATIONS", "correct_refinement"]
 
-#: the most function evaluations of each synthetic refit (started from the synthetic truth: a few chord steps)
+#: function evaluations of each synthetic refit (started from the synthetic truth: a few Gauss-Newton steps)
 REFIT_EVALUATIONS = 8
-#: a synthetic refit has converged when its last step moved every parameter by less than this fraction of the
-#: refinement's standard deviation of it (the bias it measures is of the order of one; the draws scatter by more)
-REFIT_TOL = 0.01
 #: relative step of the refit's forward-difference Jacobian, as in the refinement
 DIFF_STEP = 1e-3
 #: relative error a diverged synthetic simulation counts as (per record), as in the refinement
@@ -105,10 +95,6 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
         except (NifoError, FloatingPointError, np.linalg.LinAlgError):
             return None
 
-    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    shared: dict[bytes, np.ndarray] = {}
-    lock = threading.Lock()
-
     def fit(recs: Sequence[Record]) -> np.ndarray:
         def residuals(xs: list[np.ndarray]) -> list[np.ndarray]:   # pure: the refits run side by side
             """The residual vector at each θ of ``xs``; several θs (the Jacobian's columns) marched together."""
@@ -119,17 +105,17 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
 
         def residual(x: np.ndarray) -> np.ndarray:
             return residuals([x])[0]
+        # the refit starts at the synthetic truth and moves by the bias alone (a fraction of a half-width): the
+        # Jacobian there serves every step (simplified Gauss-Newton), one simulation per step instead of 1 + len(θ)
         x0 = np.asarray(truth["x"], float)
         f0 = residual(x0)
-        # one Jacobian per drive (module docstring): the draw's records of the later step reuse the first step's
-        drive = b"".join(np.asarray(r.spindle_accel[:64], float).tobytes() for r in recs)
-        with lock:
-            jac = shared.get(drive)
-        if jac is None:
-            jac = _forward_jacobian(residual, x0, f0, together=residuals)
-            with lock:
-                shared[drive] = jac
-        return chord_refit(residual, x0, f0, jac, sd, max_evaluations)
+        jac0 = _forward_jacobian(residual, x0, f0, together=residuals)
+        key = x0.tobytes()
+
+        def fun(x: np.ndarray) -> np.ndarray:      # θ0: least_squares' first evaluation is the Jacobian's base
+            return f0.copy() if np.asarray(x, float).tobytes() == key else residual(x)
+        sol = scipy.optimize.least_squares(fun, x0, jac=lambda x: jac0, method="trf", max_nfev=max_evaluations)
+        return sol.x
 
     # a parameter the data do not determine (95 % half-width beyond half its value, or a log factor beyond ±0.5)
     # is held: its refits wander along the cost's flat valley and would swamp the correction of the others
@@ -143,36 +129,6 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
         return _noted(refinement, "not bias-corrected (the correction does not converge or would move a parameter "
                                   "by more than half): the refined values may be biased by the spindle sensor's noise")
     return _moved(refinement, cor, cov, noise, hold)
-
-
-def chord_refit(residual: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, f0: np.ndarray, jac: np.ndarray,
-                sd: np.ndarray, max_evaluations: int = REFIT_EVALUATIONS, tol: float | None = None) -> np.ndarray:
-    """Least squares of ``residual`` from ``x0`` (``f0`` its residual there) by Gauss-Newton steps on the one
-    Jacobian ``jac`` (a chord iteration), a step halved while it does not lower the cost; ends when a step moves every
-    parameter by less than ``tol`` × its standard deviation ``sd`` (where it has one), after ``max_evaluations``
-    residuals, or when no halved step lowers the cost."""
-    tol = REFIT_TOL if tol is None else tol
-    x, f = np.asarray(x0, float), np.asarray(f0, float)
-    cost = float(f @ f)
-    scale = np.where(sd > 0, sd, np.inf)
-    evaluations = 0
-    while evaluations < max_evaluations:
-        step = -np.linalg.lstsq(jac, f, rcond=None)[0]
-        for _ in range(4):
-            trial = x + step
-            f_new = residual(trial)
-            evaluations += 1
-            if np.all(np.isfinite(f_new)) and float(f_new @ f_new) < cost:
-                break
-            step = 0.5 * step
-            if evaluations >= max_evaluations:
-                return x
-        else:
-            return x
-        x, f, cost = trial, f_new, float(f_new @ f_new)
-        if np.all(np.abs(step) < tol * scale):
-            break
-    return x
 
 
 def _vector(parts: list) -> np.ndarray:
