@@ -9,7 +9,7 @@ and :class:`LoopResult` hold what each round tried and added.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal, Mapping, Sequence
 
 import numpy as np
@@ -278,6 +278,8 @@ class Trial:
     ties: tuple = ()
     instead: tuple = ()
     gates_passed: bool = False
+    #: the added term's coefficient is bias-corrected (:mod:`nifo_core.signal.bias_correction`), not the plain fit
+    coefficient_corrected: bool = False
 
     def to_dict(self) -> dict:
         def alt(a) -> dict:
@@ -334,6 +336,12 @@ class Round:
     @property
     def after(self) -> Errors | None:
         return None if self.added is None else self.added.after
+
+    def with_added(self, trial: Trial, m2: float | None) -> "Round":
+        """This round with ``trial`` (the same term, another coefficient) as its addition, its words with it."""
+        assert self.added is not None and trial.candidate.term.label == self.added.candidate.term.label
+        return replace(self, added=trial, text=self.text.replace(_effect_words(self.added.candidate, m2),
+                                                                 _effect_words(trial.candidate, m2)))
 
     def to_dict(self) -> dict:
         return {"round": self.index, "model_before": [t.to_dict() for t in self.model_before],
@@ -639,7 +647,7 @@ def _effect_dict(t: Trial) -> dict:
             "meaning": c.describe(), "err": c.err, "err_cv": c.err_cv, "p_value": c.p_value, "spread": _fin(c.spread),
             "group_theta": list(c.group_theta), "offset_per_record_m": list(c.offsets),
             "tire_shift": _fin(t.tire_shift),
-            "heldout_equation_gain": _fin(t.heldout_gain)}
+            "heldout_equation_gain": _fin(t.heldout_gain), "coefficient_bias_corrected": t.coefficient_corrected}
 
 
 
