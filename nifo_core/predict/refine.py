@@ -53,7 +53,9 @@ Driven by the *measured* spindle signal, the fit is biased by that sensor's nois
 variables); :func:`nifo_core.predict.refine_bias.correct_refinement` removes the bias by simulating the
 refinement with the estimated noise (the loop does so; ``refine_model`` itself does not).
 
-Minimised by :func:`scipy.optimize.least_squares` (trust-region reflective,
+Minimised by :func:`scipy.optimize.least_squares` (trust-region reflective, the trust region scaled by the
+Jacobian's columns — with unit scales it ran out of its 30 evaluations on the F-16's identification and on
+``benchmarks/bench_loop.py``'s final model, 16 and 28 Jacobians; scaled, both converge, in 7 and 23 (issue 58);
 finite-difference Jacobian: one simulation per parameter and record per
 iteration; a record's simulations for all the parameters marched together, :mod:`nifo_core.predict.timesim_lanes`,
 the same bits as one by one, and the parameters split over threads, :mod:`nifo_core.signal.parallel`). The
@@ -478,7 +480,7 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
         lo, hi = sp.bounds()
         # the Jacobian's columns (one simulation of every record per parameter) marched together, on threads
         sol = scipy.optimize.least_squares(lambda x: evaluate(name, sp, x), x0, bounds=(lo, hi), method="trf",
-                                           diff_step=1e-3, x_scale=1.0, max_nfev=max_iterations, f_scale=1.0,
+                                           diff_step=1e-3, x_scale="jac", max_nfev=max_iterations, f_scale=1.0,
                                            workers=columns(sp))
         if sol.cost <= 0.5 * float(np.sum(r0 ** 2)):
             return sol.x, sp, sol, per_record(sol.x, sol.fun)
