@@ -877,6 +877,8 @@ def _notes(u: _Setup, retuned: Sequence[str]) -> list[str]:
         notes.append(u.pred.switched)
     if u.band.f_lo_hz > 1.0:
         notes.append(f"the integration band starts at {u.band.f_lo_hz:g} Hz: motion below it is only partly in z, ż")
+    if u.frame.moves:
+        notes.append(u.frame.text([r.source for r in u.recs]))
     return notes
 
 

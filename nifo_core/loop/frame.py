@@ -52,7 +52,7 @@ class Frame:
     holds; the loop's one mutable record of it, like the evaluator's ``static`` offsets it writes."""
 
     offsets: tuple[float, ...] | None = None
-    moves: list[str] = field(default_factory=list)
+    moves: list[tuple[float, ...]] = field(default_factory=list)   # each frame taken, in order
 
     def place(self, ev: _Evaluator, terms: Sequence[Term]) -> bool:
         """The frame ``terms`` imply, taken when material (module docstring); every form of z of ``terms``
@@ -62,7 +62,7 @@ class Frame:
             return False
         if new is not None and (self.offsets is None or _moved(self.offsets, new) > FRAME_SETTLED):
             self.offsets = new
-            self.moves.append(", ".join(f"{1e3 * -o:+.2f} mm" for o in new))
+            self.moves.append(new)
         changed = False
         for t in terms:
             if framed(t) and ev.static.get(t.label) != self.offsets:
@@ -71,6 +71,13 @@ class Frame:
         if changed:
             forget_equations(ev)
         return changed
+
+    def text(self, sources: Sequence[str]) -> str:
+        """The result's note: where the mean positions sat, as the model implied them (rebound positive)."""
+        where = ", ".join(f"{1e3 * -o:+.2f} mm ({s or f'record {i}'})"
+                          for i, (o, s) in enumerate(zip(self.offsets, sources)))
+        return (f"every form of z measured from the static position: the model's mean force moves the mean position, "
+                f"which sat {where} from it in the fit parts (rebound positive; placed {len(self.moves)} time(s))")
 
     def candidate(self, ev: _Evaluator, term: Term) -> None:
         """A round's candidate evaluated in the frame, like the model's terms (a bump stop, an even spring already
