@@ -764,6 +764,7 @@ def _judge(u: _Setup, terms: Sequence[Term], ranked: Sequence[Candidate], twin: 
     if (passed or only_pred) and not pred.flexible:  # one term of a kind already present must not do as well
         alts = []
         for k, a in one_of_kind_alternatives(terms, c.term, [r.term for r in ranked], ev.static):
+            u.frame.candidate(ev, a)
             e = _errors(ev, pred, [*terms[:k], a, *terms[k + 1:]])
             alts.append(Alternative(k, a, e, compare_errors(held, after, e), *u.keeps(e)))
         judged = judge_alternatives(terms, c.term, alts, s, candidate_keeps=u.keeps(after)[0])
@@ -827,7 +828,8 @@ def _best_set_pass(u: _Setup, found: _Found, say: Callable[[float, str], None]) 
     swapped = []
     for _ in range(len(terms) - n_decl + 1):
         changed = False
-        for fewer, new, e, comp in _best_sets(u.ev, u.pred, found.search, terms, n_decl, current, u.s, u.m2_kg):
+        for fewer, new, e, comp in _best_sets(u.ev, u.pred, found.search, terms, n_decl, current, u.s, u.m2_kg,
+                                              u.frame):
             if (fewer and not comp.better("b", u.s.min_prediction_gain)) or (not fewer and comp.better("a")):
                 how = ("one effect fewer predicts the held-out parts as well" if fewer else
                        "that set predicts the held-out parts better; one effect added at a time had stopped "
@@ -857,7 +859,9 @@ def _retune_declared(u: _Setup, found: _Found) -> tuple[_Found, list[str]]:
     worse); the model and what was re-tuned."""
     if not (u.retune_ok and u.n_decl and found.terms):
         return found, []
+    u.frame.unplace(u.ev, found.terms[:u.n_decl])   # re-tuned as from each record's mean, then placed again
     new, retuned = _retune(u.ev, list(found.terms), u.s, which=range(u.n_decl), declared=u.declared_terms)
+    _placed(u, new if retuned else found.terms)
     if retuned:
         e = _errors(u.ev, u.pred, new)
         if e.prediction_nmse_pct is not None and found.current.prediction_nmse_pct is not None and \
@@ -1095,7 +1099,8 @@ SUBSET_GAIN = 0.01
 
 
 def _best_sets(ev: _Evaluator, pred: _Predictor, search, terms: Sequence[Term], n_decl: int, current: Errors,
-               s: LoopSettings, m2_kg: float | None) -> list[tuple[bool, list[Term], Errors, Comparison]]:
+               s: LoopSettings, m2_kg: float | None,
+               frame: Frame) -> list[tuple[bool, list[Term], Errors, Comparison]]:
     """The best set of one effect fewer than the rounds added, and of as many, beside the declared terms
     (:func:`~nifo_core.characterize.subsets.best_subsets` on the ranking's grid): (fewer?, its model's terms, their
     errors, their comparison with ``current`` — A: that set, B: as found). The set of as many is tried when its kinds
@@ -1122,6 +1127,7 @@ def _best_sets(ev: _Evaluator, pred: _Predictor, search, terms: Sequence[Term], 
                 c = score_candidate(data, base, t, thresholds=s.thresholds, n_grid=s.grid_points, m2=m2_kg,
                                     names=tuple(u.label for u in model))
                 model.append(_static_candidate(ev, model, c, s, m2_kg).term)
+                frame.candidate(ev, model[-1])
             e = _errors(ev, pred, model)
             if e.prediction_nmse_pct is not None and current.prediction_nmse_pct is not None:
                 out.append((fewer, model, e, compare_errors(ev.held, e, current)))

@@ -53,6 +53,7 @@ class Frame:
 
     offsets: tuple[float, ...] | None = None
     moves: list[tuple[float, ...]] = field(default_factory=list)   # each frame taken, in order
+    _lifted: dict = field(default_factory=dict)    # label → offsets lifted for a re-tune (:meth:`unplace`)
 
     def place(self, ev: _Evaluator, terms: Sequence[Term]) -> bool:
         """The frame ``terms`` imply, taken when material (module docstring); every form of z of ``terms``
@@ -65,9 +66,10 @@ class Frame:
             self.moves.append(new)
         changed = False
         for t in terms:
-            if framed(t) and ev.static.get(t.label) != self.offsets:
+            if framed(t):
+                changed |= ev.static.get(t.label, self._lifted.get(t.label)) != self.offsets
                 ev.static[t.label] = self.offsets
-                changed = True
+        self._lifted = {}
         if changed:
             forget_equations(ev)
         return changed
@@ -86,14 +88,14 @@ class Frame:
             ev.static[term.label] = self.offsets
 
     def unplace(self, ev: _Evaluator, terms: Sequence[Term]) -> None:
-        """The terms' frame offsets dropped (their key parameters re-tuned as from each record's mean, which the
-        re-tune's grid reads); :meth:`place` registers them again."""
+        """The terms' frame offsets lifted while their key parameters are re-tuned (the re-tune leaves a term with
+        offsets of its own as it is: a bump stop's gap was fitted with them; these are re-tuned as from each record's
+        mean, as before the frame); :meth:`place` registers them again, a column the same as before unchanged."""
         if self.offsets is None:
             return
         for t in terms:
             if framed(t) and ev.static.get(t.label) == self.offsets:
-                del ev.static[t.label]
-        forget_equations(ev)
+                self._lifted[t.label] = ev.static.pop(t.label)
 
     def search(self, ev: _Evaluator, kinds: Sequence[str], grid_points: int, old: GridSearch | None,
                progress) -> GridSearch:
