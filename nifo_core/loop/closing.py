@@ -101,7 +101,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..characterize.automatic import grid_search, rank_beyond
+from ..characterize.automatic import rank_beyond
 from ..characterize.subsets import best_subsets, subset_rss
 from ..kinds.describing import Term, kind as lookup_kind, linear_twin, make_term
 from .detection import confounded_pairs, detection_limits, undetermined_terms
@@ -125,6 +125,7 @@ from .gates import (Alternative, heldout_failures, judge_alternatives, one_of_ki
                     whole_signal_failures)
 from .refine import refine_final
 from .beyond import search_beyond
+from .frame import Frame
 from ..signal.record import Record
 from ..characterize.restoring import suggest_band
 
@@ -203,6 +204,10 @@ class _Predictor:
         twin = copy.copy(self)
         twin._form, twin._cache = "body", {}
         return twin
+
+    def forget(self) -> None:
+        """The fits kept dropped (kept by the terms' labels: a term's column changed with its frame)."""
+        self._cache = {}
 
     def switch_to_body(self, why: str) -> None:
         self._form, self._cache, self.switched = "body", {}, why
@@ -409,6 +414,7 @@ class _Setup:
     floor: object
     retune_ok: bool
     initial: Errors
+    frame: Frame
 
     @property
     def n_decl(self) -> int:
@@ -582,13 +588,15 @@ def _set_up(records: Record | Sequence[Record], declared: Sequence[Term | Mappin
     floor = held.noise_floor()
     declared_terms = tuple(terms)
     retune_ok = s.retune and not pred.flexible   # re-tuning by the one-mass equation error: a one-mass body only
+    frame = Frame()     # every form of z from the static position the declared model implies, when it is material
+    frame.place(ev, declared_terms)
     # the declared model fitted as declared: the signs its terms mean (a falling knee, a hardening spring...). The
     # declared parameters are not re-tuned before the rounds: with effects still missing the re-tune takes them up
     # (measured, a hidden quadratic damping beside the paper's knee: the knee walked from 0.03 to 0.055 m/s)
     decl_theta = ev.equation(declared_terms)["theta_per_kg"] if terms else ()
     return _Setup(raw=tuple(raw), recs=tuple(recs), declared_terms=declared_terms, decl_theta=decl_theta, m2_kg=m2_kg,
                   s=s, band=band, band_note=band_note, adapted=adapted, held=held, ev=ev, pred=pred, floor=floor,
-                  retune_ok=retune_ok, initial=_errors(ev, pred, terms))
+                  retune_ok=retune_ok, initial=_errors(ev, pred, terms), frame=frame)
 
 
 def _run_rounds(u: _Setup, say: Callable[[float, str], None]) -> _Found:
@@ -620,13 +628,14 @@ def _round(u: _Setup, i: int, terms: list[Term], current: Errors, search, ambigu
     tuned: list[str] = []
     if u.retune_ok and i > 1 and len(terms) > u.n_decl:   # the terms the loop added (a declared one: at the end)
         say(base, f"round {i}: re-tuning the model's parameters")
+        u.frame.unplace(ev, terms[u.n_decl:])     # re-tuned as from each record's mean, then placed again
         terms, tuned = _retune(ev, terms, s, which=range(u.n_decl, len(terms)))
-        if tuned:
+        if _placed(u, terms) or tuned:
             current = _errors(ev, pred, terms)
     say(base, f"round {i}: tracing the residual")
-    if search is None:      # the candidates' grid on the fit parts: the data's, the same in every round
-        search = grid_search(ev.fit_rfs, kinds=s.kinds, grid_points=s.grid_points,
-                             progress=lambda f, b=base: say(b + 0.5 * f / total, f"round {i}: tracing"))
+    # the candidates' grid on the fit parts: the data's in the model's frame, built again only when that moved
+    search = u.frame.search(ev, s.kinds, s.grid_points, search,
+                            lambda f, b=base: say(b + 0.5 * f / total, f"round {i}: tracing"))
     ranked = rank_beyond(ev.fit_rfs, terms, m2_kg=u.m2_kg, kinds=s.kinds, thresholds=s.thresholds,
                          grid_points=s.grid_points, offsets=[ev.static.get(t.label) for t in terms],
                          search=search)
@@ -655,9 +664,19 @@ def _round(u: _Setup, i: int, terms: list[Term], current: Errors, search, ambigu
     done = Round(i, tuple(terms), ranked, tuple(trials), current, added, evid, text)
     terms = [*terms, added.candidate.term]
     current = added.after
-    if pred.reconsider(terms):
+    placed = _placed(u, terms)      # the frame the model with the new term implies
+    if pred.reconsider(terms) or placed:
         current = _errors(ev, pred, terms)
     return _Found(tuple(terms), current, (done,), ambiguities, "", search)
+
+
+def _placed(u: _Setup, terms: Sequence[Term]) -> bool:
+    """The frame ``terms`` imply placed (:class:`~nifo_core.loop.frame.Frame`); True when a column changed, the
+    predictor's fits forgotten then."""
+    if not u.frame.place(u.ev, terms):
+        return False
+    u.pred.forget()
+    return True
 
 
 def _try_candidates(u: _Setup, i: int, terms: Sequence[Term], ranked: Sequence[Candidate],
@@ -719,6 +738,7 @@ def _judge(u: _Setup, terms: Sequence[Term], ranked: Sequence[Candidate], twin: 
     """The acceptance of a candidate with ``pred``'s linear form, against the model ``current`` (every gate)."""
     ev, s, held = u.ev, u.s, u.held
     c = _static_candidate(ev, terms, c, s, u.m2_kg)  # a bump stop: its gap from the static position
+    u.frame.candidate(ev, c.term)                     # a form of z: from the static position of the model's frame
     failed = []
     r2 = acts_linearly(ev, c.term)
     if r2 >= LINEAR_R2:
@@ -746,6 +766,7 @@ def _judge(u: _Setup, terms: Sequence[Term], ranked: Sequence[Candidate], twin: 
     if (passed or only_pred) and not pred.flexible:  # one term of a kind already present must not do as well
         alts = []
         for k, a in one_of_kind_alternatives(terms, c.term, [r.term for r in ranked], ev.static):
+            u.frame.candidate(ev, a)
             e = _errors(ev, pred, [*terms[:k], a, *terms[k + 1:]])
             alts.append(Alternative(k, a, e, compare_errors(held, after, e), *u.keeps(e),
                                     against_model=compare_errors(held, e, current)))
@@ -810,7 +831,8 @@ def _best_set_pass(u: _Setup, found: _Found, say: Callable[[float, str], None]) 
     swapped = []
     for _ in range(len(terms) - n_decl + 1):
         changed = False
-        for fewer, new, e, comp in _best_sets(u.ev, u.pred, found.search, terms, n_decl, current, u.s, u.m2_kg):
+        for fewer, new, e, comp in _best_sets(u.ev, u.pred, found.search, terms, n_decl, current, u.s, u.m2_kg,
+                                              u.frame):
             if (fewer and not comp.better("b", u.s.min_prediction_gain)) or (not fewer and comp.better("a")):
                 how = ("one effect fewer predicts the held-out parts as well" if fewer else
                        "that set predicts the held-out parts better; one effect added at a time had stopped "
@@ -840,7 +862,9 @@ def _retune_declared(u: _Setup, found: _Found) -> tuple[_Found, list[str]]:
     worse); the model and what was re-tuned."""
     if not (u.retune_ok and u.n_decl and found.terms):
         return found, []
+    u.frame.unplace(u.ev, found.terms[:u.n_decl])   # re-tuned as from each record's mean, then placed again
     new, retuned = _retune(u.ev, list(found.terms), u.s, which=range(u.n_decl), declared=u.declared_terms)
+    _placed(u, new if retuned else found.terms)
     if retuned:
         e = _errors(u.ev, u.pred, new)
         if e.prediction_nmse_pct is not None and found.current.prediction_nmse_pct is not None and \
@@ -860,6 +884,8 @@ def _notes(u: _Setup, retuned: Sequence[str]) -> list[str]:
         notes.append(u.pred.switched)
     if u.band.f_lo_hz > 1.0:
         notes.append(f"the integration band starts at {u.band.f_lo_hz:g} Hz: motion below it is only partly in z, ż")
+    if u.frame.moves:
+        notes.append(u.frame.text([r.source for r in u.recs]))
     return notes
 
 
@@ -1105,7 +1131,8 @@ SUBSET_GAIN = 0.01
 
 
 def _best_sets(ev: _Evaluator, pred: _Predictor, search, terms: Sequence[Term], n_decl: int, current: Errors,
-               s: LoopSettings, m2_kg: float | None) -> list[tuple[bool, list[Term], Errors, Comparison]]:
+               s: LoopSettings, m2_kg: float | None,
+               frame: Frame) -> list[tuple[bool, list[Term], Errors, Comparison]]:
     """The best set of one effect fewer than the rounds added, and of as many, beside the declared terms
     (:func:`~nifo_core.characterize.subsets.best_subsets` on the ranking's grid): (fewer?, its model's terms, their
     errors, their comparison with ``current`` — A: that set, B: as found). The set of as many is tried when its kinds
@@ -1132,6 +1159,7 @@ def _best_sets(ev: _Evaluator, pred: _Predictor, search, terms: Sequence[Term], 
                 c = score_candidate(data, base, t, thresholds=s.thresholds, n_grid=s.grid_points, m2=m2_kg,
                                     names=tuple(u.label for u in model))
                 model.append(_static_candidate(ev, model, c, s, m2_kg).term)
+                frame.candidate(ev, model[-1])
             e = _errors(ev, pred, model)
             if e.prediction_nmse_pct is not None and current.prediction_nmse_pct is not None:
                 out.append((fewer, model, e, compare_errors(ev.held, e, current)))

@@ -1,0 +1,138 @@
+"""The loop's forms of z measured from the static position its model implies (docs/method.md §5).
+
+z is a band-limited integral: each record's z is measured from its *mean* position. A term with a mean force (a
+damper stiffer in rebound than in compression, a one-sided stop, an even spring) moves the mean away from the
+static position, the more the harder the road. A form of z acting about the static position (a cubic spring, a
+clearance) is then, measured from the mean, another function at every level: a cubic θ(z + m)³ = θz³ + 3θm·z² +
+3θm²·z + θm³ holds an even spring and a stiffness that change with the level, and the loop looked for them among the
+candidates. Measured on the fleet's tune case 19 (a declared rebound damper 2028 N·s/m, a hidden cubic 2.5e7 N/m³
+and a friction 34.5 N; the mean 0.2–2.3 mm into compression over four levels): two compression stops were added
+for the cubic.
+
+Characterize measures every form of z from the static position its suggestion implies
+(:func:`nifo_core.characterize.static.static_frame`, ``RegressionData.in_frame``); the loop does the same with its
+model: the declared terms at the start, and after each round the terms it holds. The frame is taken once a record's
+mean lies more than :data:`FRAME_MATERIAL` of its z RMS from the static position (the threshold characterize uses)
+and updated when it moves by more than :data:`FRAME_SETTLED` of its largest offset. Every form of z of the model
+and of the round's candidates is then evaluated on z from the static position (the evaluator's ``static`` offsets,
+the ranking's grid on the data in the frame); a bump stop keeps its own gap from the static position
+(:func:`nifo_core.loop.residual._static_candidate`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from ..characterize.data import GridSearch, RegressionData
+from ..characterize.static import static_frame
+from ..kinds.describing import Term, kind as lookup_kind
+from .residual import _Evaluator
+
+__all__ = ["FRAME_MATERIAL", "FRAME_SETTLED", "Frame", "framed"]
+
+#: a record's mean position this far from the static one, relative to its z RMS, makes the loop take the frame
+FRAME_MATERIAL = 0.05
+#: the frame is moved when a record's offset changes by more than this fraction of the largest one
+FRAME_SETTLED = 0.1
+#: fixed-point passes of the frame (the terms' coefficients depend on it, it on them)
+FRAME_PASSES = 3
+
+
+def framed(term: Term) -> bool:
+    """A form of z measured from the static position in the frame (a bump stop has its own gap from it)."""
+    return term.spec.variable == "z" and term.spec.static_frame != "threshold"
+
+
+@dataclass
+class Frame:
+    """Where the static position lies in each fit part (offset -m_i [m], None: each record's mean) and what it
+    holds; the loop's one mutable record of it, like the evaluator's ``static`` offsets it writes."""
+
+    offsets: tuple[float, ...] | None = None
+    moves: list[tuple[float, ...]] = field(default_factory=list)   # each frame taken, in order
+    _lifted: dict = field(default_factory=dict)    # label → offsets lifted for a re-tune (:meth:`unplace`)
+
+    def place(self, ev: _Evaluator, terms: Sequence[Term]) -> bool:
+        """The frame ``terms`` imply, taken when material (module docstring); every form of z of ``terms``
+        registered in it. True when a column of the model changed (the callers' errors must be computed again)."""
+        new = self._solve(ev, terms)
+        if new is None and self.offsets is None:
+            return False
+        if new is not None and (self.offsets is None or _moved(self.offsets, new) > FRAME_SETTLED):
+            self.offsets = new
+            self.moves.append(new)
+        changed = False
+        for t in terms:
+            if framed(t):
+                changed |= ev.static.get(t.label, self._lifted.get(t.label)) != self.offsets
+                ev.static[t.label] = self.offsets
+        self._lifted = {}
+        if changed:
+            forget_equations(ev)
+        return changed
+
+    def text(self, sources: Sequence[str]) -> str:
+        """The result's note: where the mean positions sat, as the model implied them (rebound positive)."""
+        where = ", ".join(f"{1e3 * -o:+.2f} mm ({s or f'record {i}'})"
+                          for i, (o, s) in enumerate(zip(self.offsets, sources)))
+        return (f"every form of z measured from the static position: the model's mean force moves the mean position, "
+                f"which sat {where} from it in the fit parts (rebound positive; placed {len(self.moves)} time(s))")
+
+    def candidate(self, ev: _Evaluator, term: Term) -> None:
+        """A round's candidate evaluated in the frame, like the model's terms (a bump stop, an even spring already
+        re-measured by the candidate's own static check keep theirs)."""
+        if self.offsets is not None and framed(term) and term.label not in ev.static:
+            ev.static[term.label] = self.offsets
+
+    def unplace(self, ev: _Evaluator, terms: Sequence[Term]) -> None:
+        """The terms' frame offsets lifted while their key parameters are re-tuned (the re-tune leaves a term with
+        offsets of its own as it is: a bump stop's gap was fitted with them; these are re-tuned as from each record's
+        mean, as before the frame); :meth:`place` registers them again, a column the same as before unchanged."""
+        if self.offsets is None:
+            return
+        for t in terms:
+            if framed(t) and ev.static.get(t.label) == self.offsets:
+                self._lifted[t.label] = ev.static.pop(t.label)
+
+    def search(self, ev: _Evaluator, kinds: Sequence[str], grid_points: int, old: GridSearch | None,
+               progress) -> GridSearch:
+        """The candidates' grid on the fit parts in the frame (the same as before while it has not moved)."""
+        if old is not None and getattr(old.data, "frame", None) == self.offsets:
+            return old
+        data = RegressionData(ev.fit_rfs, n_groups=4, body_stiffness=False)
+        if self.offsets is not None:
+            data = data.in_frame(self.offsets)
+        got = GridSearch(data, tuple(dict.fromkeys(lookup_kind(k).name for k in kinds)), grid_points, progress)
+        got.data.forget()
+        return got
+
+    def _solve(self, ev: _Evaluator, terms: Sequence[Term]) -> tuple[float, ...] | None:
+        if not terms:
+            return None
+        data = ev.regression()
+        frame = self.offsets
+        for _ in range(FRAME_PASSES):
+            offs = [frame if (frame is not None and framed(t)) else ev.static.get(t.label) for t in terms]
+            new = static_frame(data, terms, [None if o is None else tuple(o) for o in offs])
+            if frame is not None and _moved(frame, new) < FRAME_SETTLED / 10:
+                frame = new
+                break
+            frame = new
+        if self.offsets is None and all(abs(o) <= FRAME_MATERIAL * float(np.std(rf.z))
+                                        for o, rf in zip(frame, ev.fit_rfs)):
+            return None
+        return tuple(float(o) for o in frame)
+
+
+def forget_equations(ev: _Evaluator) -> None:
+    """The evaluator's remembered equation-error fits dropped: they are kept by the terms' labels, and a label's
+    column changes with its frame (a fit with the bias removed is kept with its offsets, and stays)."""
+    for key in [k for k in ev._cache if not (k and k[0] == "corrected")]:
+        del ev._cache[key]
+
+
+def _moved(a: Sequence[float], b: Sequence[float]) -> float:
+    return max(abs(x - y) for x, y in zip(a, b)) / max(max(abs(x) for x in b), 1e-12)
