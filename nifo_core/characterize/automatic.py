@@ -194,7 +194,7 @@ def _characterize(data: RegressionData, rfs: Sequence[RestoringForce], *, m2_kg:
         best1[k] = j if j is not None else search.best_of(k, e1, np.ones_like(s1))
     table = dict(zip(kinds, thread_map(lambda k: score(best1[k], [], ()), kinds)))
     # --- stepwise selection: forward, each term chosen again given the others, backward ------------------------
-    chosen_j = _stepwise(search, data, kinds, score, max_terms, table, best1)
+    chosen_j, replaced = _stepwise(search, data, kinds, score, max_terms, table, best1)
     chosen_terms = [search.terms[i] for i in chosen_j]
     shifts = shifted_offsets(data, chosen_terms)
     base = [data.regressor(t, offsets=o) for t, o in zip(chosen_terms, shifts)]
@@ -251,6 +251,10 @@ def _characterize(data: RegressionData, rfs: Sequence[RestoringForce], *, m2_kg:
     model = _joint(data, [c.term for c in chosen], [c.offsets or None for c in chosen])
     lin = _linear(data, m2_kg, body_stiffness)
     notes = []
+    for before, after in replaced:
+        notes.append(f"one change at a time stopped at {_labels(search, before)}; the set "
+                     f"{_labels(search, after)} leaves less and each of its terms passes given the others: "
+                     f"the selection went on from it")
     if not chosen:
         notes.append("no nonlinear candidate met the thresholds: no form of the library explains what the "
                      "linear fit leaves")
@@ -370,9 +374,13 @@ def _base_of(search: GridSearch, data: RegressionData, js: Sequence[int]) -> tup
         tuple(t.label for t in terms)
 
 
+def _labels(search: GridSearch, js: Sequence[int]) -> str:
+    return "{" + ", ".join(search.terms[j].label for j in js) + "}"
+
+
 def _stepwise(search: GridSearch, data: RegressionData, kinds: Sequence[str],
               score: Callable[[int, list[np.ndarray], tuple[str, ...]], Candidate], max_terms: int,
-              table: dict, best1: dict) -> list[int]:
+              table: dict, best1: dict) -> tuple[list[int], list[tuple[list[int], list[int]]]]:
     """The suggested terms (grid indices) by stepwise selection: every kind whose partial contribution, given all
     the other terms chosen, passes the thresholds (is above its detection limit), and none that does not.
 
@@ -389,15 +397,41 @@ def _stepwise(search: GridSearch, data: RegressionData, kinds: Sequence[str],
     (coefficient spread across the levels 1.5 and 1.0), and the true pair is found.
     """
     chosen = _steps(search, data, kinds, score, max_terms, table, best1, [])
-    if len(chosen) > 1:      # the best set of as many kinds, if every term of it passes given the others
-        now = subset_rss(search, [], chosen)
-        for rss, js in best_subsets(search, [], kinds, len(chosen)):
+    replaced = []       # (the set the passes stopped at, the set that replaced it)
+    for _ in range(_SUBSET_ROUNDS):
+        better = _better_set(search, data, kinds, score, max_terms, chosen)
+        if better is None:
+            break
+        replaced.append((chosen, better))
+        chosen = _steps(search, data, kinds, score, max_terms, table, best1, better)
+    return chosen, replaced
+
+
+def _better_set(search: GridSearch, data: RegressionData, kinds: Sequence[str],
+                score: Callable[[int, list[np.ndarray], tuple[str, ...]], Candidate], max_terms: int,
+                chosen: list[int]) -> list[int] | None:
+    """The best set of as many kinds as ``chosen`` (two or more), else of one kind more (up to ``max_terms``), when it
+    leaves :data:`_SUBSET_GAIN` less on the subsample and each of its terms passes given the others; else None.
+
+    One kind more: a term that stands in for two (a rising knee for the declared falling knee *and* a quadratic
+    damping, tune case 14 of ``benchmarks/bench_physics_fleet.py``) leaves no third term that passes beside it, and
+    no swap of one term for another helps; only the pair in its place does."""
+    if not chosen:
+        return None
+    now = subset_rss(search, [], chosen)
+    sizes = ([len(chosen)] if len(chosen) > 1 else []) + ([len(chosen) + 1] if len(chosen) < max_terms else [])
+    for size in sizes:
+        for rss, js in best_subsets(search, [], kinds, size):
             if set(js) == set(chosen) or not rss < (1 - _SUBSET_GAIN) * now:
                 continue
             if all(score(j, *_base_of(search, data, [i for i in js if i != j])).present for j in js):
-                chosen = _steps(search, data, kinds, score, max_terms, table, best1, list(js))
+                return list(js)
             break
-    return chosen
+    return None
+
+
+#: tries of :func:`_better_set` after the stepwise passes
+_SUBSET_ROUNDS = 2
 
 
 #: a set of kinds found by :func:`~.subsets.best_subsets` replaces the stepwise one when its residual on the subsample
