@@ -404,7 +404,23 @@ def _stepwise(search: GridSearch, data: RegressionData, kinds: Sequence[str],
             break
         replaced.append((chosen, better))
         chosen = _steps(search, data, kinds, score, max_terms, table, best1, better)
-    return chosen, replaced
+    return (_forward_order(search, chosen) if replaced else chosen), replaced
+
+
+def _forward_order(search: GridSearch, js: Sequence[int]) -> list[int]:
+    """Terms ``js`` in the order forward selection would take them (on the subsample: first the one explaining most,
+    then the one explaining most of what it leaves, ...): a set found whole is listed like one found a term at a
+    time, the strongest first."""
+    left, out = list(js), []
+    extra, r = np.empty((search.r0.size, 0)), search.r0
+    while left:
+        e, _ = search.err(extra, r)
+        j = max(left, key=lambda i: e[i])
+        v = search.unit(j, extra)
+        extra, r = np.column_stack([extra, v]), r - v * (v @ r)
+        left.remove(j)
+        out.append(j)
+    return out
 
 
 def _better_set(search: GridSearch, data: RegressionData, kinds: Sequence[str],
