@@ -388,11 +388,14 @@ def _stepwise(search: GridSearch, data: RegressionData, kinds: Sequence[str],
     term whose partial contribution given all the others fails the thresholds worst (smallest ERR) is dropped
     (backward elimination); else the best present candidate of a kind not chosen, given all the chosen terms, is
     added (forward selection, ≤ ``max_terms``). It ends when a pass changes nothing or would return to a set
-    seen before. Then the best set of as many kinds (:func:`~.subsets.best_subsets`, on the subsample) replaces it
-    when it leaves :data:`_SUBSET_GAIN` less and each of its terms passes given the others, and the passes go on from
-    there: one change at a time can stop short of the best set. Forward selection alone keeps what an early step took: measured on quadratic damping beside the
-    paper's damper knee (the independent simulator, 4 levels), step 1 took a rising knee at 0.18 m/s standing
-    in for the quadratic damping (ERR 0.86 against 0.74), step 2 a friction, step 3 the quadratic damping; once
+    seen before. Then the best set of as many kinds (:func:`~.subsets.best_subsets`, on the subsample), else of one
+    kind more, replaces it when it leaves :data:`_SUBSET_GAIN` less and each of its terms passes given the others,
+    and the passes go on from there (:func:`_better_set`): one change at a time can stop short of the best set.
+    Returns the terms and the replacements made (what the passes stopped at, what replaced it) for the notes.
+
+    Forward selection alone keeps what an early step took: measured on quadratic damping beside the paper's damper
+    knee (the independent simulator, 4 levels), step 1 took a rising knee at 0.18 m/s standing in for the quadratic
+    damping (ERR 0.86 against 0.74), step 2 a friction, step 3 the quadratic damping; once
     the quadratic damping is in, neither the re-placed knee nor the friction passes given the others
     (coefficient spread across the levels 1.5 and 1.0), and the true pair is found.
     """
