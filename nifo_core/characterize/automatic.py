@@ -75,7 +75,7 @@ from .result import (DEFAULT_KINDS, Candidate, Characterization, Equivalence, Fi
                      RecordSummary, Thresholds)
 from .score import base_fit, detection_limit, lstsq, score_candidate
 from .static import shifted_offsets, static_bump_stops, static_frame
-from .subsets import best_subsets, subset_rss
+from .subsets import better_set, forward_order
 from ..kinds.describing import Term, kind as lookup_kind
 from ..errors import ConfigError, InputError
 from ..signal.integrate import IntegrationBand
@@ -390,7 +390,8 @@ def _stepwise(search: GridSearch, data: RegressionData, kinds: Sequence[str],
     added (forward selection, ≤ ``max_terms``). It ends when a pass changes nothing or would return to a set
     seen before. Then the best set of as many kinds (:func:`~.subsets.best_subsets`, on the subsample), else of one
     kind more, replaces it when it leaves :data:`_SUBSET_GAIN` less and each of its terms passes given the others,
-    and the passes go on from there (:func:`_better_set`): one change at a time can stop short of the best set.
+    and the passes go on from there (:func:`~.subsets.better_set`): one change at a time can stop short of the best
+    set.
     Returns the terms and the replacements made (what the passes stopped at, what replaced it) for the notes.
 
     Forward selection alone keeps what an early step took: measured on quadratic damping beside the paper's damper
@@ -401,55 +402,20 @@ def _stepwise(search: GridSearch, data: RegressionData, kinds: Sequence[str],
     """
     chosen = _steps(search, data, kinds, score, max_terms, table, best1, [])
     replaced = []       # (the set the passes stopped at, the set that replaced it)
+
+    def passes(js: Sequence[int]) -> bool:     # each term passes the thresholds given the others
+        return all(score(j, *_base_of(search, data, [i for i in js if i != j])).present for j in js)
+
     for _ in range(_SUBSET_ROUNDS):
-        better = _better_set(search, data, kinds, score, max_terms, chosen)
+        better = better_set(search, kinds, chosen, max_terms=max_terms, passes=passes, gain=_SUBSET_GAIN)
         if better is None:
             break
         replaced.append((chosen, better))
         chosen = _steps(search, data, kinds, score, max_terms, table, best1, better)
-    return (_forward_order(search, chosen) if replaced else chosen), replaced
+    return (forward_order(search, chosen) if replaced else chosen), replaced
 
 
-def _forward_order(search: GridSearch, js: Sequence[int]) -> list[int]:
-    """Terms ``js`` in the order forward selection would take them (on the subsample: first the one explaining most,
-    then the one explaining most of what it leaves, ...): a set found whole is listed like one found a term at a
-    time, the strongest first."""
-    left, out = list(js), []
-    extra, r = np.empty((search.r0.size, 0)), search.r0
-    while left:
-        e, _ = search.err(extra, r)
-        j = max(left, key=lambda i: e[i])
-        v = search.unit(j, extra)
-        extra, r = np.column_stack([extra, v]), r - v * (v @ r)
-        left.remove(j)
-        out.append(j)
-    return out
-
-
-def _better_set(search: GridSearch, data: RegressionData, kinds: Sequence[str],
-                score: Callable[[int, list[np.ndarray], tuple[str, ...]], Candidate], max_terms: int,
-                chosen: list[int]) -> list[int] | None:
-    """The best set of as many kinds as ``chosen`` (two or more), else of one kind more (up to ``max_terms``), when it
-    leaves :data:`_SUBSET_GAIN` less on the subsample and each of its terms passes given the others; else None.
-
-    One kind more: a term that stands in for two (a rising knee for the declared falling knee *and* a quadratic
-    damping, tune case 14 of ``benchmarks/bench_physics_fleet.py``) leaves no third term that passes beside it, and
-    no swap of one term for another helps; only the pair in its place does."""
-    if not chosen:
-        return None
-    now = subset_rss(search, [], chosen)
-    sizes = ([len(chosen)] if len(chosen) > 1 else []) + ([len(chosen) + 1] if len(chosen) < max_terms else [])
-    for size in sizes:
-        for rss, js in best_subsets(search, [], kinds, size):
-            if set(js) == set(chosen) or not rss < (1 - _SUBSET_GAIN) * now:
-                continue
-            if all(score(j, *_base_of(search, data, [i for i in js if i != j])).present for j in js):
-                return list(js)
-            break
-    return None
-
-
-#: tries of :func:`_better_set` after the stepwise passes
+#: tries of :func:`~.subsets.better_set` after the stepwise passes
 _SUBSET_ROUNDS = 2
 
 
