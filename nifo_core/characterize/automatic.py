@@ -302,17 +302,20 @@ def _characterize(data: RegressionData, rfs: Sequence[RestoringForce], *, m2_kg:
 
 
 def grid_search(rfs: Sequence[RestoringForce], *, kinds: Sequence[str] = DEFAULT_KINDS, grid_points: int = 24,
-                n_groups: int = 4, progress: Callable[[float], None] | None = None) -> GridSearch:
+                n_groups: int = 4, progress: Callable[[float], None] | None = None,
+                data: RegressionData | None = None) -> GridSearch:
     """The candidate grids of ``kinds`` on ``rfs``, band-limited and orthogonalised against the linear columns: what
     :func:`rank_beyond` scores. It depends on the data alone, not on the terms a model holds, so the loop builds it
     once and ranks every round's residual on it (``rank_beyond(..., search=)``): building it is most of a ranking's
     time (the grid's regressors, one band-pass per column and record). Kept, it holds the grid's projected columns on
     the row subsample, not their full-length copies (:meth:`RegressionData.forget`: measured on four 300 s records,
-    +168 MB of peak memory for the loop when they were kept)."""
+    +168 MB of peak memory for the loop when they were kept). ``data``: the regression rows of ``rfs`` already made
+    (``RegressionData(rfs, n_groups=n_groups, body_stiffness=False)``, or a view of them: :meth:`RegressionData.in_frame`)."""
     if not rfs:
         raise InputError("no restoring-force data to rank candidates on")
     kinds = _kind_names(kinds)
-    search = GridSearch(RegressionData(rfs, n_groups=n_groups, body_stiffness=False), kinds, grid_points, progress)
+    data = RegressionData(rfs, n_groups=n_groups, body_stiffness=False) if data is None else data
+    search = GridSearch(data, kinds, grid_points, progress)
     search.data.forget()
     return search
 

@@ -121,13 +121,13 @@ class RegressionData:
                 self._cache.setdefault(keys[i], col)
         return out
 
-    def in_frame(self, frame: Sequence[float]) -> "RegressionData":
-        """The same rows with every form of z evaluated from the static position (:attr:`frame`); the band-passed
-        force, z and ż are shared, the remembered columns are not."""
-        if len(frame) != len(self.rfs):
+    def in_frame(self, frame: Sequence[float] | None) -> "RegressionData":
+        """The same rows with every form of z evaluated from the static position (:attr:`frame`; None: from each
+        record's mean); the band-passed force, z and ż are shared, the remembered columns are not."""
+        if frame is not None and len(frame) != len(self.rfs):
             raise ConfigError(f"{len(frame)} frame offsets for {len(self.rfs)} records")
         out = copy.copy(self)
-        out.frame = tuple(float(o) for o in frame)
+        out.frame = None if frame is None else tuple(float(o) for o in frame)
         out._cache = {}
         return out
 

@@ -26,9 +26,10 @@ from typing import Sequence
 
 import numpy as np
 
-from ..characterize.data import GridSearch, RegressionData
+from ..characterize.automatic import grid_search
+from ..characterize.data import GridSearch
 from ..characterize.static import static_frame
-from ..kinds.describing import Term, kind as lookup_kind
+from ..kinds.describing import Term
 from .residual import _Evaluator
 
 __all__ = ["FRAME_MATERIAL", "FRAME_SETTLED", "Frame", "framed"]
@@ -71,7 +72,7 @@ class Frame:
                 ev.static[t.label] = self.offsets
         self._lifted = {}
         if changed:
-            forget_equations(ev)
+            ev.forget_equations()
         return changed
 
     def text(self, sources: Sequence[str]) -> str:
@@ -99,15 +100,12 @@ class Frame:
 
     def search(self, ev: _Evaluator, kinds: Sequence[str], grid_points: int, old: GridSearch | None,
                progress) -> GridSearch:
-        """The candidates' grid on the fit parts in the frame (the same as before while it has not moved)."""
+        """The candidates' grid on the fit parts in the frame (the same as before while it has not moved), on the
+        evaluator's regression rows (their band-passed force, z and ż made once)."""
         if old is not None and getattr(old.data, "frame", None) == self.offsets:
             return old
-        data = RegressionData(ev.fit_rfs, n_groups=4, body_stiffness=False)
-        if self.offsets is not None:
-            data = data.in_frame(self.offsets)
-        got = GridSearch(data, tuple(dict.fromkeys(lookup_kind(k).name for k in kinds)), grid_points, progress)
-        got.data.forget()
-        return got
+        return grid_search(ev.fit_rfs, kinds=kinds, grid_points=grid_points, progress=progress,
+                           data=ev.regression().in_frame(self.offsets))
 
     def _solve(self, ev: _Evaluator, terms: Sequence[Term]) -> tuple[float, ...] | None:
         if not terms:
@@ -125,13 +123,6 @@ class Frame:
                                         for o, rf in zip(frame, ev.fit_rfs)):
             return None
         return tuple(float(o) for o in frame)
-
-
-def forget_equations(ev: _Evaluator) -> None:
-    """The evaluator's remembered equation-error fits dropped: they are kept by the terms' labels, and a label's
-    column changes with its frame (a fit with the bias removed is kept with its offsets, and stays)."""
-    for key in [k for k in ev._cache if not (k and k[0] == "corrected")]:
-        del ev._cache[key]
 
 
 def _moved(a: Sequence[float], b: Sequence[float]) -> float:

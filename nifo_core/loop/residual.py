@@ -176,6 +176,13 @@ class _Evaluator:
                 self._regression = RegressionData(self.fit_rfs, n_groups=4, body_stiffness=False)
             return self._regression
 
+    def forget_equations(self) -> None:
+        """The remembered equation-error fits dropped: they are kept by the terms' labels, and a label's column
+        changes with its frame (:mod:`nifo_core.loop.frame`); a fit with the bias removed is kept with its offsets,
+        and stays."""
+        for key in [k for k in self._cache if not (k and k[0] == "corrected")]:
+            del self._cache[key]
+
     def _reads(self) -> list[int]:
         """Per held record, the samples its fit part is made of (:meth:`_fit_parts_of`): up to the fit part's end, the
         integrator's reach beyond it and the simulation's look-ahead. The rest of the record, its held-out part,
