@@ -29,7 +29,7 @@ import numpy as np
 from .describing import CODES, Term
 from ..errors import ConfigError
 
-__all__ = ["PLAY", "kind_code", "strut_arrays", "g_one", "strut_force", "lipschitz", "slopes_within"]
+__all__ = ["PLAY", "kind_code", "strut_arrays", "g_one", "g_partials", "strut_force", "lipschitz", "slopes_within"]
 
 # kind codes, from the kind registry (numba reads these module globals as constants)
 _CUBIC, _CLEAR, _SAT, _BUMP_C, _BUMP_R, _PLAY, _VDZ, _VSAT, _COUL, _QUAD, _ASYM_R, _ASYM_C, _QSTIFF = (
@@ -122,3 +122,52 @@ def strut_force(z, zd, codes, coef, p0, p1, play, commit):  # pragma: no cover -
             play[i] = g
         n1 += coef[i] * g
     return n1
+
+
+@numba.njit(cache=True)
+def g_partials(code, p0, p1, z, zd, y):  # pragma: no cover - compiled
+    """(∂g/∂z, ∂g/∂ż, ∂g/∂p0) of one basis function at (z, ż), :func:`g_one`'s forms differentiated (the output-error
+    refinement's sensitivities, :mod:`nifo_core.predict.sensitivity`). Almost everywhere: at a kink, the side the
+    point lies on. A play at committed state y: moving with z (∂g/∂z = 1, ∓1 in its half-width p0) or stuck (0, 0,
+    0: its state carries the derivative)."""
+    if code == _CUBIC:
+        return 3.0 * z * z, 0.0, 0.0
+    if code == _QSTIFF:
+        return 2.0 * z, 0.0, 0.0
+    if code == _CLEAR or code == _VDZ:
+        x = z if code == _CLEAR else zd
+        d = 1.0 if abs(x) > p0 else 0.0
+        if code == _CLEAR:
+            return d, 0.0, -np.sign(x) * d
+        return 0.0, d, -np.sign(x) * d
+    if code == _SAT or code == _VSAT:
+        x = z if code == _SAT else zd
+        inside = abs(x) < p0
+        d = 1.0 if inside else 0.0
+        dp = 0.0 if inside else np.sign(x)
+        if code == _SAT:
+            return d, 0.0, dp
+        return 0.0, d, dp
+    if code == _BUMP_C:
+        if z - p1 + p0 < 0.0:
+            return 1.0, 0.0, 1.0
+        return 0.0, 0.0, 0.0
+    if code == _BUMP_R:
+        if z - p1 - p0 > 0.0:
+            return 1.0, 0.0, -1.0
+        return 0.0, 0.0, 0.0
+    if code == _PLAY:
+        if y < z - p0:
+            return 1.0, 0.0, -1.0
+        if y > z + p0:
+            return 1.0, 0.0, 1.0
+        return 0.0, 0.0, 0.0
+    if code == _COUL:
+        t = np.tanh(zd / p0)
+        s = 1.0 - t * t
+        return 0.0, s / p0, -s * zd / (p0 * p0)
+    if code == _QUAD:
+        return 0.0, 2.0 * abs(zd), 0.0
+    if code == _ASYM_R:
+        return 0.0, 1.0 if zd > 0.0 else 0.0, 0.0
+    return 0.0, 1.0 if zd < 0.0 else 0.0, 0.0  # _ASYM_C

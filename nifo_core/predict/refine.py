@@ -78,13 +78,15 @@ from ..kinds.describing import KINDS, Term
 from ..errors import ConfigError, IllConditionedError, InputError
 from .linear_part import BodyModel, absorbed_rates
 from .model import IdentifiedModel, PredictionDivergedError, predict_body, record_inputs
+from .sensitivity import BODY_C, BODY_K, FORCE_GAIN, GAMMA, SHAPE, Parameters, residual_jacobian
 from .time_prediction import predict_bodies
 from .prediction_error import band_spectra
 from ..signal.parallel import batch_map, thread_map
 from ..signal.record import Record
 
 __all__ = ["Refinement", "refine_model", "refine_jointly", "model_nmse", "parameter_space", "ParameterSpace",
-           "start_up_samples", "prediction_residual", "prediction_residuals", "moved_refinement"]
+           "start_up_samples", "prediction_residual", "prediction_residuals", "moved_refinement",
+           "march_jacobian"]
 
 #: relative error a diverged simulation counts as (per record; 1 = predicting zero)
 _DIVERGED = 10.0
@@ -197,6 +199,28 @@ class _Space:
         r[up] -= total / (2 * k)
         r[lo] = np.conj(r[up])
         return replace(lin, residues=r)
+
+    def march_parameters(self, model: IdentifiedModel) -> Parameters | None:
+        """θ as the sensitivity march takes it (:mod:`nifo_core.predict.sensitivity`) for ``model`` = self.model(θ),
+        or None where the march cannot give its Jacobian (the linear part's residues move, feedback paths)."""
+        if self.residues or model.linear.paths is not None:
+            return None
+        nt, sh = self.gamma_scale.size, list(self.shape_idx)
+        kind = [GAMMA] * nt + [SHAPE] * len(sh)
+        term = list(range(nt)) + sh
+        scale = list(self.gamma_scale) + [0.0] * len(sh)
+        if self.body:
+            kind += [BODY_K, BODY_C]
+            term += [-1, -1]
+            scale += [model.linear.body.k, model.linear.body.c]
+        if self.force:
+            kind.append(FORCE_GAIN)
+            term.append(-1)
+            scale.append(0.0)
+        ab = np.array([KINDS[t.kind].absorb if self.track_absorbed else (0.0, 0.0) for t in model.terms], float)
+        ab = ab.reshape(len(model.terms), 2)
+        return Parameters(np.array(kind, np.int64), np.array(term, np.int64), np.array(scale, float),
+                          np.ascontiguousarray(ab[:, 0]), np.ascontiguousarray(ab[:, 1]))
 
     def names(self) -> list[tuple[str, str]]:
         """(name, unit) of every reported value (:func:`_values`)."""
@@ -465,6 +489,11 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
                 ready.clear()
         return work
 
+    def sensitivities(sp: _Space, x: np.ndarray) -> np.ndarray:
+        m = sp.model(x)
+        return march_jacobian(m, sp.march_parameters(m), records, band_hz=band, period_samples=period_samples,
+                              skips=skips, oversample=oversample, lines=[p.size for p in penalty])
+
     def per_record(x: np.ndarray, out: np.ndarray) -> list[float]:
         """Band NMSE [%] per record from the residual vector at θ = x (inf where the simulation diverged)."""
         bad = diverged.get(np.asarray(x, float).tobytes(), set())
@@ -478,10 +507,13 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
         if not np.all(np.isfinite(before[name])):
             return None
         lo, hi = sp.bounds()
-        # the Jacobian's columns (one simulation of every record per parameter) marched together, on threads
+        # the Jacobian from one march of every record (forward sensitivities, :mod:`.sensitivity`); where the
+        # march cannot give it (the residues move), forward differences: one simulation of every record per
+        # parameter, the columns marched together, on threads
+        how = dict(jac=lambda x: sensitivities(sp, x)) if sp.march_parameters(sp.base) is not None else \
+            dict(diff_step=1e-3, workers=columns(sp))
         sol = scipy.optimize.least_squares(lambda x: evaluate(name, sp, x), x0, bounds=(lo, hi), method="trf",
-                                           diff_step=1e-3, x_scale="jac", max_nfev=max_iterations, f_scale=1.0,
-                                           workers=columns(sp))
+                                           x_scale="jac", max_nfev=max_iterations, f_scale=1.0, **how)
         if sol.cost <= 0.5 * float(np.sum(r0 ** 2)):
             return sol.x, sp, sol, per_record(sol.x, sol.fun)
         return x0, sp, sol, before[name]
@@ -529,6 +561,20 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
     refined = replace(refined, provenance=prov)
     return Refinement(model=refined, start=best, nmse_before=before, nmse=finals[best], parameters=params,
                       evaluations=n_eval, message=msg, labels=[r.source for r in records])
+
+
+def march_jacobian(model: IdentifiedModel, params: Parameters, records: Sequence[Record], *,
+                   band_hz: tuple[float, float], period_samples: int | None, skips: Sequence[int],
+                   oversample: int | None, lines: Sequence[int]) -> np.ndarray:
+    """The Jacobian of the refinement's residual vector (every record's (Ŷ - Y)/‖Y‖ on its lines, real parts then
+    imaginary) at ``model`` from one sensitivity march per record (:mod:`.sensitivity`), the records side by side;
+    a record whose simulation diverges counts a constant penalty: zero rows (``lines``: each record's line count)."""
+    parts = thread_map(lambda k: residual_jacobian(model, records[k], params, band_hz=band_hz,
+                                                   period_samples=period_samples, skip_samples=skips[k],
+                                                   oversample=oversample), range(len(records)))
+    jc = np.concatenate([np.zeros((lines[k], params.kind.size), complex) if p is None else p
+                         for k, p in enumerate(parts)])
+    return np.vstack([jc.real, jc.imag])
 
 
 def refine_jointly(model: IdentifiedModel, linear: Refinement, records: Sequence[Record], *,
@@ -652,6 +698,8 @@ class ParameterSpace:
     to_model: Callable[[np.ndarray], IdentifiedModel]
     theta: np.ndarray
     cov: np.ndarray
+    #: the model's θ' as the sensitivity march takes them (:meth:`_Space.march_parameters`; None: it cannot)
+    march: Callable[[IdentifiedModel], Parameters | None] = lambda m: None
 
 
 def parameter_space(model: IdentifiedModel) -> ParameterSpace | None:
@@ -664,7 +712,8 @@ def parameter_space(model: IdentifiedModel) -> ParameterSpace | None:
     if got is None:
         return None
     sp, cov = got
-    return ParameterSpace(to_model=sp.model, theta=sp.x0(np.asarray(model.c_over_m2, float)), cov=cov)
+    return ParameterSpace(to_model=sp.model, theta=sp.x0(np.asarray(model.c_over_m2, float)), cov=cov,
+                          march=sp.march_parameters)
 
 
 def moved_refinement(model: IdentifiedModel, x: np.ndarray, cov: np.ndarray,

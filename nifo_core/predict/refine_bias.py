@@ -36,7 +36,8 @@ from ..signal.noise import NoiseEstimate
 from .prediction_bounds import Z95
 from ..signal.parallel import forward_jacobian
 from ..signal.record import Record
-from .refine import Refinement, moved_refinement, parameter_space, prediction_residuals
+from .prediction_error import band_spectra
+from .refine import Refinement, march_jacobian, moved_refinement, parameter_space, prediction_residuals
 
 __all__ = ["REFIT_EVALUATIONS", "correct_refinement"]
 
@@ -109,7 +110,15 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
         # Jacobian there serves every step (simplified Gauss-Newton), one simulation per step instead of 1 + len(θ)
         x0 = np.asarray(truth["x"], float)
         f0 = residual(x0)
-        jac0 = _forward_jacobian(residual, x0, f0, together=residuals)
+        m0 = to_model(x0)
+        pars = space.march(m0)
+        if pars is None:
+            jac0 = _forward_jacobian(residual, x0, f0, together=residuals)
+        else:       # from one march of each record (forward sensitivities); a diverged record: zero rows
+            lines = [band_spectra(r.body_accel, r.body_accel, r.fs_hz, band_hz=band, period_samples=period,
+                                  skip_samples=s)[0].size for r, s in zip(recs, skips)]
+            jac0 = march_jacobian(m0, pars, recs, band_hz=band, period_samples=period, skips=skips,
+                                  oversample=oversample, lines=lines)
         key = x0.tobytes()
 
         def fun(x: np.ndarray) -> np.ndarray:      # θ0: least_squares' first evaluation is the Jacobian's base
