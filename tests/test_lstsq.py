@@ -62,3 +62,25 @@ def test_an_empty_column_takes_numpys_minimum_norm_solution():
     got = lstsq(b, y)
     np.testing.assert_array_equal(got, np.linalg.lstsq(b, y, rcond=None)[0])
     assert got[2] == 0
+
+
+def test_fixed_columns_refit_gives_lstsqs_coefficients_and_residual():
+    """FixedColumns: F's Gram part once, many V beside it; the same solution as lstsq of [F, V] to rounding."""
+    from nifo_core.signal.least_squares import FixedColumns
+
+    rng = np.random.default_rng(4)
+    n = 20000
+    f = np.column_stack([rng.standard_normal(n) * 1e-3, rng.standard_normal(n) * 0.1])
+    solver = FixedColumns(f, y := f @ [50.0, 2.0] + 0.01 * rng.standard_normal(n))
+    for scale in (1e-9, 1.0):
+        v = np.column_stack([np.maximum(f[:, 0], 0.0) * scale, f[:, 1] ** 3])
+        yy = y + v @ [1.0 / scale, 3.0]
+        solver = FixedColumns(f, yy)
+        x, rss = solver.fit(v)
+        a = np.column_stack([f, v])
+        ref = lstsq(a, yy)
+        np.testing.assert_allclose(x, ref, rtol=1e-9)
+        assert rss == pytest.approx(float(np.sum((yy - a @ ref) ** 2)), rel=1e-9)
+    collinear = np.column_stack([f[:, 0], f[:, 0] * (1 + 1e-12)])    # beyond GRAM_COND: lstsq of the whole
+    x, _ = FixedColumns(f, y).fit(collinear)
+    assert np.all(np.isfinite(x))

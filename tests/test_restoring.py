@@ -323,6 +323,9 @@ def test_mean_shift_solves_the_force_balance_of_the_mean():
     theta = -k * m_true / float(np.mean(g))            # θ for which the mean force vanishes at m_true
     assert mean_shift(z, 0 * z, k, [(stop, theta)]) == pytest.approx(m_true, rel=1e-6)
     assert mean_shift(z, 0 * z, k, []) == 0.0          # nothing one-sided: the mean is the static position
+    # sought first around a nearby value (a fixed point's step before), the same root to the solver's tolerance
+    for near in (m_true, 0.5 * m_true, -m_true, 0.0):
+        assert mean_shift(z, 0 * z, k, [(stop, theta)], near=near) == pytest.approx(m_true, rel=1e-6)
 
 
 def test_bump_stop_gap_is_measured_from_the_static_position_at_every_level():

@@ -36,7 +36,7 @@ from scipy import optimize
 
 from .data import RegressionData
 from ..kinds.describing import Term
-from ..signal.least_squares import lstsq
+from ..signal.least_squares import FixedColumns, lstsq
 from ..signal.parallel import thread_map
 
 __all__ = ["mean_shift", "static_bump_stops", "shifted_offsets", "static_frame"]
@@ -52,7 +52,8 @@ def _shifted(t: Term) -> bool:
     return t.spec.static_frame == "position"
 
 
-def mean_shift(z: np.ndarray, zdot: np.ndarray, k_per_kg: float, terms: Sequence[tuple[Term, float]]) -> float:
+def mean_shift(z: np.ndarray, zdot: np.ndarray, k_per_kg: float, terms: Sequence[tuple[Term, float]], *,
+               near: float | None = None) -> float:
     """Mean position m [m] of a record measured from the static position (module docstring).
 
     Parameters
@@ -64,6 +65,10 @@ def mean_shift(z: np.ndarray, zdot: np.ndarray, k_per_kg: float, terms: Sequence
     terms : sequence of (Term, θ)
         The nonlinear terms with their coefficients per unit sprung mass; a bump stop's own
         ``offset`` is ignored (it is what m replaces).
+
+    near : float, optional
+        Where the root is expected (the last step of a fixed point): bracketed around it first, widening to the
+        motion's range (the same root to the solver's tolerance, from fewer evaluations of the balance).
 
     Returns
     -------
@@ -85,6 +90,18 @@ def mean_shift(z: np.ndarray, zdot: np.ndarray, k_per_kg: float, terms: Sequence
     a = 2.0 * float(np.max(np.abs(z))) if z.size else 0.0
     if not (a > 0 and np.isfinite(k_per_kg)):
         return 0.0
+    if near is not None and abs(near) < a:
+        d = 1e-3 * a
+        while True:      # a bracket around ``near``, widened until it holds the sign change or spans the range
+            lo_m, hi_m = max(near - d, -a), min(near + d, a)
+            lo, hi = balance(lo_m), balance(hi_m)
+            if not (np.isfinite(lo) and np.isfinite(hi)):
+                break
+            if lo * hi <= 0:
+                return float(optimize.brentq(balance, lo_m, hi_m, xtol=1e-9 * a))
+            if lo_m == -a and hi_m == a:
+                return 0.0
+            d *= 10.0
     lo, hi = balance(-a), balance(a)
     if not (np.isfinite(lo) and np.isfinite(hi)) or lo * hi > 0:
         return 0.0
@@ -120,12 +137,38 @@ def _fit(data: RegressionData, terms: list[Term], offsets: list[list[float] | No
     return c, float(r @ r)
 
 
-def _offsets(data: RegressionData, terms: list[Term], c: np.ndarray, j: int, gap: float) -> list[float]:
-    """offset = -m per record for term ``j`` at static gap ``gap``, given the fit ``c``."""
+def _offsets(data: RegressionData, terms: list[Term], c: np.ndarray, j: int, gap: float,
+             near: Sequence[float] | None = None) -> list[float]:
+    """offset = -m per record for term ``j`` at static gap ``gap``, given the fit ``c`` (``near``: the offsets of
+    the step before, where the roots are sought first)."""
     nl = len(data.lin)
     pairs = [(Term(t.kind, {**t.params, t.spec.key_param: gap}) if i == j else t, float(c[nl + i]))
              for i, t in enumerate(terms)]
-    return [-mean_shift(rf.z, rf.zdot, float(c[0]), pairs) for rf in data.rfs]
+    return [-mean_shift(rf.z, rf.zdot, float(c[0]), pairs, near=None if near is None else -float(near[r]))
+            for r, rf in enumerate(data.rfs)]
+
+
+class _Refits:
+    """The fit of ``terms`` with term ``j`` and the shifted terms' columns varying from trial to trial, the others
+    fixed (:class:`~nifo_core.signal.least_squares.FixedColumns`: their Gram part computed once). The same
+    coefficients as :func:`_fit` to rounding, in its order."""
+
+    def __init__(self, data: RegressionData, terms: list[Term], offsets: list, j: int, shifted: list[bool]):
+        self.data, self.nl = data, len(data.lin)
+        self.vary = [i for i in range(len(terms)) if i == j or shifted[i]]
+        self.fixed = [i for i in range(len(terms)) if i not in self.vary]
+        cols = [data.x[:, data.lin], *[data.regressor(terms[i], offsets=offsets[i])[:, None] for i in self.fixed]]
+        self.solver = FixedColumns(np.hstack(cols), data.y)
+
+    def fit(self, terms: list[Term], offsets: list) -> tuple[np.ndarray, float]:
+        v = np.column_stack([self.data.regressor(terms[i], offsets=offsets[i]) for i in self.vary])
+        x, rss = self.solver.fit(v)
+        nl, nf = self.nl, len(self.fixed)
+        c = np.empty(nl + len(terms))
+        c[:nl] = x[:nl]
+        c[[nl + i for i in self.fixed]] = x[nl:nl + nf]
+        c[[nl + i for i in self.vary]] = x[nl + nf:]
+        return c, rss
 
 
 def static_bump_stops(data: RegressionData, terms: Sequence[Term], *,
@@ -158,14 +201,15 @@ def static_bump_stops(data: RegressionData, terms: Sequence[Term], *,
         g_mean = float(t.params[key])
         c, _ = _fit(data, terms, offsets)
         best = (np.inf, g_mean, [0.0] * len(data.rfs))
+        refits = _Refits(data, terms, offsets, j, shifted)
 
         def trial(s: float, c0: np.ndarray) -> tuple[float, float, list[float]]:
             cc, off = c0, None
             for _ in range(3):  # m depends on k and θ, which depend on the offsets: a few fixed-point steps
-                off = _offsets(data, terms, cc, j, s)
+                off = _offsets(data, terms, cc, j, s, near=off)
                 trial_terms = terms[:j] + [Term(t.kind, {**t.params, key: s})] + terms[j + 1:]
                 trial_off = [off if (i == j or shifted[i]) else o for i, o in enumerate(offsets)]
-                cc, rss = _fit(data, trial_terms, trial_off)
+                cc, rss = refits.fit(trial_terms, trial_off)
             return rss, s, off
 
         # the trials of a grid are independent: side by side on threads, then taken in grid order (the same

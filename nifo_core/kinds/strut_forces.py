@@ -124,7 +124,7 @@ def strut_force(z, zd, codes, coef, p0, p1, play, commit):  # pragma: no cover -
     return n1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def g_partials(code, p0, p1, z, zd, y):  # pragma: no cover - compiled
     """(∂g/∂z, ∂g/∂ż, ∂g/∂p0) of one basis function at (z, ż), :func:`g_one`'s forms differentiated (the output-error
     refinement's sensitivities, :mod:`nifo_core.predict.sensitivity`). Almost everywhere: at a kink, the side the

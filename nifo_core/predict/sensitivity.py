@@ -35,7 +35,7 @@ from ..kinds.strut_forces import PLAY, g_one, g_partials, strut_force
 from ..simulate.quarter_car import antialias_taps
 from .prediction_error import band_spectra
 from .time_prediction import _static_frame, _time_inputs, record_inputs
-from .timesim import _UP, _down, _fb_called, _solve, march_arrays, solve_tolerance
+from .timesim import _UP, _fb_called, _solve, march_arrays, solve_tolerance
 
 __all__ = ["GAMMA", "SHAPE", "BODY_K", "BODY_C", "FORCE_GAIN", "Parameters", "sensitivity_march", "residual_jacobian"]
 
@@ -58,10 +58,11 @@ class Parameters:
 
 
 @numba.njit(cache=True, nogil=True)
-def _march(phi, lo, hi, g0, g1, cz, cd, ca, dd, v, dv, codes, coef, p0, p1, la, lb, z_limit, atol,
-           pkind, pterm, pscale, aa, ab, out_zdd, out_dzdd):  # pragma: no cover - compiled
+def _march(phi, lo, hi, g0, g1, cz, cd, ca, dd, v, dv, kv, codes, coef, p0, p1, la, lb, z_limit, atol,
+           pkind, pterm, pscale, aa, ab, out_dzdd):  # pragma: no cover - compiled
     """``timesim``'s single-input step (the same arithmetic for the state) with the sensitivities of every parameter
-    marched beside it; returns the failing step or -1. ``dv``: ∂v/∂θ of a force's gain (zeros otherwise)."""
+    marched beside it; returns the failing step or -1. ``dv``: ∂v/∂θ of parameter ``kv`` (a force's gain; -1:
+    none, the input moves with no parameter)."""
     ns = phi.shape[0]
     nt = codes.size
     npar = pkind.size
@@ -88,9 +89,8 @@ def _march(phi, lo, hi, g0, g1, cz, cd, ca, dd, v, dv, codes, coef, p0, p1, la, 
     active = nt > 0 or la != 0.0 or lb != 0.0
     nk = _fb_called(0.0, 0.0, codes, coef, p0, p1, play, True, la, lb) if active else 0.0
     nprev = nk
-    out_zdd[0] = dd * (v[0] + nk)
-    for k in range(npar):
-        out_dzdd[k, 0] = dd * dv[k, 0]
+    if kv >= 0:
+        out_dzdd[kv, 0] = dd * dv[0]
     for j in range(v.size - 1):
         uk = v[j] + nk
         un = v[j + 1]
@@ -122,10 +122,15 @@ def _march(phi, lo, hi, g0, g1, cz, cd, ca, dd, v, dv, codes, coef, p0, p1, la, 
             nzd += coef[i] * b
         denom = 1.0 - alpha * nz - beta * nzd
         for k in range(npar):
+            dvj = 0.0
+            dvn = 0.0
+            if k == kv:
+                dvj = dv[j]
+                dvn = dv[j + 1]
             dz0 = 0.0
             dzd0 = 0.0
             for i in range(ns):
-                acc = g0[i] * (dv[k, j] + dm_prev[k]) + g1[i] * dv[k, j + 1]
+                acc = g0[i] * (dvj + dm_prev[k]) + g1[i] * dvn
                 for l in range(lo[i], hi[i]):
                     acc += phi[i, l] * dx[k, l]
                 dxs[k, i] = acc
@@ -147,7 +152,7 @@ def _march(phi, lo, hi, g0, g1, cz, cd, ca, dd, v, dv, codes, coef, p0, p1, la, 
                     nth += coef[i] * dplay[k, i]
             dm = (nz * dz0 + nzd * dzd0 + nth) / denom
             dzk = dz0 + alpha * dm
-            zdd_k = dd * (dv[k, j + 1] + dm)
+            zdd_k = dd * (dvn + dm)
             for i in range(ns):
                 dx[k, i] = dxs[k, i] + g1[i] * dm
                 zdd_k += ca[i] * dx[k, i]
@@ -156,32 +161,35 @@ def _march(phi, lo, hi, g0, g1, cz, cd, ca, dd, v, dv, codes, coef, p0, p1, la, 
             for i in range(nt):
                 if codes[i] == PLAY and gz[i] != 0.0:
                     dplay[k, i] = dzk + (gp[i] * p0[i] if (kind == 1 and t == i) else 0.0)
-        zdd = dd * (un + n)
         for i in range(ns):
             x[i] = xs[i] + g1[i] * n
-            zdd += ca[i] * x[i]
         if plays:
             strut_force(z, zd, codes, coef, p0, p1, play, True)
         nk = n
-        out_zdd[j + 1] = zdd
         if not (abs(z) <= z_limit):
             return j + 1
     return -1
 
 
-def sensitivity_march(linear, terms, gammas, v: np.ndarray, dv: np.ndarray, h: float, q: int, z_limit: float,
-                      params: Parameters) -> tuple[np.ndarray, np.ndarray, int]:
-    """(z̈, ∂z̈/∂θ per parameter, failing fine step or -1) for fine-rate input ``v`` and its derivative ``dv``
-    (parameters × fine steps), decimated to the record's rate (z̈ and each row)."""
+def sensitivity_march(linear, terms, gammas, v: np.ndarray, dv: np.ndarray | None, h: float, q: int,
+                      z_limit: float, params: Parameters) -> tuple[np.ndarray, int]:
+    """(∂z̈/∂θ per parameter at the record's rate, failing fine step or -1) for fine-rate input ``v`` and ``dv`` its
+    derivative by the force's gain (None: no parameter moves the input)."""
     ma = march_arrays(linear, terms, gammas, h)
     phi, lo, hi = ma.rows[0], ma.rows[1], ma.rows[2]
-    nf = v.size
-    zdd = np.zeros(nf)
-    dzdd = np.zeros((params.kind.size, nf))
-    fail = _march(phi, lo, hi, ma.g0, ma.g1, ma.c, ma.cd, ma.ca, ma.dd, v, dv, ma.codes, ma.coef, ma.p0, ma.p1,
-                  ma.la, ma.lb, float(z_limit), solve_tolerance(v), params.kind, params.term, params.scale,
-                  params.absorbed_a, params.absorbed_b, zdd, dzdd)
-    return _down(zdd, q), np.stack([_down(row, q) for row in dzdd]) if dzdd.size else dzdd, fail
+    dzdd = np.zeros((params.kind.size, v.size))
+    kv = -1 if dv is None else int(np.flatnonzero(params.kind == FORCE_GAIN)[0])
+    fail = _march(phi, lo, hi, ma.g0, ma.g1, ma.c, ma.cd, ma.ca, ma.dd, v, np.zeros(1) if dv is None else dv, kv,
+                  ma.codes, ma.coef, ma.p0, ma.p1, ma.la, ma.lb, float(z_limit), solve_tolerance(v), params.kind,
+                  params.term, params.scale, params.absorbed_a, params.absorbed_b, dzdd)
+    return _down_rows(dzdd, q), fail
+
+
+def _down_rows(x: np.ndarray, q: int) -> np.ndarray:
+    """:func:`~nifo_core.simulate.quarter_car.decimate` of every row, the rows' FFTs batched."""
+    if q == 1 or not x.size:
+        return x.copy()
+    return signal.oaconvolve(x, antialias_taps(q)[None, :], mode="same", axes=1)[:, ::q].copy()
 
 
 def upsampled(x: np.ndarray, q: int) -> np.ndarray:
@@ -200,10 +208,8 @@ def residual_jacobian(model, record, params: Parameters, *, band_hz: tuple[float
     lin = model.linear
     v, q, limit = _time_inputs(model, lin, a1, force, record.fs_hz, oversample)
     vf = _UP(v, q)
-    dv = np.zeros((params.kind.size, vf.size))
-    for k in np.flatnonzero(params.kind == FORCE_GAIN):
-        dv[k] = upsampled(-model.force_gain * force, q)
-    _, d, fail = sensitivity_march(lin, _static_frame(model.terms), model.c_over_m2, vf, dv,
+    dv = upsampled(-model.force_gain * force, q) if np.any(params.kind == FORCE_GAIN) else None
+    d, fail = sensitivity_march(lin, _static_frame(model.terms), model.c_over_m2, vf, dv,
                                    1.0 / (record.fs_hz * q), q, limit, params)
     if fail >= 0:
         return None

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
-__all__ = ["GRAM_COND", "lstsq"]
+__all__ = ["GRAM_COND", "FixedColumns", "lstsq"]
 
 
 #: the scaled Gram matrix's condition number up to which :func:`lstsq` solves the normal equations (their error,
@@ -45,3 +45,41 @@ def lstsq(a: np.ndarray, y: np.ndarray) -> np.ndarray:
     x = scipy.linalg.cho_solve(factor, (a.T @ y) / scale, check_finite=False) / scale
     r = y - a @ x
     return x + scipy.linalg.cho_solve(factor, (a.T @ r) / scale, check_finite=False) / scale
+
+
+class FixedColumns:
+    """:func:`lstsq` of ``y`` on the columns ``[F, V]`` for many ``V`` beside one fixed ``F``: F's part of the Gram
+    matrix and of the right side computed once (a search over one term's parameter refits the same other columns
+    at every trial point; :func:`nifo_core.characterize.static.static_bump_stops`). The same normal equations on
+    unit-norm columns with one refinement step, so the same coefficients to rounding; beyond :data:`GRAM_COND`,
+    or short, :func:`lstsq` of the stacked matrix."""
+
+    def __init__(self, f: np.ndarray, y: np.ndarray):
+        self.f = np.ascontiguousarray(f, float)
+        self.y = np.asarray(y, float)
+        self.gff = self.f.T @ self.f
+        self.fy = self.f.T @ self.y
+
+    def fit(self, v: np.ndarray) -> tuple[np.ndarray, float]:
+        """(coefficients of [F, V], residual sum of squares) for the varying columns ``v`` (rows × q)."""
+        f, y = self.f, self.y
+        v = np.asarray(v, float).reshape(y.size, -1)
+        p = f.shape[1]
+        gfv = f.T @ v
+        gram = np.block([[self.gff, gfv], [gfv.T, v.T @ v]])
+        scale = np.sqrt(np.diag(gram))
+        ok = y.size >= 8 * gram.shape[0] and np.all((scale > 0) & np.isfinite(scale))
+        if ok:
+            gram = gram / np.outer(scale, scale)
+            ok = np.linalg.cond(gram) < GRAM_COND
+        if not ok:
+            a = np.column_stack([f, v])
+            x = lstsq(a, y)
+            r = y - a @ x
+            return x, float(r @ r)
+        factor = scipy.linalg.cho_factor(gram, check_finite=False)
+        x = scipy.linalg.cho_solve(factor, np.concatenate([self.fy, v.T @ y]) / scale, check_finite=False) / scale
+        r = y - f @ x[:p] - v @ x[p:]
+        x = x + scipy.linalg.cho_solve(factor, np.concatenate([f.T @ r, v.T @ r]) / scale, check_finite=False) / scale
+        r = y - f @ x[:p] - v @ x[p:]
+        return x, float(r @ r)
