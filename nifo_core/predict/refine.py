@@ -203,7 +203,7 @@ class _Space:
     def march_parameters(self, model: IdentifiedModel) -> Parameters | None:
         """θ as the sensitivity march takes it (:mod:`nifo_core.predict.sensitivity`) for ``model`` = self.model(θ),
         or None where the march cannot give its Jacobian (the linear part's residues move, feedback paths)."""
-        if self.residues or model.linear.paths is not None:
+        if self.residues or model.linear.paths is not None or not _blocks(model.linear.state_space()[0]):
             return None
         nt, sh = self.gamma_scale.size, list(self.shape_idx)
         kind = [GAMMA] * nt + [SHAPE] * len(sh)
@@ -561,6 +561,13 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
     refined = replace(refined, provenance=prov)
     return Refinement(model=refined, start=best, nmse_before=before, nmse=finals[best], parameters=params,
                       evaluations=n_eval, message=msg, labels=[r.source for r in records])
+
+
+def _blocks(a: np.ndarray) -> bool:
+    """A is block diagonal in 2×2 and 1×1 blocks (so is e^{A·h}): what the sensitivity march takes."""
+    nz = a != 0
+    cols = np.arange(a.shape[1])
+    return all(not row.any() or np.ptp(cols[row]) <= 1 for row in nz)
 
 
 def march_jacobian(model: IdentifiedModel, params: Parameters, records: Sequence[Record], *,

@@ -31,6 +31,7 @@ import numba
 import numpy as np
 from scipy import signal
 
+from ..errors import ConfigError
 from ..kinds.strut_forces import PLAY, g_one, g_partials, strut_force
 from ..simulate.quarter_car import antialias_taps
 from .prediction_error import band_spectra
@@ -58,12 +59,12 @@ class Parameters:
 
 
 @numba.njit(cache=True, nogil=True)
-def _march(phi, lo, hi, g0, g1, cz, cd, ca, dd, v, dv, kv, codes, coef, p0, p1, la, lb, z_limit, atol,
+def _march(lo, c1, pa, pb, g0, g1, cz, cd, ca, dd, v, dv, kv, codes, coef, p0, p1, la, lb, z_limit, atol,
            pkind, pterm, pscale, aa, ab, out_dzdd):  # pragma: no cover - compiled
     """``timesim``'s single-input step (the same arithmetic for the state) with the sensitivities of every parameter
     marched beside it; returns the failing step or -1. ``dv``: ∂v/∂θ of parameter ``kv`` (a force's gain; -1:
     none, the input moves with no parameter)."""
-    ns = phi.shape[0]
+    ns = pa.size
     nt = codes.size
     npar = pkind.size
     x = np.zeros(ns)
@@ -98,8 +99,8 @@ def _march(phi, lo, hi, g0, g1, cz, cd, ca, dd, v, dv, kv, codes, coef, p0, p1, 
         zd0 = 0.0
         for i in range(ns):
             acc = g0[i] * uk + g1[i] * un
-            for l in range(lo[i], hi[i]):
-                acc += phi[i, l] * x[l]
+            acc += pa[i] * x[lo[i]]
+            acc += pb[i] * x[c1[i]]
             xs[i] = acc
             z0 += cz[i] * acc
             zd0 += cd[i] * acc
@@ -131,8 +132,8 @@ def _march(phi, lo, hi, g0, g1, cz, cd, ca, dd, v, dv, kv, codes, coef, p0, p1, 
             dzd0 = 0.0
             for i in range(ns):
                 acc = g0[i] * (dvj + dm_prev[k]) + g1[i] * dvn
-                for l in range(lo[i], hi[i]):
-                    acc += phi[i, l] * dx[k, l]
+                acc += pa[i] * dx[k, lo[i]]
+                acc += pb[i] * dx[k, c1[i]]
                 dxs[k, i] = acc
                 dz0 += cz[i] * acc
                 dzd0 += cd[i] * acc
@@ -147,9 +148,10 @@ def _march(phi, lo, hi, g0, g1, cz, cd, ca, dd, v, dv, kv, codes, coef, p0, p1, 
                 nth = pscale[k] * z
             elif kind == 3:
                 nth = pscale[k] * zd
-            for i in range(nt):     # a stuck play's force is its state: the state's derivative
-                if codes[i] == PLAY and gz[i] == 0.0:
-                    nth += coef[i] * dplay[k, i]
+            if plays:
+                for i in range(nt):     # a stuck play's force is its state: the state's derivative
+                    if codes[i] == PLAY and gz[i] == 0.0:
+                        nth += coef[i] * dplay[k, i]
             dm = (nz * dz0 + nzd * dzd0 + nth) / denom
             dzk = dz0 + alpha * dm
             zdd_k = dd * (dvn + dm)
@@ -158,7 +160,7 @@ def _march(phi, lo, hi, g0, g1, cz, cd, ca, dd, v, dv, kv, codes, coef, p0, p1, 
                 zdd_k += ca[i] * dx[k, i]
             out_dzdd[k, j + 1] = zdd_k
             dm_prev[k] = dm
-            for i in range(nt):
+            for i in range(nt if plays else 0):
                 if codes[i] == PLAY and gz[i] != 0.0:
                     dplay[k, i] = dzk + (gp[i] * p0[i] if (kind == 1 and t == i) else 0.0)
         for i in range(ns):
@@ -176,10 +178,12 @@ def sensitivity_march(linear, terms, gammas, v: np.ndarray, dv: np.ndarray | Non
     """(∂z̈/∂θ per parameter at the record's rate, failing fine step or -1) for fine-rate input ``v`` and ``dv`` its
     derivative by the force's gain (None: no parameter moves the input)."""
     ma = march_arrays(linear, terms, gammas, h)
-    phi, lo, hi = ma.rows[0], ma.rows[1], ma.rows[2]
+    phi, lo, _, c1, pa, pb, paired = ma.rows
+    if not paired:      # every linear part nifo builds is block diagonal in 2×2 and 1×1 blocks (timesim._rows)
+        raise ConfigError("the sensitivity march needs a block-diagonal linear part", hint="refine by differences")
     dzdd = np.zeros((params.kind.size, v.size))
     kv = -1 if dv is None else int(np.flatnonzero(params.kind == FORCE_GAIN)[0])
-    fail = _march(phi, lo, hi, ma.g0, ma.g1, ma.c, ma.cd, ma.ca, ma.dd, v, np.zeros(1) if dv is None else dv, kv,
+    fail = _march(lo, c1, pa, pb, ma.g0, ma.g1, ma.c, ma.cd, ma.ca, ma.dd, v, np.zeros(1) if dv is None else dv, kv,
                   ma.codes, ma.coef, ma.p0, ma.p1, ma.la, ma.lb, float(z_limit), solve_tolerance(v), params.kind,
                   params.term, params.scale, params.absorbed_a, params.absorbed_b, dzdd)
     return _down_rows(dzdd, q), fail
