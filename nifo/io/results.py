@@ -35,6 +35,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 from typing import Annotated, Any, Literal, Mapping
@@ -84,6 +85,8 @@ def _nan_to_none(o):
     if isinstance(o, Mapping):
         return {k: _nan_to_none(v) for k, v in o.items()}
     if isinstance(o, (list, tuple)):
+        if all(type(v) is float for v in o):     # a plain list of numbers (most of a document): no call per value
+            return [v if math.isfinite(v) else None for v in o]
         return [_nan_to_none(v) for v in o]
     return o
 
