@@ -1,7 +1,7 @@
 """The whole job (``nifo run [DATA...] [--out DIR]``) — characterize, identify, predict, loop, report, recording.
 
 With no DATA, the bundled sample (``bags/sample/*``: a simulated quarter car
-at two road levels). Steps, each into its own subdirectory of ``--out``
+at three road levels). Steps, each into its own subdirectory of ``--out``
 (default ``results/``), by calling the steps' functions of :mod:`nifo.pipeline` with typed options
 (:mod:`nifo.pipeline.options`: each step's own command-line defaults, and this job's input and settings options):
 
