@@ -52,7 +52,7 @@ from nifo.pipeline.options import PredictOptions
 from nifo.settings import for_records, given_from_args, loader_options, resolve
 from nifo_core.errors import ConfigError, InputError, MissingChannelError, NifoError, RecordTooShortError
 from nifo_core.signal.frf import coherence, h1
-from nifo_core.predict.model import predict_body, record_inputs
+from nifo_core.predict.model import PredictionDivergedError, predict_bodies, predict_body, record_inputs
 from nifo_core.predict.output_signal import measured_output, predicted_output
 from nifo_core.predict.periodic import predicts_periodic, record_periodic_response
 from nifo_core.predict.whole_signal import DistortionError, distortion_error, whole_signal_error
@@ -227,9 +227,13 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
               "signals": {"time_s": np.arange(record.n) / fs, drive_col: raw_drive,
                           f"{measured.name}_measured": measured.values, f"{measured.name}_model": y_model,
                           f"{measured.name}_linear": y_lin}}
+    # the parametric (time-domain) predictions of the sigma points marched together: the same bits as one by one
+    together = None if method != "parametric" else lambda ms: [
+        p if isinstance(p, PredictionDivergedError) else p.body_accel
+        for p in predict_bodies(ms, a1, fs, force=force, label=str(path))]
     out["model"]["parameter_bounds"], eps = _parameter_bounds(
         model, lambda m: predict_body(m, a1, fs, force=force, method=method, label=str(path)).body_accel,
-        a2=a2, drive=drive, valid=valid, t_model=t_model, fs=fs, band_hz=band_hz, period_samples=period_samples,
+        together=together, a2=a2, drive=drive, valid=valid, t_model=t_model, fs=fs, band_hz=band_hz, period_samples=period_samples,
         skip=int(period_samples) if period_samples else valid.start, settings=model.settings)
     if eps is not None:
         arrays["t_model_eps"] = eps
@@ -243,11 +247,11 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
     return out, arrays
 
 
-def _parameter_bounds(model, simulate, *, a2, drive, valid, t_model, fs, band_hz, period_samples, skip,
+def _parameter_bounds(model, simulate, *, together=None, a2, drive, valid, t_model, fs, band_hz, period_samples, skip,
                       settings) -> tuple[dict, np.ndarray | None]:
     """The prediction's 95 % bounds from the model's parameter covariance (:mod:`nifo_core.predict.prediction_bounds`):
     (JSON-able numbers or why there are none, the transmissibility's ε per line for the plot's band)."""
-    spread = prediction_spread(model, simulate)
+    spread = prediction_spread(model, simulate, together=together)
     if not spread.available:
         return {"available": False, "reason": spread.unavailable}, None
     kw = {"band_hz": tuple(band_hz), "period_samples": period_samples, "skip_samples": skip}

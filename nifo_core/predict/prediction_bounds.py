@@ -28,7 +28,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..signal.parallel import thread_map
+from ..signal.parallel import batch_map, thread_map
 from .model import IdentifiedModel, PredictionDivergedError
 from .refine import parameter_space
 
@@ -69,12 +69,16 @@ def _sqrt_cov(cov: np.ndarray) -> np.ndarray:
     return vec[:, keep] * np.sqrt(lam[keep])
 
 
-def prediction_spread(model: IdentifiedModel, simulate: Callable[[IdentifiedModel], np.ndarray]) -> PredictionSpread:
+def prediction_spread(model: IdentifiedModel, simulate: Callable[[IdentifiedModel], np.ndarray], *,
+                      together: Callable[[list[IdentifiedModel]], list] | None = None) -> PredictionSpread:
     """The record's predictions at the sigma points of ``model``'s parameter covariance.
 
     ``simulate(m)`` returns the body acceleration model ``m`` predicts for the record (the caller's
     predictor, with the record's drive and options; pure: the sigma points run on threads,
-    :mod:`nifo_core.signal.parallel`). A model without a stored covariance (not refined,
+    :mod:`nifo_core.signal.parallel`). ``together(models)``, where given, returns the same for several models at
+    once (each a body acceleration, or the :class:`PredictionDivergedError` it raised): the sigma points are then
+    marched together in a batch per thread (:mod:`nifo_core.predict.timesim_lanes`, the same bits; measured on the
+    sample's predict step: 36 sigma-point simulations). A model without a stored covariance (not refined,
     or refined without more residual lines than parameters), or one whose sigma point diverges, gives
     an unavailable spread that says why.
     """
@@ -92,7 +96,14 @@ def prediction_spread(model: IdentifiedModel, simulate: Callable[[IdentifiedMode
             return np.asarray(simulate(to_model(x + sign * s[:, k])), float)
         except PredictionDivergedError:
             return point
-    got = thread_map(at, points)          # the sigma points side by side (simulate is pure)
+    if together is None:
+        got = thread_map(at, points)          # the sigma points side by side (simulate is pure)
+    else:
+        def batch(part: list[tuple[int, float]]) -> list:
+            out = together([to_model(x + sign * s[:, k]) for k, sign in part])
+            return [pt if isinstance(o, PredictionDivergedError) else np.asarray(o, float)
+                    for pt, o in zip(part, out)]
+        got = batch_map(batch, points)
     for (k, sign), g in zip(points, got):
         if isinstance(g, tuple):
             return PredictionSpread([], [], x.size, f"the model {'+' if sign > 0 else '-'}1σ along parameter "
