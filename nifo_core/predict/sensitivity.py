@@ -36,7 +36,7 @@ from ..kinds.strut_forces import PLAY, g_one, g_partials, strut_force
 from ..simulate.quarter_car import antialias_taps
 from .prediction_error import band_spectra
 from .time_prediction import _static_frame, _time_inputs, record_inputs
-from .timesim import _UP, _fb_called, _solve, march_arrays, solve_tolerance
+from .timesim import _UP, _solve, march_arrays, march_start, paired_prediction, solve_tolerance
 
 __all__ = ["GAMMA", "SHAPE", "BODY_K", "BODY_C", "FORCE_GAIN", "Parameters", "sensitivity_march", "residual_jacobian"]
 
@@ -78,38 +78,19 @@ def _march(lo, c1, pa, pb, g0, g1, cz, cd, ca, dd, v, dv, kv, codes, coef, p0, p
     gzd = np.zeros(nt)
     gp = np.zeros(nt)
     gv = np.zeros(nt)
-    alpha = 0.0
-    beta = 0.0
-    for i in range(ns):
-        alpha += cz[i] * g1[i]
-        beta += cd[i] * g1[i]
-    plays = False
-    for i in range(nt):
-        if codes[i] == PLAY:
-            plays = True
-    active = nt > 0 or la != 0.0 or lb != 0.0
-    nk = _fb_called(0.0, 0.0, codes, coef, p0, p1, play, True, la, lb) if active else 0.0
+    alpha, beta, plays, active, nk = march_start(codes, coef, p0, p1, play, cz, cd, g1, la, lb)
     nprev = nk
     if kv >= 0:
         out_dzdd[kv, 0] = dd * dv[0]
     for j in range(v.size - 1):
         uk = v[j] + nk
         un = v[j + 1]
-        z0 = 0.0
-        zd0 = 0.0
-        for i in range(ns):
-            acc = g0[i] * uk + g1[i] * un
-            acc += pa[i] * x[lo[i]]
-            acc += pb[i] * x[c1[i]]
-            xs[i] = acc
-            z0 += cz[i] * acc
-            zd0 += cd[i] * acc
-        n = 0.0
-        if active:
-            n, ok = _solve(z0, zd0, alpha, beta, 2.0 * nk - nprev, codes, coef, p0, p1, play, la, lb, atol)
-            nprev = nk
-            if not ok:
-                return j + 1
+        z0, zd0 = paired_prediction(x, xs, lo, c1, pa, pb, g0, g1, uk, un, cz, cd)
+        guess = 2.0 * nk - nprev
+        nprev = nk
+        n, ok = _solve(z0, zd0, alpha, beta, guess, codes, coef, p0, p1, play, la, lb, atol) if active else (0.0, True)
+        if not ok:
+            return j + 1
         z = z0 + alpha * n
         zd = zd0 + beta * n
         # the force's slopes at the solved point, before the play states are committed
@@ -128,15 +109,7 @@ def _march(lo, c1, pa, pb, g0, g1, cz, cd, ca, dd, v, dv, kv, codes, coef, p0, p
             if k == kv:
                 dvj = dv[j]
                 dvn = dv[j + 1]
-            dz0 = 0.0
-            dzd0 = 0.0
-            for i in range(ns):
-                acc = g0[i] * (dvj + dm_prev[k]) + g1[i] * dvn
-                acc += pa[i] * dx[k, lo[i]]
-                acc += pb[i] * dx[k, c1[i]]
-                dxs[k, i] = acc
-                dz0 += cz[i] * acc
-                dzd0 += cd[i] * acc
+            dz0, dzd0 = paired_prediction(dx[k], dxs[k], lo, c1, pa, pb, g0, g1, dvj + dm_prev[k], dvn, cz, cd)
             kind = pkind[k]
             t = pterm[k]
             nth = 0.0

@@ -181,6 +181,40 @@ def _bracketed(z0, zd0, alpha, beta, guess, codes, coef, p0, p1, play, la, lb, a
     return 0.5 * (lo + hi), True
 
 
+@numba.njit(cache=True, inline="always")
+def paired_prediction(x, xs, lo, c1, pa, pb, g0, g1, uk, un, cz, cd):  # pragma: no cover - compiled
+    """xs = Φ·x + Γ0·uk + Γ1·un for Φ's rows as two fixed products (:func:`_rows`); returns (c·xs, c·A·xs). The
+    step's state prediction, and its sensitivities' (:mod:`nifo_core.predict.sensitivity`)."""
+    z0 = 0.0
+    zd0 = 0.0
+    for i in range(xs.size):
+        acc = g0[i] * uk + g1[i] * un
+        acc += pa[i] * x[lo[i]]
+        acc += pb[i] * x[c1[i]]
+        xs[i] = acc
+        z0 += cz[i] * acc
+        zd0 += cd[i] * acc
+    return z0, zd0
+
+
+@numba.njit(cache=True, inline="always")
+def march_start(codes, coef, p0, p1, play, cz, cd, g1, la, lb):  # pragma: no cover - compiled
+    """What a march fixes before its first step: (α = c·Γ1, β = c·A·Γ1, whether a play is there, whether any
+    feedback acts, the feedback at rest with the play states committed)."""
+    alpha = 0.0
+    beta = 0.0
+    for i in range(g1.size):
+        alpha += cz[i] * g1[i]
+        beta += cd[i] * g1[i]
+    plays = False           # only a play has a state to commit after the step
+    for i in range(codes.size):
+        if codes[i] == PLAY:
+            plays = True
+    active = codes.size > 0 or la != 0.0 or lb != 0.0
+    nk = _fb_called(0.0, 0.0, codes, coef, p0, p1, play, True, la, lb) if active else 0.0
+    return alpha, beta, plays, active, nk
+
+
 def _step_kernels(paired: bool):
     """The single-input step kernel (the feedback paths': :func:`_path_kernel`), for Φ's rows as two fixed products
     (``paired``) or as loops over their bands (:func:`_rows`). ``paired`` is a constant of the compiled code, not
@@ -195,21 +229,10 @@ def _step_kernels(paired: bool):
         Row i of Φ is nonzero only in columns lo[i]..hi[i]-1 (:func:`_rows`). z̈ is written at every fine step
         (it is decimated), z, ż and n at every ``q``-th (the record's instants): ``out_z[k]`` is fine step k·q."""
         ns = phi.shape[0]
-        nt = codes.size
-        plays = False           # only a play has a state to commit after the step
-        for i in range(nt):
-            if codes[i] == PLAY:
-                plays = True
         x = np.zeros(ns)
         xs = np.zeros(ns)
-        play = np.zeros(nt)
-        alpha = 0.0
-        beta = 0.0
-        for i in range(ns):
-            alpha += cz[i] * g1[i]
-            beta += cd[i] * g1[i]
-        active = nt > 0 or la != 0.0 or lb != 0.0
-        nk = _fb_called(0.0, 0.0, codes, coef, p0, p1, play, True, la, lb) if active else 0.0
+        play = np.zeros(codes.size)
+        alpha, beta, plays, active, nk = march_start(codes, coef, p0, p1, play, cz, cd, g1, la, lb)
         nprev = nk
         out_z[0], out_zd[0], out_zdd[0], out_n[0] = 0.0, 0.0, dd * (v[0] + nk), nk
         ph = 0
@@ -217,19 +240,18 @@ def _step_kernels(paired: bool):
         for j in range(v.size - 1):
             uk = v[j] + nk
             un = v[j + 1]
-            z0 = 0.0
-            zd0 = 0.0
-            for i in range(ns):
-                acc = g0[i] * uk + g1[i] * un
-                if paired:
-                    acc += pa[i] * x[lo[i]]
-                    acc += pb[i] * x[c1[i]]
-                else:
+            if paired:
+                z0, zd0 = paired_prediction(x, xs, lo, c1, pa, pb, g0, g1, uk, un, cz, cd)
+            else:
+                z0 = 0.0
+                zd0 = 0.0
+                for i in range(ns):
+                    acc = g0[i] * uk + g1[i] * un
                     for l in range(lo[i], hi[i]):
                         acc += phi[i, l] * x[l]
-                xs[i] = acc
-                z0 += cz[i] * acc
-                zd0 += cd[i] * acc
+                    xs[i] = acc
+                    z0 += cz[i] * acc
+                    zd0 += cd[i] * acc
             n = 0.0
             if active:
                 n, ok = _solve(z0, zd0, alpha, beta, 2.0 * nk - nprev, codes, coef, p0, p1, play, la, lb, atol)
