@@ -15,13 +15,13 @@ projected columns with a small basis (:meth:`~.data.GridSearch.err`).
 from __future__ import annotations
 
 from itertools import combinations
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
 from .data import GridSearch
 
-__all__ = ["best_subsets", "subset_rss"]
+__all__ = ["best_subsets", "subset_rss", "better_set", "forward_order"]
 
 
 def _add(extra: np.ndarray, r: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -69,3 +69,41 @@ def best_subsets(search: GridSearch, fixed: Sequence[np.ndarray], kinds: Sequenc
         _, r = _with(search, extra0, r0, js)
         out.append((float(r @ r), tuple(js)))
     return sorted(out)[:keep]
+
+
+def better_set(search: GridSearch, kinds: Sequence[str], chosen: Sequence[int], *, max_terms: int,
+               passes: Callable[[Sequence[int]], bool], gain: float) -> list[int] | None:
+    """The best set of as many kinds as ``chosen`` (two or more), else of one kind more (up to ``max_terms``), when it
+    leaves ``gain`` (relative) less on the subsample and ``passes`` (each of its terms passes the thresholds given
+    the others); else None. Only the best set of each size that leaves less is tried.
+
+    One kind more: a term that stands in for two (a rising knee for the declared falling knee *and* a quadratic
+    damping, tune case 14 of ``benchmarks/bench_physics_fleet.py``) leaves no third term that passes beside it, and
+    no swap of one term for another helps; only the pair in its place does."""
+    if not chosen:
+        return None
+    now = subset_rss(search, [], chosen)
+    sizes = ([len(chosen)] if len(chosen) > 1 else []) + ([len(chosen) + 1] if len(chosen) < max_terms else [])
+    for size in sizes:
+        for rss, js in best_subsets(search, [], kinds, size):
+            if set(js) == set(chosen) or not rss < (1 - gain) * now:
+                continue
+            if passes(js):
+                return list(js)
+            break
+    return None
+
+
+def forward_order(search: GridSearch, js: Sequence[int]) -> list[int]:
+    """Grid terms ``js`` in the order forward selection takes them on the subsample: first the one explaining most,
+    then the one explaining most of what it leaves, ...: a set found whole is listed like one found a term at a
+    time, the strongest first."""
+    left, out = list(js), []
+    extra, r = np.empty((search.r0.size, 0)), search.r0
+    while left:
+        e, _ = search.err(extra, r)
+        j = max(left, key=lambda i: e[i])
+        extra, r = _add(extra, r, search.gt[j])
+        left.remove(j)
+        out.append(j)
+    return out
