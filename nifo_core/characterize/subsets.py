@@ -62,8 +62,7 @@ def best_subsets(search: GridSearch, fixed: Sequence[np.ndarray], kinds: Sequenc
         for _ in range(passes):
             for i, k in enumerate(combo):
                 extra, r = _with(search, extra0, r0, js[:i] + js[i + 1:])
-                e, sg = search.err(extra, r)
-                j = search.best_of(k, e, sg)
+                j = search.best_given(k, extra, r)
                 if j is not None:
                     js[i] = j
         _, r = _with(search, extra0, r0, js)
@@ -72,26 +71,51 @@ def best_subsets(search: GridSearch, fixed: Sequence[np.ndarray], kinds: Sequenc
 
 
 def better_set(search: GridSearch, kinds: Sequence[str], chosen: Sequence[int], *, max_terms: int,
-               passes: Callable[[Sequence[int]], bool], gain: float) -> list[int] | None:
+               passes: Callable[[Sequence[int]], bool], gain: float, min_err: float) -> list[int] | None:
     """The best set of as many kinds as ``chosen`` (two or more), else of one kind more (up to ``max_terms``), when it
     leaves ``gain`` (relative) less on the subsample and ``passes`` (each of its terms passes the thresholds given
     the others); else None. Only the best set of each size that leaves less is tried.
 
     One kind more: a term that stands in for two (a rising knee for the declared falling knee *and* a quadratic
     damping, tune case 14 of ``benchmarks/bench_physics_fleet.py``) leaves no third term that passes beside it, and
-    no swap of one term for another helps; only the pair in its place does."""
+    no swap of one term for another helps; only the pair in its place does. It is sought only where something is
+    left to find (:func:`_put_forward`: a kind explaining ``min_err`` of what ``chosen`` leaves, which the stepwise
+    passes refused), and among the kinds chosen and :data:`PUT_FORWARD` kinds explaining most beside them."""
     if not chosen:
         return None
     now = subset_rss(search, [], chosen)
-    sizes = ([len(chosen)] if len(chosen) > 1 else []) + ([len(chosen) + 1] if len(chosen) < max_terms else [])
-    for size in sizes:
-        for rss, js in best_subsets(search, [], kinds, size):
+    tries = [(len(chosen), kinds)] if len(chosen) > 1 else []
+    if len(chosen) < max_terms:
+        more = _put_forward(search, kinds, chosen, min_err)
+        if more:
+            tries.append((len(chosen) + 1, [k for k in kinds if k in more or k in _kinds(search, chosen)]))
+    for size, among in tries:
+        for rss, js in best_subsets(search, [], among, size):
             if set(js) == set(chosen) or not rss < (1 - gain) * now:
                 continue
             if passes(js):
                 return list(js)
             break
     return None
+
+
+#: kinds beside the chosen ones the set of one kind more is sought among: those explaining most of what the chosen
+#: leave (the stepwise passes score as many at full length before they stop)
+PUT_FORWARD = 3
+
+
+def _kinds(search: GridSearch, js: Sequence[int]) -> set[str]:
+    return {search.terms[j].kind for j in js}
+
+
+def _put_forward(search: GridSearch, kinds: Sequence[str], chosen: Sequence[int], min_err: float) -> list[str]:
+    """The :data:`PUT_FORWARD` kinds not chosen explaining most of what ``chosen`` leaves on the subsample, if the
+    first explains ``min_err`` of it; else none (nothing is left that a set of one kind more could name)."""
+    extra, r = _with(search, np.empty((search.r0.size, 0)), search.r0, chosen)
+    e, sg = search.err(extra, r)
+    best = {k: search.best_of(k, e, sg) for k in kinds if k not in _kinds(search, chosen)}
+    top = sorted((k for k, j in best.items() if j is not None), key=lambda k: -e[best[k]])[:PUT_FORWARD]
+    return top if top and e[best[top[0]]] >= min_err else []
 
 
 def forward_order(search: GridSearch, js: Sequence[int]) -> list[int]:
