@@ -194,8 +194,7 @@ def _characterize(data: RegressionData, rfs: Sequence[RestoringForce], *, m2_kg:
         best1[k] = j if j is not None else search.best_of(k, e1, np.ones_like(s1))
     table = dict(zip(kinds, thread_map(lambda k: score(best1[k], [], ()), kinds)))
     # --- stepwise selection: forward, each term chosen again given the others, backward ------------------------
-    chosen_j, replaced = _stepwise(search, data, kinds, score, max_terms, table, best1,
-                                   min_err=thresholds.min_err)
+    chosen_j, replaced = _stepwise(search, data, kinds, score, max_terms, table, best1)
     chosen_terms = [search.terms[i] for i in chosen_j]
     shifts = shifted_offsets(data, chosen_terms)
     base = [data.regressor(t, offsets=o) for t, o in zip(chosen_terms, shifts)]
@@ -384,7 +383,7 @@ def _labels(search: GridSearch, js: Sequence[int]) -> str:
 
 def _stepwise(search: GridSearch, data: RegressionData, kinds: Sequence[str],
               score: Callable[[int, list[np.ndarray], tuple[str, ...]], Candidate], max_terms: int,
-              table: dict, best1: dict, *, min_err: float) -> tuple[list[int], list[tuple[list[int], list[int]]]]:
+              table: dict, best1: dict) -> tuple[list[int], list[tuple[list[int], list[int]]]]:
     """The suggested terms (grid indices) by stepwise selection: every kind whose partial contribution, given all
     the other terms chosen, passes the thresholds (is above its detection limit), and none that does not.
 
@@ -411,8 +410,7 @@ def _stepwise(search: GridSearch, data: RegressionData, kinds: Sequence[str],
         return all(score(j, *_base_of(search, data, [i for i in js if i != j])).present for j in js)
 
     for _ in range(_SUBSET_ROUNDS):
-        better = better_set(search, kinds, chosen, max_terms=max_terms, passes=passes, gain=_SUBSET_GAIN,
-                            min_err=min_err)
+        better = better_set(search, kinds, chosen, max_terms=max_terms, passes=passes, gain=_SUBSET_GAIN)
         if better is None:
             break
         replaced.append((chosen, better))
