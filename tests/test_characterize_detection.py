@@ -64,3 +64,20 @@ def test_a_ranking_on_a_grid_search_built_before_is_the_ranking_built_anew(knee_
             rank_beyond(rfs, (), m2_kg=m2, search=search, **other)
     with pytest.raises(ConfigError, match="other data, kinds"):
         rank_beyond(list(reversed(rfs)), (), m2_kg=m2, kinds=kinds, grid_points=12, search=search)
+
+
+def test_one_kinds_best_scored_on_its_columns_alone_is_its_best_among_all(knee_data):
+    """A set search re-places one kind at a time on that kind's columns alone (GridSearch.best_given, each kind's
+    columns stacked together): the same grid point as scoring every column, given nothing and given a term."""
+    from nifo_core.characterize.automatic import grid_search
+
+    rfs, _ = knee_data
+    search = grid_search(rfs, kinds=("velocity_deadzone", "coulomb", "cubic_stiffness", "clearance"), grid_points=12)
+    assert [t.kind for t in search.terms] == sorted((t.kind for t in search.terms), key=list(search.grids).index)
+    none = np.empty((search.r0.size, 0))
+    knee = search.best_given("velocity_deadzone", none, search.r0)
+    for extra, r in ((none, search.r0), search.basis([search.data.regressor(search.terms[knee])])):
+        e, sign = search.err(extra, r)
+        for k in search.grids:
+            assert search.best_given(k, extra, r) == search.best_of(k, e, sign)
+            assert search.terms[search.best_given(k, extra, r)].kind == k

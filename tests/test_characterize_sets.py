@@ -59,3 +59,24 @@ def test_a_clearance_beside_a_rebound_damper_is_found_from_the_static_position()
     gap = next(c.term.params["gap"] for c in ch.suggested if c.kind == "clearance")
     assert abs(gap - 0.003) < 0.1 * 0.003
     assert ch.notes[0].startswith("every form of z measured from the static position")
+
+
+def test_a_term_standing_in_for_two_gives_way_to_the_pair():
+    # issue 54, the fleet's tune case 14 (nifo's simulator, 100 s a level here): the declared blow-off knee (0.085
+    # m/s, -0.5 c2) beside a cubic spring and a quadratic damping. One change at a time stopped at a *rising* knee at
+    # 0.26 m/s and the cubic: that knee stands in for the falling knee and the quadratic damping together, so no third
+    # term passed beside it and no swap of one term helped. The best set of one kind more, each of its terms passing
+    # given the others, replaces it: the three true terms, the knee falling again
+    from dataclasses import replace as with_
+
+    from bench_physics_fleet import draw_case, simulate_level
+
+    case = with_(draw_case(14), duration_s=100.0)
+    ch = characterize([simulate_level(case, j) for j in range(len(case.levels_mm))], m2_kg=case.corner["m2"])
+    print([c.term.label for c in ch.suggested], [c.coefficient for c in ch.suggested])
+    assert sorted(c.kind for c in ch.suggested) == ["cubic_stiffness", "quadratic_damping", "velocity_deadzone"]
+    got = {c.kind: c for c in ch.suggested}
+    assert got["velocity_deadzone"].coefficient < 0
+    assert got["velocity_deadzone"].term.params["knee"] == pytest.approx(0.0851, rel=0.1)
+    assert got["quadratic_damping"].coefficient == pytest.approx(3712, rel=0.1)
+    assert any(n.startswith("one change at a time stopped at") for n in ch.notes)

@@ -75,7 +75,7 @@ from .result import (DEFAULT_KINDS, Candidate, Characterization, Equivalence, Fi
                      RecordSummary, Thresholds)
 from .score import base_fit, detection_limit, lstsq, score_candidate
 from .static import shifted_offsets, static_bump_stops, static_frame
-from .subsets import best_subsets, subset_rss
+from .subsets import better_set, forward_order
 from ..kinds.describing import Term, kind as lookup_kind
 from ..errors import ConfigError, InputError
 from ..signal.integrate import IntegrationBand
@@ -194,7 +194,7 @@ def _characterize(data: RegressionData, rfs: Sequence[RestoringForce], *, m2_kg:
         best1[k] = j if j is not None else search.best_of(k, e1, np.ones_like(s1))
     table = dict(zip(kinds, thread_map(lambda k: score(best1[k], [], ()), kinds)))
     # --- stepwise selection: forward, each term chosen again given the others, backward ------------------------
-    chosen_j = _stepwise(search, data, kinds, score, max_terms, table, best1)
+    chosen_j, replaced = _stepwise(search, data, kinds, score, max_terms, table, best1)
     chosen_terms = [search.terms[i] for i in chosen_j]
     shifts = shifted_offsets(data, chosen_terms)
     base = [data.regressor(t, offsets=o) for t, o in zip(chosen_terms, shifts)]
@@ -251,6 +251,10 @@ def _characterize(data: RegressionData, rfs: Sequence[RestoringForce], *, m2_kg:
     model = _joint(data, [c.term for c in chosen], [c.offsets or None for c in chosen])
     lin = _linear(data, m2_kg, body_stiffness)
     notes = []
+    for before, after in replaced:
+        notes.append(f"one change at a time stopped at {_labels(search, before)}; the set "
+                     f"{_labels(search, after)} leaves less and each of its terms passes given the others: "
+                     f"the selection went on from it")
     if not chosen:
         notes.append("no nonlinear candidate met the thresholds: no form of the library explains what the "
                      "linear fit leaves")
@@ -373,9 +377,13 @@ def _base_of(search: GridSearch, data: RegressionData, js: Sequence[int]) -> tup
         tuple(t.label for t in terms)
 
 
+def _labels(search: GridSearch, js: Sequence[int]) -> str:
+    return "{" + ", ".join(search.terms[j].label for j in js) + "}"
+
+
 def _stepwise(search: GridSearch, data: RegressionData, kinds: Sequence[str],
               score: Callable[[int, list[np.ndarray], tuple[str, ...]], Candidate], max_terms: int,
-              table: dict, best1: dict) -> list[int]:
+              table: dict, best1: dict) -> tuple[list[int], list[tuple[list[int], list[int]]]]:
     """The suggested terms (grid indices) by stepwise selection: every kind whose partial contribution, given all
     the other terms chosen, passes the thresholds (is above its detection limit), and none that does not.
 
@@ -383,24 +391,35 @@ def _stepwise(search: GridSearch, data: RegressionData, kinds: Sequence[str],
     term whose partial contribution given all the others fails the thresholds worst (smallest ERR) is dropped
     (backward elimination); else the best present candidate of a kind not chosen, given all the chosen terms, is
     added (forward selection, ≤ ``max_terms``). It ends when a pass changes nothing or would return to a set
-    seen before. Then the best set of as many kinds (:func:`~.subsets.best_subsets`, on the subsample) replaces it
-    when it leaves :data:`_SUBSET_GAIN` less and each of its terms passes given the others, and the passes go on from
-    there: one change at a time can stop short of the best set. Forward selection alone keeps what an early step took: measured on quadratic damping beside the
-    paper's damper knee (the independent simulator, 4 levels), step 1 took a rising knee at 0.18 m/s standing
-    in for the quadratic damping (ERR 0.86 against 0.74), step 2 a friction, step 3 the quadratic damping; once
+    seen before. Then the best set of as many kinds (:func:`~.subsets.best_subsets`, on the subsample), else of one
+    kind more, replaces it when it leaves :data:`_SUBSET_GAIN` less and each of its terms passes given the others,
+    and the passes go on from there (:func:`~.subsets.better_set`): one change at a time can stop short of the best
+    set.
+    Returns the terms and the replacements made (what the passes stopped at, what replaced it) for the notes.
+
+    Forward selection alone keeps what an early step took: measured on quadratic damping beside the paper's damper
+    knee (the independent simulator, 4 levels), step 1 took a rising knee at 0.18 m/s standing in for the quadratic
+    damping (ERR 0.86 against 0.74), step 2 a friction, step 3 the quadratic damping; once
     the quadratic damping is in, neither the re-placed knee nor the friction passes given the others
     (coefficient spread across the levels 1.5 and 1.0), and the true pair is found.
     """
     chosen = _steps(search, data, kinds, score, max_terms, table, best1, [])
-    if len(chosen) > 1:      # the best set of as many kinds, if every term of it passes given the others
-        now = subset_rss(search, [], chosen)
-        for rss, js in best_subsets(search, [], kinds, len(chosen)):
-            if set(js) == set(chosen) or not rss < (1 - _SUBSET_GAIN) * now:
-                continue
-            if all(score(j, *_base_of(search, data, [i for i in js if i != j])).present for j in js):
-                chosen = _steps(search, data, kinds, score, max_terms, table, best1, list(js))
+    replaced = []       # (the set the passes stopped at, the set that replaced it)
+
+    def passes(js: Sequence[int]) -> bool:     # each term passes the thresholds given the others
+        return all(score(j, *_base_of(search, data, [i for i in js if i != j])).present for j in js)
+
+    for _ in range(_SUBSET_ROUNDS):
+        better = better_set(search, kinds, chosen, max_terms=max_terms, passes=passes, gain=_SUBSET_GAIN)
+        if better is None:
             break
-    return chosen
+        replaced.append((chosen, better))
+        chosen = _steps(search, data, kinds, score, max_terms, table, best1, better)
+    return (forward_order(search, chosen) if replaced else chosen), replaced
+
+
+#: tries of :func:`~.subsets.better_set` after the stepwise passes
+_SUBSET_ROUNDS = 2
 
 
 #: a set of kinds found by :func:`~.subsets.best_subsets` replaces the stepwise one when its residual on the subsample
