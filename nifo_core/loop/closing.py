@@ -115,6 +115,7 @@ from ..predict.heldout import HeldOut, split_records
 from ..predict.model import IdentifiedModel
 from ..predict.scope_fit import fit_scope
 from .residual import _design, _Evaluator, _evidence, _g, _retune, _static_candidate, _tire_check
+from .stops import retune_stops
 from ..predict.model_fit import RATIONAL_MARGIN, Fitted, LinearChoice, choose_linear_form, fit_model
 from ..settings import AnalysisSettings
 from .results import (NOTHING_MISSING, RESIDUAL_BANDS_HZ, RETUNE_FACTOR, DeclaredTerm, Errors, Evidence,
@@ -630,8 +631,11 @@ def _round(u: _Setup, i: int, terms: list[Term], current: Errors, search, ambigu
         say(base, f"round {i}: re-tuning the model's parameters")
         u.frame.unplace(ev, terms[u.n_decl:])     # re-tuned as from each record's mean, then placed again
         terms, tuned = _retune(ev, terms, s, which=range(u.n_decl, len(terms)))
-        if _placed(u, terms) or tuned:
+        placed = _placed(u, terms)    # then a stop's static gap, given the model in its frame (stops.py)
+        terms, moved = retune_stops(ev, terms, which=range(u.n_decl, len(terms)))
+        if _placed(u, terms) or placed or tuned or moved:
             current = _errors(ev, pred, terms)
+        tuned += moved
     say(base, f"round {i}: tracing the residual")
     # the candidates' grid on the fit parts: the data's in the model's frame, built again only when that moved
     search = u.frame.search(ev, s.kinds, s.grid_points, search,
