@@ -631,8 +631,8 @@ def _round(u: _Setup, i: int, terms: list[Term], current: Errors, search, ambigu
         say(base, f"round {i}: re-tuning the model's parameters")
         u.frame.unplace(ev, terms[u.n_decl:])     # re-tuned as from each record's mean, then placed again
         terms, tuned = _retune(ev, terms, s, which=range(u.n_decl, len(terms)))
-        placed = _placed(u, terms)    # then a stop's static gap, given the model in its frame (stops.py)
-        terms, moved = retune_stops(ev, terms, which=range(u.n_decl, len(terms)))
+        placed = _placed(u, terms)    # then a stop's static gap given the model in its frame (stops.py; a new label)
+        terms, moved = retune_stops(ev.regression(), ev.static, terms, which=range(u.n_decl, len(terms)))
         if _placed(u, terms) or placed or tuned or moved:
             current = _errors(ev, pred, terms)
         tuned += moved

@@ -28,55 +28,68 @@ import numpy as np
 from ..characterize.static import _fit, _offsets
 from ..kinds.describing import Term
 from ..signal.parallel import thread_map
-from .residual import _Evaluator
+from ..characterize.data import RegressionData
 from .results import RETUNE_FACTOR
 
-__all__ = ["RETUNE_GAIN", "retune_stops"]
+__all__ = ["RETUNE_GAIN", "placed_beyond", "retune_stops"]
 
 #: a stop is moved only when its best gap lowers the equation error's sum of squares by more than this fraction
 RETUNE_GAIN = 1e-3
 #: static gaps tried: this span around the current one, in so many points, then 9 points around the best
 SPAN, POINTS = (0.7, 1.3), 13
+#: times the span is carried on up when its best is at its top (at most to the factor-2 bound)
+CLIMBS = 3
 
 
-def retune_stops(ev: _Evaluator, terms: Sequence[Term], *, which: Sequence[int],
-                 declared: Sequence[Term] = ()) -> tuple[list[Term], list[str]]:
-    """Each bump stop among ``terms[which]`` measured from the static position (its offsets in ``ev.static``) with
-    its static gap and offsets tuned again given the whole model (module docstring); ``ev.static`` updated.
+def retune_stops(data: RegressionData, static: dict[str, tuple[float, ...]], terms: Sequence[Term], *,
+                 which: Sequence[int], declared: Sequence[Term] = ()) -> tuple[list[Term], list[str]]:
+    """Each bump stop among ``terms[which]`` measured from the static position (its offsets in ``static``, the
+    loop evaluator's: term label → offset -m_i per record) with its static gap and offsets tuned again given the
+    whole model (module docstring), on ``data`` (the evaluator's regression rows); ``static`` updated.
 
     A declared stop stays within :data:`~nifo_core.loop.results.RETUNE_FACTOR` of its declared gap, a stop the loop
     added within a factor 2 of its current one (as :func:`~nifo_core.loop.residual._retune`). Returns the terms and
-    one note per stop moved."""
+    one note per stop moved (its label changes: its gap and offset are in it)."""
     out, notes = list(terms), []
     for j in which:
         t = out[j]
-        if t.spec.static_frame != "threshold" or t.label not in ev.static:
+        if t.spec.static_frame != "threshold" or t.label not in static:
             continue
-        new = _retuned(ev, out, j, declared[j] if j < len(declared) and declared[j].kind == t.kind else None)
+        new = _retuned(data, static, out, j, declared[j] if j < len(declared) and declared[j].kind == t.kind else None)
         if new is None:
             continue
         term, off = new
-        del ev.static[t.label]
-        ev.static[term.label] = off
+        del static[t.label]
+        static[term.label] = off
         out[j] = term
         key = t.spec.key_param
         notes.append(f"{t.label} re-tuned to {key}={float(term.params[key]):.4g} from the static position on these "
                      f"data")
-    if notes:
-        ev.forget_equations()
     return out, notes
 
 
-def _retuned(ev: _Evaluator, terms: list[Term], j: int,
+def placed_beyond(data: RegressionData, static: dict[str, tuple[float, ...]], terms: Sequence[Term], stop: Term,
+                  offsets: tuple[float, ...]) -> tuple[Term, tuple[float, ...]]:
+    """A stop just placed from the static position (:func:`~nifo_core.characterize.static.static_bump_stops`, its
+    per-record ``offsets``) whose static gap came out beyond its gap from the mean, searched on up from there.
+
+    That search tries static gaps up to 1.05 × the gap from the mean: a stop alone pushes the mean away from itself.
+    A static gap beyond the gap from the mean says the model's mean force pushed the mean towards the stop (a damper
+    stiffer in rebound, towards compression), and the search may have ended at its top (module docstring). The
+    stop and its offsets as placed when nothing lowers the error by :data:`RETUNE_GAIN`."""
+    new = _retuned(data, {**static, stop.label: offsets}, [*terms, stop], len(terms), None)
+    return (stop, offsets) if new is None else new
+
+
+def _retuned(data: RegressionData, static: dict[str, tuple[float, ...]], terms: list[Term], j: int,
              declared: Term | None) -> tuple[Term, tuple[float, ...]] | None:
     """Stop ``j``'s best static gap and offsets, or None when it does not lower the error by :data:`RETUNE_GAIN`."""
-    data = ev.regression()
     t = terms[j]
     key = t.spec.key_param
     g0 = float(t.params[key])
     lo, hi = (0.5 * g0, 2.0 * g0) if declared is None else \
         (float(declared.params[key]) / RETUNE_FACTOR, float(declared.params[key]) * RETUNE_FACTOR)
-    offsets = [ev.static.get(u.label) for u in terms]
+    offsets = [static.get(u.label) for u in terms]
     c0, now = _fit(data, terms, offsets)
 
     def trial(gap: float) -> tuple[float, float, list[float]]:
@@ -93,6 +106,12 @@ def _retuned(ev: _Evaluator, terms: list[Term], j: int,
 
     step = (SPAN[1] - SPAN[0]) / (POINTS - 1) * g0
     best = best_of([*np.linspace(*SPAN, POINTS) * g0, g0])
+    top = SPAN[1] * g0
+    for _ in range(CLIMBS):    # the best at the span's top: the span goes on up from there
+        if best[1] < top * (1 - 1e-9) or top >= hi:
+            break
+        best = min(best, best_of(np.arange(1, POINTS // 2 + 1) * step + top), key=lambda b: b[0])
+        top += POINTS // 2 * step
     best = min(best, best_of(np.linspace(best[1] - step, best[1] + step, 9)[1:-1]), key=lambda b: b[0])
     rss, gap, off = best
     if not rss < (1.0 - RETUNE_GAIN) * now:
