@@ -26,10 +26,9 @@ import numpy as np
 
 # the same fit and per-record offsets characterize's static search uses (one formula of the mean balance)
 from ..characterize.static import _fit, _offsets
+from ..characterize.data import RegressionData
 from ..kinds.describing import Term
 from ..signal.parallel import thread_map
-from ..characterize.data import RegressionData
-from .results import RETUNE_FACTOR
 
 __all__ = ["RETUNE_GAIN", "placed_beyond", "retune_stops"]
 
@@ -42,20 +41,20 @@ CLIMBS = 3
 
 
 def retune_stops(data: RegressionData, static: dict[str, tuple[float, ...]], terms: Sequence[Term], *,
-                 which: Sequence[int], declared: Sequence[Term] = ()) -> tuple[list[Term], list[str]]:
+                 which: Sequence[int]) -> tuple[list[Term], list[str]]:
     """Each bump stop among ``terms[which]`` measured from the static position (its offsets in ``static``, the
     loop evaluator's: term label → offset -m_i per record) with its static gap and offsets tuned again given the
     whole model (module docstring), on ``data`` (the evaluator's regression rows); ``static`` updated.
 
-    A declared stop stays within :data:`~nifo_core.loop.results.RETUNE_FACTOR` of its declared gap, a stop the loop
-    added within a factor 2 of its current one (as :func:`~nifo_core.loop.residual._retune`). Returns the terms and
-    one note per stop moved (its label changes: its gap and offset are in it)."""
+    Within a factor 2 of its current gap (as :func:`~nifo_core.loop.residual._retune` a term the loop added; a
+    declared stop has no offsets of its own and is re-tuned there). Returns the terms and one note per stop moved
+    (its label changes: its gap and offset are in it)."""
     out, notes = list(terms), []
     for j in which:
         t = out[j]
         if t.spec.static_frame != "threshold" or t.label not in static:
             continue
-        new = _retuned(data, static, out, j, declared[j] if j < len(declared) and declared[j].kind == t.kind else None)
+        new = _retuned(data, static, out, j)
         if new is None:
             continue
         term, off = new
@@ -77,18 +76,17 @@ def placed_beyond(data: RegressionData, static: dict[str, tuple[float, ...]], te
     A static gap beyond the gap from the mean says the model's mean force pushed the mean towards the stop (a damper
     stiffer in rebound, towards compression), and the search may have ended at its top (module docstring). The
     stop and its offsets as placed when nothing lowers the error by :data:`RETUNE_GAIN`."""
-    new = _retuned(data, {**static, stop.label: offsets}, [*terms, stop], len(terms), None)
+    new = _retuned(data, {**static, stop.label: offsets}, [*terms, stop], len(terms))
     return (stop, offsets) if new is None else new
 
 
-def _retuned(data: RegressionData, static: dict[str, tuple[float, ...]], terms: list[Term], j: int,
-             declared: Term | None) -> tuple[Term, tuple[float, ...]] | None:
+def _retuned(data: RegressionData, static: dict[str, tuple[float, ...]], terms: list[Term],
+             j: int) -> tuple[Term, tuple[float, ...]] | None:
     """Stop ``j``'s best static gap and offsets, or None when it does not lower the error by :data:`RETUNE_GAIN`."""
     t = terms[j]
     key = t.spec.key_param
     g0 = float(t.params[key])
-    lo, hi = (0.5 * g0, 2.0 * g0) if declared is None else \
-        (float(declared.params[key]) / RETUNE_FACTOR, float(declared.params[key]) * RETUNE_FACTOR)
+    lo, hi = 0.5 * g0, 2.0 * g0
     offsets = [static.get(u.label) for u in terms]
     c0, now = _fit(data, terms, offsets)
 
