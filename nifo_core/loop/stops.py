@@ -24,10 +24,10 @@ from typing import Sequence
 
 import numpy as np
 
-# the same fit and per-record offsets characterize's static search uses (one formula of the mean balance)
-from ..characterize.static import _fit, _offsets
 from ..characterize.data import RegressionData
+from ..characterize.static import mean_shift
 from ..kinds.describing import Term
+from ..signal.least_squares import lstsq
 from ..signal.parallel import thread_map
 
 __all__ = ["RETUNE_GAIN", "placed_beyond", "retune_stops"]
@@ -92,10 +92,10 @@ def _retuned(data: RegressionData, static: dict[str, tuple[float, ...]], terms: 
 
     def trial(gap: float) -> tuple[float, float, list[float]]:
         c, off, rss = c0, None, np.inf
+        at = [*terms[:j], Term(t.kind, {**t.params, key: gap}), *terms[j + 1:]]
         for _ in range(3):   # m depends on k and θ, which depend on the offsets: a few fixed-point steps
-            off = _offsets(data, terms, c, j, gap)
-            c, rss = _fit(data, [*terms[:j], Term(t.kind, {**t.params, key: gap}), *terms[j + 1:]],
-                          [*offsets[:j], off, *offsets[j + 1:]])
+            off = _static_offsets(data, at, c)
+            c, rss = _fit(data, at, [*offsets[:j], off, *offsets[j + 1:]])
         return rss, gap, off
 
     def best_of(gaps) -> tuple[float, float, list[float]]:
@@ -117,3 +117,18 @@ def _retuned(data: RegressionData, static: dict[str, tuple[float, ...]], terms: 
     main = int(np.argmax([float(np.std(rf.z)) for rf in data.rfs]))
     return (Term(t.kind, {**t.params, key: float(gap), "offset": float(off[main])}),
             tuple(float(v) for v in off))
+
+
+def _fit(data: RegressionData, terms: Sequence[Term], offsets: Sequence) -> tuple[np.ndarray, float]:
+    """The equation error's least squares with ``terms`` at their ``offsets``: (coefficients, sum of squares)."""
+    a = np.column_stack([data.x[:, data.lin], *[data.regressor(t, offsets=o) for t, o in zip(terms, offsets)]])
+    c = lstsq(a, data.y)
+    r = data.y - a @ c
+    return c, float(r @ r)
+
+
+def _static_offsets(data: RegressionData, terms: Sequence[Term], c: np.ndarray) -> list[float]:
+    """-m per record: the mean balance of ``terms`` with the coefficients ``c`` (a stop's gap from the static
+    position, :func:`~nifo_core.characterize.static.mean_shift`)."""
+    theta = c[len(data.lin):]
+    return [-mean_shift(rf.z, rf.zdot, float(c[0]), list(zip(terms, map(float, theta)))) for rf in data.rfs]
