@@ -115,6 +115,7 @@ from ..predict.heldout import HeldOut, split_records
 from ..predict.model import IdentifiedModel
 from ..predict.scope_fit import fit_scope
 from .residual import _design, _Evaluator, _evidence, _g, _retune, _static_candidate, _tire_check
+from .stops import retune_stops
 from ..predict.model_fit import RATIONAL_MARGIN, Fitted, LinearChoice, choose_linear_form, fit_model
 from ..settings import AnalysisSettings
 from .results import (NOTHING_MISSING, RESIDUAL_BANDS_HZ, RETUNE_FACTOR, DeclaredTerm, Errors, Evidence,
@@ -533,8 +534,7 @@ def close_loop(records: Record | Sequence[Record], declared: Sequence[Term | Map
     say(1.0, "done")
     return LoopResult(declared=tuple(make_term(t) for t in declared), terms=tuple(terms), rounds=found.rounds,
                       initial=u.initial, final=current, verdict=fin.verdict, band=u.band, m2_kg=m2_kg, settings=s,
-                      sources=tuple(r.source for r in u.recs),
-                      fit_seconds=tuple(a.duration_s for a in ev.fit_recs),
+                      sources=tuple(r.source for r in u.recs), fit_seconds=tuple(a.duration_s for a in ev.fit_recs),
                       test_seconds=tuple(b.duration_s for b in ev.test_recs), notes=tuple(notes), model=fin.model,
                       linear_model=fin.linear, model_unavailable=fin.unavailable, detection_limits=limits,
                       confounded=confounded, bounds=bounds, undetermined=undetermined, refinement=fin.refinement,
@@ -630,15 +630,17 @@ def _round(u: _Setup, i: int, terms: list[Term], current: Errors, search, ambigu
         say(base, f"round {i}: re-tuning the model's parameters")
         u.frame.unplace(ev, terms[u.n_decl:])     # re-tuned as from each record's mean, then placed again
         terms, tuned = _retune(ev, terms, s, which=range(u.n_decl, len(terms)))
-        if _placed(u, terms) or tuned:
+        placed = _placed(u, terms)    # then a stop's static gap given the model in its frame (stops.py; a new label)
+        terms, moved = retune_stops(ev.regression(), ev.static, terms, which=range(u.n_decl, len(terms)))
+        tuned += moved
+        if _placed(u, terms) or placed or tuned:
             current = _errors(ev, pred, terms)
     say(base, f"round {i}: tracing the residual")
     # the candidates' grid on the fit parts: the data's in the model's frame, built again only when that moved
     search = u.frame.search(ev, s.kinds, s.grid_points, search,
                             lambda f, b=base: say(b + 0.5 * f / total, f"round {i}: tracing"))
     ranked = rank_beyond(ev.fit_rfs, terms, m2_kg=u.m2_kg, kinds=s.kinds, thresholds=s.thresholds,
-                         grid_points=s.grid_points, offsets=[ev.static.get(t.label) for t in terms],
-                         search=search)
+                         grid_points=s.grid_points, offsets=[ev.static.get(t.label) for t in terms], search=search)
     cands = _round_candidates(ev, pred, terms, ranked, s, u.m2_kg)
     twin = None
     if pred.flexible and cands and all(t.kind in PATH_KINDS for t in terms):
@@ -704,8 +706,7 @@ def _try_candidates(u: _Setup, i: int, terms: Sequence[Term], ranked: Sequence[C
                 added = trials[-1]
                 break
         if added is not None:   # another kind that explains as much and predicts as well: named beside it
-            added, amb = _rival(i, u.held, u.ev.fit_rfs, added, cands[len(trials):], judge, trials, s,
-                                u.explanation)
+            added, amb = _rival(i, u.held, u.ev.fit_rfs, added, cands[len(trials):], judge, trials, s, u.explanation)
     if added is None and pred.flexible:   # the one-mass body again, with a term in (:meth:`_Predictor.reconsider`)
         got = _body_round(u.ev, pred, terms, ranked, s, u.m2_kg, judge_in, say, base + 0.9 / total, i)
         if got is not None:
@@ -1131,8 +1132,7 @@ SUBSET_GAIN = 0.01
 
 
 def _best_sets(ev: _Evaluator, pred: _Predictor, search, terms: Sequence[Term], n_decl: int, current: Errors,
-               s: LoopSettings, m2_kg: float | None,
-               frame: Frame) -> list[tuple[bool, list[Term], Errors, Comparison]]:
+               s: LoopSettings, m2_kg: float | None, frame: Frame) -> list[tuple[bool, list[Term], Errors, Comparison]]:
     """The best set of one effect fewer than the rounds added, and of as many, beside the declared terms
     (:func:`~nifo_core.characterize.subsets.best_subsets` on the ranking's grid): (fewer?, its model's terms, their
     errors, their comparison with ``current`` — A: that set, B: as found). The set of as many is tried when its kinds

@@ -29,6 +29,7 @@ from ..signal.integrate import IntegrationBand
 from ..predict.heldout import HeldOut
 from ..predict.linear_part import BodyModel
 from .results import RESIDUAL_BANDS_HZ, RETUNE_FACTOR, Evidence, LoopSettings
+from .stops import placed_beyond
 from ..predict.model import IdentifiedModel
 from ..characterize.restoring import RestoringForce, bandpass, bandpass_settle_samples, restoring_force
 from ..signal.frf import h1, partial_coherence
@@ -373,6 +374,9 @@ def _static_candidate(ev: _Evaluator, terms: Sequence[Term], cand: Candidate, s:
     if frame == "threshold":
         new, offs = static_bump_stops(data, [*terms, cand.term])
         term, off = new[-1], offs[-1]
+        key = term.spec.key_param
+        if off is not None and term.params[key] > cand.term.params[key]:   # the mean pushed towards the stop
+            term, off = placed_beyond(data, ev.static, terms, term, off)
     else:
         term, off = cand.term, shifted_offsets(data, [*terms, cand.term])[-1]
     if off is None:
