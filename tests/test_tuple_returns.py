@@ -22,6 +22,10 @@ KNOWN = {
                                                  "coefficients and parameters as separate flat arrays",
     "nifo_core.predict.timesim:march_outputs": "the output buffers of the compiled march, filled in place by "
                                                "the kernel of either engine (one lane or many)",
+    "nifo_core.kinds.strut_forces:g_partials": "compiled (numba, inlined in the sensitivity march's step): a "
+                                               "tuple is what a compiled function returns without an allocation",
+    "nifo_core.predict.timesim:march_start": "compiled (numba, inlined at the start of either march): a tuple is "
+                                             "what a compiled function returns",
 }
 
 

@@ -227,13 +227,8 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
               "signals": {"time_s": np.arange(record.n) / fs, drive_col: raw_drive,
                           f"{measured.name}_measured": measured.values, f"{measured.name}_model": y_model,
                           f"{measured.name}_linear": y_lin}}
-    # the parametric (time-domain) predictions of the sigma points marched together: the same bits as one by one
-    together = None if method != "parametric" else lambda ms: [
-        p if isinstance(p, PredictionDivergedError) else p.body_accel
-        for p in predict_bodies(ms, a1, fs, force=force, label=str(path))]
     out["model"]["parameter_bounds"], eps = _parameter_bounds(
-        model, lambda m: predict_body(m, a1, fs, force=force, method=method, label=str(path)).body_accel,
-        together=together, a2=a2, drive=drive, valid=valid, t_model=t_model, fs=fs, band_hz=band_hz, period_samples=period_samples,
+        model, dict(spindle_accel=a1, fs_hz=fs, force=force, label=str(path)), method, a2=a2, drive=drive, valid=valid, t_model=t_model, fs=fs, band_hz=band_hz, period_samples=period_samples,
         skip=int(period_samples) if period_samples else valid.start, settings=model.settings)
     if eps is not None:
         arrays["t_model_eps"] = eps
@@ -247,11 +242,16 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
     return out, arrays
 
 
-def _parameter_bounds(model, simulate, *, together=None, a2, drive, valid, t_model, fs, band_hz, period_samples, skip,
-                      settings) -> tuple[dict, np.ndarray | None]:
+def _parameter_bounds(model, drive_kw: dict, method: str, *, a2, drive, valid, t_model, fs, band_hz, period_samples,
+                      skip, settings) -> tuple[dict, np.ndarray | None]:
     """The prediction's 95 % bounds from the model's parameter covariance (:mod:`nifo_core.predict.prediction_bounds`):
-    (JSON-able numbers or why there are none, the transmissibility's ε per line for the plot's band)."""
-    spread = prediction_spread(model, simulate, together=together)
+    (JSON-able numbers or why there are none, the transmissibility's ε per line for the plot's band). ``drive_kw``:
+    predict_body's record arguments; a parametric (time-domain) prediction's sigma points are marched together, the
+    same bits as one by one."""
+    together = None if method != "parametric" else lambda ms: [
+        p if isinstance(p, PredictionDivergedError) else p.body_accel for p in predict_bodies(ms, **drive_kw)]
+    spread = prediction_spread(model, lambda m: predict_body(m, method=method, **drive_kw).body_accel,
+                               together=together)
     if not spread.available:
         return {"available": False, "reason": spread.unavailable}, None
     kw = {"band_hz": tuple(band_hz), "period_samples": period_samples, "skip_samples": skip}

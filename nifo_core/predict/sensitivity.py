@@ -35,7 +35,7 @@ from ..errors import ConfigError
 from ..kinds.strut_forces import PLAY, g_one, g_partials, strut_force
 from ..simulate.quarter_car import antialias_taps
 from .prediction_error import band_spectra
-from .time_prediction import _static_frame, _time_inputs, record_inputs
+from .time_prediction import _static_frame, engine_input, record_inputs
 from .timesim import _UP, _solve, march_arrays, march_start, paired_prediction, solve_tolerance
 
 __all__ = ["GAMMA", "SHAPE", "BODY_K", "BODY_C", "FORCE_GAIN", "Parameters", "sensitivity_march", "residual_jacobian"]
@@ -183,7 +183,8 @@ def residual_jacobian(model, record, params: Parameters, *, band_hz: tuple[float
     (model without feedback paths, time-domain engine)."""
     a1, force = record_inputs(record, model)
     lin = model.linear
-    v, q, limit = _time_inputs(model, lin, a1, force, record.fs_hz, oversample)
+    got = engine_input(model, a1, force, record.fs_hz, oversample)
+    v, q, limit = got.v, got.oversample, got.z_limit
     vf = _UP(v, q)
     dv = upsampled(-model.force_gain * force, q) if np.any(params.kind == FORCE_GAIN) else None
     d, fail = sensitivity_march(lin, _static_frame(model.terms), model.c_over_m2, vf, dv,

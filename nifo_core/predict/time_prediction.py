@@ -29,7 +29,7 @@ from .timesim import simulate_response
 from .timesim_lanes import simulate_responses
 
 __all__ = ["DIVERGENCE_FACTOR", "FINE_RATE_HZ", "Prediction", "PredictionDivergedError", "fine_factor",
-           "predict_bodies", "record_inputs", "time_method"]
+           "predict_bodies", "record_inputs", "time_method", "EngineInput", "engine_input"]
 
 
 #: a response whose |z| exceeds this many times the linear part's peak counts as diverged
@@ -224,6 +224,21 @@ def _predict_time(model, linear, a1, force, fs_hz, oversample, label, what) -> P
     resp = simulate_response(linear, _static_frame(model.terms), model.c_over_m2, v, fs_hz, spindle_accel=a1,
                              oversample=q, z_limit=limit)
     return _time_prediction(model, linear, resp, a1, force, fs_hz, limit, label, what)
+
+
+@dataclass(frozen=True)
+class EngineInput:
+    """What the time-domain engine is given for a model on a record: the input v at the record's rate [m/s²], the
+    fine steps per sample and the bound of |z| [m] beyond which the response counts as diverged."""
+
+    v: np.ndarray
+    oversample: int
+    z_limit: float
+
+
+def engine_input(model, a1, force, fs_hz: float, oversample: int | None = None) -> EngineInput:
+    """:class:`EngineInput` of ``model`` (its own linear part) driven by ``a1`` / ``force`` (:func:`record_inputs`)."""
+    return EngineInput(*_time_inputs(model, model.linear, a1, force, fs_hz, oversample))
 
 
 def _time_inputs(model, linear, a1, force, fs_hz, oversample) -> tuple[np.ndarray, int, float]:
