@@ -228,7 +228,8 @@ def predict_one(path: Path, record, model, linear, *, band_hz, method: str,
                           f"{measured.name}_measured": measured.values, f"{measured.name}_model": y_model,
                           f"{measured.name}_linear": y_lin}}
     out["model"]["parameter_bounds"], eps = _parameter_bounds(
-        model, dict(spindle_accel=a1, fs_hz=fs, force=force, label=str(path)), method, a2=a2, drive=drive, valid=valid, t_model=t_model, fs=fs, band_hz=band_hz, period_samples=period_samples,
+        model, dict(spindle_accel=a1, fs_hz=fs, force=force, label=str(path)), method, a2=a2, drive=drive,
+        valid=valid, t_model=t_model, fs=fs, band_hz=band_hz, period_samples=period_samples,
         skip=int(period_samples) if period_samples else valid.start, settings=model.settings)
     if eps is not None:
         arrays["t_model_eps"] = eps

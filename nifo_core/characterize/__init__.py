@@ -27,5 +27,5 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
                   "candidate_grid"],
     "data": ["RegressionData", "GridSearch", "refine_grid"],
     "score": ["score_candidate", "lstsq"],
-    "static": ["mean_shift", "static_bump_stops"],
+    "static": ["mean_shift", "static_bump_stops", "equation_fit", "balance_offsets"],
 })

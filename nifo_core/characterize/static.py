@@ -39,7 +39,8 @@ from ..kinds.describing import Term
 from ..signal.least_squares import FixedColumns, lstsq
 from ..signal.parallel import thread_map
 
-__all__ = ["mean_shift", "static_bump_stops", "shifted_offsets", "static_frame"]
+__all__ = ["mean_shift", "static_bump_stops", "shifted_offsets", "static_frame", "equation_fit",
+           "balance_offsets"]
 
 
 def _threshold_from_static(t: Term) -> bool:
@@ -124,26 +125,29 @@ def shifted_offsets(data: RegressionData, terms: Sequence[Term], *,
     nl = len(data.lin)
     off = [0.0] * len(data.rfs)
     for _ in range(iterations):
-        c, _ = _fit(data, terms, [tuple(off) if w else None for w in which])
+        c, _ = equation_fit(data, terms, [tuple(off) if w else None for w in which])
         pairs = [(t, float(c[nl + i])) for i, t in enumerate(terms) if not _threshold_from_static(t)]
         off = [-mean_shift(rf.z, rf.zdot, float(c[0]), pairs) for rf in data.rfs]
     return [tuple(off) if w else None for w in which]
 
 
-def _fit(data: RegressionData, terms: list[Term], offsets: list[list[float] | None]) -> tuple[np.ndarray, float]:
+def equation_fit(data: RegressionData, terms: Sequence[Term],
+                 offsets: Sequence[Sequence[float] | None]) -> tuple[np.ndarray, float]:
+    """The equation error's least squares of ``terms`` at their per-record ``offsets`` (None: the data's own frame):
+    (coefficients [linear columns, θ_i], residual sum of squares)."""
     a = np.column_stack([data.x[:, data.lin], *[data.regressor(t, offsets=o) for t, o in zip(terms, offsets)]])
     c = lstsq(a, data.y)
     r = data.y - a @ c
     return c, float(r @ r)
 
 
-def _offsets(data: RegressionData, terms: list[Term], c: np.ndarray, j: int, gap: float,
-             near: Sequence[float] | None = None) -> list[float]:
-    """offset = -m per record for term ``j`` at static gap ``gap``, given the fit ``c`` (``near``: the offsets of
-    the step before, where the roots are sought first)."""
+def balance_offsets(data: RegressionData, terms: Sequence[Term], c: np.ndarray,
+                    near: Sequence[float] | None = None) -> list[float]:
+    """offset = -m per record: each record's mean balance (:func:`mean_shift`) with ``terms`` at the coefficients of
+    the fit ``c`` (:func:`equation_fit`; a bump stop's gap counts from the static position). ``near``: the offsets of
+    a fixed point's step before, where the roots are sought first."""
     nl = len(data.lin)
-    pairs = [(Term(t.kind, {**t.params, t.spec.key_param: gap}) if i == j else t, float(c[nl + i]))
-             for i, t in enumerate(terms)]
+    pairs = [(t, float(c[nl + i])) for i, t in enumerate(terms)]
     return [-mean_shift(rf.z, rf.zdot, float(c[0]), pairs, near=None if near is None else -float(near[r]))
             for r, rf in enumerate(data.rfs)]
 
@@ -151,7 +155,7 @@ def _offsets(data: RegressionData, terms: list[Term], c: np.ndarray, j: int, gap
 class _Refits:
     """The fit of ``terms`` with term ``j`` and the shifted terms' columns varying from trial to trial, the others
     fixed (:class:`~nifo_core.signal.least_squares.FixedColumns`: their Gram part computed once). The same
-    coefficients as :func:`_fit` to rounding, in its order."""
+    coefficients as :func:`equation_fit` to rounding, in its order."""
 
     def __init__(self, data: RegressionData, terms: list[Term], offsets: list, j: int, shifted: list[bool]):
         self.data, self.nl = data, len(data.lin)
@@ -199,15 +203,15 @@ def static_bump_stops(data: RegressionData, terms: Sequence[Term], *,
             continue
         key = t.spec.key_param       # the gap, counted from the static position
         g_mean = float(t.params[key])
-        c, _ = _fit(data, terms, offsets)
+        c, _ = equation_fit(data, terms, offsets)
         best = (np.inf, g_mean, [0.0] * len(data.rfs))
         refits = _Refits(data, terms, offsets, j, shifted)
 
         def trial(s: float, c0: np.ndarray) -> tuple[float, float, list[float]]:
             cc, off = c0, None
+            trial_terms = terms[:j] + [Term(t.kind, {**t.params, key: s})] + terms[j + 1:]
             for _ in range(3):  # m depends on k and θ, which depend on the offsets: a few fixed-point steps
-                off = _offsets(data, terms, cc, j, s, near=off)
-                trial_terms = terms[:j] + [Term(t.kind, {**t.params, key: s})] + terms[j + 1:]
+                off = balance_offsets(data, trial_terms, cc, near=off)
                 trial_off = [off if (i == j or shifted[i]) else o for i, o in enumerate(offsets)]
                 cc, rss = refits.fit(trial_terms, trial_off)
             return rss, s, off
@@ -242,8 +246,6 @@ def static_frame(data: RegressionData, terms: Sequence[Term],
     position).
     """
     terms = list(terms)
-    c, _ = _fit(data, terms, list(offsets))
-    nl = len(data.lin)
-    pairs = [(t, float(c[nl + i])) for i, t in enumerate(terms)]
-    return tuple(-mean_shift(rf.z, rf.zdot, float(c[0]), pairs) for rf in data.rfs)
+    c, _ = equation_fit(data, terms, list(offsets))
+    return tuple(balance_offsets(data, terms, c))
 

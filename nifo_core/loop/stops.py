@@ -10,10 +10,10 @@ at 9.69 mm from static (10.05 mm true), the knee followed in round 2, and round 
 8.5 mm beside the stop (ERR 5 %). The placement itself can end short: characterize's search tries static gaps up to
 1.05 × the gap from the mean (a stop alone pushes the mean away from it), and a damper stiffer in rebound pushes the
 mean the other way, towards the stop (a synthetic draw of the fleet generator, seed 54541 case 1: placed at
-9.27 mm, the search's top, 10.07 mm true; re-tuned in the next round to 9.96 mm, the sum of squares 35 % lower). The re-tune of residual.py's :func:`~nifo_core.loop.residual._retune` cannot move
-such a stop (its column depends on the offsets, which depend on its gap): it is left as it is there and re-tuned
+9.27 mm, the search's top, 10.07 mm true; re-tuned in the next round to 9.96 mm, the sum of squares 35 % lower).
+The re-tune of residual.py's :func:`~nifo_core.loop.residual._retune` cannot move such a stop (its column depends on the offsets, which depend on its gap): it is left as it is there and re-tuned
 here, the way it was placed — each static gap tried with its own offsets (a few fixed-point steps of the mean
-balance with the whole model, :func:`nifo_core.characterize.static.mean_shift`), scored by the equation error of
+balance with the whole model, :func:`nifo_core.characterize.static.balance_offsets`), scored by the equation error of
 the model on the fit parts' regression rows; the other terms keep their columns (the frame's offsets: the frame is
 placed again afterwards).
 """
@@ -25,9 +25,8 @@ from typing import Sequence
 import numpy as np
 
 from ..characterize.data import RegressionData
-from ..characterize.static import mean_shift
+from ..characterize.static import balance_offsets, equation_fit
 from ..kinds.describing import Term
-from ..signal.least_squares import lstsq
 from ..signal.parallel import thread_map
 
 __all__ = ["RETUNE_GAIN", "placed_beyond", "retune_stops"]
@@ -88,14 +87,14 @@ def _retuned(data: RegressionData, static: dict[str, tuple[float, ...]], terms: 
     g0 = float(t.params[key])
     lo, hi = 0.5 * g0, 2.0 * g0
     offsets = [static.get(u.label) for u in terms]
-    c0, now = _fit(data, terms, offsets)
+    c0, now = equation_fit(data, terms, offsets)
 
     def trial(gap: float) -> tuple[float, float, list[float]]:
         c, off, rss = c0, None, np.inf
         at = [*terms[:j], Term(t.kind, {**t.params, key: gap}), *terms[j + 1:]]
         for _ in range(3):   # m depends on k and θ, which depend on the offsets: a few fixed-point steps
-            off = _static_offsets(data, at, c)
-            c, rss = _fit(data, at, [*offsets[:j], off, *offsets[j + 1:]])
+            off = balance_offsets(data, at, c)
+            c, rss = equation_fit(data, at, [*offsets[:j], off, *offsets[j + 1:]])
         return rss, gap, off
 
     def best_of(gaps) -> tuple[float, float, list[float]]:
@@ -118,17 +117,3 @@ def _retuned(data: RegressionData, static: dict[str, tuple[float, ...]], terms: 
     return (Term(t.kind, {**t.params, key: float(gap), "offset": float(off[main])}),
             tuple(float(v) for v in off))
 
-
-def _fit(data: RegressionData, terms: Sequence[Term], offsets: Sequence) -> tuple[np.ndarray, float]:
-    """The equation error's least squares with ``terms`` at their ``offsets``: (coefficients, sum of squares)."""
-    a = np.column_stack([data.x[:, data.lin], *[data.regressor(t, offsets=o) for t, o in zip(terms, offsets)]])
-    c = lstsq(a, data.y)
-    r = data.y - a @ c
-    return c, float(r @ r)
-
-
-def _static_offsets(data: RegressionData, terms: Sequence[Term], c: np.ndarray) -> list[float]:
-    """-m per record: the mean balance of ``terms`` with the coefficients ``c`` (a stop's gap from the static
-    position, :func:`~nifo_core.characterize.static.mean_shift`)."""
-    theta = c[len(data.lin):]
-    return [-mean_shift(rf.z, rf.zdot, float(c[0]), list(zip(terms, map(float, theta)))) for rf in data.rfs]

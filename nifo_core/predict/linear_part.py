@@ -696,7 +696,7 @@ def _select(freq_hz, t21, *, band_hz, form, order, fit_k3, weights, given, recor
         except ConfigError as err:
             cand["body"] = {"error": err.message}
     # ``auto`` keeps a physical body within BODY_FIT_LIMIT whatever the rational model fits: it is not fitted then
-    # (20 vector fits of orders 2-40; on the sample, 3 of identify's 6 s)
+    # (20 vector fits of orders 2-40)
     kept = form == "auto" and body is not None and body.physical and body.fit_rms <= BODY_FIT_LIMIT
     if form == "rational" or (form == "auto" and not kept):
         try:

@@ -86,7 +86,7 @@ from ..signal.record import Record
 
 __all__ = ["Refinement", "refine_model", "refine_jointly", "model_nmse", "parameter_space", "ParameterSpace",
            "start_up_samples", "prediction_residual", "prediction_residuals", "moved_refinement",
-           "march_jacobian"]
+           "march_jacobians"]
 
 #: relative error a diverged simulation counts as (per record; 1 = predicting zero)
 _DIVERGED = 10.0
@@ -490,9 +490,14 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
         return work
 
     def sensitivities(sp: _Space, x: np.ndarray) -> np.ndarray:
+        """The residual vector's Jacobian (real parts, then imaginary); a diverged record's constant penalty: zero
+        rows."""
         m = sp.model(x)
-        return march_jacobian(m, sp.march_parameters(m), records, band_hz=band, period_samples=period_samples,
-                              skips=skips, oversample=oversample, lines=[p.size for p in penalty])
+        parts = march_jacobians(m, sp.march_parameters(m), records, band_hz=band, period_samples=period_samples,
+                                skips=skips, oversample=oversample)
+        jc = np.concatenate([np.zeros((pen.size, x.size), complex) if p is None else p
+                             for p, pen in zip(parts, penalty)])
+        return np.vstack([jc.real, jc.imag])
 
     def per_record(x: np.ndarray, out: np.ndarray) -> list[float]:
         """Band NMSE [%] per record from the residual vector at θ = x (inf where the simulation diverged)."""
@@ -570,18 +575,15 @@ def _blocks(a: np.ndarray) -> bool:
     return all(not row.any() or np.ptp(cols[row]) <= 1 for row in nz)
 
 
-def march_jacobian(model: IdentifiedModel, params: Parameters, records: Sequence[Record], *,
-                   band_hz: tuple[float, float], period_samples: int | None, skips: Sequence[int],
-                   oversample: int | None, lines: Sequence[int]) -> np.ndarray:
-    """The Jacobian of the refinement's residual vector (every record's (Ŷ - Y)/‖Y‖ on its lines, real parts then
-    imaginary) at ``model`` from one sensitivity march per record (:mod:`.sensitivity`), the records side by side;
-    a record whose simulation diverges counts a constant penalty: zero rows (``lines``: each record's line count)."""
-    parts = thread_map(lambda k: residual_jacobian(model, records[k], params, band_hz=band_hz,
-                                                   period_samples=period_samples, skip_samples=skips[k],
-                                                   oversample=oversample), range(len(records)))
-    jc = np.concatenate([np.zeros((lines[k], params.kind.size), complex) if p is None else p
-                         for k, p in enumerate(parts)])
-    return np.vstack([jc.real, jc.imag])
+def march_jacobians(model: IdentifiedModel, params: Parameters, records: Sequence[Record], *,
+                    band_hz: tuple[float, float], period_samples: int | None, skips: Sequence[int],
+                    oversample: int | None) -> list[np.ndarray | None]:
+    """Each record's block of the refinement's Jacobian (the derivative of its (Ŷ - Y)/‖Y‖ on its lines, complex)
+    at ``model`` from one sensitivity march (:mod:`.sensitivity`), the records side by side; None for a record whose
+    simulation diverges (each caller has its own penalty there)."""
+    return thread_map(lambda k: residual_jacobian(model, records[k], params, band_hz=band_hz,
+                                                  period_samples=period_samples, skip_samples=skips[k],
+                                                  oversample=oversample), range(len(records)))
 
 
 def refine_jointly(model: IdentifiedModel, linear: Refinement, records: Sequence[Record], *,

@@ -36,8 +36,7 @@ from ..signal.noise import NoiseEstimate
 from .prediction_bounds import Z95
 from ..signal.parallel import forward_jacobian
 from ..signal.record import Record
-from .prediction_error import band_spectra
-from .refine import Refinement, march_jacobian, moved_refinement, parameter_space, prediction_residuals
+from .refine import Refinement, march_jacobians, moved_refinement, parameter_space, prediction_residuals
 
 __all__ = ["REFIT_EVALUATIONS", "correct_refinement"]
 
@@ -112,13 +111,15 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
         f0 = residual(x0)
         m0 = to_model(x0)
         pars = space.march(m0)
-        if pars is None:
+        # from one march of each record (forward sensitivities); forward differences where the march cannot give
+        # it, or a record diverges (its penalty is _vector's)
+        parts = None if pars is None else march_jacobians(m0, pars, recs, band_hz=band, period_samples=period,
+                                                          skips=skips, oversample=oversample)
+        if parts is None or any(p is None for p in parts):
             jac0 = _forward_jacobian(residual, x0, f0, together=residuals)
-        else:       # from one march of each record (forward sensitivities); a diverged record: zero rows
-            lines = [band_spectra(r.body_accel, r.body_accel, r.fs_hz, band_hz=band, period_samples=period,
-                                  skip_samples=s)[0].size for r, s in zip(recs, skips)]
-            jac0 = march_jacobian(m0, pars, recs, band_hz=band, period_samples=period, skips=skips,
-                                  oversample=oversample, lines=lines)
+        else:
+            jc = np.concatenate(parts)
+            jac0 = np.vstack([jc.real, jc.imag])
         key = x0.tobytes()
 
         def fun(x: np.ndarray) -> np.ndarray:      # θ0: least_squares' first evaluation is the Jacobian's base

@@ -29,14 +29,13 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-from scipy import signal
 
 from ..errors import ConfigError
 from ..kinds.strut_forces import PLAY, g_one, g_partials, strut_force
-from ..simulate.quarter_car import antialias_taps
+from ..simulate.quarter_car import decimate
 from .prediction_error import band_spectra
 from .time_prediction import _static_frame, engine_input, record_inputs
-from .timesim import _UP, _solve, march_arrays, march_start, paired_prediction, solve_tolerance
+from .timesim import _UP, _solve, _up, march_arrays, march_start, paired_prediction, solve_tolerance
 
 __all__ = ["GAMMA", "SHAPE", "BODY_K", "BODY_C", "FORCE_GAIN", "Parameters", "sensitivity_march", "residual_jacobian"]
 
@@ -159,20 +158,7 @@ def sensitivity_march(linear, terms, gammas, v: np.ndarray, dv: np.ndarray | Non
     fail = _march(lo, c1, pa, pb, ma.g0, ma.g1, ma.c, ma.cd, ma.ca, ma.dd, v, np.zeros(1) if dv is None else dv, kv,
                   ma.codes, ma.coef, ma.p0, ma.p1, ma.la, ma.lb, float(z_limit), solve_tolerance(v), params.kind,
                   params.term, params.scale, params.absorbed_a, params.absorbed_b, dzdd)
-    return _down_rows(dzdd, q), fail
-
-
-def _down_rows(x: np.ndarray, q: int) -> np.ndarray:
-    """:func:`~nifo_core.simulate.quarter_car.decimate` of every row, the rows' FFTs batched."""
-    if q == 1 or not x.size:
-        return x.copy()
-    return signal.oaconvolve(x, antialias_taps(q)[None, :], mode="same", axes=1)[:, ::q].copy()
-
-
-def upsampled(x: np.ndarray, q: int) -> np.ndarray:
-    """A record-rate signal at the fine rate, interpolated as the engine interpolates its input (linear in x)."""
-    x = np.asarray(x, float)
-    return x.copy() if q == 1 else signal.resample_poly(x, q, 1, window=antialias_taps(q))
+    return (decimate(dzdd, q) if dzdd.size else dzdd), fail
 
 
 def residual_jacobian(model, record, params: Parameters, *, band_hz: tuple[float, float],
@@ -186,15 +172,13 @@ def residual_jacobian(model, record, params: Parameters, *, band_hz: tuple[float
     got = engine_input(model, a1, force, record.fs_hz, oversample)
     v, q, limit = got.v, got.oversample, got.z_limit
     vf = _UP(v, q)
-    dv = upsampled(-model.force_gain * force, q) if np.any(params.kind == FORCE_GAIN) else None
+    dv = _up(-model.force_gain * force, q) if np.any(params.kind == FORCE_GAIN) else None  # v is linear in it
     d, fail = sensitivity_march(lin, _static_frame(model.terms), model.c_over_m2, vf, dv,
-                                   1.0 / (record.fs_hz * q), q, limit, params)
+                                1.0 / (record.fs_hz * q), q, limit, params)
     if fail >= 0:
         return None
     n = record.body_accel.size
-    cols = []
-    for row in d:
-        y, dy = band_spectra(record.body_accel, row[:n], record.fs_hz, band_hz=band_hz,
-                             period_samples=period_samples, skip_samples=skip_samples)
-        cols.append(dy / np.sqrt(np.sum(np.abs(y) ** 2)))
-    return np.stack(cols, axis=1)
+    kw = dict(band_hz=band_hz, period_samples=period_samples, skip_samples=skip_samples)
+    y = band_spectra(record.body_accel, record.body_accel, record.fs_hz, **kw)[0]
+    norm = np.sqrt(np.sum(np.abs(y) ** 2))
+    return np.stack([band_spectra(record.body_accel, row[:n], record.fs_hz, **kw)[1] / norm for row in d], axis=1)

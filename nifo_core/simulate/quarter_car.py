@@ -539,7 +539,10 @@ def decimate(x: np.ndarray, q: int) -> np.ndarray:
     """
     if q == 1:
         return np.array(x, float)
-    return signal.oaconvolve(np.asarray(x, float), antialias_taps(q), mode="same")[::q].copy()
+    x = np.asarray(x, float)
+    if x.ndim == 2:     # each row (the sensitivity march's columns), the rows' FFTs batched
+        return signal.oaconvolve(x, antialias_taps(q)[None, :], mode="same", axes=1)[:, ::q].copy()
+    return signal.oaconvolve(x, antialias_taps(q), mode="same")[::q].copy()
 
 
 def _add_noise(x: np.ndarray, noise: SensorNoise, rng: np.random.Generator, *, absolute: float) -> np.ndarray:
