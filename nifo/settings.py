@@ -37,7 +37,7 @@ from typing import Sequence
 
 import numpy as np
 
-from nifo.io.loader import iter_record_chunks
+from nifo.io.loader import iter_record_chunks, seed_whole_bag
 from nifo.io.memo import nbytes, remembered
 from nifo_core.defaults import DEFAULT_ANALYSIS_BAND_HZ, DEFAULT_COND_LIMIT
 from nifo_core.errors import ClippedSignalError, IllConditionedError, InputError, NifoError, RecordTooShortError
@@ -139,7 +139,10 @@ def _read_first(path: Path, load: dict) -> tuple[object, int]:
     if not got:
         raise RecordTooShortError("the file holds no samples", source=str(path))
     total = int(got[0].meta.get("chunk", {}).get("total_samples", got[0].n))
-    return (got[0] if len(got) == 1 else concatenate(got)), total
+    rec = got[0] if len(got) == 1 else concatenate(got)
+    if got[0].meta.get("streamed") and rec.n == total:    # a bag read to its end: the job's whole read of it
+        seed_whole_bag(path, rec, topics=load.get("topics"), axis=load.get("axis", "z"))
+    return rec, total
 
 
 def _probe(path: Path, opts: dict, given: GivenSettings, read: tuple[object, int]

@@ -175,7 +175,7 @@ def _quietly(argv) -> int:
 def test_f16_three_plays_through_feedback_paths_on_3_5_7_against_the_strong_linear_baseline(shared_data, tmp_path):
     """The expert recipe through the commands (three plays of set widths, --feedback-paths) on multisine levels
     3/5/7, predicting levels 1/3/5/7 and the four sine sweeps (never used to identify) against the linear model of
-    3/5/7 — whose residues now predict every identification record best (nifo_core.predict.linear_part.RecordLines): on
+    3/5/7 — whose residues now predict every identification record best (nifo_core.predict.vector_fit.RecordLines): on
     average better on both excitations, never worse than it by more than 1 % at a level. (Against the pooled-fit
     linear model of before it won at every level; against this one the hands-off loop's single narrow play does
     better: tests/test_f16_loop.py.)"""

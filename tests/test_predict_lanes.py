@@ -14,6 +14,7 @@ import pytest
 
 from nifo_core.kinds.describing import Term
 from nifo_core.predict import refine as refine_mod
+from nifo_core.predict.refine_space import Space
 from nifo_core.predict.linear_part import BodyModel, LinearPart
 from nifo_core.predict.model import IdentifiedModel, PredictionDivergedError, predict_bodies, predict_body
 from nifo_core.predict.timesim import simulate_response
@@ -131,7 +132,7 @@ def test_the_refinement_with_its_columns_marched_together_is_the_one_by_one_refi
     """The whole output-error refinement (knee + cubic, 30 s) by forward differences (as where the residues move:
     the sensitivity march is turned off here): the same coefficients, costs and covariance to the last bit whether
     each Jacobian's simulations of a record are marched together or one by one."""
-    monkeypatch.setattr(refine_mod._Space, "march_parameters", lambda self, model: None)
+    monkeypatch.setattr(Space, "march_parameters", lambda self, model: None)
     strut = (StrutForce(Term("velocity_deadzone", {"knee": 0.03}), -700.0), StrutForce(Term("cubic_stiffness"), 2e8))
     sim = simulate(SimConfig(strut=strut, road=RandomRoad(0.004), duration_s=30.0, fs_hz=FS), rng=8)
     car = sim.truth.vehicle

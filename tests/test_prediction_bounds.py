@@ -25,7 +25,8 @@ from nifo_core.predict.model import IdentifiedModel, predict_body
 from nifo_core.nifo.identify import identify_nifo
 from nifo_core.predict.prediction_bounds import line_spread, prediction_spread
 from nifo_core.predict.prediction_error import band_spectra
-from nifo_core.predict.refine import parameter_space, refine_model
+from nifo_core.predict.refine import refine_model
+from nifo_core.predict.refine_space import parameter_space
 from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
 from nifo_core.signal.noise import estimate_noise
 from nifo_core.predict.refine_bias import correct_refinement

@@ -192,7 +192,7 @@ def test_a_rational_linear_part_misfitted_by_ten_percent_is_refined_jointly_with
     coefficient-only refinement does not; a linear model refines the same way and never ends worse."""
     from dataclasses import replace
 
-    from nifo_core.predict.refine import parameter_space
+    from nifo_core.predict.refine_space import parameter_space
 
     strut = (StrutForce(Term("coulomb", {"eps": 0.005}), 30.0),)
     sim, _, _ = _identified(strut, 0.001, 40.0, noise=0.0)

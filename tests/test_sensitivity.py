@@ -13,6 +13,7 @@ import pytest
 from nifo_core.kinds.describing import Term
 from nifo_core.nifo.identify import identify_nifo
 from nifo_core.predict import refine as R
+from nifo_core.predict.refine_space import space_for
 from nifo_core.predict.model import IdentifiedModel
 from nifo_core.predict.sensitivity import residual_jacobian
 from nifo_core.signal.record import Record
@@ -29,7 +30,7 @@ def _case(strut, rms=0.002, duration_s=30.0):
 
 
 def _columns(model, rec, *, track):
-    sp = R._space(model, model, shape=True, linear_params=True, track_absorbed=track)
+    sp = space_for(model, model, shape=True, linear_params=True, track_absorbed=track)
     x = sp.x0(np.asarray(model.c_over_m2, float))
     m = sp.model(x)
     band = model.analysis_band_hz

@@ -3,7 +3,7 @@ or more, used by another module, is listed here with why, and the list cannot gr
 
 On cb7fa7a seven module-level functions of ``nifo_core`` returned tuples of three or more to other modules (this
 scan); five of them (``parameter_space``, ``period_and_transient``, ``fixed_point_solve``, ``judge_alternatives``,
-``base_fit``) now return :class:`~nifo_core.predict.refine.ParameterSpace`, :class:`~nifo_core.settings.Timing`,
+``base_fit``) now return :class:`~nifo_core.predict.refine_space.ParameterSpace`, :class:`~nifo_core.settings.Timing`,
 :class:`~nifo_core.predict.fixed_point.FixedPoint`, :class:`~nifo_core.loop.gates.Judgement`,
 :class:`~nifo_core.characterize.score.BaseFit`. A tuple inside one module (a private helper's) is that module's
 business and is not counted; nor are methods, and tests and benchmarks are not users.

@@ -68,7 +68,7 @@ from .matfile import read_mat, write_mat
 from .memo import remembered
 from .tabular import read_csv, write_csv
 
-__all__ = ["load_record", "save_record", "check_record_output", "load_records", "iter_record_chunks", "detect_format",
+__all__ = ["load_record", "seed_whole_bag", "save_record", "check_record_output", "load_records", "iter_record_chunks", "detect_format",
            "assemble_record", "parse_columns", "add_input_arguments", "input_options", "COLUMN_KEYS", "READ_ROLES",
            "Assembly", "Skip", "FileFormat", "READERS"]
 
@@ -203,7 +203,7 @@ def _load(path, *, topics, columns, fs_hz, axis, skip_seconds, skip_periods, per
     fmt = file_format(path)
     skip = _skip(skip_seconds, skip_periods, period_samples, source=str(path))
     if not fmt.tables:
-        rec = bag.read_bag(path, topics=topics, axis=axis)
+        rec = _whole_bag(path, topics, axis)
         if fs_hz is not None:
             check_declared_rate(rec.fs_hz, fs_hz, source=str(path))
         if skip.active:
@@ -215,6 +215,27 @@ def _load(path, *, topics, columns, fs_hz, axis, skip_seconds, skip_periods, per
     if fs_hz is None:   # a file without a rate takes the rate of a channel combined from another file
         fs_hz = next((f for _, _, f in asm.extra.values() if f is not None), None)
     return fmt.read_table(path, columns=cols, fs_hz=fs_hz, assembly=asm)
+
+
+def _bag_key(topics, axis) -> dict:
+    return {"topics": repr(topics), "axis": axis}
+
+
+def _whole_bag(path, topics, axis) -> Record:
+    """A bag decoded whole once per job (:func:`nifo.io.memo.reuse_reads`), whatever is skipped of it: here, or by
+    the settings' probe when it read the file to its end (:func:`seed_whole_bag`)."""
+    return remembered(Path(path), _bag_key(topics, axis), lambda: bag.read_bag(path, topics=topics, axis=axis),
+                      kind="bag-whole")
+
+
+def seed_whole_bag(path, record: Record, *, topics, axis) -> None:
+    """``record``, a bag's chunks read in order from its first sample to its last (:func:`iter_record_chunks`,
+    concatenated), kept as the job's whole read of the bag: the same channels and rate as :func:`bag.read_bag` gives
+    (measured on the bundled sample's and the loop benchmark's bags, bit for bit), without the chunks' own marks.
+    Measured: ``nifo run`` decoded each bag twice, once to choose its settings and once to analyse it (0.35-0.8 s
+    per 120-300 s bag); a file the probe did not read to its end is decoded whole when first loaded, as before."""
+    meta = {k: v for k, v in record.meta.items() if k not in ("chunk", "streamed")}
+    remembered(Path(path), _bag_key(topics, axis), lambda: replace(record, meta=meta), kind="bag-whole")
 
 
 def _with_meta(rec: Record, **items) -> Record:

@@ -27,7 +27,7 @@ from nifo.progress import Progress
 from nifo.settings import for_records, loader_options, resolve
 from nifo_core.errors import ConfigError, IllConditionedError, InputError, NifoError, RecordTooShortError
 from nifo_core.signal.frf import h1
-from nifo_core.predict.linear_part import RecordLines
+from nifo_core.predict.vector_fit import RecordLines
 from nifo_core.predict.model import IdentifiedModel
 from nifo_core.nifo.engine import IdentifySetup, RecordProbe, accumulate_record
 from nifo_core.nifo.identify import IllConditionedWarning, identify_two_step
@@ -47,7 +47,7 @@ def accumulate(paths: list[Path], terms, cfg: AnalysisSettings, *, opts: dict, c
     (:mod:`nifo_core.nifo.engine`, which the fleet, the node and the viewer use too).
 
     Returns (merged StreamingNifo, [data provenance entries], [(name, freq, plain H1) per file], each file's
-    :class:`~nifo_core.predict.linear_part.RecordLines` (None for records driven by a measured force)).
+    :class:`~nifo_core.predict.vector_fit.RecordLines` (None for records driven by a measured force)).
     ``opts``: the loaders' input options with the settings' period and transient
     (:func:`nifo.settings.loader_options`). The integration band, when the settings have none, is
     ``default_band(fs, shortest duration)`` as in :func:`identify_nifo`, so the answer equals it on the same records.

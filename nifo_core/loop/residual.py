@@ -36,7 +36,7 @@ from ..signal.frf import h1, partial_coherence
 from ..signal.spectral import SpectralSettings, auto_spectrum, cross_spectra
 from ..signal.noise import estimate_noise
 from ..signal.record import Record
-from ..signal.bias_correction import Correction, simulated_correction
+from ..signal.bias_correction import Correction, LinearFit, simulated_correction
 from ..signal.least_squares import lstsq
 from ..errors import NifoError
 from ..predict.model import fine_factor, predict_body
@@ -81,6 +81,23 @@ def _part(rf: RestoringForce, index: int = 0) -> _Part:
     cols = [rf.force, rf.z, rf.zdot] + ([] if rf.applied is None else [rf.applied])
     b = bandpass(np.vstack(cols), rf.fs_hz, rf.band)[:, keep]
     return _Part(b[0], b[1], b[2], rf, keep, index, None if rf.applied is None else b[3])
+
+
+def _parts_sum(a: Sequence[_Part], b: Sequence[_Part], sign: float) -> list[_Part]:
+    """Record by record, the parts of ``a`` plus ``sign`` × those of ``b``: what the parts of the summed records are
+    (every column is linear in the record's channels: integrated, band-passed), cut the same way."""
+    def add(u, v):
+        return None if u is None else u + sign * v
+
+    out = []
+    for p, q in zip(a, b, strict=True):
+        rf, rq = p.rf, q.rf
+        rf = replace(rf, force=rf.force + sign * rq.force, z=rf.z + sign * rq.z, zdot=rf.zdot + sign * rq.zdot,
+                     spindle_accel=rf.spindle_accel + sign * rq.spindle_accel, x2=add(rf.x2, rq.x2),
+                     applied=add(rf.applied, rq.applied))
+        out.append(_Part(p.y + sign * q.y, p.z + sign * q.z, p.zdot + sign * q.zdot, rf, p.keep, p.index,
+                         add(p.applied, q.applied)))
+    return out
 
 
 def _g(part: _Part, term: Term, offsets: Mapping[str, Sequence[float]] | None = None) -> np.ndarray:
@@ -234,8 +251,8 @@ class _Evaluator:
                     return None
 
             t0 = self._lstsq(self.fit_parts, terms)
-            self._cache[key] = simulated_correction(lambda rs: self._lstsq(self._fit_parts_of(rs), terms),
-                                                    simulate, recs, self.noise, t0, seed=BIAS_SEED,
+            fit = LinearFit(self._fit_parts_of, _parts_sum, lambda parts: self._lstsq(parts, terms))
+            self._cache[key] = simulated_correction(fit, simulate, recs, self.noise, t0, seed=BIAS_SEED,
                                                     iterations=BIAS_ITERATIONS, drive_noise=True,
                                                     pairs=BIAS_PAIRS, side_by_side=True, reads=self._reads())
         return self._cache[key]

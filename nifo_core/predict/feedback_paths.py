@@ -326,7 +326,7 @@ def fit_joint(records: Sequence, terms: Sequence[Term], linear: LinearPart, *, s
     are fixed: one least-squares problem over the analysis-band lines of every record (periodic data: the period
     average), each record by its relative error, Σ r = 0 and Σ q_i = 0 (relative degree 2), a ridge λ on the
     path residues alone (relative to the largest path column). Without terms it is the linear model that predicts
-    the records best (:class:`~nifo_core.predict.linear_part.RecordLines`); with them the linear part and the paths share
+    the records best (:class:`~nifo_core.predict.vector_fit.RecordLines`); with them the linear part and the paths share
     what they explain, so the model nests its linear model on this metric.
     """
     m = len(terms)

@@ -14,7 +14,7 @@ increasing branch. A rational (flexible) linear part has no k, c: its curves hol
 
 Forces are per kg of the body mass M2 unless the mass is known (``scale=M2``: newtons).
 :func:`force_law_bounds` carries a refined model's parameter covariance
-(:func:`~nifo_core.predict.refine.parameter_space`) to 95 % bounds of each curve's total.
+(:func:`~nifo_core.predict.refine_space.parameter_space`) to 95 % bounds of each curve's total.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from ..kinds.describing import Term, make_term
 from ..signal.integrate import IntegrationBand, integrate
 from ..signal.record import Record
 from .model import IdentifiedModel
-from .refine import parameter_space
+from .refine_space import parameter_space
 
 __all__ = ["StrutLaw", "Characteristic", "strut_law", "characteristic", "force_law_bounds", "truth_law",
            "motion_range", "Variable", "Branch"]

@@ -186,7 +186,7 @@ class IdentifiedModel:
         the identification level, the linear model to compare against.
         The linear part is chosen by :func:`select_linear_part` (``linear_form``,
         ``order``): never fails for a non-physical body when a stable rational
-        fit exists. ``records`` (:class:`~nifo_core.predict.linear_part.RecordLines` of each
+        fit exists. ``records`` (:class:`~nifo_core.predict.vector_fit.RecordLines` of each
         identification record; used for the linear model, ``'h1'``): a rational
         linear part's residues are those that predict every record best.
         """

@@ -33,7 +33,8 @@ from ..errors import ConfigError, NifoError
 from .feedback_paths import (PATH_KINDS, JointFit, PathResult, equivalent_gammas, fit_joint,
                              regimes_stable)
 from .heldout import HeldOut, Scores, split_records
-from .linear_part import RecordLines, pole_residue_response
+from .linear_part import pole_residue_response
+from .vector_fit import RecordLines
 from .model import IdentifiedModel
 from ..signal.record import Record
 from ..signal.spectral import cross_spectra
@@ -109,7 +110,7 @@ def record_lines(records: Sequence[Record], settings: AnalysisSettings) -> list[
 
 def fit_linear(held: HeldOut, settings: AnalysisSettings, *, form: str = "auto", order: int | None = None) -> Fitted:
     """The linear model of the fit parts (NIFO's plain H1, the force path when measured) in ``form``; a rational
-    part's residues predict every fit part best (:class:`~nifo_core.predict.linear_part.RecordLines`)."""
+    part's residues predict every fit part best (:class:`~nifo_core.predict.vector_fit.RecordLines`)."""
     res = _nifo(held, [], settings)
     model = IdentifiedModel.from_nifo(res, source="h1", linear_form=form, order=order,
                                       records=record_lines(held.fit, settings))

@@ -30,7 +30,7 @@ import numpy as np
 
 from ..signal.parallel import batch_map, thread_map
 from .model import IdentifiedModel, PredictionDivergedError
-from .refine import parameter_space
+from .refine_space import parameter_space
 
 __all__ = ["PredictionSpread", "prediction_spread", "line_spread", "half_width", "Z95"]
 

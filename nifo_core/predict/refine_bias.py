@@ -36,7 +36,8 @@ from ..signal.noise import NoiseEstimate
 from .prediction_bounds import Z95
 from ..signal.parallel import forward_jacobian
 from ..signal.record import Record
-from .refine import Refinement, march_jacobians, moved_refinement, parameter_space, prediction_residuals
+from .refine import Refinement, march_jacobians, prediction_residuals
+from .refine_space import moved_refinement, parameter_space
 
 __all__ = ["REFIT_EVALUATIONS", "correct_refinement"]
 
