@@ -628,11 +628,11 @@ def _round(u: _Setup, i: int, terms: list[Term], current: Errors, search, ambigu
     tuned: list[str] = []
     if u.retune_ok and i > 1 and len(terms) > u.n_decl:   # the terms the loop added (a declared one: at the end)
         say(base, f"round {i}: re-tuning the model's parameters")
-        u.frame.unplace(ev, terms[u.n_decl:])     # re-tuned as from each record's mean, then placed again
-        terms, tuned = _retune(ev, terms, s, which=range(u.n_decl, len(terms)))
+        terms, tuned = _retune(ev, terms, s, which=range(u.n_decl, len(terms)))   # not a term with offsets: those
+        terms, in_frame = u.frame.retune(ev, terms, which=range(u.n_decl, len(terms)))   # in the frame (frame.py)
         placed = _placed(u, terms)    # then a stop's static gap given the model in its frame (stops.py; a new label)
         terms, moved = retune_stops(ev.regression(), ev.static, terms, which=range(u.n_decl, len(terms)))
-        tuned += moved
+        tuned += in_frame + moved
         if _placed(u, terms) or placed or tuned:
             current = _errors(ev, pred, terms)
     say(base, f"round {i}: tracing the residual")

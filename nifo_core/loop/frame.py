@@ -16,7 +16,8 @@ mean lies more than :data:`FRAME_MATERIAL` of its z RMS from the static position
 and updated when it moves by more than :data:`FRAME_SETTLED` of its largest offset. Every form of z of the model
 and of the round's candidates is then evaluated on z from the static position (the evaluator's ``static`` offsets,
 the ranking's grid on the data in the frame); a bump stop keeps its own gap from the static position
-(:func:`nifo_core.loop.residual._static_candidate`).
+(:func:`nifo_core.loop.residual._static_candidate`). The key parameter of such a form the loop added (a clearance's
+gap) is re-tuned in later rounds in the frame too (:meth:`Frame.retune`).
 """
 
 from __future__ import annotations
@@ -28,8 +29,9 @@ import numpy as np
 
 from ..characterize.automatic import grid_search
 from ..characterize.data import GridSearch
-from ..characterize.static import static_frame
+from ..characterize.static import equation_fit, static_frame
 from ..kinds.describing import Term
+from ..signal.parallel import thread_map
 from .residual import _Evaluator
 
 __all__ = ["FRAME_MATERIAL", "FRAME_SETTLED", "Frame", "framed"]
@@ -40,6 +42,9 @@ FRAME_MATERIAL = 0.05
 FRAME_SETTLED = 0.1
 #: fixed-point passes of the frame (the terms' coefficients depend on it, it on them)
 FRAME_PASSES = 3
+#: a term re-tuned in the frame is moved only when its best key parameter lowers the equation error's sum of squares
+#: by more than this fraction (as a stop's, :data:`nifo_core.loop.stops.RETUNE_GAIN`)
+RETUNE_GAIN = 1e-3
 
 
 def framed(term: Term) -> bool:
@@ -97,6 +102,47 @@ class Frame:
         for t in terms:
             if framed(t) and ev.static.get(t.label) == self.offsets:
                 self._lifted[t.label] = ev.static.pop(t.label)
+
+    def retune(self, ev: _Evaluator, terms: Sequence[Term], *, which: Sequence[int]) -> tuple[list[Term], list[str]]:
+        """Each form of z among ``terms[which]`` registered in the frame with its key parameter (a clearance's gap, a
+        play's deadband) re-tuned *in the frame*, given the whole model: tried over a factor 2 each way (13 points,
+        then 7 between the best's neighbours), scored by the equation error on the fit parts' regression rows;
+        moved when the sum of squares falls by more than :data:`RETUNE_GAIN`. Returns the terms and one note per
+        term moved; ``ev.static`` holds the new labels.
+
+        residual.py's re-tune skips a term with offsets; lifted out of the frame for it (as before), such a term
+        was re-tuned from each record's *mean*: another function at every level, the more the harder the road.
+        Measured on own draws of the fleet generator (seed 54545, nifo's simulator, a declared rebound damper, a
+        hidden clearance and knee, 3 × 90 s; tests/test_loop_frame.py): case 2's clearance (3.09 mm) added at
+        3.01 mm, re-tuned from the mean to 1.54 mm, and a compression stop added to make up for it; case 0's
+        (1.62 mm) from 1.72 to 1.20 mm. In the frame both stay (3.01 and 1.72 mm), nothing else added."""
+        out, notes = list(terms), []
+        if self.offsets is None:
+            return out, notes
+        data = ev.regression()
+        for j in which:
+            t, key = out[j], out[j].spec.key_param
+            if not (framed(t) and key in t.params and ev.static.get(t.label) == self.offsets):
+                continue
+            offsets = [ev.static.get(u.label) for u in out]
+
+            def rss(x: float, j=j, t=t, key=key, offsets=offsets) -> tuple[float, float]:
+                at = [*out[:j], Term(t.kind, {**t.params, key: float(x)}), *out[j + 1:]]
+                return equation_fit(data, at, offsets)[1], float(x)
+
+            x0 = float(t.params[key])
+            grid = np.geomspace(0.5, 2.0, 13) * x0
+            best = min(thread_map(rss, [x for x in grid if t.spec.may_be(key, float(x))] + [x0]))
+            k = int(np.argmin(np.abs(grid - best[1])))
+            fine = np.linspace(grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)], 9)[1:-1]
+            best = min(best, *thread_map(rss, [x for x in fine if t.spec.may_be(key, float(x))]))
+            if best[1] != x0 and best[0] < (1 - RETUNE_GAIN) * rss(x0)[0]:
+                out[j] = Term(t.kind, {**t.params, key: best[1]})
+                del ev.static[t.label]
+                ev.static[out[j].label] = self.offsets
+                notes.append(f"{t.label} re-tuned to {key}={best[1]:.4g} in the frame of the static position on "
+                             f"these data")
+        return out, notes
 
     def search(self, ev: _Evaluator, kinds: Sequence[str], grid_points: int, old: GridSearch | None,
                progress) -> GridSearch:
