@@ -45,6 +45,8 @@ FRAME_PASSES = 3
 #: a term re-tuned in the frame is moved only when its best key parameter lowers the equation error's sum of squares
 #: by more than this fraction (as a stop's, :data:`nifo_core.loop.stops.RETUNE_GAIN`)
 RETUNE_GAIN = 1e-3
+#: times the re-tune's span (a factor 2 each way) is carried on by a factor 2 when its best is at an end
+CLIMBS = 3
 
 
 def framed(term: Term) -> bool:
@@ -106,8 +108,9 @@ class Frame:
     def retune(self, ev: _Evaluator, terms: Sequence[Term], *, which: Sequence[int]) -> tuple[list[Term], list[str]]:
         """Each form of z among ``terms[which]`` registered in the frame with its key parameter (a clearance's gap, a
         play's deadband) re-tuned *in the frame*, given the whole model: tried over a factor 2 each way (13 points,
-        then 7 between the best's neighbours), scored by the equation error on the fit parts' regression rows;
-        moved when the sum of squares falls by more than :data:`RETUNE_GAIN`. Returns the terms and one note per
+        carried on by a factor 2 at a time, :data:`CLIMBS` times at most, while the best is at an end; then 7
+        between the best's neighbours), scored by the equation error on the fit parts' regression rows; moved when
+        the sum of squares falls by more than :data:`RETUNE_GAIN`. Returns the terms and one note per
         term moved; ``ev.static`` holds the new labels.
 
         residual.py's re-tune skips a term with offsets; lifted out of the frame for it (as before), such a term
@@ -126,17 +129,13 @@ class Frame:
                 continue
             offsets = [ev.static.get(u.label) for u in out]
 
-            def rss(x: float, j=j, t=t, key=key, offsets=offsets) -> tuple[float, float]:
+            def rss(x: float, j=j, t=t, key=key, offsets=offsets) -> float:
                 at = [*out[:j], Term(t.kind, {**t.params, key: float(x)}), *out[j + 1:]]
-                return equation_fit(data, at, offsets)[1], float(x)
+                return equation_fit(data, at, offsets)[1]
 
             x0 = float(t.params[key])
-            grid = np.geomspace(0.5, 2.0, 13) * x0
-            best = min(thread_map(rss, [x for x in grid if t.spec.may_be(key, float(x))] + [x0]))
-            k = int(np.argmin(np.abs(grid - best[1])))
-            fine = np.linspace(grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)], 9)[1:-1]
-            best = min(best, *thread_map(rss, [x for x in fine if t.spec.may_be(key, float(x))]))
-            if best[1] != x0 and best[0] < (1 - RETUNE_GAIN) * rss(x0)[0]:
+            now, best = rss(x0), _best_value(rss, x0, lambda x, t=t, key=key: t.spec.may_be(key, x))
+            if best[1] != x0 and best[0] < (1 - RETUNE_GAIN) * now:
                 out[j] = Term(t.kind, {**t.params, key: best[1]})
                 del ev.static[t.label]
                 ev.static[out[j].label] = self.offsets
@@ -169,6 +168,28 @@ class Frame:
                                         for o, rf in zip(frame, ev.fit_rfs)):
             return None
         return tuple(float(o) for o in frame)
+
+
+def _best_value(rss, x0: float, may_be) -> tuple[float, float]:
+    """(sum of squares, value) of the best key parameter for :meth:`Frame.retune`: a factor 2 each way from ``x0``
+    (13 points), carried on by a factor 2 at a time (:data:`CLIMBS` times at most) while the best is at an end, then
+    7 points between the best's neighbours; ``x0`` itself among the tries."""
+    def tried(xs) -> list[tuple[float, float]]:
+        xs = [float(x) for x in xs if may_be(float(x))]
+        return list(zip(thread_map(rss, xs), xs))
+
+    grid = list(np.geomspace(0.5, 2.0, 13) * x0)
+    best = min([*tried(grid), (rss(x0), x0)])
+    for _ in range(CLIMBS):     # the best at an end of the span: the span carried on beyond it
+        down = best[1] <= grid[0]
+        if not (down or best[1] >= grid[-1]):
+            break
+        end = grid[0] if down else grid[-1]
+        more = list(np.geomspace(end, end * (0.5 if down else 2.0), 7)[1:])
+        grid = sorted(grid + more)
+        best = min([best, *tried(more)])
+    k = int(np.argmin(np.abs(np.asarray(grid) - best[1])))
+    return min([best, *tried(np.linspace(grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)], 9)[1:-1])])
 
 
 def _moved(a: Sequence[float], b: Sequence[float]) -> float:
