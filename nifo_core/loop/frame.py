@@ -33,6 +33,7 @@ from ..characterize.static import equation_fit, static_frame
 from ..kinds.describing import Term
 from ..signal.parallel import thread_map
 from .residual import _Evaluator
+from .stops import CLIMBS, RETUNE_GAIN   # a term re-tuned in the frame moves and climbs as a stop's gap does
 
 __all__ = ["FRAME_MATERIAL", "FRAME_SETTLED", "Frame", "framed"]
 
@@ -42,11 +43,6 @@ FRAME_MATERIAL = 0.05
 FRAME_SETTLED = 0.1
 #: fixed-point passes of the frame (the terms' coefficients depend on it, it on them)
 FRAME_PASSES = 3
-#: a term re-tuned in the frame is moved only when its best key parameter lowers the equation error's sum of squares
-#: by more than this fraction (as a stop's, :data:`nifo_core.loop.stops.RETUNE_GAIN`)
-RETUNE_GAIN = 1e-3
-#: times the re-tune's span (a factor 2 each way) is carried on by a factor 2 when its best is at an end
-CLIMBS = 3
 
 
 def framed(term: Term) -> bool:
