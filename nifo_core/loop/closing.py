@@ -393,8 +393,7 @@ def _data_settings(recs: Sequence[Record], band: IntegrationBand | None, s: Loop
 
 
 # Long (over 100 lines): each round's fit, residual, ranking, acceptance tests and refit share the round's
-# state. Left whole here while the noise branch (issue 28) edits its body; to split after
-# the merge.
+# state. Left whole here while the noise branch (issue 28) edits its body; to split after the merge.
 @dataclass(frozen=True)
 class _Setup:
     """What every round of :func:`close_loop` works on: the records (as measured and centred), the declared model
@@ -413,9 +412,10 @@ class _Setup:
     ev: _Evaluator
     pred: _Predictor
     floor: object
-    retune_ok: bool
     initial: Errors
     frame: Frame
+    # re-tuning by the one-mass equation error: on the body the loop is on *now* (taken back once a term is in)
+    retune_ok = property(lambda self: self.s.retune and not self.pred.flexible)
 
     @property
     def n_decl(self) -> int:
@@ -587,7 +587,6 @@ def _set_up(records: Record | Sequence[Record], declared: Sequence[Term | Mappin
     pred = _Predictor(held, data, s, ev)
     floor = held.noise_floor()
     declared_terms = tuple(terms)
-    retune_ok = s.retune and not pred.flexible   # re-tuning by the one-mass equation error: a one-mass body only
     frame = Frame()     # every form of z from the static position the declared model implies, when it is material
     frame.place(ev, declared_terms)
     # the declared model fitted as declared: the signs its terms mean (a falling knee, a hardening spring...). The
@@ -596,7 +595,7 @@ def _set_up(records: Record | Sequence[Record], declared: Sequence[Term | Mappin
     decl_theta = ev.equation(declared_terms)["theta_per_kg"] if terms else ()
     return _Setup(raw=tuple(raw), recs=tuple(recs), declared_terms=declared_terms, decl_theta=decl_theta, m2_kg=m2_kg,
                   s=s, band=band, band_note=band_note, adapted=adapted, held=held, ev=ev, pred=pred, floor=floor,
-                  retune_ok=retune_ok, initial=_errors(ev, pred, terms), frame=frame)
+                  initial=_errors(ev, pred, terms), frame=frame)
 
 
 def _run_rounds(u: _Setup, say: Callable[[float, str], None]) -> _Found:
@@ -628,11 +627,11 @@ def _round(u: _Setup, i: int, terms: list[Term], current: Errors, search, ambigu
     tuned: list[str] = []
     if u.retune_ok and i > 1 and len(terms) > u.n_decl:   # the terms the loop added (a declared one: at the end)
         say(base, f"round {i}: re-tuning the model's parameters")
-        u.frame.unplace(ev, terms[u.n_decl:])     # re-tuned as from each record's mean, then placed again
-        terms, tuned = _retune(ev, terms, s, which=range(u.n_decl, len(terms)))
+        terms, tuned = _retune(ev, terms, s, which=range(u.n_decl, len(terms)))   # not a term with offsets: those
+        terms, in_frame = u.frame.retune(ev, terms, which=range(u.n_decl, len(terms)))   # in the frame (frame.py)
         placed = _placed(u, terms)    # then a stop's static gap given the model in its frame (stops.py; a new label)
         terms, moved = retune_stops(ev.regression(), ev.static, terms, which=range(u.n_decl, len(terms)))
-        tuned += moved
+        tuned += in_frame + moved
         if _placed(u, terms) or placed or tuned:
             current = _errors(ev, pred, terms)
     say(base, f"round {i}: tracing the residual")
