@@ -1,11 +1,10 @@
 """Closing the loop (nifo_core.loop.closing, ``nifo loop``): residual → missing effect → add → error before and after.
 
-The project's simulator at the paper's settings (fs 600 Hz, 300 s = 180 000
-points, random road) with 2 % sensor noise on every channel. Each hidden
-effect (present in the data, absent from the declared model) must be the
-first one added, with its key parameter within 25 % of the truth, and the
-held-out NMSE must fall. Negative controls add nothing. Simulations and loop
-results are shared through one module-scoped cache (each scenario runs once).
+The project's simulator at the paper's settings (fs 600 Hz, random road; 150 s records, half the paper's 300 s,
+where the claims were measured to hold on three seeds: ``SECONDS``) with 2 % sensor noise on every channel.
+Each hidden effect (present in the data, absent from the declared model) must be the first one added, with its key
+parameter within 25 % of the truth, and the held-out NMSE must fall. Negative controls add nothing. Simulations
+and loop results are shared through one module-scoped cache (each scenario runs once).
 """
 
 from __future__ import annotations
@@ -51,6 +50,16 @@ SCENARIOS = {
 }
 
 
+#: record length [s]: 150 s, half the paper's 300 s (issue 58: half the CPU), where every assertion on the scenario
+#: held on seeds 11-13 (measured 2026-12-06; key parameter / truth on 150 s, on 300 s seed 11 in brackets): cubic
+#: 0.966-0.993 (1.010), Coulomb 1.044-1.050 (1.040), asymmetric 0.998-1.001 (0.998), quadratic 0.998-1.002 (1.001),
+#: bump stop gap 0.973-0.983 (0.979); linear and lift-off add nothing on all three; both hidden effects found in
+#: rounds 1 and 2 on all three, the stop's gap / truth 0.877-0.949 (0.905), Coulomb 1.044-1.050 (1.040). The paper's
+#: 300 s where 150 s did not hold: the knee (seed 12 adds a Coulomb friction first) and the declared-only control
+#: (seed 11 adds nothing but leaves nothing_missing false)
+SECONDS = {**{name: 150.0 for name in SCENARIOS}, "knee": 300.0, "declared_only": 300.0}
+
+
 @pytest.fixture(scope="module")
 def scenario():
     cache: dict = {}
@@ -58,7 +67,7 @@ def scenario():
     def get(name: str):
         if name not in cache:
             strut, declared, rms, lift = SCENARIOS[name]
-            cfg = SimConfig(strut=strut, tire_lift_off=lift, road=RandomRoad(rms_m=rms), duration_s=300.0,
+            cfg = SimConfig(strut=strut, tire_lift_off=lift, road=RandomRoad(rms_m=rms), duration_s=SECONDS[name],
                             fs_hz=600.0, noise=SensorNoise(relative=0.02))
             sim = simulate(cfg, rng=11)
             cache[name] = (sim, close_loop(sim.record, declared, m2_kg=M2))
