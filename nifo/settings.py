@@ -140,8 +140,7 @@ def _read_first(path: Path, load: dict) -> tuple[object, int]:
         raise RecordTooShortError("the file holds no samples", source=str(path))
     total = int(got[0].meta.get("chunk", {}).get("total_samples", got[0].n))
     rec = got[0] if len(got) == 1 else concatenate(got)
-    if got[0].meta.get("streamed") and rec.n == total:    # a bag read to its end: the job's whole read of it
-        seed_whole_bag(path, rec, topics=load.get("topics"), axis=load.get("axis", "z"))
+    seed_whole_bag(path, rec, topics=load.get("topics"), axis=load.get("axis", "z"))   # read to its end: kept whole
     return rec, total
 
 

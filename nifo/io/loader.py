@@ -68,8 +68,8 @@ from .matfile import read_mat, write_mat
 from .memo import remembered
 from .tabular import read_csv, write_csv
 
-__all__ = ["load_record", "seed_whole_bag", "save_record", "check_record_output", "load_records", "iter_record_chunks", "detect_format",
-           "assemble_record", "parse_columns", "add_input_arguments", "input_options", "COLUMN_KEYS", "READ_ROLES",
+__all__ = ["load_record", "seed_whole_bag", "save_record", "check_record_output", "load_records", "iter_record_chunks",
+           "detect_format", "assemble_record", "parse_columns", "add_input_arguments", "input_options", "COLUMN_KEYS", "READ_ROLES",
            "Assembly", "Skip", "FileFormat", "READERS"]
 
 Axis = Literal["x", "y", "z"]
@@ -229,11 +229,14 @@ def _whole_bag(path, topics, axis) -> Record:
 
 
 def seed_whole_bag(path, record: Record, *, topics, axis) -> None:
-    """``record``, a bag's chunks read in order from its first sample to its last (:func:`iter_record_chunks`,
-    concatenated), kept as the job's whole read of the bag: the same channels and rate as :func:`bag.read_bag` gives
-    (measured on the bundled sample's and the loop benchmark's bags, bit for bit), without the chunks' own marks.
+    """``record``, a file's chunks read in order from its first sample (:func:`iter_record_chunks`, concatenated),
+    kept as the job's whole read of the file when it is a bag read to its last sample: the same channels and rate as
+    :func:`bag.read_bag` gives (measured on the bundled sample's and the loop benchmark's bags, bit for bit), without
+    the chunks' own marks. Anything else (a table, a bag read in part) is left to be read when first loaded.
     Measured: ``nifo run`` decoded each bag twice, once to choose its settings and once to analyse it (0.35-0.8 s
-    per 120-300 s bag); a file the probe did not read to its end is decoded whole when first loaded, as before."""
+    per 120-300 s bag)."""
+    if not record.meta.get("streamed") or record.n != record.meta.get("chunk", {}).get("total_samples"):
+        return
     meta = {k: v for k, v in record.meta.items() if k not in ("chunk", "streamed")}
     remembered(Path(path), _bag_key(topics, axis), lambda: replace(record, meta=meta), kind="bag-whole")
 

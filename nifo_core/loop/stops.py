@@ -11,11 +11,11 @@ at 9.69 mm from static (10.05 mm true), the knee followed in round 2, and round 
 1.05 × the gap from the mean (a stop alone pushes the mean away from it), and a damper stiffer in rebound pushes the
 mean the other way, towards the stop (a synthetic draw of the fleet generator, seed 54541 case 1: placed at
 9.27 mm, the search's top, 10.07 mm true; re-tuned in the next round to 9.96 mm, the sum of squares 35 % lower).
-The re-tune of residual.py's :func:`~nifo_core.loop.residual._retune` cannot move such a stop (its column depends on the offsets, which depend on its gap): it is left as it is there and re-tuned
-here, the way it was placed — each static gap tried with its own offsets (a few fixed-point steps of the mean
-balance with the whole model, :func:`nifo_core.characterize.static.balance_offsets`), scored by the equation error of
-the model on the fit parts' regression rows; the other terms keep their columns (the frame's offsets: the frame is
-placed again afterwards).
+The re-tune of residual.py's :func:`~nifo_core.loop.residual._retune` cannot move such a stop (its column depends
+on the offsets, which depend on its gap): it is left as it is there and re-tuned here, the way it was placed —
+each static gap tried with its own offsets (a few fixed-point steps of the mean balance with the whole model,
+:func:`nifo_core.characterize.static.balance_offsets`), scored by the equation error of the model on the fit parts'
+regression rows; the other terms keep their columns (the frame's offsets: the frame is placed again afterwards).
 """
 
 from __future__ import annotations
