@@ -130,7 +130,8 @@ class Frame:
                 return equation_fit(data, at, offsets)[1]
 
             x0 = float(t.params[key])
-            now, best = rss(x0), _best_value(rss, x0, lambda x, t=t, key=key: t.spec.may_be(key, x))
+            now = rss(x0)
+            best = _best_value(rss, x0, now, lambda x, t=t, key=key: t.spec.may_be(key, x))
             if best[1] != x0 and best[0] < (1 - RETUNE_GAIN) * now:
                 out[j] = Term(t.kind, {**t.params, key: best[1]})
                 del ev.static[t.label]
@@ -166,16 +167,17 @@ class Frame:
         return tuple(float(o) for o in frame)
 
 
-def _best_value(rss, x0: float, may_be) -> tuple[float, float]:
+def _best_value(rss, x0: float, at_x0: float, may_be) -> tuple[float, float]:
     """(sum of squares, value) of the best key parameter for :meth:`Frame.retune`: a factor 2 each way from ``x0``
     (13 points), carried on by a factor 2 at a time (:data:`CLIMBS` times at most) while the best is at an end, then
-    7 points between the best's neighbours; ``x0`` itself among the tries."""
+    7 points between the best's neighbours; ``x0`` itself among the tries, its sum of squares ``at_x0`` (the caller's,
+    not computed again)."""
     def tried(xs) -> list[tuple[float, float]]:
         xs = [float(x) for x in xs if may_be(float(x))]
         return list(zip(thread_map(rss, xs), xs))
 
     grid = list(np.geomspace(0.5, 2.0, 13) * x0)
-    best = min([*tried(grid), (rss(x0), x0)])
+    best = min([*tried(grid), (at_x0, x0)])
     for _ in range(CLIMBS):     # the best at an end of the span: the span carried on beyond it
         down = best[1] <= grid[0]
         if not (down or best[1] >= grid[-1]):
