@@ -61,3 +61,30 @@ def test_a_bag_longer_than_the_probe_is_decoded_whole_when_loaded(tmp_path, deco
         assert probed.n < total
         whole = load_record(path)
         assert len(decodes) == 1 and whole.n == total
+
+
+def test_a_command_on_its_own_decodes_each_bag_once(tmp_path, monkeypatch):
+    """Not only ``nifo run``'s steps: every command runs inside :func:`nifo.io.memo.reuse_reads` (nifo/cli.py), so
+    ``nifo identify`` decodes a bag once, by the settings' probe, and its streaming estimator takes the chunks of
+    that read (before: decoded in chunks twice; ``nifo loop`` on the loop benchmark: in chunks, then whole)."""
+    from nifo.cli import main
+
+    reads = []
+    chunked, whole = loader.bag.iter_bag_chunks, loader.bag.read_bag
+
+    def counting_chunks(path, **kw):
+        reads.append(("chunks", Path(path).name))
+        yield from chunked(path, **kw)
+
+    def counting_whole(path, **kw):
+        reads.append(("whole", Path(path).name))
+        return whole(path, **kw)
+
+    monkeypatch.setattr(loader.bag, "iter_bag_chunks", counting_chunks)
+    monkeypatch.setattr(loader.bag, "read_bag", counting_whole)
+    rec = simulate(SimConfig(strut=preset("paper_deadzone"), duration_s=30.0, road=RandomRoad(2.5e-3)), rng=6).record
+    path = save_record(tmp_path / "road.mcap", rec)
+    model = tmp_path / "knee.yaml"
+    model.write_text("nifo_model: 1\nnonlinearities:\n  - {kind: velocity_deadzone, params: {knee: 0.03}}\n")
+    assert main(["-q", "identify", str(path), "--model", str(model), "--out", str(tmp_path / "out"), "--no-plots"]) == 0
+    assert reads == [("chunks", "road.mcap")]

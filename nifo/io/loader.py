@@ -65,7 +65,7 @@ from .assemble import FIXED, READ_ROLES, Assembly, Skip, check_declared_rate, as
 from .atomic import check_output
 from .inputs import regular_input
 from .matfile import read_mat, write_mat
-from .memo import remembered
+from .memo import known, remembered
 from .tabular import read_csv, write_csv
 
 __all__ = ["load_record", "seed_whole_bag", "save_record", "check_record_output", "load_records", "iter_record_chunks",
@@ -241,6 +241,19 @@ def seed_whole_bag(path, record: Record, *, topics, axis) -> None:
     remembered(Path(path), _bag_key(topics, axis), lambda: replace(record, meta=meta), kind="bag-whole")
 
 
+def _bag_chunks(path, chunk_samples: int, topics, axis) -> Iterator[Record]:
+    """A bag's chunks: decoded one by one (memory bounded by a chunk), or, when this job already holds the bag
+    decoded whole (:func:`_whole_bag`, :func:`seed_whole_bag`), sliced from it: the same samples, rate and meta
+    (measured: ``nifo identify`` on one bag decoded it twice, in chunks by the settings' probe and again in chunks
+    for its streaming estimator)."""
+    whole = known(Path(path), _bag_key(topics, axis), kind="bag-whole")
+    if whole is None:
+        yield from bag.iter_bag_chunks(path, chunk_samples=chunk_samples, topics=topics, axis=axis)
+        return
+    for part in whole.chunks(int(chunk_samples)):
+        yield replace(part, meta={**dict(part.meta), "streamed": True})
+
+
 def _with_meta(rec: Record, **items) -> Record:
     return replace(rec, meta={**dict(rec.meta), **items})
 
@@ -349,7 +362,7 @@ def iter_record_chunks(path: str | os.PathLike, *, chunk_samples: int, topics: "
         return
     skip = _skip(skip_seconds, skip_periods, period_samples, source=str(path))
     first, left = True, 0
-    for rec in bag.iter_bag_chunks(path, chunk_samples=chunk_samples, topics=topics, axis=axis):
+    for rec in _bag_chunks(path, chunk_samples, topics, axis):
         if first:
             if fs_hz is not None:
                 check_declared_rate(rec.fs_hz, fs_hz, source=str(path))

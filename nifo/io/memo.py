@@ -26,7 +26,7 @@ from typing import Callable, Iterator, TypeVar
 
 import numpy as np
 
-__all__ = ["BoundedMemo", "file_identity", "nbytes", "reuse_reads", "remembered", "RECORD_MEMO_BYTES"]
+__all__ = ["BoundedMemo", "file_identity", "nbytes", "reuse_reads", "remembered", "known", "RECORD_MEMO_BYTES"]
 
 T = TypeVar("T")
 
@@ -86,6 +86,22 @@ def reuse_reads() -> Iterator[None]:
         _memos.reset(token)
 
 
+def _key(path: Path, options: dict) -> tuple:
+    return file_identity(Path(path)), repr(sorted(options.items(), key=lambda kv: kv[0]))
+
+
+def known(path: Path, options: dict, *, kind: str = "record"):
+    """What :func:`remembered` gave for the same file and ``options`` before in this job, else None (never reads)."""
+    memos = _memos.get()
+    memo = None if memos is None else memos.get(kind)
+    if memo is None:
+        return None
+    try:
+        return memo.get(_key(path, options))
+    except OSError:
+        return None
+
+
 def remembered(path: Path, options: dict, read: Callable[[], T], *, kind: str = "record",
                max_bytes: int = RECORD_MEMO_BYTES, size: Callable[[object], int] = nbytes) -> T:
     """``read()``, or inside :func:`reuse_reads` what it gave for the same file and ``options`` before.
@@ -97,7 +113,7 @@ def remembered(path: Path, options: dict, read: Callable[[], T], *, kind: str = 
     if memos is None:
         return read()
     try:
-        key = (file_identity(Path(path)), repr(sorted(options.items(), key=lambda kv: kv[0])))
+        key = _key(path, options)
     except OSError:
         return read()        # unreadable: the reader says why
     memo = memos.setdefault(kind, BoundedMemo(max_bytes, size))
