@@ -18,14 +18,24 @@ machine's cores if nothing else ran and every core were busy: a floor for the sa
 whatever the Python around them is made to cost. A low one: numpy's operators and ufuncs are no calls to
 cProfile, so their arithmetic counts as their Python caller's.
 
-Measured with ``--floor`` (2026-11-29, 2 cores; compiled arithmetic + figures' rendering = CPU seconds, then the
-floor on 2 cores against issue 29's target):
+Measured with ``--floor`` (2026-11-29, 2 cores, wall-clock profiles of an idle machine; compiled arithmetic +
+figures' rendering = CPU seconds, then the floor on 2 cores against issue 29's target):
 
 - the bundled sample: 11.1 + 12.7 = 23.8 s, floor 11.9 s against 15 s: the other 3.1 s of wall time would have to
   hold the Python (11.6 s under the profiler), the imports and the figure helpers' start-up;
 - ``nifo loop`` on ``benchmarks/bench_loop.py --keep DIR``'s 4 x 300 s records: 27.6 + 1.0 = 28.6 s, floor 14.3 s
   against 10 s (the compiled arithmetic alone 13.8 s): out of reach on 2 cores with this arithmetic;
 - ``--f16``: 14.9 + 10.2 = 25.2 s, floor 12.6 s against 30 s.
+
+Measured again on 2026-12-07 (each thread's CPU clock, beside two other jobs; issue 58):
+
+- the bundled sample: 23.9 + 22.1 = 46.0 s, floor 23.0 s (the compiled arithmetic alone 11.9 s); the figures'
+  rendering is the largest part (22.1 CPU-s), the Python 22.6 s under the profiler;
+- the loop benchmark: 46.6 + 1.8 = 48.3 s, floor 24.2 s (the compiled arithmetic alone 23.3 s: the loop has
+  grown since 2026-11-29: the re-tunes in the static frame, the stop re-tune, the bias correction's drive noise);
+- ``nifo loop`` on held-out fleet case 64 (``tests/test_loop_vehicle.py``'s rational-part case, ``--no-refine
+  --max-rounds 1``): 23.4 + 1.1 = 24.5 s, Python 39.5 s of 65 s; the rational linear part's order search
+  (vector fitting every even order 2-40 for each candidate's model: 22 searches, 440 fits) is 27 s of it.
 
     PYTHONPATH=. python benchmarks/profile_run.py [--f16] [--floor] [--out DIR] [--top 40] [--save run.prof]
                                                   [-- nifo ARGS...]
@@ -132,8 +142,8 @@ def floor_lines(kinds: dict[str, float], cores: int) -> list[str]:
     """The table of :func:`own_time_by_kind` and the least wall time of its compiled arithmetic (and of that with
     the figures' rendering) on ``cores`` busy cores."""
     total = sum(kinds.values())
-    lines = [f"own time by what runs ({total:.1f} s: every thread under cProfile but the figures' rendering; a "
-             "thread waiting for another's work counts as waiting):"]
+    lines = [f"own CPU time by what runs ({total:.1f} s: every thread under cProfile on its own CPU clock, the "
+             "figures' rendering timed apart):"]
     lines += [f"  {k:<42} {v:7.1f} s  {100 * v / total:5.1f} %" for k, v in kinds.items()]
     arith = sum(kinds[k] for k in _ARITHMETIC)
     both = arith + kinds[_RENDERING]
@@ -151,7 +161,11 @@ class FloorProfile:
     one worker thread while its main thread waits for them: every thread started inside the ``with`` profiles
     itself. The figures' layout and rendering (:func:`nifo.plots.writer._write`, in the step's own process with
     ``NIFO_FIGURE_WORKERS=0``) run with their thread's profiler off and are timed by that thread's CPU clock:
-    matplotlib's many small calls would otherwise carry the profiler's overhead into the floor."""
+    matplotlib's many small calls would otherwise carry the profiler's overhead into the floor.
+
+    Every profile reads its thread's CPU clock (:func:`time.thread_time`), not the wall clock: a floor measured on a
+    machine that also runs other work is the same as on an idle one (before 2026-12-07 the profiles read the wall
+    clock, and a loaded machine's floor was its load's). A thread waiting for another's work then costs nothing."""
 
     def __init__(self) -> None:
         self.profiles: dict[int, cProfile.Profile] = {}
@@ -195,7 +209,7 @@ class FloorProfile:
         writer._write = self._real_write
 
     def _enable(self) -> cProfile.Profile:
-        prof = cProfile.Profile()
+        prof = cProfile.Profile(time.thread_time)   # the thread's own CPU: what other processes run does not count
         with self._lock:
             self.profiles[threading.get_ident()] = prof
         prof.enable()
