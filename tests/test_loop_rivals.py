@@ -33,7 +33,7 @@ def _trial(term: Term, err: float, pct: float) -> Trial:
                  accepted=True, failed=(), gates_passed=True)
 
 
-def _rivals(first: Trial, rival_pct: float):
+def _rivals(first: Trial, rival_pct: float, min_gain: float = 0.02):
     rng = np.random.default_rng(5)
     y = rng.standard_normal(20000)
     held = split_records([Record(200.0, 0.1 * rng.standard_normal(y.size), y, source="synthetic")],
@@ -41,7 +41,7 @@ def _rivals(first: Trial, rival_pct: float):
     name = lambda what, e: Explanation(what, e.terms, e.theta_per_kg, e.prediction_nmse_pct)  # noqa: E731
     trials: list[Trial] = []
     got = rivals_of(1, held, [], first, [_trial(CUBIC, 0.07, rival_pct).candidate],
-                    lambda c: _trial(CUBIC, c.err, rival_pct), trials, name)
+                    lambda c: _trial(CUBIC, c.err, rival_pct), trials, name, min_gain)
     return (*got, trials)
 
 
@@ -52,6 +52,9 @@ def test_a_rival_predicting_better_beyond_the_scatter_is_taken_instead_of_the_fi
     got, amb, took, trials = _rivals(first, 0.0058)
     assert got.candidate.term == CUBIC and amb is None and len(trials) == 1
     assert "Taken instead of clearance(gap=0.005)" in took and "0.0063 % against 0.0058 %" in took
+    # better, but by less than the margin a term must clear to be added at all: the first in rank kept
+    got, amb, took, _ = _rivals(first, 0.0058, min_gain=0.1)
+    assert got is first and took == "" and amb is None
 
 
 def test_a_rival_the_data_cannot_tell_apart_is_named_and_the_first_in_rank_kept():
