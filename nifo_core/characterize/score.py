@@ -220,8 +220,8 @@ def detection_limit(data: RegressionData, base: list[np.ndarray], term: Term, *,
 
 def smallest_visible(rss: float, info: float, dof: float, *, tss: float, thresholds: Thresholds, n_grid: int
                      ) -> float:
-    """θ_min = sqrt( max(F_crit·RSS/dof, min_err·RSS, min_delta_r2·TSS) / Σg⊥² ), F_crit = F⁻¹(1 - α/n_grid; 1,
-    dof): the smallest coefficient of a column with Σg⊥² = ``info`` beyond the fit's residual ``rss`` that passes
+    """θ_min = sqrt( max(F_crit·RSS/dof, min_err·RSS, min_delta_r2·TSS) / Σg⊥² ), F_crit = F⁻¹(1 - α/n_grid;
+    1, dof): the smallest coefficient of a column with Σg⊥² = ``info`` beyond the fit's residual ``rss`` that passes
     the F-test, explains ``min_err`` of the residual and ``min_delta_r2`` of the total sum of squares ``tss`` — every
     threshold of :func:`score_candidate` a coefficient's size decides (:func:`detection_limit`; the loop's
     :mod:`nifo_core.loop.detection`). On records with little noise the last one binds: the residual is small, the

@@ -17,8 +17,8 @@ Detection limit
         F_crit = F⁻¹(1 - α/n_grid; 1, dof),   dof = N_eff - q,
 
     with RSS the current model's residual and TSS the total sum of squares of -ẍ2 (a candidate must
-    explain ``min_delta_r2`` of it: on records with little noise that binds, not the F-test). Reported as a coefficient (per kg,
-    or in N, N/m... with M2) and as the peak force θ_min·M2·|g|₉₉.₅ of the effect
+    explain ``min_delta_r2`` of it: on records with little noise that binds, not the F-test). Reported as
+    a coefficient (per kg, or in N, N/m... with M2) and as the peak force θ_min·M2·|g|₉₉.₅ of the effect
     on the measured motion [N or N/kg].
 
 Confounding

@@ -35,13 +35,12 @@ __all__ = ["rivals_of"]
 
 def rivals_of(i: int, held: HeldOut, rfs: Sequence, added: Trial, rest: Sequence[Candidate],
               judge: Callable[[Candidate], Trial], trials: list[Trial],
-              explanation: Callable[[str, object], Explanation], min_gain: float) -> tuple[Trial, Ambiguity | None,
-                                                                                            str]:
+              explanation: Callable[[str, object], Explanation],
+              min_gain: float) -> tuple[Trial, Ambiguity | None, str]:
     """The rivals of ``added`` among ``rest`` (module docstring): the trial kept, the ambiguity named (or None) and
     the round's words when a rival was taken instead (better beyond the scatter and by ``min_gain``, relative).
-    Candidates of ``rest`` are judged (and appended to
-    ``trials``) while their ERR is at least half the added one's: a kind that explains much less cannot predict
-    as well."""
+    Candidates of ``rest`` are judged (and appended to ``trials``) while their ERR is at least half the added
+    one's: a kind that explains much less cannot predict as well."""
     tied: list[tuple[Trial, Comparison]] = []
     better: list[tuple[Trial, Comparison]] = []
     for c in rest:
