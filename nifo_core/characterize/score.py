@@ -170,11 +170,13 @@ def _relative(term: Term, data: RegressionData) -> float | None:
 @dataclass(frozen=True)
 class BaseFit:
     """The fit [z, ż, base] a detection limit is measured against: an orthonormal ``basis`` of its columns, its
-    residual sum of squares ``rss`` and its degrees of freedom ``dof`` (N_eff - q - 1)."""
+    residual sum of squares ``rss``, its degrees of freedom ``dof`` (N_eff - q - 1) and the total sum of squares
+    ``tss`` of -ẍ2 (what ΔR² is a fraction of)."""
 
     basis: np.ndarray
     rss: float
     dof: float
+    tss: float
 
 
 def base_fit(data: RegressionData, base: list[np.ndarray]) -> BaseFit:
@@ -184,7 +186,7 @@ def base_fit(data: RegressionData, base: list[np.ndarray]) -> BaseFit:
     res = data.y - a0 @ lstsq(a0, data.y)
     q, _ = np.linalg.qr(a0)
     dof = max(_n_eff(res, data.rec, [rf.fs_hz for rf in data.rfs]) - a0.shape[1] - 1, 1.0)
-    return BaseFit(basis=q, rss=float(res @ res), dof=dof)
+    return BaseFit(basis=q, rss=float(res @ res), dof=dof, tss=float(data.y @ data.y))
 
 
 def detection_limit(data: RegressionData, base: list[np.ndarray], term: Term, *, thresholds: Thresholds,
@@ -193,10 +195,12 @@ def detection_limit(data: RegressionData, base: list[np.ndarray], term: Term, *,
 
     Adding θ·g to the truth lowers the residual sum of squares of the fit [z, ż, base] by
     θ²·Σg⊥² (g⊥: g band-limited and orthogonalised against those columns), so the smallest θ
-    that passes the F-test at α/n_grid (N_eff effective samples, as :func:`score_candidate`)
-    and explains ``min_err`` of the residual is (the loop's detection limit, docs/method.md §5)
+    that passes the F-test at α/n_grid (N_eff effective samples, as :func:`score_candidate`),
+    explains ``min_err`` of the residual and ``min_delta_r2`` of the total variance TSS of -ẍ2 is
+    (the loop's detection limit, docs/method.md §5)
 
-        θ_min = sqrt( max(F_crit·RSS/dof, min_err·RSS) / Σg⊥² ),   F_crit = F⁻¹(1 - α/n_grid; 1, dof).
+        θ_min = sqrt( max(F_crit·RSS/dof, min_err·RSS, min_delta_r2·TSS) / Σg⊥² ),
+        F_crit = F⁻¹(1 - α/n_grid; 1, dof).
 
     ``fit``: :func:`base_fit` of ``data`` and ``base``, when several terms are measured against the same base.
     Returns ``(θ_min, |g|₉₉.₅)`` (the 99.5 % quantile of |g| on the measured motion: θ_min times it
@@ -211,12 +215,16 @@ def detection_limit(data: RegressionData, base: list[np.ndarray], term: Term, *,
     peak = float(np.quantile(np.abs(np.concatenate([term.evaluate(rf.z, rf.zdot) for rf in data.rfs])), 0.995))
     if not info > 1e-12 * float(g @ g):
         return float("inf"), peak
-    return smallest_visible(rss, info, dof, thresholds=thresholds, n_grid=n_grid), peak
+    return smallest_visible(rss, info, dof, tss=fit.tss, thresholds=thresholds, n_grid=n_grid), peak
 
 
-def smallest_visible(rss: float, info: float, dof: float, *, thresholds: Thresholds, n_grid: int) -> float:
-    """θ_min = sqrt( max(F_crit·RSS/dof, min_err·RSS) / Σg⊥² ), F_crit = F⁻¹(1 - α/n_grid; 1, dof): the smallest
-    coefficient of a column with Σg⊥² = ``info`` beyond the fit's residual ``rss`` that passes the F-test and
-    explains ``min_err`` of the residual (:func:`detection_limit`; the loop's :mod:`nifo_core.loop.detection`)."""
+def smallest_visible(rss: float, info: float, dof: float, *, tss: float, thresholds: Thresholds, n_grid: int
+                     ) -> float:
+    """θ_min = sqrt( max(F_crit·RSS/dof, min_err·RSS, min_delta_r2·TSS) / Σg⊥² ), F_crit = F⁻¹(1 - α/n_grid;
+    1, dof): the smallest coefficient of a column with Σg⊥² = ``info`` beyond the fit's residual ``rss`` that passes
+    the F-test, explains ``min_err`` of the residual and ``min_delta_r2`` of the total sum of squares ``tss`` — every
+    threshold of :func:`score_candidate` a coefficient's size decides (:func:`detection_limit`; the loop's
+    :mod:`nifo_core.loop.detection`). On records with little noise the last one binds: the residual is small, the
+    F-test passes at a tiny θ, and a limit without it names effects the selection refuses."""
     f_crit = float(stats.f.isf(min(thresholds.alpha / max(n_grid, 1), 0.5), 1, dof))
-    return float(np.sqrt(max(f_crit * rss / dof, thresholds.min_err * rss) / info))
+    return float(np.sqrt(max(f_crit * rss / dof, thresholds.min_err * rss, thresholds.min_delta_r2 * tss) / info))

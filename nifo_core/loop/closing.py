@@ -116,6 +116,7 @@ from ..predict.model import IdentifiedModel
 from ..predict.scope_fit import fit_scope
 from .residual import _design, _Evaluator, _evidence, _g, _retune, _static_candidate, _tire_check
 from .stops import retune_stops
+from .rivals import rivals_of
 from ..predict.model_fit import RATIONAL_MARGIN, Fitted, LinearChoice, choose_linear_form, fit_model
 from ..settings import AnalysisSettings
 from .results import (NOTHING_MISSING, RESIDUAL_BANDS_HZ, RETUNE_FACTOR, DeclaredTerm, Errors, Evidence,
@@ -705,7 +706,8 @@ def _try_candidates(u: _Setup, i: int, terms: Sequence[Term], ranked: Sequence[C
                 added = trials[-1]
                 break
         if added is not None:   # another kind that explains as much and predicts as well: named beside it
-            added, amb = _rival(i, u.held, u.ev.fit_rfs, added, cands[len(trials):], judge, trials, s, u.explanation)
+            added, amb, why = rivals_of(i, u.held, u.ev.fit_rfs, added, cands[len(trials):], judge, trials,
+                                        u.explanation, s.min_prediction_gain)
     if added is None and pred.flexible:   # the one-mass body again, with a term in (:meth:`_Predictor.reconsider`)
         got = _body_round(u.ev, pred, terms, ranked, s, u.m2_kg, judge_in, say, base + 0.9 / total, i)
         if got is not None:
@@ -1060,36 +1062,6 @@ def _retune_instead(trials: Sequence[Trial], current: Errors) -> tuple[Trial, Al
     if not options:
         return None
     return min(options, key=lambda o: (not o[2], o[1].errors.prediction_nmse_pct))
-
-
-def _rival(i: int, held: HeldOut, rfs: Sequence, added: Trial, rest: Sequence[Candidate],
-           judge: Callable[[Candidate], Trial], trials: list[Trial], s: LoopSettings,
-           explanation: Callable[[str, Errors], Explanation]) -> tuple[Trial, Ambiguity | None]:
-    """Another kind that passes every check and whose model the held-out data cannot tell from the one with
-    ``added``: an ambiguity, named (``added`` kept). Candidates of ``rest`` are judged (and appended to
-    ``trials``) while their ERR is at least half the added one's: a kind that explains much less cannot predict
-    as well."""
-    rivals = []
-    for c in rest:
-        if c.kind == added.candidate.kind or c.err < 0.5 * added.candidate.err:
-            continue
-        t = judge(c)
-        trials.append(t)
-        if t.accepted:
-            comp = compare_errors(held, added.after, t.after)
-            if not comp.apart():
-                rivals.append((t, comp))
-    if not rivals:
-        return added, None
-    # the first accepted is kept: which of two tied models predicts a hair better is the noise's choice (measured:
-    # a hidden friction and a hidden knee on one record, 0.0854 against 0.0856 %, each taken for the other)
-    others = [t for t, _ in rivals]
-    opts = (explanation(f"{added.candidate.term.label} added", added.after),
-            *[explanation(f"{t.candidate.term.label} added", t.after) for t in others])
-    comps = tuple(comp for _, comp in rivals)
-    amb = Ambiguity(i, opts, comps, "it explains the most of the residual and passes every check first",
-                    separating_record(rfs, added.candidate.term, others[0].candidate.term))
-    return added, amb
 
 
 def _body_round(ev: _Evaluator, pred: _Predictor, terms: Sequence[Term], ranked: Sequence[Candidate],

@@ -13,11 +13,12 @@ Detection limit
     θ·g to the truth lowers the residual sum of squares by θ²·Σg⊥² (in
     expectation), so the smallest θ the test could have passed is
 
-        θ_min = sqrt( max(F_crit·RSS/dof, min_err·RSS) / Σg⊥² ),
+        θ_min = sqrt( max(F_crit·RSS/dof, min_err·RSS, min_delta_r2·TSS) / Σg⊥² ),
         F_crit = F⁻¹(1 - α/n_grid; 1, dof),   dof = N_eff - q,
 
-    with RSS the current model's residual. Reported as a coefficient (per kg,
-    or in N, N/m... with M2) and as the peak force θ_min·M2·|g|₉₉.₅ of the effect
+    with RSS the current model's residual and TSS the total sum of squares of -ẍ2 (a candidate must
+    explain ``min_delta_r2`` of it: on records with little noise that binds, not the F-test). Reported as
+    a coefficient (per kg, or in N, N/m... with M2) and as the peak force θ_min·M2·|g|₉₉.₅ of the effect
     on the measured motion [N or N/kg].
 
 Confounding
@@ -296,7 +297,7 @@ def detection_limits(rfs: Sequence[RestoringForce], terms: Sequence[Term], candi
         Each kind's best candidate on the current residual (``rank_beyond``); their ``n_eff`` is used.
     m2_kg : float, optional
     thresholds : Thresholds
-        The loop's acceptance thresholds (α, min_err).
+        The loop's acceptance thresholds (α, min_err, min_delta_r2).
     n_grid : int
         Grid size of the Bonferroni correction.
     """
@@ -305,7 +306,7 @@ def detection_limits(rfs: Sequence[RestoringForce], terms: Sequence[Term], candi
                                                                  rf.n - bandpass_settle_samples(rf.fs_hz, rf.band)]
                         for rf in rfs])
     coef = np.linalg.lstsq(x, y, rcond=None)[0]
-    rss = float(np.sum((y - x @ coef) ** 2))
+    rss, tss = float(np.sum((y - x @ coef) ** 2)), float(y @ y)
     out = []
     for c in candidates:
         g = _columns(rfs, [c.term])[:, 2]
@@ -314,7 +315,7 @@ def detection_limits(rfs: Sequence[RestoringForce], terms: Sequence[Term], candi
         if not info > 0:
             continue
         dof = max(float(c.n_eff) - x.shape[1] - 1, 1.0)
-        theta = smallest_visible(rss, info, dof, thresholds=thresholds, n_grid=n_grid)
+        theta = smallest_visible(rss, info, dof, tss=tss, thresholds=thresholds, n_grid=n_grid)
         raw = np.concatenate([np.abs(c.term.evaluate(rf.z, rf.zdot)) for rf in rfs])
         peak = theta * float(np.quantile(raw, 0.995)) * (m2_kg or 1.0)
         out.append(DetectionLimit(term=c.term, theta_per_kg=theta,
