@@ -19,15 +19,19 @@ laid out), then renders each one in this process both ways:
   the tight box both files are cropped to). Every file differs: the new boxes are widened to whole pixels (1-2 px
   more of margin), and an SVG is cropped to the box measured on the PNG's drawing, not on its own.
 
+- ``--ticks``: one drawing a file, each axis's ticks placed at every question about them (matplotlib's way)
+  against once per drawing (:mod:`nifo.plots.tick_cache`).
+
 Prints the CPU seconds of each way over all figures (the best of ``--repeats``) and per kind of figure, their
 ratio, and the files the two ways wrote differently.
 
-    PYTHONPATH=. python benchmarks/bench_figures.py [--f16 | --short] [--mathtext | --drawings] [--repeats 3]
+    PYTHONPATH=. python benchmarks/bench_figures.py [--f16 | --short] [--mathtext | --drawings | --ticks] [--repeats 3]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import hashlib
 import pickle
 import sys
@@ -38,7 +42,7 @@ from pathlib import Path
 from profile_run import job_options
 
 from nifo.pipeline.job import run_job
-from nifo.plots import mathtext_cache, pyplot, writer
+from nifo.plots import mathtext_cache, pyplot, tick_cache, writer
 
 
 def _capture(job) -> list[tuple[bytes, list[str], int, tuple | None]]:
@@ -112,6 +116,17 @@ def _short_job(out: Path):
     return RunOptions(data=[data], out=out / "res", no_loop=True, no_refine=True, no_recording=True)
 
 
+def _ticks_per_question(fig_blob: bytes, paths: list[Path], dpi: int, rect) -> None:
+    """Each axis's ticks placed at every question about them, as matplotlib does (no :mod:`nifo.plots.tick_cache`
+    block)."""
+    placed_once = tick_cache.placed_once
+    tick_cache.placed_once = contextlib.nullcontext
+    try:
+        _per_figure(fig_blob, paths, dpi, rect)
+    finally:
+        tick_cache.placed_once = placed_once
+
+
 def _own_cache(fig_blob: bytes, paths: list[Path], dpi: int, rect) -> None:
     mathtext_cache.uninstall()
     _per_figure(fig_blob, paths, dpi, rect)
@@ -130,12 +145,16 @@ def main(argv: list[str] | None = None) -> int:
     way = ap.add_mutually_exclusive_group()
     way.add_argument("--mathtext", action="store_true",
                      help="compare matplotlib's math-text cache with nifo's shared one (default: per file/figure)")
+    way.add_argument("--ticks", action="store_true",
+                     help="compare ticks placed at every question with ticks placed once per drawing")
     way.add_argument("--drawings", action="store_true",
                      help="compare savefig's tight box (two drawings a file) with one drawing a file")
     ap.add_argument("--repeats", type=int, default=3, help="timed passes of each way (default 3)")
     args = ap.parse_args(argv)
     if args.mathtext:
         ways = (("own cache", _own_cache), ("shared cache", _shared_cache))
+    elif args.ticks:
+        ways = (("per question", _ticks_per_question), ("placed once", _per_figure))
     elif args.drawings:
         ways = (("tight twice", _tight_twice), ("one drawing", _per_figure))
     else:

@@ -91,3 +91,40 @@ def test_write_files_draws_a_figure_twice_for_png_and_svg(tmp_path, monkeypatch)
     pyplot().close(fig)
     assert sorted(seen) == ["MixedModeRenderer", "RendererAgg"]
     assert (tmp_path / "f.png").stat().st_size > 1000 and (tmp_path / "f.svg").stat().st_size > 1000
+
+
+def test_ticks_are_placed_once_per_drawing_and_the_files_are_the_same_bytes(tmp_path, monkeypatch):
+    import contextlib
+
+    from matplotlib.axis import Axis
+
+    from nifo.plots import tick_cache
+
+    assert tick_cache.install(), "matplotlib's Axis._update_ticks is not the one measured"
+    own = Axis._update_ticks.__wrapped__
+    placed: list[int] = []
+
+    def counted(self):
+        placed.append(id(self))
+        return own(self)
+
+    files = {}
+    for way in ("per question", "once"):
+        placed.clear()
+        fig, rect = _figure("plain")
+        with monkeypatch.context() as m:
+            m.setattr(tick_cache, "_installed", None)
+            m.setattr(Axis, "_update_ticks", counted)
+            tick_cache.install()          # the wrapper, around the counting method
+            if way == "per question":
+                m.setattr(tick_cache, "placed_once", contextlib.nullcontext)
+            writer.write_files(fig, tmp_path / f"{way}.png", 130, rect)
+        pyplot().close(fig)
+        files[way] = len(placed), len(set(placed))
+        for suffix in (".png", ".svg"):
+            files[way, suffix] = (tmp_path / f"{way}{suffix}").read_bytes()
+    n_axis = files["once"][1]       # x and y
+    assert files["once"][0] == 2 * n_axis          # each axis once in the PNG's drawing and tight box, once in the SVG
+    assert files["per question"][0] >= 3 * files["once"][0]
+    assert files["once", ".png"] == files["per question", ".png"]
+    assert files["once", ".svg"] == files["per question", ".svg"]

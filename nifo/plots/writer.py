@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import io
 import multiprocessing
 import os
 import pickle
@@ -118,8 +119,14 @@ def _render(fig, path: Path, dpi: int, box=None) -> None:
     drawing)."""
     import matplotlib
 
+    from nifo.plots.tick_cache import placed_once
+
     with matplotlib.rc_context({"svg.fonttype": "none", "svg.hashsalt": SVG_HASH_SALT}):
-        fig.savefig(path, dpi=dpi, bbox_inches="tight" if box is None else box, metadata={"Date": None})
+        if box is None:
+            fig.savefig(path, dpi=dpi, bbox_inches="tight", metadata={"Date": None})
+            return
+        with placed_once():       # one drawing, laid out before (:func:`_png_and_box`)
+            fig.savefig(path, dpi=dpi, bbox_inches=box, metadata={"Date": None})
 
 
 #: the margin [px] drawn around the figure for the PNG: text reaching that far beyond the figure (a rotated label,
@@ -133,7 +140,7 @@ def _png_and_box(fig, path: Path, dpi: int):
 
     ``savefig(bbox_inches="tight")`` draws the figure twice: once (not rasterised) to measure the tight box, once
     into that box. Here the figure is drawn once at ``dpi``, on a canvas :data:`MARGIN_PX` wider than the figure
-    on every side (matplotlib's own box adjustment, as for a tight box), the tight box is measured on that drawing
+    on every side (``savefig`` into that box: raw pixels, kept by the canvas's renderer), the tight box is measured on that drawing
     (the artists' extents are those just drawn), padded by ``savefig.pad_inches`` and widened to whole pixels,
     and the pixels inside it are written. They are the pixels matplotlib renders into that box (the offset is a
     whole number of pixels, so nothing moves across a pixel boundary; ``tests/test_figure_cost.py``). A box
@@ -142,10 +149,11 @@ def _png_and_box(fig, path: Path, dpi: int):
     laid out once."""
     import matplotlib
     import numpy as np
-    from matplotlib import _tight_bbox
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.image import imsave
     from matplotlib.transforms import Bbox
+
+    from nifo.plots.tick_cache import placed_once
 
     old_dpi = fig.dpi
     fig.set_dpi(dpi)
@@ -161,13 +169,11 @@ def _png_and_box(fig, path: Path, dpi: int):
                 legend.set_bbox_to_anchor(Bbox.unit(), transform=fig.transFigure)
         m = MARGIN_PX / dpi
         w, h = fig.get_size_inches()
-        restore = _tight_bbox.adjust_bbox(fig, Bbox([[-m, -m], [w + m, h + m]]), canvas.get_renderer())
-        try:
-            canvas.draw()
-            renderer = canvas.get_renderer()     # the margined canvas's (the figure's own size would get a new one)
-        finally:
-            restore()
-        tight = fig.get_tightbbox(renderer).padded(matplotlib.rcParams["savefig.pad_inches"])
+        with placed_once():       # the layout is done: the drawing's ticks are the tight box's
+            # one drawing (no layout engine, a box given): raw pixels, kept by the canvas's renderer
+            fig.savefig(io.BytesIO(), format="rgba", dpi=dpi, bbox_inches=Bbox([[-m, -m], [w + m, h + m]]))
+            renderer = canvas.renderer
+            tight = fig.get_tightbbox(renderer).padded(matplotlib.rcParams["savefig.pad_inches"])
         (x0, y0), (x1, y1) = np.floor(tight.p0 * dpi).astype(int), np.ceil(tight.p1 * dpi).astype(int)
         box = Bbox([[x0 / dpi, y0 / dpi], [x1 / dpi, y1 / dpi]])
         rgba = np.asarray(renderer.buffer_rgba())
