@@ -13,8 +13,8 @@ the tight box both files are cropped to; ``savefig(bbox_inches="tight")`` drew
 each file twice, and the SVG laid a constrained layout out again). Measured on
 the sample's 25 figures, rendered in one process from the same pickles
 (``benchmarks/bench_figures.py --drawings``): 0.69 of the CPU before, the PNGs
-pixel for pixel what matplotlib renders into the same box. So a figure is pickled as soon as it is built and
-its files are rendered in a helper process, PNG then SVG in one task (one
+pixel for pixel what matplotlib renders into the same box. So a figure is
+pickled as soon as it is built and its files are rendered in a helper process, PNG then SVG in one task (one
 unpickling and one layout for both: measured on the 23 figures of ``nifo run``
 on F-16 levels 1/3/5/7, ``benchmarks/bench_figures.py``, see there), while the
 step builds the next figure or computes; the step waits for them
@@ -140,11 +140,12 @@ def _png_and_box(fig, path: Path, dpi: int):
 
     ``savefig(bbox_inches="tight")`` draws the figure twice: once (not rasterised) to measure the tight box, once
     into that box. Here the figure is drawn once at ``dpi``, on a canvas :data:`MARGIN_PX` wider than the figure
-    on every side (``savefig`` into that box: raw pixels, kept by the canvas's renderer), the tight box is measured on that drawing
-    (the artists' extents are those just drawn), padded by ``savefig.pad_inches`` and widened to whole pixels,
-    and the pixels inside it are written. They are the pixels matplotlib renders into that box (the offset is a
-    whole number of pixels, so nothing moves across a pixel boundary; ``tests/test_figure_cost.py``). A box
-    reaching beyond the margin is rendered by matplotlib into the box instead (one drawing more). The layout
+    on every side (``savefig`` of raw pixels into that box, kept by the canvas's renderer), the tight box is
+    measured on that drawing (the artists' extents are those just drawn), padded by ``savefig.pad_inches`` and
+    widened to whole pixels, and the pixels inside it are written. They are the pixels matplotlib renders into
+    that box (the offset is a whole number of pixels, so nothing moves across a pixel boundary;
+    ``tests/test_figure_cost.py``). A box reaching beyond the margin is rendered by matplotlib into the box
+    instead (one drawing more). Figure legends are anchored to the figure, not to the box drawn into. The layout
     engine, if any, runs once before the drawing and is switched off after it: every file has the same layout,
     laid out once."""
     import matplotlib
