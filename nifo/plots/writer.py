@@ -5,10 +5,16 @@ figure, is what figures cost. Measured on the 23 figures of ``nifo run`` on the
 bundled sample (2 idle cores, matplotlib 3.11): PNG 11.0 s + SVG 8.9 s of
 rendering, building them a fraction of that, pickling a finished figure 0.27 s
 for all 23. Rendering is text layout and tick placement spread over thousands
-of small calls (no hot spot to remove but the math text every renderer parsed
-again, now parsed once per process: :mod:`nifo.plots.mathtext_cache`; one tight
-bounding box for both formats instead of two saved 5 %). So a figure is pickled as soon as it is built and
-its files are rendered in a helper process, PNG then SVG in one task (one
+of small calls, repeated in every drawing of the figure (no hot spot to remove
+but the math text every renderer parsed again, now parsed once per process:
+:mod:`nifo.plots.mathtext_cache`), so what a figure costs is how often it is
+drawn: once per file (:func:`_png_and_box`: the PNG's one drawing also measures
+the tight box both files are cropped to; ``savefig(bbox_inches="tight")`` drew
+each file twice, and the SVG laid a constrained layout out again). Measured on
+the sample's 25 figures, rendered in one process from the same pickles
+(``benchmarks/bench_figures.py --drawings``): 0.69 of the CPU before, the PNGs
+pixel for pixel what matplotlib renders into the same box. So a figure is
+pickled as soon as it is built and its files are rendered in a helper process, PNG then SVG in one task (one
 unpickling and one layout for both: measured on the 23 figures of ``nifo run``
 on F-16 levels 1/3/5/7, ``benchmarks/bench_figures.py``, see there), while the
 step builds the next figure or computes; the step waits for them
@@ -30,6 +36,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import io
 import multiprocessing
 import os
 import pickle
@@ -82,10 +89,15 @@ def write_files(fig, path: str | Path, dpi: int, tight_rect: tuple | None = None
 
 def _write(fig, paths: Sequence[str | Path], dpi: int, tight_rect: tuple | None) -> None:
     """``fig`` laid out once, then each of its files rendered: in the calling process and in a helper alike (the
-    same bytes either way)."""
+    same bytes either way). The PNG comes first: its drawing also gives the tight box every file is cropped to
+    (:func:`_png_and_box`), so each file costs one drawing of the figure."""
     _lay_out(fig, tight_rect)
-    for path in paths:
-        _render(fig, Path(path), dpi)
+    box = None
+    for path in map(Path, paths):
+        if path.suffix == ".png":
+            box = _png_and_box(fig, path, dpi)
+        else:
+            _render(fig, path, dpi, box)
 
 
 def figure_paths(path: str | Path, vector: bool = True) -> list[Path]:
@@ -101,16 +113,80 @@ def figure_paths(path: str | Path, vector: bool = True) -> list[Path]:
 SVG_HASH_SALT = "nifo"
 
 
-def _render(fig, path: Path, dpi: int) -> None:
-    """One file of ``fig``: PNG, or vector with text kept as text (editable, searchable), the same bytes for the
-    same figure."""
+def _render(fig, path: Path, dpi: int, box=None) -> None:
+    """One vector file of ``fig``, with text kept as text (editable, searchable), the same bytes for the same
+    figure; cropped to ``box`` (inches, from :func:`_png_and_box`), or to its own tight box when None (one more
+    drawing)."""
     import matplotlib
 
-    if path.suffix == ".png":
-        fig.savefig(path, dpi=dpi, bbox_inches="tight")
-        return
+    from nifo.plots.tick_cache import placed_once
+
     with matplotlib.rc_context({"svg.fonttype": "none", "svg.hashsalt": SVG_HASH_SALT}):
-        fig.savefig(path, dpi=dpi, bbox_inches="tight", metadata={"Date": None})
+        if box is None:
+            fig.savefig(path, dpi=dpi, bbox_inches="tight", metadata={"Date": None})
+            return
+        with placed_once():       # one drawing, laid out before (:func:`_png_and_box`)
+            fig.savefig(path, dpi=dpi, bbox_inches=box, metadata={"Date": None})
+
+
+#: the margin [px] drawn around the figure for the PNG: text reaching that far beyond the figure (a rotated label,
+#: an axis label under a tightly laid out axes) and the tight box's padding are in the one drawing
+#: (:func:`_png_and_box`); measured on the sample's 25 figures: at most 26 px beyond (with the 13 px padding)
+MARGIN_PX = 64
+
+
+def _png_and_box(fig, path: Path, dpi: int):
+    """The PNG of ``fig`` at ``path``, cropped to its tight box; that box (inches, padded) for the other files.
+
+    ``savefig(bbox_inches="tight")`` draws the figure twice: once (not rasterised) to measure the tight box, once
+    into that box. Here the figure is drawn once at ``dpi``, on a canvas :data:`MARGIN_PX` wider than the figure
+    on every side (``savefig`` of raw pixels into that box, kept by the canvas's renderer), the tight box is
+    measured on that drawing (the artists' extents are those just drawn), padded by ``savefig.pad_inches`` and
+    widened to whole pixels, and the pixels inside it are written. They are the pixels matplotlib renders into
+    that box (the offset is a whole number of pixels, so nothing moves across a pixel boundary;
+    ``tests/test_figure_cost.py``). A box reaching beyond the margin is rendered by matplotlib into the box
+    instead (one drawing more). Figure legends are anchored to the figure, not to the box drawn into. The layout
+    engine, if any, runs once before the drawing and is switched off after it: every file has the same layout,
+    laid out once."""
+    import matplotlib
+    import numpy as np
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.image import imsave
+    from matplotlib.transforms import Bbox
+
+    from nifo.plots.tick_cache import placed_once
+
+    old_dpi = fig.dpi
+    fig.set_dpi(dpi)
+    try:
+        canvas = FigureCanvasAgg(fig)
+        engine = fig.get_layout_engine()
+        if engine is not None:
+            engine.execute(fig)          # as savefig does before it draws (a placeholder's does nothing)
+        with matplotlib.rc_context({"figure.autolayout": False, "figure.constrained_layout.use": False}):
+            fig.set_layout_engine(None)      # none at all (a placeholder would make savefig measure again)
+        for legend in fig.legends:       # a figure legend anchored to the figure, not to the box drawn into
+            if legend.get_bbox_to_anchor() is fig.bbox:
+                legend.set_bbox_to_anchor(Bbox.unit(), transform=fig.transFigure)
+        m = MARGIN_PX / dpi
+        w, h = fig.get_size_inches()
+        with placed_once():       # the layout is done: the drawing's ticks are the tight box's
+            # one drawing (no layout engine, a box given): raw pixels, kept by the canvas's renderer
+            fig.savefig(io.BytesIO(), format="rgba", dpi=dpi, bbox_inches=Bbox([[-m, -m], [w + m, h + m]]))
+            renderer = canvas.renderer
+            tight = fig.get_tightbbox(renderer).padded(matplotlib.rcParams["savefig.pad_inches"])
+        (x0, y0), (x1, y1) = np.floor(tight.p0 * dpi).astype(int), np.ceil(tight.p1 * dpi).astype(int)
+        box = Bbox([[x0 / dpi, y0 / dpi], [x1 / dpi, y1 / dpi]])
+        rgba = np.asarray(renderer.buffer_rgba())
+        rows, cols = rgba.shape[:2]
+        top, left = rows - MARGIN_PX - y1, x0 + MARGIN_PX       # the box's first row and column on the canvas
+        if top < 0 or left < 0 or top + (y1 - y0) > rows or left + (x1 - x0) > cols:
+            fig.savefig(path, dpi=dpi, bbox_inches=box)
+        else:
+            imsave(path, rgba[top:top + y1 - y0, left:left + x1 - x0], format="png", origin="upper", dpi=dpi)
+    finally:
+        fig.set_dpi(old_dpi)
+    return box
 
 
 def _lay_out(fig, tight_rect: tuple | None) -> None:
