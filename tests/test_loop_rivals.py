@@ -42,7 +42,7 @@ def _rivals(first: Trial, rival_pct: float, min_gain: float = 0.02):
     trials: list[Trial] = []
     got = rivals_of(1, held, [], first, [_trial(CUBIC, 0.07, rival_pct).candidate],
                     lambda c: _trial(CUBIC, c.err, rival_pct), trials, name, min_gain)
-    return (*got, trials)
+    return got.kept, got.ambiguity, got.words, trials
 
 
 def test_a_rival_predicting_better_beyond_the_scatter_is_taken_instead_of_the_first_in_rank():

@@ -706,8 +706,9 @@ def _try_candidates(u: _Setup, i: int, terms: Sequence[Term], ranked: Sequence[C
                 added = trials[-1]
                 break
         if added is not None:   # another kind that explains as much and predicts as well: named beside it
-            added, amb, why = rivals_of(i, u.held, u.ev.fit_rfs, added, cands[len(trials):], judge, trials,
-                                        u.explanation, s.min_prediction_gain)
+            got = rivals_of(i, u.held, u.ev.fit_rfs, added, cands[len(trials):], judge, trials, u.explanation,
+                            s.min_prediction_gain)
+            added, amb, why = got.kept, got.ambiguity, got.words
     if added is None and pred.flexible:   # the one-mass body again, with a term in (:meth:`_Predictor.reconsider`)
         got = _body_round(u.ev, pred, terms, ranked, s, u.m2_kg, judge_in, say, base + 0.9 / total, i)
         if got is not None:

@@ -21,6 +21,7 @@ since the loop measures every form of z from the static position (:mod:`nifo_cor
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable, Sequence
 
 from ..characterize.result import Candidate
@@ -30,13 +31,23 @@ from .ambiguity import Ambiguity, Comparison, Explanation, compare_errors, separ
 if TYPE_CHECKING:
     from .results import Trial
 
-__all__ = ["rivals_of"]
+__all__ = ["Rivals", "rivals_of"]
+
+
+@dataclass(frozen=True)
+class Rivals:
+    """What a round's rivals leave (:func:`rivals_of`): the trial kept, the ambiguity named (or None) and the round's
+    words when a rival was taken instead ("" otherwise)."""
+
+    kept: "Trial"
+    ambiguity: Ambiguity | None
+    words: str
 
 
 def rivals_of(i: int, held: HeldOut, rfs: Sequence, added: Trial, rest: Sequence[Candidate],
               judge: Callable[[Candidate], Trial], trials: list[Trial],
               explanation: Callable[[str, object], Explanation],
-              min_gain: float) -> tuple[Trial, Ambiguity | None, str]:
+              min_gain: float) -> Rivals:
     """The rivals of ``added`` among ``rest`` (module docstring): the trial kept, the ambiguity named (or None) and
     the round's words when a rival was taken instead (better beyond the scatter and by ``min_gain``, relative).
     Candidates of ``rest`` are judged (and appended to ``trials``) while their ERR is at least half the added
@@ -65,7 +76,7 @@ def rivals_of(i: int, held: HeldOut, rfs: Sequence, added: Trial, rest: Sequence
         tied = [(t, c) for t, c in ((t, compare_errors(held, best.after, t.after)) for t in others) if not c.apart()]
         added = best
     if not tied:
-        return added, None, took
+        return Rivals(added, None, took)
     # the first accepted is kept: which of two tied models predicts a hair better is the noise's choice (measured:
     # a hidden friction and a hidden knee on one record, 0.0854 against 0.0856 %, each taken for the other)
     others = [t for t, _ in tied]
@@ -75,4 +86,4 @@ def rivals_of(i: int, held: HeldOut, rfs: Sequence, added: Trial, rest: Sequence
                     "it predicts the held-out parts best" if took else
                     "it explains the most of the residual and passes every check first",
                     separating_record(rfs, added.candidate.term, others[0].candidate.term))
-    return added, amb, took
+    return Rivals(added, amb, took)
