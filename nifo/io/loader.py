@@ -69,8 +69,8 @@ from .memo import known, remembered
 from .tabular import read_csv, write_csv
 
 __all__ = ["load_record", "seed_whole_bag", "save_record", "check_record_output", "load_records", "iter_record_chunks",
-           "detect_format", "assemble_record", "parse_columns", "add_input_arguments", "input_options", "COLUMN_KEYS", "READ_ROLES",
-           "Assembly", "Skip", "FileFormat", "READERS"]
+           "detect_format", "assemble_record", "parse_columns", "add_input_arguments", "input_options", "COLUMN_KEYS",
+           "READ_ROLES", "Assembly", "Skip", "FileFormat", "READERS"]
 
 Axis = Literal["x", "y", "z"]
 
