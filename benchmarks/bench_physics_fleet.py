@@ -611,7 +611,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--part", choices=("tune", "heldout", "all", "ci", "issue"), default="heldout",
                     help="issue: the failures issue 54 reports, re-made on the independent simulator")
-    ap.add_argument("--only", type=int, nargs="+", help="these case ids")
+    ap.add_argument("--only", type=int, nargs="+",
+                    help="these case ids; beyond the fleet's 90, cases the generator never drew before (ids "
+                         f"{min(ISSUE_CASES)}-{max(ISSUE_CASES)} are the issue's cases)")
     ap.add_argument("--jobs", type=int, default=2, help="cases side by side (default 2)")
     ap.add_argument("--out", type=Path, default=Path("/tmp/nifo_physics_fleet"), help="records and results (kept)")
     ap.add_argument("--list", action="store_true", help="print the cases and stop")
@@ -628,7 +630,7 @@ def main(argv: list[str] | None = None) -> int:
     CODE = (args.code or CODE).resolve()
     fleet = draw_fleet()
     if args.only:
-        cases = [fleet[i] for i in args.only]
+        cases = [fleet[i] if i < len(fleet) else _case_by_id(i) for i in args.only]   # as its records are made
     elif args.part == "ci":
         cases = [fleet[i] for i in CI_CASES]
     elif args.part == "issue":

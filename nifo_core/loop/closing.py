@@ -114,7 +114,7 @@ from ..predict.feedback_paths import PATH_KINDS
 from ..predict.heldout import HeldOut, split_records
 from ..predict.model import IdentifiedModel
 from ..predict.scope_fit import fit_scope
-from .residual import _design, _Evaluator, _evidence, _g, _retune, _static_candidate, _tire_check
+from .residual import _Evaluator, _evidence, _g, _retune, _static_candidate, _tire_check
 from .stops import retune_stops
 from .rivals import rivals_of
 from ..predict.model_fit import RATIONAL_MARGIN, Fitted, LinearChoice, choose_linear_form, fit_model
