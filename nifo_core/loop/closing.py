@@ -179,6 +179,9 @@ class _Predictor:
         self.held, self.data, self.settings, self.ev = held, data, settings, ev
         self.off = settings.prediction == "none"
         self._cache: dict = {}
+        # fit_model's fits on the chosen linear part, by the terms' labels: the same whatever form is in use, so kept
+        # across a switch to the body and shared with the body twin (where its equation-error fit is not physical)
+        self._models: dict = {}
         self.choice = None
         self._form: str | None = None      # the form in use when it changed after the linear choice
         self.switched = ""
@@ -201,8 +204,8 @@ class _Predictor:
         return None if self.choice is None else self.choice.linear
 
     def body_twin(self) -> "_Predictor":
-        """The same predictor on the one-mass body (its own cache): to judge a term on the body while the rational
-        form is in use."""
+        """The same predictor on the one-mass body (its own cache, the rational part's fits shared): to judge a term
+        on the body while the rational form is in use."""
         twin = copy.copy(self)
         twin._form, twin._cache = "body", {}
         return twin
@@ -210,6 +213,7 @@ class _Predictor:
     def forget(self) -> None:
         """The fits kept dropped (kept by the terms' labels: a term's column changed with its frame)."""
         self._cache = {}
+        self._models.clear()
 
     def switch_to_body(self, why: str) -> None:
         self._form, self._cache, self.switched = "body", {}, why
@@ -273,8 +277,10 @@ class _Predictor:
         key = tuple(t.label for t in terms)
         if key not in self._cache:
             got = self._equation(terms) if self.form == "body" else None
-            self._cache[key] = got or fit_model(self.held, terms, self.data, linear=self.linear,
-                                                structure=self.settings.structure)
+            if got is None and key not in self._models:
+                self._models[key] = fit_model(self.held, terms, self.data, linear=self.linear,
+                                              structure=self.settings.structure)
+            self._cache[key] = got or self._models[key]
         return self._cache[key]
 
 

@@ -322,13 +322,14 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
         theta = theta + steps[-1]
         if len(steps) == min(int(iterations), ITERATIONS) and np.any(np.abs(theta - t0) > MAX_RELATIVE_BIAS * size):
             return None     # judged on the first steps: a converged correction may exceed it (a bump stop's: +52 %)
-    gain, tail = 1.0, None
+    if len(steps) > 1 and np.any(np.abs(steps[-1]) > MAX_CONTRACTION * np.abs(steps[-2]) + CONVERGED_RTOL * size):
+        return None     # the fixed point contracts slowly: the bias map is ill-conditioned (confounded terms)
+    # the drive noise's simulations only for a correction that is kept (they do not change the refusal above)
     drive_sd = _drive_sd(fits, simulate, theta, rng, each, free, whole) if drive_noise else None
     if drive_sd is not None and not np.all(np.isfinite(drive_sd)):
         return None
+    gain, tail = 1.0, None
     if len(steps) > 1:
-        if np.any(np.abs(steps[-1]) > MAX_CONTRACTION * np.abs(steps[-2]) + CONVERGED_RTOL * size):
-            return None     # the fixed point contracts slowly: the bias map is ill-conditioned (confounded terms)
         with np.errstate(divide="ignore", invalid="ignore"):
             q = np.where(np.abs(steps[-2]) > 0, steps[-1] / steps[-2], 0.0)
         q = np.clip(q, -MAX_CONTRACTION, MAX_CONTRACTION)
