@@ -93,7 +93,7 @@ _DIVERGED = 10.0
 #: figure shows — the F-16's refinement from the linear start 37 → 23 evaluations (held-out 0.29412 → 0.29411 %), the
 #: loop benchmark's 25 → 18 (its final held-out 0.41598 → 0.41618 %), the sample's 7 → 6 (0.061104 → 0.061104 %);
 #: at 1e-5 the loop benchmark's stopped 0.18 of a half-width short in the knee's coefficient, predicted its held-out
-#: parts at 0.438 % and was not kept (0.431 % without it): 1e-6 holds ten times that margin
+#: parts at 0.438 % and was not kept (0.431 % without it): 1e-6 is the largest power of ten that kept every figure
 COST_RTOL = 1e-6
 
 
