@@ -124,7 +124,7 @@ from .results import (NOTHING_MISSING, RESIDUAL_BANDS_HZ, RETUNE_FACTOR, Declare
                       before_after_text, unconfirmed_text)
 from .ambiguity import Ambiguity, Comparison, Explanation, compare_errors, separating_record
 from .gates import (Alternative, heldout_failures, judge_alternatives, one_of_kind_alternatives, prediction_failures,
-                    whole_signal_failures)
+                    unseen_failures, whole_signal_failures)
 from .refine import refine_final
 from .beyond import search_beyond
 from .frame import Frame
@@ -755,7 +755,8 @@ def _judge(u: _Setup, terms: Sequence[Term], ranked: Sequence[Candidate], twin: 
     after = _errors(ev, pred, [*terms, c.term])
     gain = 1 - after.equation_nmse_pct / current.equation_nmse_pct if current.equation_nmse_pct > 0 else 0.0
     if pred.flexible:
-        eq_failed, pred_failed = [], prediction_failures(current, after, s, twin, u.floor)
+        eq_failed = unseen_failures(c.p_value, c.err, s)
+        pred_failed = prediction_failures(current, after, s, twin, u.floor)
     else:
         eq_failed, pred_failed = heldout_failures(current, after, s, compare_errors(held, after, current))
     failed += eq_failed + pred_failed + whole_signal_failures(current, after, s)
