@@ -14,8 +14,8 @@ from ..kinds.describing import Term
 from .ambiguity import T_DISTINCT, Comparison
 from .results import RETUNE_FACTOR, Errors, LoopSettings
 
-__all__ = ["heldout_failures", "prediction_failures", "unseen_failures", "one_of_kind_alternatives", "Alternative", "Judgement",
-           "judge_alternatives", "RETUNE_FACTOR", "whole_signal_failures", "WHOLE_RISE"]
+__all__ = ["heldout_failures", "prediction_failures", "unseen_failures", "one_of_kind_alternatives", "Alternative",
+           "Judgement", "judge_alternatives", "RETUNE_FACTOR", "whole_signal_failures", "WHOLE_RISE"]
 
 #: a term may not raise the held-out whole-signal NMSE by more than this fraction (relative); a smaller rise is
 #: said in the round's before/after (:func:`~nifo_core.loop.results.before_after_text`). Measured on the bundled
