@@ -124,7 +124,8 @@ from .results import (NOTHING_MISSING, RESIDUAL_BANDS_HZ, RETUNE_FACTOR, Declare
                       before_after_text, unconfirmed_text)
 from .ambiguity import Ambiguity, Comparison, Explanation, compare_errors, separating_record
 from .gates import (Alternative, heldout_failures, judge_alternatives, one_of_kind_alternatives, prediction_failures,
-                    whole_signal_failures)
+                    unseen_failures, whole_signal_failures)
+from .prune import drop_undetermined
 from .refine import refine_final
 from .beyond import search_beyond
 from .frame import Frame
@@ -395,7 +396,6 @@ def _round_candidates(ev, pred, terms, ranked, s, m2_kg) -> list:
 
 def _data_settings(recs: Sequence[Record], band: IntegrationBand | None, s: LoopSettings) -> AnalysisSettings:
     """Without explicit data settings: the loop's spectral settings and analysis band, its integration band."""
-    fs = float(recs[0].fs_hz)
     return AnalysisSettings(spectral=s.spectral, band=band, analysis_band_hz=s.analysis_band_hz)
 
 
@@ -761,7 +761,8 @@ def _judge(u: _Setup, terms: Sequence[Term], ranked: Sequence[Candidate], twin: 
     after = _errors(ev, pred, [*terms, c.term])
     gain = 1 - after.equation_nmse_pct / current.equation_nmse_pct if current.equation_nmse_pct > 0 else 0.0
     if pred.flexible:
-        eq_failed, pred_failed = [], prediction_failures(current, after, s, twin, u.floor)
+        eq_failed = unseen_failures(c.p_value, c.err, s)
+        pred_failed = prediction_failures(current, after, s, twin, u.floor)
     else:
         eq_failed, pred_failed = heldout_failures(current, after, s, compare_errors(held, after, current))
     failed += eq_failed + pred_failed + whole_signal_failures(current, after, s)
@@ -860,7 +861,9 @@ def _best_set_pass(u: _Setup, found: _Found, say: Callable[[float, str], None]) 
                                              "found first", separating_record(u.ev.fit_rfs, terms[-1], new[-1])))
         if not changed or len(terms) == n_decl:
             break
-    verdict = found.verdict
+    terms, current, ambiguities, dropped = drop_undetermined(   # an added effect the final fit does not determine
+        u.ev, u.held, terms, current, ambiguities, n_decl, u.s, partial(_errors, u.ev, u.pred), partial(_placed, u))
+    verdict = "".join(f"{d.text(u.s.min_prediction_gain)}. " for d in dropped) + found.verdict
     if swapped:
         verdict = "Effects re-chosen: " + "; then ".join(swapped) + ". " + verdict
     return replace(found, terms=tuple(terms), current=current, ambiguities=tuple(ambiguities), verdict=verdict)
