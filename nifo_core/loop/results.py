@@ -762,8 +762,11 @@ def _nothing_text(i: int, ranked: Sequence[Candidate], trials: Sequence[Trial]) 
         why = "; ".join(t.failed)
         end = ("Not added: the held-out prediction does not confirm it." if any(x.unconfirmed for x in trials)
                else NOTHING_MISSING)
-        return (f"Round {i}: the best remaining candidate, {t.candidate.term.label}, passes the significance "
-                f"tests but fails the acceptance: {why}. {end}")
+        # a candidate below the significance tests is tried too where the held-out prediction judges (a rational part)
+        tests = ("passes the significance tests but" if t.candidate.present else
+                 "is tried for its held-out prediction and")
+        return (f"Round {i}: the best remaining candidate, {t.candidate.term.label}, {tests} fails the acceptance: "
+                f"{why}. {end}")
     if ranked:
         c = ranked[0]
         return (f"Round {i}: the best remaining candidate, {c.term.label}, explains "
