@@ -861,9 +861,10 @@ def _best_set_pass(u: _Setup, found: _Found, say: Callable[[float, str], None]) 
                                              "found first", separating_record(u.ev.fit_rfs, terms[-1], new[-1])))
         if not changed or len(terms) == n_decl:
             break
-    terms, current, ambiguities, dropped = drop_undetermined(   # an added effect the final fit does not determine
+    pruned = drop_undetermined(   # an added effect the final fit does not determine
         u.ev, u.held, terms, current, ambiguities, n_decl, u.s, partial(_errors, u.ev, u.pred), partial(_placed, u))
-    verdict = "".join(f"{d.text(u.s.min_prediction_gain)}. " for d in dropped) + found.verdict
+    terms, current, ambiguities = pruned.terms, pruned.current, pruned.ambiguities
+    verdict = "".join(f"{d.text(u.s.min_prediction_gain)}. " for d in pruned.dropped) + found.verdict
     if swapped:
         verdict = "Effects re-chosen: " + "; then ".join(swapped) + ". " + verdict
     return replace(found, terms=tuple(terms), current=current, ambiguities=tuple(ambiguities), verdict=verdict)

@@ -25,7 +25,7 @@ from ..kinds.describing import Term
 from .ambiguity import Comparison, compare_errors
 from .results import Errors, LoopSettings
 
-__all__ = ["Dropped", "drop_undetermined"]
+__all__ = ["Dropped", "Pruned", "drop_undetermined"]
 
 
 @dataclass(frozen=True)
@@ -46,6 +46,17 @@ class Dropped:
                 f"{c.nmse_a:.3g} % without, paired t {-c.t:+.2g})")
 
 
+@dataclass(frozen=True)
+class Pruned:
+    """The model after :func:`drop_undetermined`: its terms, their errors, the ambiguities it still holds and what was
+    dropped."""
+
+    terms: list[Term]
+    current: Errors
+    ambiguities: list
+    dropped: list[Dropped]
+
+
 def _least_determined(ev, terms: Sequence[Term], n_decl: int) -> list[tuple[int, float, float]]:
     """(index, θ, half-width) of the added terms whose bound holds zero, the least determined (|θ|/half-width
     smallest) first."""
@@ -58,9 +69,9 @@ def _least_determined(ev, terms: Sequence[Term], n_decl: int) -> list[tuple[int,
 
 def drop_undetermined(ev, held, terms: Sequence[Term], current: Errors, ambiguities: Sequence, n_decl: int,
                       s: LoopSettings, errors: Callable[[Sequence[Term]], Errors],
-                      place: Callable[[Sequence[Term]], object]) -> tuple[list[Term], Errors, list, list[Dropped]]:
+                      place: Callable[[Sequence[Term]], object]) -> Pruned:
     """The model without the added effects it does not determine (module docstring): its terms, their errors, the
-    ambiguities it still holds (those whose first option's terms are all in it) and what was dropped.
+    ambiguities it still holds (those whose first option's terms are all in it) and what was dropped (:class:`Pruned`).
     ``errors(terms)``: the errors of a term set (both residuals); ``place(terms)``: the frame those terms imply placed
     (the static position moves with a term's mean force)."""
     terms, dropped = list(terms), []
@@ -84,4 +95,4 @@ def drop_undetermined(ev, held, terms: Sequence[Term], current: Errors, ambiguit
     if dropped:
         labels = {t.label for t in terms}
         ambiguities = [a for a in ambiguities if {t.label for t in a.options[0].terms} <= labels]
-    return terms, current, list(ambiguities), dropped
+    return Pruned(terms, current, list(ambiguities), dropped)
