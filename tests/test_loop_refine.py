@@ -140,6 +140,13 @@ def test_refinement_can_be_switched_off_and_the_command_says_which_model_it_wrot
         assert ("refined" in model.provenance) == ref["kept"]
         assert ref["heldout_prediction_nmse_before_pct"] == pytest.approx(
             doc["errors_after"]["prediction_nmse_pct"], rel=1e-9)
+        # beside the band figures, both models' held-out whole signal (all frequencies, offset included)
+        assert ref["heldout_whole_signal_nmse_before_pct"] == pytest.approx(
+            doc["errors_after"]["whole_signal_nmse_pct"], rel=1e-9)
+        assert 0 < ref["heldout_whole_signal_nmse_after_pct"] < 100
+        assert len(ref["heldout_whole_signal_nmse_after_per_record_pct"]) == 1
+        assert ref["heldout_whole_signal_after_prediction"] in ("whole", "band")
+        assert "whole signal (all frequencies, offset included)" in ref["text"]
         assert ref["text"] in capsys.readouterr().out
 
 

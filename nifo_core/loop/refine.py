@@ -39,10 +39,14 @@ def refine_final(ev: _Evaluator, held: HeldOut, model: IdentifiedModel, linear: 
         return LoopRefinement(False, None, None, seconds=secs, unavailable=str(err)), model
     # the equation-error model's held-out prediction is the final round's (``final``, same model): not re-run
     b, bper = final.prediction_nmse_pct, tuple(final.prediction_nmse_per_record_pct)
-    a, aper = _heldout(held, ref.model)
+    sc = held.score(ref.model)
+    a, aper = (None, ()) if sc.unavailable is not None else (sc.mean, tuple(float(v) for v in sc.per_record))
     kept = a is not None and (b is None or a <= b)
+    # beside the band figure, both models' held-out whole signal (all frequencies, offset included): the field's score
+    whole = ((final.whole_nmse_pct, tuple(final.whole_nmse_per_record_pct), final.whole_policy),
+             (sc.whole_mean, tuple(float(v) for v in sc.whole), sc.whole_policy))
     out = LoopRefinement(kept, b, a, bper, aper, tuple(_compare(model, ref.model, m2_kg, ref.parameters)), secs,
-                         ref.to_dict())
+                         ref.to_dict(), whole=whole)
     return out, (ref.model if kept else model)
 
 
@@ -71,13 +75,6 @@ def _refined(ev: _Evaluator, held: HeldOut, model: IdentifiedModel, linear: Iden
     if ev.corrects:     # the spindle's noise drives every simulation: the output-error fit's bias removed too
         ref = correct_refinement(ref, recs, ev.noise, seed=BIAS_SEED)
     return ref
-
-
-def _heldout(held: HeldOut, model: IdentifiedModel) -> tuple[float | None, tuple[float, ...]]:
-    sc = held.score(model)
-    if sc.unavailable is not None:
-        return None, ()
-    return sc.mean, tuple(float(v) for v in sc.per_record)
 
 
 def _compare(before: IdentifiedModel, after: IdentifiedModel, m2: float | None,
