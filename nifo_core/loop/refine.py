@@ -42,11 +42,14 @@ def refine_final(ev: _Evaluator, held: HeldOut, model: IdentifiedModel, linear: 
     sc = held.score(ref.model)
     a, aper = (None, ()) if sc.unavailable is not None else (sc.mean, tuple(float(v) for v in sc.per_record))
     kept = a is not None and (b is None or a <= b)
-    # beside the band figure, both models' held-out whole signal (all frequencies, offset included): the field's score
-    whole = ((final.whole_nmse_pct, tuple(final.whole_nmse_per_record_pct), final.whole_policy),
-             (sc.whole_mean, tuple(float(v) for v in sc.whole), sc.whole_policy))
     out = LoopRefinement(kept, b, a, bper, aper, tuple(_compare(model, ref.model, m2_kg, ref.parameters)), secs,
-                         ref.to_dict(), whole=whole)
+                         ref.to_dict(),
+                         # beside the band figures, both models' held-out whole signal (all frequencies, offset
+                         # included): the field's score
+                         whole_before_pct=final.whole_nmse_pct, whole_after_pct=sc.whole_mean,
+                         whole_before_per_record_pct=tuple(final.whole_nmse_per_record_pct),
+                         whole_after_per_record_pct=tuple(float(v) for v in sc.whole),
+                         whole_before_policy=final.whole_policy, whole_after_policy=sc.whole_policy)
     return out, (ref.model if kept else model)
 
 

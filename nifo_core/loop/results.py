@@ -374,10 +374,13 @@ class LoopRefinement:
         :meth:`nifo_core.predict.refine.Refinement.to_dict` (band NMSE on the fit parts before and after).
     unavailable : str or None
         Why there is no refinement (None when there is one).
-    whole : tuple
-        Beside the band figures, the held-out whole-signal NMSE (the raw predicted output over all frequencies,
-        offset included: the field's score) of the equation-error model and of the refined one, each
-        ``(mean [%] or None, per record [%], 'whole' or 'band')`` as :class:`Errors` holds it.
+    whole_before_pct, whole_after_pct : float or None
+        Beside the band figures, the held-out whole-signal NMSE [%] (the raw predicted output over all frequencies,
+        offset included: the field's score) of the equation-error model and of the refined one, records pooled;
+        None: not computed.
+    whole_before_per_record_pct, whole_after_per_record_pct : tuple of float
+    whole_before_policy, whole_after_policy : str
+        'whole' or 'band': whether each prediction is limited to the analysis band (as :class:`Errors`).
     """
 
     kept: bool
@@ -390,7 +393,12 @@ class LoopRefinement:
     refinement: Mapping | None = None
     unavailable: str | None = None
     refused: str | None = None       # why a refinement that predicts better is not kept (it changes a declared term)
-    whole: tuple = ((None, (), ""), (None, (), ""))
+    whole_before_pct: float | None = None
+    whole_after_pct: float | None = None
+    whole_before_per_record_pct: tuple[float, ...] = ()
+    whole_after_per_record_pct: tuple[float, ...] = ()
+    whole_before_policy: str = ""
+    whole_after_policy: str = ""
 
     def parameter(self, name: str) -> Mapping:
         """The entry of ``parameters`` called ``name``."""
@@ -403,7 +411,7 @@ class LoopRefinement:
                          for p in self.parameters)
         score = (f"held-out prediction NMSE {_pct(self.heldout_before_pct)} (equation-error fit) → "
                  f"{_pct(self.heldout_after_pct)} (refined); whole signal (all frequencies, offset included) "
-                 f"{_pct(self.whole[0][0])} → {_pct(self.whole[1][0])}")
+                 f"{_pct(self.whole_before_pct)} → {_pct(self.whole_after_pct)}")
         which = ("model.json holds the refined model" if self.kept else
                  f"not kept, {self.refused}: model.json holds the equation-error fit" if self.refused else
                  "not better on held-out data: model.json holds the equation-error fit")
@@ -419,11 +427,12 @@ class LoopRefinement:
                 "heldout_prediction_nmse_after_pct": self.heldout_after_pct,
                 "heldout_prediction_nmse_before_per_record_pct": list(self.heldout_before_per_record_pct),
                 "heldout_prediction_nmse_after_per_record_pct": list(self.heldout_after_per_record_pct),
-                **{f"heldout_whole_signal_nmse_{k}_pct": w[0] for k, w in zip(("before", "after"), self.whole)},
-                **{f"heldout_whole_signal_nmse_{k}_per_record_pct": list(w[1])
-                   for k, w in zip(("before", "after"), self.whole)},
-                **{f"heldout_whole_signal_{k}_prediction": w[2] or None
-                   for k, w in zip(("before", "after"), self.whole)},
+                "heldout_whole_signal_nmse_before_pct": self.whole_before_pct,
+                "heldout_whole_signal_nmse_after_pct": self.whole_after_pct,
+                "heldout_whole_signal_nmse_before_per_record_pct": list(self.whole_before_per_record_pct),
+                "heldout_whole_signal_nmse_after_per_record_pct": list(self.whole_after_per_record_pct),
+                "heldout_whole_signal_before_prediction": self.whole_before_policy or None,
+                "heldout_whole_signal_after_prediction": self.whole_after_policy or None,
                 "parameters": [dict(p) for p in self.parameters], "seconds": list(self.seconds),
                 "refinement": None if self.refinement is None else dict(self.refinement),
                 "unavailable": self.unavailable, "refused": self.refused, "text": self.text()}
