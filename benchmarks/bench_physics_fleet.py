@@ -339,13 +339,15 @@ CODE = HERE.parent
 
 
 def _nifo(args: list[str], log: Path, deadline: float | None = None) -> dict:
-    """``nifo ARGS`` in a fresh process, its text to ``log``; killed at ``deadline`` (``time.monotonic()``)."""
+    """``nifo ARGS`` in a fresh process, its text to ``log``; killed at ``deadline`` (``time.monotonic()``). ``-P``:
+    the working directory is not put before ``PYTHONPATH`` (``-m`` does that), so ``--code`` runs that checkout's
+    nifo from wherever the benchmark is started."""
     env = {**os.environ, "PYTHONPATH": str(CODE), "NIFO_THREADS": os.environ.get("NIFO_THREADS", "1"),
            "NIFO_FIGURE_WORKERS": "0"}
     t0 = time.perf_counter()
     timeout = None if deadline is None else max(deadline - time.monotonic(), 1.0)
     try:
-        proc = subprocess.run([sys.executable, "-m", "nifo", *args], env=env, capture_output=True, text=True,
+        proc = subprocess.run([sys.executable, "-P", "-m", "nifo", *args], env=env, capture_output=True, text=True,
                               timeout=timeout)
     except subprocess.TimeoutExpired as err:
         log.write_text(f"{err.stdout or ''}{err.stderr or ''}\n[killed at the case's time limit]")

@@ -53,7 +53,9 @@ def heldout_failures(current: Errors, after: Errors, s: LoopSettings,
             pred.append(f"held-out prediction NMSE does not fall ({p0:.3g} % → {p1:.3g} %)")
         elif comparison is not None and not comparison.better("a"):
             pred.append(f"held-out prediction NMSE {p0:.3g} % → {p1:.3g} % falls less than the scatter of the "
-                        f"held-out blocks (paired t {comparison.t:+.2g}, {T_DISTINCT:g} needed)")
+                        f"held-out blocks (paired t {comparison.t:+.2g} over the pooled blocks, "
+                        f"{comparison.z if comparison.z is not None else comparison.t:+.2g} over the records; "
+                        f"{T_DISTINCT:g} needed)")
         pred += _worse_bands("prediction error", current.band_residual_db, after.band_residual_db, s)
     return eq, pred
 
