@@ -43,29 +43,39 @@ def test_the_paired_comparison_tells_a_better_model_from_an_equal_one():
     assert apart.nmse_b > 2 * apart.nmse_a      # the metric's own numbers: band NMSE of the held-out part
 
 
+_N = 24000
+
+
+def _three_levels(seed: int, errors):
+    """Three 120 s records at 200 Hz (band-limited noise) split into fit and held-out parts, and two models'
+    predictions of each: ``errors(j, y, e, e2)`` → (A's, B's) from the output ``y`` and two noises."""
+    rng = np.random.default_rng(seed)
+    smooth = lambda: np.convolve(rng.standard_normal(_N), np.ones(8) / 8, mode="same")  # noqa: E731
+    recs, a, b = [], [], []
+    for j in range(3):
+        y = smooth()
+        recs.append(Record(200.0, 0.1 * rng.standard_normal(_N), y, source=f"level {j}"))
+        pa, pb = errors(j, y, smooth(), smooth())
+        a.append(pa)
+        b.append(pb)
+    return split_records(recs, band_hz=(1.0, 30.0)), a, b
+
+
 def test_a_gain_every_block_of_two_records_shows_is_not_lost_in_a_third_records_heavy_tail():
     """Own draw of issue 54's fleet (seed 5411, #41: a compression stop and a cubic hidden beside a declared knee):
     with the stop in, the cubic takes the held-out prediction 4.57 % → 0.277 %, a hundredfold in every block of the
     two lower records, but the highest record's blocks (12.6 % → 0.79 %, a few impacts carrying most of it) made
     the pooled paired t +1.3 and the cubic was refused. Each record's blocks are also judged on their own scatter
     and the records' scores combined (z): the same shape here, where the pooled t alone refuses."""
-    fs, n = 200.0, 24000
-    rng = np.random.default_rng(11)
-    recs, a, b = [], [], []
-    for j in range(3):
-        y = np.convolve(rng.standard_normal(n), np.ones(8) / 8, mode="same")
-        recs.append(Record(fs, 0.1 * rng.standard_normal(n), y, source=f"level {j}"))
-        e = np.convolve(rng.standard_normal(n), np.ones(8) / 8, mode="same")
+    burst = np.zeros(_N)
+    burst[-2000:-1400] = 3.0 * np.hanning(600)
+
+    def errors(j, y, e, e2):
         if j < 2:                                   # a hundredfold in every block
-            a.append(y + 0.01 * e)
-            b.append(y + 0.1 * e)
-        else:                                       # equal but for one burst where B misses, A nearly not
-            burst = np.zeros(n)
-            burst[-2000:-1400] = 3.0 * np.hanning(600)
-            e2 = np.convolve(rng.standard_normal(n), np.ones(8) / 8, mode="same")
-            a.append(y + 0.3 * e + 0.2 * burst * e2)
-            b.append(y + 0.3 * e + burst * e2)
-    held = split_records(recs, band_hz=(1.0, 30.0))
+            return y + 0.01 * e, y + 0.1 * e
+        return y + 0.3 * e + 0.2 * burst * e2, y + 0.3 * e + burst * e2   # B misses a burst, A nearly not
+
+    held, a, b = _three_levels(11, errors)
     c = compare(held, a, b)
     print(f"\nNMSE {c.nmse_a:.3g} / {c.nmse_b:.3g} %: pooled paired t {c.t:+.2f}, the records' combined score "
           f"{c.z:+.2f} over {c.blocks} blocks")
@@ -75,22 +85,13 @@ def test_a_gain_every_block_of_two_records_shows_is_not_lost_in_a_third_records_
     assert calm.nmse_a < calm.nmse_b and not calm.better("a"), calm
 
 
-
-
 def test_a_gain_one_record_carries_is_kept_though_the_others_lose_a_little():
     """The other way round (held-out case #112 of issue 54's fleet: a true knee lowered the held-out prediction
     0.0204 → 0.016 %, the records' combined score −4.9): one record gains much in every block, two lose a little in
     every block. The metric falls beyond its pooled scatter, and that is enough."""
-    fs, n = 200.0, 24000
-    rng = np.random.default_rng(12)
-    recs, a, b = [], [], []
-    for j in range(3):
-        y = np.convolve(rng.standard_normal(n), np.ones(8) / 8, mode="same")
-        recs.append(Record(fs, 0.1 * rng.standard_normal(n), y, source=f"level {j}"))
-        e = np.convolve(rng.standard_normal(n), np.ones(8) / 8, mode="same")
-        a.append(y + (0.05 if j == 2 else 0.105) * e)
-        b.append(y + (0.2 if j == 2 else 0.1) * e)
-    c = compare(split_records(recs, band_hz=(1.0, 30.0)), a, b)
+    held, a, b = _three_levels(12, lambda j, y, e, _: (y + (0.05 if j == 2 else 0.105) * e,
+                                                       y + (0.2 if j == 2 else 0.1) * e))
+    c = compare(held, a, b)
     print(f"\nNMSE {c.nmse_a:.3g} / {c.nmse_b:.3g} %: pooled paired t {c.t:+.2f}, records' z {c.z:+.2f}")
     assert c.z < -T_DISTINCT < T_DISTINCT < c.t and c.better("a") and not c.better("b")
 
