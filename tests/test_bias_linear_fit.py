@@ -13,7 +13,7 @@ import numpy as np
 
 from nifo_core.kinds.describing import make_term
 from nifo_core.loop.residual import BIAS_PAIRS, _Evaluator, _parts_sum
-from nifo_core.loop.results import LoopSettings
+from nifo_core.loop.settings import LoopSettings
 from nifo_core.predict.heldout import split_records
 from nifo_core.predict.model import predict_body
 from nifo_core.signal.bias_correction import DRIVE_PAIRS, FULL_STEPS, LinearFit, simulated_correction

@@ -14,7 +14,7 @@ import pytest
 
 from nifo_core.kinds.describing import make_term
 from nifo_core.loop.residual import _Evaluator
-from nifo_core.loop.results import LoopSettings
+from nifo_core.loop.settings import LoopSettings
 from nifo_core.predict.heldout import split_records
 from nifo_core.predict.linear_part import BodyModel, LinearPart
 from nifo_core.predict.timesim import lookahead_samples, simulate_response

@@ -20,7 +20,9 @@ from nifo.io.loader import save_record
 from nifo.io.modelfile import load_model_spec
 from nifo_core.kinds.describing import Term
 from nifo_core.errors import ConfigError
-from nifo_core.loop.closing import NOTHING_MISSING, LoopSettings, close_loop
+from nifo_core.loop.closing import close_loop
+from nifo_core.loop.settings import LoopSettings
+from nifo_core.loop.words import NOTHING_MISSING
 from nifo_core.signal.record import Record
 from nifo_core.signal.integrate import IntegrationBand
 from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate

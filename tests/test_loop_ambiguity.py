@@ -11,7 +11,9 @@ import numpy as np
 from nifo_core.kinds.describing import Term
 from nifo_core.loop.ambiguity import T_DISTINCT, Comparison, compare
 from nifo_core.loop.gates import Alternative, Judgement, judge_alternatives
-from nifo_core.loop.results import RETUNE_FACTOR, DeclaredTerm, Errors, LoopSettings
+from nifo_core.loop.results import DeclaredTerm
+from nifo_core.loop.round_results import Errors
+from nifo_core.loop.settings import RETUNE_FACTOR, LoopSettings
 from nifo_core.predict.heldout import split_records
 from nifo_core.signal.record import Record
 

@@ -3,7 +3,8 @@ re-tunes such a form in it; a bump stop's static gap placed beyond the mean's ra
 later rounds (nifo_core/loop/stops.py)."""
 
 from nifo_core.kinds.describing import Term
-from nifo_core.loop.closing import LoopSettings, close_loop
+from nifo_core.loop.closing import close_loop
+from nifo_core.loop.settings import LoopSettings
 from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
 
 REBOUND = Term("asymmetric_damping", {"side": "rebound"})

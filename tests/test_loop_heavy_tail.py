@@ -20,7 +20,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import bench_physics_fleet as fleet  # noqa: E402
 
 from nifo_core.kinds.describing import Term  # noqa: E402
-from nifo_core.loop.closing import LoopSettings, close_loop  # noqa: E402
+from nifo_core.loop.closing import close_loop  # noqa: E402
+from nifo_core.loop.settings import LoopSettings  # noqa: E402
 
 
 @pytest.mark.slow

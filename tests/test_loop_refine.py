@@ -17,7 +17,8 @@ from nifo.io.loader import save_record
 from nifo.io.results import read_model
 from nifo_core.kinds.describing import Term
 from nifo_core.errors import ConfigError
-from nifo_core.loop.closing import LoopSettings, close_loop
+from nifo_core.loop.closing import close_loop
+from nifo_core.loop.settings import LoopSettings
 from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
 
 M2 = 300.0  # QuarterCar default sprung mass [kg]

@@ -12,7 +12,7 @@ import numpy as np
 from nifo_core.characterize.result import Candidate
 from nifo_core.kinds.describing import Term
 from nifo_core.loop.ambiguity import Explanation
-from nifo_core.loop.results import Errors, Trial
+from nifo_core.loop.round_results import Errors, Trial
 from nifo_core.loop.rivals import rivals_of
 from nifo_core.predict.heldout import split_records
 from nifo_core.signal.record import Record

@@ -25,7 +25,8 @@ import bench_physics_fleet as fleet  # noqa: E402
 
 from nifo_core.kinds.describing import Term  # noqa: E402
 from nifo_core.loop import closing  # noqa: E402
-from nifo_core.loop.closing import LoopSettings, close_loop  # noqa: E402
+from nifo_core.loop.closing import close_loop  # noqa: E402
+from nifo_core.loop.settings import LoopSettings  # noqa: E402
 from nifo_core.predict import model_fit  # noqa: E402
 
 

@@ -143,7 +143,7 @@ def test_the_loop_judges_a_flexible_bodys_candidates_side_by_side_as_one_thread_
     from test_feedback_paths import PERIOD, _linear, _paths_true, _record
 
     from nifo_core.loop.closing import close_loop
-    from nifo_core.loop.results import LoopSettings
+    from nifo_core.loop.settings import LoopSettings
     from nifo_core.settings import AnalysisSettings
     from nifo_core.signal.integrate import IntegrationBand
     from nifo_core.signal.spectral import SpectralSettings

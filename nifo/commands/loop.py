@@ -15,7 +15,7 @@ from nifo.pipeline.loop import run_loop
 from nifo.pipeline.options import LoopOptions
 from nifo.settings import add_settings_arguments
 from nifo_core.characterize.automatic import DEFAULT_KINDS
-from nifo_core.loop.results import LoopSettings
+from nifo_core.loop.settings import LoopSettings
 
 HELP = SUMMARIES["loop"]
 #: the argument naming what this command writes: locked for the whole command (nifo.io.lock)

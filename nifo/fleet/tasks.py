@@ -38,7 +38,8 @@ from nifo_core.errors import NifoError, RecordTooShortError
 from nifo_core.fleet import interval_halfwidth, standard_error
 from nifo_core.signal.integrate import IntegrationBand, default_band
 from nifo_core.predict.linear_part import BODY_FIT_LIMIT, nominal_linear_part
-from nifo_core.loop.closing import LoopSettings, close_loop
+from nifo_core.loop.closing import close_loop
+from nifo_core.loop.settings import LoopSettings
 from nifo_core.predict.model import IdentifiedModel
 from nifo_core.nifo.engine import IdentifySetup, RecordProbe, accumulate_record
 from nifo_core.nifo.identify import StreamingNifo, nifo_from_spectra, static_fits

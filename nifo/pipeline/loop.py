@@ -38,7 +38,9 @@ from nifo.settings import for_records, loader_options, resolve
 from nifo_core import __version__
 from nifo_core.characterize.automatic import DEFAULT_KINDS, Thresholds
 from nifo_core.signal.integrate import band_for_records
-from nifo_core.loop.closing import LoopResult, LoopSettings, close_loop
+from nifo_core.loop.closing import close_loop
+from nifo_core.loop.results import LoopResult
+from nifo_core.loop.settings import LoopSettings
 from nifo_core.settings import AnalysisSettings
 
 

@@ -1,6 +1,6 @@
 """Figures of ``nifo loop``: the residual against each added effect's variable, and the errors per round.
 
-Every function takes the plain ``loop.json`` dictionaries (:meth:`nifo_core.loop.closing.LoopResult.to_dict`)
+Every function takes the plain ``loop.json`` dictionaries (:meth:`nifo_core.loop.results.LoopResult.to_dict`)
 and writes one PNG. Residuals are per unit sprung mass (m/s² = N/kg), in newtons when M2 is known.
 """
 

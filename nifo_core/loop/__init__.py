@@ -6,7 +6,10 @@ Modules:
 - :mod:`nifo_core.loop.residual`  the residuals and the evidence for each candidate
 - :mod:`nifo_core.loop.gates`  when a candidate is added: held-out prediction, one term of a kind
 - :mod:`nifo_core.loop.refine`  the output-error refinement of the loop's final model
-- :mod:`nifo_core.loop.results`  ``LoopResult`` and its parts
+- :mod:`nifo_core.loop.settings`  ``LoopSettings``
+- :mod:`nifo_core.loop.round_results`  what each round tried and added: ``Errors``, ``Trial``, ``Round``
+- :mod:`nifo_core.loop.results`  ``LoopResult``, its refinement and the declared terms' fates
+- :mod:`nifo_core.loop.words`  the words of the loop's report
 - :mod:`nifo_core.loop.detection`  what the data could not reveal: detection limits, confounded pairs
 
 Layer: it imports everything else: :mod:`nifo_core.characterize`, :mod:`nifo_core.predict`,
@@ -20,8 +23,11 @@ is first used, so importing one module of the package does not import the others
 import lazy_loader
 
 __getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
-    "closing": ["LoopSettings", "Errors", "Trial", "Evidence", "Round", "LoopRefinement", "LoopResult", "close_loop",
-                "RESIDUAL_BANDS_HZ", "NOTHING_MISSING"],
+    "closing": ["close_loop"],
+    "settings": ["LoopSettings", "RESIDUAL_BANDS_HZ"],
+    "round_results": ["Errors", "Trial", "Evidence", "Round"],
+    "results": ["LoopRefinement", "LoopResult"],
+    "words": ["NOTHING_MISSING"],
     "detection": ["DetectionLimit", "Confounding", "Undetermined", "detection_limits", "confounded_pairs",
                   "undetermined_terms"],
 })

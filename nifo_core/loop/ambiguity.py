@@ -95,7 +95,7 @@ class Comparison:
 
 
 def compare_errors(held: HeldOut, a, b) -> Comparison:
-    """:func:`compare` of two models' :class:`~nifo_core.loop.results.Errors` (their held-out predictions); when
+    """:func:`compare` of two models' :class:`~nifo_core.loop.round_results.Errors` (their held-out predictions); when
     either has none, a comparison of their NMSE alone (no blocks: decided by the relative difference)."""
     fa, fb = getattr(a, "fitted", None), getattr(b, "fitted", None)
     pa = None if fa is None or a.prediction_unavailable else fa.scores.predictions

@@ -43,7 +43,7 @@ from .ambiguity import compare
 from .gates import WHOLE_RISE
 from .refine import refine_parts
 from .residual import _Evaluator
-from .results import LoopSettings
+from .settings import LoopSettings
 
 __all__ = ["BeyondTrial", "searches_beyond", "search_beyond"]
 

@@ -119,9 +119,10 @@ from .stops import retune_stops
 from .rivals import rivals_of
 from ..predict.model_fit import RATIONAL_MARGIN, Fitted, LinearChoice, choose_linear_form, fit_model
 from ..settings import AnalysisSettings
-from .results import (NOTHING_MISSING, RESIDUAL_BANDS_HZ, RETUNE_FACTOR, DeclaredTerm, Errors, Evidence,
-                      LoopRefinement, LoopResult, LoopSettings, Round, Trial, _nothing_text, _round_text,
-                      before_after_text, unconfirmed_text)
+from .results import DeclaredTerm, LoopRefinement, LoopResult
+from .round_results import Errors, Round, Trial
+from .settings import RETUNE_FACTOR, LoopSettings
+from .words import NOTHING_MISSING, _nothing_text, _round_text, before_after_text, unconfirmed_text
 from .ambiguity import Ambiguity, Comparison, Explanation, compare_errors, separating_record
 from .gates import (Alternative, heldout_failures, judge_alternatives, one_of_kind_alternatives, prediction_failures,
                     unseen_failures, whole_signal_failures)
@@ -132,8 +133,7 @@ from .frame import Frame
 from ..signal.record import Record
 from ..characterize.restoring import suggest_band
 
-__all__ = ["LoopSettings", "Errors", "Trial", "Evidence", "Round", "LoopRefinement", "LoopResult", "close_loop",
-           "RESIDUAL_BANDS_HZ", "NOTHING_MISSING"]
+__all__ = ["close_loop"]
 
 
 #: a record must span this many periods of the integration band's lower edge: the integrator takes 16

@@ -12,13 +12,14 @@ import numpy as np
 
 from ..kinds.describing import Term
 from .ambiguity import T_DISTINCT, Comparison
-from .results import RETUNE_FACTOR, Errors, LoopSettings
+from .round_results import Errors
+from .settings import RETUNE_FACTOR, LoopSettings
 
 __all__ = ["heldout_failures", "prediction_failures", "unseen_failures", "one_of_kind_alternatives", "Alternative",
            "Judgement", "judge_alternatives", "RETUNE_FACTOR", "whole_signal_failures", "WHOLE_RISE"]
 
 #: a term may not raise the held-out whole-signal NMSE by more than this fraction (relative); a smaller rise is
-#: said in the round's before/after (:func:`~nifo_core.loop.results.before_after_text`). Measured on the bundled
+#: said in the round's before/after (:func:`~nifo_core.loop.words.before_after_text`). Measured on the bundled
 #: sample's 1 + 2.5 mm records with the knee declared: the true play lowers the held-out band NMSE 0.099 → 0.068 %
 #: and raises the whole-signal NMSE 0.298 → 0.305 % (+2.3 %, the part outside the analysis band): a 2 % limit
 #: refused it

@@ -23,7 +23,8 @@ import numpy as np
 
 from ..kinds.describing import Term
 from .ambiguity import Comparison, compare_errors
-from .results import Errors, LoopSettings
+from .round_results import Errors
+from .settings import LoopSettings
 
 __all__ = ["Dropped", "Pruned", "drop_undetermined"]
 

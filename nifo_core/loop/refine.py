@@ -11,7 +11,8 @@ from typing import Callable, Mapping, Sequence
 from ..errors import NifoError
 from ..predict.heldout import HeldOut
 from .residual import BIAS_SEED, _Evaluator
-from .results import Errors, LoopRefinement
+from .results import LoopRefinement
+from .round_results import Errors
 from ..predict.model import IdentifiedModel
 from ..signal.record import Record
 from ..predict.refine import Refinement, refine_model, start_up_samples

@@ -28,7 +28,8 @@ from ..errors import InputError
 from ..signal.integrate import IntegrationBand
 from ..predict.heldout import HeldOut
 from ..predict.linear_part import BodyModel
-from .results import RESIDUAL_BANDS_HZ, RETUNE_FACTOR, Evidence, LoopSettings
+from .round_results import Evidence
+from .settings import RESIDUAL_BANDS_HZ, RETUNE_FACTOR, LoopSettings
 from .stops import placed_beyond
 from ..predict.model import IdentifiedModel
 from ..characterize.restoring import RestoringForce, bandpass, bandpass_settle_samples, restoring_force
@@ -449,7 +450,7 @@ def _retune(ev: "_Evaluator", terms: Sequence[Term], s: LoopSettings, *, which: 
     """Each term's varying parameter re-tuned over its grid (then refined), the others held: best ERR.
 
     ``which``: the indices of the terms to re-tune (default all). A declared term (``declared[i]`` for the i-th
-    term) stays within :data:`~nifo_core.loop.results.RETUNE_FACTOR` of its *declared* key parameter (a gap, knee
+    term) stays within :data:`~nifo_core.loop.settings.RETUNE_FACTOR` of its *declared* key parameter (a gap, knee
     or deadband is the engineer's statement: re-tuning round after round must not walk it away); a term the loop
     added within a factor 2 of its current one.
     """

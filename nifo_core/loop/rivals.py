@@ -29,7 +29,7 @@ from ..predict.heldout import HeldOut
 from .ambiguity import Ambiguity, Comparison, Explanation, compare_errors, separating_record
 
 if TYPE_CHECKING:
-    from .results import Trial
+    from .round_results import Trial
 
 __all__ = ["Rivals", "rivals_of"]
 
