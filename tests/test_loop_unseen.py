@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import bench_physics_fleet as fleet  # noqa: E402
 
 from nifo_core.kinds.describing import Term  # noqa: E402
-from nifo_core.loop import closing  # noqa: E402
+from nifo_core.loop import acceptance, predictor  # noqa: E402
 from nifo_core.loop.closing import close_loop  # noqa: E402
 from nifo_core.loop.settings import LoopSettings  # noqa: E402
 from nifo_core.predict import model_fit  # noqa: E402
@@ -46,7 +46,8 @@ def _control() -> fleet.Case:
 @pytest.mark.slow
 def test_a_control_on_the_rational_part_gains_no_term_the_force_balance_calls_nothing(monkeypatch):
     monkeypatch.setattr(model_fit, "RATIONAL_MARGIN", 1.0)
-    monkeypatch.setattr(closing, "RATIONAL_MARGIN", 1.0)
+    monkeypatch.setattr(predictor, "RATIONAL_MARGIN", 1.0)
+    monkeypatch.setattr(acceptance, "RATIONAL_MARGIN", 1.0)
     case = _control()
     recs = [fleet.simulate_level(case, j) for j in range(len(case.levels_mm))]
     d = case.declared

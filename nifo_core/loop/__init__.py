@@ -2,7 +2,14 @@
 
 Modules:
 
-- :mod:`nifo_core.loop.closing`  ``close_loop``
+- :mod:`nifo_core.loop.closing`  ``close_loop``, which runs the steps below
+- :mod:`nifo_core.loop.setup`  what every step works on: the records, the band (``loop_band``), the held-out split
+- :mod:`nifo_core.loop.predictor`  the held-out prediction of a term set, and both its errors
+- :mod:`nifo_core.loop.rounds`  the rounds: re-tune, trace, judge, add
+- :mod:`nifo_core.loop.candidates`  what a round tries
+- :mod:`nifo_core.loop.acceptance`  whether a candidate is added: every gate of one candidate, a round's judged
+- :mod:`nifo_core.loop.best_set`  the best set of effects after the rounds
+- :mod:`nifo_core.loop.final`  the final model: refinement, bias-corrected coefficients, the declared terms' fates
 - :mod:`nifo_core.loop.residual`  the residuals and the evidence for each candidate
 - :mod:`nifo_core.loop.gates`  when a candidate is added: held-out prediction, one term of a kind
 - :mod:`nifo_core.loop.refine`  the output-error refinement of the loop's final model
