@@ -24,7 +24,7 @@ import pytest
 
 from nifo_core.kinds.describing import Term
 from nifo_core.predict.heldout import split_records
-from nifo_core.loop.setup import loop_band
+from nifo_core.loop.state import loop_band
 from nifo_core.loop.settings import LoopSettings
 from nifo_core.loop.residual import _design, _Evaluator
 from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate

@@ -3,7 +3,7 @@
 Modules:
 
 - :mod:`nifo_core.loop.closing`  ``close_loop``, which runs the steps below
-- :mod:`nifo_core.loop.setup`  what every step works on: the records, the band (``loop_band``), the held-out split
+- :mod:`nifo_core.loop.state`  what every step works on: the records, the band (``loop_band``), the held-out split
 - :mod:`nifo_core.loop.predictor`  the held-out prediction of a term set, and both its errors
 - :mod:`nifo_core.loop.rounds`  the rounds: re-tune, trace, judge, add
 - :mod:`nifo_core.loop.candidates`  what a round tries

@@ -23,7 +23,7 @@ from .ambiguity import Ambiguity, compare_errors
 from .gates import (Alternative, heldout_failures, judge_alternatives, one_of_kind_alternatives, prediction_failures,
                     unseen_failures, whole_signal_failures)
 from .predictor import _errors, _Predictor
-from .setup import _Setup
+from .state import _Setup
 
 __all__ = ["acts_linearly"]
 

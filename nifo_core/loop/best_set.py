@@ -20,7 +20,7 @@ from .prune import drop_undetermined
 from .frame import Frame
 from .predictor import _errors, _Predictor
 from .rounds import _Found
-from .setup import _placed, _Setup
+from .state import _placed, _Setup
 
 
 def _best_set_pass(u: _Setup, found: _Found, say: Callable[[float, str], None]) -> _Found:

@@ -88,7 +88,7 @@ Given records and a *declared* model (describing functions, :mod:`nifo_core.kind
    refined plainly, 1.89e5 with the refinement's bias removed.
 
 :func:`close_loop` runs these steps; each lives in its own module: the set-up (records, band, held-out split,
-evaluator, predictor) :mod:`~nifo_core.loop.setup`; the held-out prediction and both residuals of a term set
+evaluator, predictor) :mod:`~nifo_core.loop.state`; the held-out prediction and both residuals of a term set
 :mod:`~nifo_core.loop.predictor`; the rounds :mod:`~nifo_core.loop.rounds`, what each tries
 :mod:`~nifo_core.loop.candidates` and how each candidate is judged :mod:`~nifo_core.loop.acceptance`; the best set of
 effects :mod:`~nifo_core.loop.best_set`; the final model, its refinement and the declared terms' fates
@@ -118,7 +118,7 @@ from ..signal.record import Record
 from .best_set import _best_set_pass
 from .final import _bias_note, _final_model, _retune_declared, _rounds_corrected
 from .rounds import _Found, _run_rounds
-from .setup import _set_up, _Setup
+from .state import _set_up, _Setup
 
 __all__ = ["close_loop"]
 

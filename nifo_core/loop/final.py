@@ -22,7 +22,7 @@ from .refine import refine_final
 from .beyond import search_beyond
 from .predictor import _errors, _Predictor
 from .rounds import _Found, _with_joint_coefficient
-from .setup import _placed, _Setup
+from .state import _placed, _Setup
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ from .gates import Alternative
 from .acceptance import _judge, _try_candidates
 from .candidates import _round_candidates
 from .predictor import _errors
-from .setup import _placed, _Setup
+from .state import _placed, _Setup
 
 
 @dataclass(frozen=True)

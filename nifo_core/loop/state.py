@@ -63,8 +63,6 @@ def _data_settings(recs: Sequence[Record], band: IntegrationBand | None, s: Loop
     return AnalysisSettings(spectral=s.spectral, band=band, analysis_band_hz=s.analysis_band_hz)
 
 
-# Long (over 100 lines): each round's fit, residual, ranking, acceptance tests and refit share the round's
-# state. Left whole here while the noise branch (issue 28) edits its body; to split after the merge.
 @dataclass(frozen=True)
 class _Setup:
     """What every round of :func:`close_loop` works on: the records (as measured and centred), the declared model
