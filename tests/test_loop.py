@@ -110,7 +110,7 @@ def test_a_hidden_effect_is_the_first_added_with_its_key_parameter_and_the_heldo
     assert r1.after.equation_nmse_pct < r1.before.equation_nmse_pct
     assert res.final.prediction_nmse_pct < res.initial.prediction_nmse_pct
     assert r1.added.candidate.p_value < 1e-3 and r1.added.accepted
-    assert f"Round 1: added" in res.report()
+    assert "Round 1: added" in res.report()
 
 
 def test_the_declared_terms_are_kept_and_the_hidden_one_is_added_after_them(scenario):

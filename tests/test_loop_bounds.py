@@ -26,9 +26,8 @@ from nifo_core.kinds.describing import Term
 from nifo_core.predict.heldout import split_records
 from nifo_core.loop.state import loop_band
 from nifo_core.loop.settings import LoopSettings
-from nifo_core.loop.residual import _design, _Evaluator
+from nifo_core.loop.residual import _Evaluator
 from nifo_core.simulate.quarter_car import RandomRoad, SensorNoise, SimConfig, StrutForce, simulate
-from nifo_core.signal.uncertainty import coefficient_bounds
 
 M2 = 300.0
 

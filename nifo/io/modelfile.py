@@ -41,7 +41,7 @@ from typing import Annotated, Any, Literal, Mapping
 import yaml
 from pydantic import AliasChoices, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from nifo_core.kinds.describing import KINDS, Term, kind as _kind, make_term
+from nifo_core.kinds.describing import Term, kind as _kind, make_term
 from nifo_core.errors import ConfigError, DataFileError, NifoError
 from nifo_core.settings import GivenSettings
 from nifo_core.signal.spectral import MAX_BLOCK

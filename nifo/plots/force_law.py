@@ -49,8 +49,8 @@ def _panel(ax, curve, names, *, xscale: float, xlabel: str, force_unit: str, ter
     ax.set_ylabel(f"{element} force [{force_unit}]")
     ax.grid(True, alpha=0.3)
     if all(br.linear is None and not np.any(br.terms) for br in curve.branches):
-        ax.text(0.5, 0.6, f"no term in this variable: its force is in the linear part\n(a transfer function: "
-                f"linear_part.json of nifo export)", transform=ax.transAxes, ha="center", fontsize=8, color="0.3")
+        ax.text(0.5, 0.6, "no term in this variable: its force is in the linear part\n(a transfer function: "
+                "linear_part.json of nifo export)", transform=ax.transAxes, ha="center", fontsize=8, color="0.3")
 
 
 def plot_force_law(path: str | Path, law, *, title: str, terms: bool = False, vector: bool = True,

@@ -38,7 +38,7 @@ import numpy as np
 
 from ..errors import InputError
 from .frf import coherence
-from .spectral import SpectralSettings, auto_spectrum, block_ffts, cross_spectra
+from .spectral import SpectralSettings, auto_spectrum, cross_spectra
 
 __all__ = ["Excitation", "analyse_excitation", "combine_excitations", "detect_period"]
 
