@@ -53,7 +53,7 @@ from typing import Iterator, Sequence
 from nifo.interrupt import by_interrupt, crash_stacks, signals_held
 
 __all__ = ["figure_batch", "deferred_figures", "wait_figures", "submit_figure", "write_files", "figure_paths",
-           "figure_workers", "start_helpers", "abandon_helpers"]
+           "figure_workers", "start_helpers", "helpers_started", "abandon_helpers"]
 
 #: environment variable: helper processes for figures (0: write them in the calling process)
 WORKERS_ENV = "NIFO_FIGURE_WORKERS"
@@ -450,6 +450,12 @@ def abandon_helpers() -> None:
         with contextlib.suppress(Exception):
             proc.join(ABANDON_WAIT_S)
     _end(pool)
+
+
+def helpers_started() -> bool:
+    """Whether the helpers are up (started by :func:`start_helpers` or an earlier figure): a few figures handed to
+    them then cost no start-up."""
+    return _pool is not None
 
 
 def start_helpers() -> None:
