@@ -37,6 +37,15 @@ Measured again on 2026-12-07 (each thread's CPU clock, beside two other jobs; is
   --max-rounds 1``): 23.4 + 1.1 = 24.5 s, Python 39.5 s of 65 s; the rational linear part's order search
   (vector fitting every even order 2-40 for each candidate's model: 22 searches, 440 fits) is 27 s of it.
 
+Measured on 2026-12-07 between 10:45 and 11:55, an idle machine (issue 58; the sample on 8068530, the other two on
+95dbf45, whose report draws its figures in the helpers):
+
+- the bundled sample: 12.0 + 8.3 = 20.3 s, floor 10.2 s (the compiled arithmetic alone 6.0 s); the Python 15.7 s
+  under the profiler, the figures' building 2.4 s;
+- the loop benchmark: 23.3 + 0.7 = 24.0 s, floor 12.0 s against 10 s (the compiled arithmetic alone 11.6 s: numba
+  10.6, FFT 7.2, other C 5.5 CPU-s): out of reach with this many simulations;
+- ``--f16``: 19.3 + 8.5 = 27.9 s, floor 13.9 s against 30 s.
+
     PYTHONPATH=. python benchmarks/profile_run.py [--f16] [--floor] [--out DIR] [--top 40] [--save run.prof]
                                                   [-- nifo ARGS...]
 """
