@@ -322,8 +322,12 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
         theta = theta + steps[-1]
         if len(steps) == min(int(iterations), ITERATIONS) and np.any(np.abs(theta - t0) > MAX_RELATIVE_BIAS * size):
             return None     # judged on the first steps: a converged correction may exceed it (a bump stop's: +52 %)
-    if len(steps) > 1 and np.any(np.abs(steps[-1]) > MAX_CONTRACTION * np.abs(steps[-2]) + CONVERGED_RTOL * size):
-        return None     # the fixed point contracts slowly: the bias map is ill-conditioned (confounded terms)
+    beyond = np.zeros(t0.shape, bool)   # coordinates whose last step turned back by more than MAX_CONTRACTION
+    if len(steps) > 1:
+        big = np.abs(steps[-1]) > MAX_CONTRACTION * np.abs(steps[-2]) + CONVERGED_RTOL * size
+        beyond = big & (steps[-1] * steps[-2] < 0)
+        if np.any(big & ~beyond):
+            return None     # the fixed point contracts slowly: the bias map is ill-conditioned (confounded terms)
     # the drive noise's simulations only for a correction that is kept (they do not change the refusal above)
     drive_sd = _drive_sd(fits, simulate, theta, rng, each, free, whole) if drive_noise else None
     if drive_sd is not None and not np.all(np.isfinite(drive_sd)):
@@ -332,13 +336,17 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
     if len(steps) > 1:
         with np.errstate(divide="ignore", invalid="ignore"):
             q = np.where(np.abs(steps[-2]) > 0, steps[-1] / steps[-2], 0.0)
+        # a step that turned back past the last one brackets the fixed point between the two iterates: the secant
+        # through them (the same geometric tail, unclipped) lands inside the first step's correction, never beyond
+        q_back = q
         q = np.clip(q, -MAX_CONTRACTION, MAX_CONTRACTION)
         # the contraction read where the steps are above the convergence tolerance: the ratio of two steps already
         # within it is noise (measured: k's and c's after five steps on a bump stop, clipped at MAX_CONTRACTION)
         moving = free & (np.abs(steps[-2]) > CONVERGED_RTOL * size)
         rate = float(np.max(np.abs(q[moving]))) if np.any(moving) else float(np.max(np.abs(q)))
         gain = float(1.0 / (1.0 - rate))
-        tail = free * steps[-1] * q / (1.0 - q)      # the geometric rest of the way to the fixed point
+        q_tail = np.where(beyond, q_back, q)
+        tail = free * steps[-1] * q_tail / (1.0 - q_tail)      # the geometric rest of the way to the fixed point
         theta = theta + tail
     return Correction(theta, t0, noise_bias, draw_sd, gain, tail, drive_sd, fit_sd, len(draws))
 
