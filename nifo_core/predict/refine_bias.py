@@ -39,7 +39,7 @@ from ..signal.record import Record
 from .refine import Refinement, march_jacobians, prediction_residuals
 from .refine_space import moved_refinement, parameter_space
 
-__all__ = ["REFIT_EVALUATIONS", "correct_refinement"]
+__all__ = ["REFIT_EVALUATIONS", "bracketed", "correct_refinement", "noted"]
 
 #: function evaluations of each synthetic refit (started from the synthetic truth: a few Gauss-Newton steps)
 REFIT_EVALUATIONS = 8
@@ -80,7 +80,7 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
     elif not any(e.available for e in noise):
         why = "no noise estimate: " + "; ".join(e.text() for e in noise)
     if why is not None:
-        return _noted(refinement, f"not bias-corrected ({why})")
+        return noted(refinement, f"not bias-corrected ({why})")
     to_model, x_star, cov = space.to_model, space.theta, space.cov
     info = refinement.model.provenance["refined"]
     band, period = tuple(info["band_hz"]), info.get("period_samples")
@@ -132,12 +132,12 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
     # is held: its refits wander along the cost's flat valley and would swamp the correction of the others
     hold = Z95 * np.sqrt(np.maximum(np.diag(cov), 0.0)) > MAX_RELATIVE_BIAS
     if np.all(hold):
-        return _noted(refinement, "not bias-corrected (no parameter is determined to within half its value): the "
+        return noted(refinement, "not bias-corrected (no parameter is determined to within half its value): the "
                                   "refined values may be biased by the spindle sensor's noise")
     cor = simulated_correction(fit, simulate, records, noise, x_star, seed=seed, scale=np.ones_like(x_star),
-                               noise_only=True, hold=hold, side_by_side=True)
+                               noise_only=True, hold=hold, side_by_side=True, bracket=True)
     if cor is None:
-        return _noted(refinement, "not bias-corrected (the correction does not converge or would move a parameter "
+        return noted(refinement, "not bias-corrected (the correction does not converge or would move a parameter "
                                   "by more than half): the refined values may be biased by the spindle sensor's noise")
     return _moved(refinement, cor, cov, noise, hold)
 
@@ -176,14 +176,24 @@ def _moved(refinement: Refinement, cor: Correction, cov: np.ndarray, noise: Sequ
                       "antithetic pair; nifo_core.predict.refine_bias)",
             "moved_pct": {n: float(v) for n, v, h in zip(names, moved_pct, hold) if not h},
             "not_corrected": [n for n, h in zip(names, hold) if h], "gain": float(cor.gain),
+            **({"bracketed": True} if cor.bracketed else {}),
             "noise": [e.to_dict() for e in noise]}
     model, params = moved_refinement(refinement.model, cor.theta, cov_c, note)
     what = ", ".join(f"{n} {v:+.1f} %" for n, v in note["moved_pct"].items())
     held = (f"; not corrected, the data do not determine them (may be biased by the spindle sensor's noise): "
             f"{', '.join(note['not_corrected'])}" if note["not_corrected"] else "")
-    return _noted(replace(refinement, model=model, parameters=params),
-                  f"bias from the sensors' noise removed by simulating the refinement ({what}){held}")
+    how = (" (its second step turned back past the first: the fixed point bracketed, the secant through the two "
+           "taken)") if cor.bracketed else ""
+    return noted(replace(refinement, model=model, parameters=params),
+                 f"bias from the sensors' noise removed by simulating the refinement{how} ({what}){held}")
 
 
-def _noted(refinement: Refinement, note: str) -> Refinement:
+def bracketed(refinement: Refinement) -> bool:
+    """Whether ``refinement``'s bias correction was taken from a step that turned back (``bracket``): the caller
+    judges it against the uncorrected refinement on held-out data."""
+    note = refinement.model.provenance.get("refined", {}).get("bias_correction") or {}
+    return bool(note.get("bracketed")) if isinstance(note, dict) else False
+
+
+def noted(refinement: Refinement, note: str) -> Refinement:
     return replace(refinement, message=f"{refinement.message}; {note}", bias_note=note)
