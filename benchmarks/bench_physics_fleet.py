@@ -20,7 +20,9 @@ and scored against its truth (:func:`score_case`):
 - **loop**: *exact* (it adds exactly the hidden effects), *ambiguity* (what it adds differs from the hidden set
   only by the options of an ambiguity it names, which holds the true kind), *spurious* (the hidden effects and
   more), *missed*; a control passes when nothing is added. Parameters of a named effect (coefficient and key
-  parameter of model.json, × M2) against the truth: within 10 % or not.
+  parameter of model.json, × M2) against the truth: within 10 % or not. A friction on the independent simulator
+  follows another law than nifo's (F·ż/√(ż² + v_s²) against F·tanh(ż/eps)): its force is also scored against the
+  nearest friction of nifo's law (:func:`law_equivalent_friction`), beside the plain figure.
 - **characterize**: the suggested set (the declared kind and the hidden ones) exact, within a named group of
   equivalent kinds, or not.
 - **detection limit**: every hidden effect's coefficient against the smallest one these records could show
@@ -51,6 +53,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -459,6 +462,63 @@ def true_limits(case: Case, root: Path, band=None) -> dict[str, float]:
     return out
 
 
+#: Gauss-Hermite nodes and weights of a standard normal velocity (:func:`law_equivalent_friction`)
+_HERMITE = 200
+
+
+def law_equivalent_friction(e: Effect, zdot_rms: Sequence[float]) -> float:
+    """The force F' of the friction of nifo's law, F'·tanh(ż/eps') (F' and eps' free), nearest in least squares to the
+    independent simulator's F·ż/√(ż² + v_s²) over a Gaussian ż of each level's RMS, the levels alike (each level's
+    residual relative to its ż RMS) [N]: the truth in nifo's family, the pseudo-true value of a friction whose law
+    nifo does not have.
+
+    Measured (2026-12-07, #54's own vehicle re-simulated noise-free, four levels): nifo refines 50.18 N for 50.19 on
+    its own simulator's tanh law, 49.45 N on the independent law at v_s 0.5 mm/s, 45.06 N at the drawn v_s 3.68 mm/s.
+    The definition is not what makes the figure: over the records' own velocities instead of a Gaussian, pooled
+    instead of the levels alike, or with a linear damping free beside it, F' moves between −1.3 % and −6.1 % of F
+    on #54, #66 and #72, and the three refined frictions stay within 4.3–9.8 % of it."""
+    from scipy.optimize import least_squares
+    from scipy.special import roots_hermitenorm
+
+    x, w = roots_hermitenorm(_HERMITE)
+    sw = np.sqrt(w / w.sum())
+    f, vs = float(e.coefficient), float(e.params["eps"])
+    levels = [float(s) for s in zdot_rms if s > 0]
+
+    def res(p: np.ndarray) -> np.ndarray:
+        return np.concatenate([sw * (p[0] * np.tanh(s * x / p[1]) - f * s * x / np.sqrt((s * x) ** 2 + vs ** 2)) / s
+                               for s in levels])
+    return float(least_squares(res, [f, vs], x_scale=[abs(f), vs]).x[0])
+
+
+def _zdot_rms(records) -> list[float]:
+    """Each record's RMS of ż, the relative acceleration integrated in 0.5 Hz-0.45·fs (what the friction sees)."""
+    out = []
+    for r in records:
+        d = np.asarray(r.body_accel, float) - np.asarray(r.spindle_accel, float)
+        spec, f = np.fft.rfft(d), np.fft.rfftfreq(d.size, 1.0 / r.fs_hz)
+        band = (f > 0.5) & (f < 0.45 * r.fs_hz)
+        v = np.zeros_like(spec)
+        v[band] = spec[band] / (2j * np.pi * f[band])
+        out.append(float(np.std(np.fft.irfft(v, d.size))))
+    return out
+
+
+def _law_equivalent(case: Case, root: Path, found: list[tuple[str, dict, float]]) -> dict:
+    """The named friction's coefficient against :func:`law_equivalent_friction` (a friction on the independent
+    simulator), as :func:`_param_errors` gives it against the truth; {} where there is none."""
+    fr = [e for e in case.hidden if e.kind == "coulomb"]
+    named = [f for f in found if f[0] == "coulomb"]
+    if case.simulator != "independent" or not fr or not named:
+        return {}
+    from nifo.io.loader import load_record
+
+    recs = [load_record(p) for p in sorted((root / f"case{case.id:02d}").glob("level*.mcap"))]
+    eq = law_equivalent_friction(fr[0], _zdot_rms(recs))
+    best = min(named, key=lambda f: abs(abs(f[2]) - abs(eq)))
+    return {"coulomb": {"coefficient": abs(best[2]) / abs(eq) - 1, "law_equivalent_N": eq}}
+
+
 def _model_terms(model_json: Path, m2: float) -> list[tuple[str, dict, float]]:
     d = json.loads(model_json.read_text())
     return [(t["kind"], t["params"], float(c) * m2) for t, c in zip(d["terms"], d["c_over_m2"])]
@@ -511,8 +571,9 @@ def score_case(case: Case, root: Path, res: dict) -> dict:
         outcome = _outcome(added, hidden, amb)
         params = {e.kind: _param_errors(e, found) for e in case.hidden if e.kind in added}
         declared_kept = _param_errors(case.declared, found)
+        law = _law_equivalent(case, root, found) if "coulomb" in params else {}
         out["loop"] = {"outcome": outcome, "added": added, "ambiguities": [sorted(a) for a in amb],
-                       "params": params, "declared": declared_kept, "verdict": doc["verdict"],
+                       "params": params, "law_equivalent": law, "declared": declared_kept, "verdict": doc["verdict"],
                        "seconds": lp.get("seconds"),
                        "final_heldout_pct": doc.get("final_heldout_prediction_nmse_pct")}
     # --- characterize -------------------------------------------------------------------------------
@@ -574,7 +635,14 @@ def summarise(scores: list[dict]) -> str:
                      f"{len(eff) - len(visible)} case(s) hold an effect below its limit")
         nparam = [(k, v) for s in eff for k, p in s["loop"].get("params", {}).items() for v in p.values()]
         good = sum(abs(v) <= PARAM_TOL for _, v in nparam)
-        lines.append(f"loop, parameters of named effects within {100 * PARAM_TOL:.0f} %: {good}/{len(nparam)}")
+        # the same, a friction of the independent simulator's law against the nearest friction of nifo's
+        eq = [v for s in eff for k, p in s["loop"].get("params", {}).items() for n, v in
+              {**p, **{n: u for n, u in s["loop"].get("law_equivalent", {}).get(k, {}).items()
+                       if n == "coefficient"}}.items()]
+        good_eq = sum(abs(v) <= PARAM_TOL for v in eq)
+        lines.append(f"loop, parameters of named effects within {100 * PARAM_TOL:.0f} %: {good}/{len(nparam)}; "
+                     f"{good_eq}/{len(eq)} with a friction of the independent simulator's law against the nearest "
+                     f"friction of nifo's")
         chs = [s for s in sc if s["characterize"].get("outcome") in ("exact", "ambiguity")]
         chv = [s for s in sc if not s["below_limit"]]
         chv_ok = [s for s in chv if s["characterize"].get("outcome") in ("exact", "ambiguity")]
