@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from bench_physics_fleet import (CI_CASES, HIDDEN_KINDS, N_TUNE, PARAM_TOL, draw_case, draw_fleet,  # noqa: E402
-                                 run_case, score_case)
+from bench_physics_fleet import (CI_CASES, HIDDEN_KINDS, N_TUNE, PARAM_TOL, Effect, draw_case,  # noqa: E402
+                                 draw_fleet, law_equivalent_friction, run_case, score_case)
 
 
 def test_the_fleet_is_drawn_again_bit_for_bit_over_the_ranges_it_states():
@@ -32,6 +32,19 @@ def test_the_fleet_is_drawn_again_bit_for_bit_over_the_ranges_it_states():
         assert all(0.003 <= n <= 0.03 for n in c.noise) and all(abs(b) <= 0.05 for b in c.bias_m_s2)
         f_body = np.sqrt(c.corner["k2"] / c.corner["m2"]) / 2 / np.pi
         assert 1.0 <= f_body <= 1.8 and len({h.kind for h in c.hidden} | {c.declared.kind}) == len(c.hidden) + 1
+
+
+def test_a_friction_of_the_other_law_is_scored_against_the_nearest_of_nifos():
+    """The pseudo-true value of the independent simulator's friction F·ż/√(ż² + v_s²) in nifo's family F'·tanh(ż/eps'):
+    F itself where v_s is small against the velocities (the two laws agree), a few per cent below F where it is not
+    (the algebraic law saturates later), never above it; the nearer the levels' velocities to v_s, the lower."""
+    def eq(vs, rms):
+        return law_equivalent_friction(Effect("coulomb", 50.0, {"eps": vs}), rms) / 50.0
+
+    assert eq(1e-4, [0.05, 0.1, 0.2]) == pytest.approx(1.0, abs=0.002)
+    near = eq(0.0037, [0.0136, 0.0341, 0.08, 0.1757])     # #54's v_s and levels: 3.0 % below F
+    assert 0.95 < near < 0.99
+    assert eq(0.0037, [0.0136]) < near < eq(0.0037, [0.1757]) < 1.0
 
 
 @pytest.mark.parametrize("case_id", CI_CASES)
