@@ -110,9 +110,20 @@ def write_json(path: str | os.PathLike, doc: Mapping, *, atomic: bool = True, in
 
 
 def _nan(x):
-    """null -> NaN in numeric lists read back from JSON (other None values stay None)."""
+    """null -> NaN in numeric lists read back from JSON (other None values stay None).
+
+    A list of numbers alone (most of a document: spectra, time series) is returned as it is, and one of numbers and
+    nulls mapped in one pass, without a call per value. Measured: the sample's ``nifo run`` made 400 822 calls of it,
+    the top of its profile by own time (0.9 s, 2.2 s with what it called, of 33 s under cProfile), but that is the
+    profiler's cost per call: the eight JSON documents of the run, each read back whole, take 26.8 ms the old way and
+    8.1 ms this way (best of 5)."""
     if isinstance(x, list):
-        if any(v is None for v in x):
+        kinds = set(map(type, x))
+        if kinds <= {float, int}:
+            return x
+        if kinds <= {float, int, type(None)}:
+            return [float("nan") if v is None else v for v in x]
+        if type(None) in kinds:
             return [float("nan") if v is None else _nan(v) for v in x]
         return [_nan(v) for v in x]
     if isinstance(x, dict):
