@@ -18,7 +18,10 @@ model the output-error fit returns the model exactly, so the whole bias counts a
 (``noise_only``): its uncertainty is 30 % of it (the noise level's error) plus the draws' scatter,
 added to the refinement's covariance (inflated by the iteration's contraction). A correction that does
 not contract, or moves a coefficient by more than half, is refused and the refinement kept as it was,
-with a note that says why.
+with a note that says why. One whose second step turns back past the first is taken at the secant through
+its two iterates, where the fixed point lies (``bracket``; :func:`bracketed` says so, and the loop keeps it
+only where it predicts the held-out data at least as well as the uncorrected refinement: measured, the physics
+fleet's #198 bump stop −12.7 % → −7.2 % of the truth).
 """
 
 from __future__ import annotations
@@ -133,12 +136,12 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
     hold = Z95 * np.sqrt(np.maximum(np.diag(cov), 0.0)) > MAX_RELATIVE_BIAS
     if np.all(hold):
         return noted(refinement, "not bias-corrected (no parameter is determined to within half its value): the "
-                                  "refined values may be biased by the spindle sensor's noise")
+                                 "refined values may be biased by the spindle sensor's noise")
     cor = simulated_correction(fit, simulate, records, noise, x_star, seed=seed, scale=np.ones_like(x_star),
                                noise_only=True, hold=hold, side_by_side=True, bracket=True)
     if cor is None:
         return noted(refinement, "not bias-corrected (the correction does not converge or would move a parameter "
-                                  "by more than half): the refined values may be biased by the spindle sensor's noise")
+                                 "by more than half): the refined values may be biased by the spindle sensor's noise")
     return _moved(refinement, cor, cov, noise, hold)
 
 
