@@ -90,7 +90,10 @@ def _two_step_model(ordered: list[Path], char_dir: Path, given: RunOptions, sett
 
     # the two levels side by side on threads (independent steps into their own folders; each thread in a copy of
     # this one's context: the job's read memo and deferred figures), their reports printed in order afterwards;
-    # leaving the pool waits for both, so a failed or interrupted one leaves nothing writing behind it
+    # leaving the pool waits for both, so a failed or interrupted one leaves nothing writing behind it. Started beside
+    # the main characterization instead (on a thread, the sample's order of levels known in advance): no gain, the step
+    # GIL-bound (measured 2026-12-07, the sample, two runs each: characterize 7.5-7.8 s and 13.2-13.4 CPU-s against
+    # 6.3-7.8 s and 9.7-12.0 CPU-s; benchmarks/cpu_timeline.py)
     with ThreadPoolExecutor(min(2, max_threads())) as pool:
         futures = [pool.submit(contextvars.copy_context().run, one, level) for level in levels]
         reports = [f.result() for f in futures]
