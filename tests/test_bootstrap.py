@@ -1,4 +1,5 @@
-"""``./test.sh`` does its own set-up: headless Chromium is installed when missing (as root) or named.
+"""``./test.sh`` does its own set-up: headless Chromium is installed when missing (as root) or named, and nifo's own
+modules are compiled to bytecode.
 
 The logic (``nifo_need_chromium`` in tools/bootstrap.sh) runs in a real bash with a PATH of stand-ins:
 an ``id`` that says root or not, an ``apt-get`` that logs its arguments (and, for ``install``, puts a
@@ -69,3 +70,23 @@ def test_ci_only_calls_the_test_command():
     lines = [ln for ln in (REPO / ".ci" / "run").read_text().splitlines() if ln and not ln.startswith("#")]
     assert lines[-1].startswith("exec ./test.sh") and not any("apt-get" in ln for ln in lines)
     assert "nifo_need_chromium" in (REPO / "test.sh").read_text()
+
+
+def test_set_up_compiles_nifos_own_modules_to_bytecode(tmp_path):
+    """``nifo_compile_bytecode`` (run by every ``./nifo.sh`` and ``./test.sh``): where PYTHONDONTWRITEBYTECODE is set,
+    nothing else writes nifo's bytecode and every process would compile its modules again. Written here under a
+    cache prefix of the test's own (PYTHONPYCACHEPREFIX), so the checkout is not touched."""
+    import sys
+
+    env = {"PATH": os.environ.get("PATH", ""), "HOME": os.environ.get("HOME", "/tmp"),
+           "PYTHONPYCACHEPREFIX": str(tmp_path / "pyc"), "PYTHONDONTWRITEBYTECODE": "1"}
+    proc = subprocess.run([BASH, "-c", f'source "{REPO}/tools/bootstrap.sh" && nifo_compile_bytecode "{REPO}" '
+                                       f'"{sys.executable}"'], env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    root = tmp_path / "pyc" / REPO.relative_to("/")
+    written = {p.relative_to(root).parts[0] for p in root.rglob("*.pyc")}
+    assert {"nifo", "nifo_core", "nifo_nodes", "launch_scripts", "ros2_ws"} <= written, written
+    for module in ("nifo_core/loop/closing.py", "nifo/pipeline/job.py", "nifo_nodes/identifier.py"):
+        src = REPO / module
+        cached = tmp_path / "pyc" / src.parent.relative_to("/") / f"{src.stem}.{sys.implementation.cache_tag}.pyc"
+        assert cached.is_file(), cached

@@ -35,11 +35,16 @@ nifo_bootstrap() {
       echo "nifo: WARNING: nifo_msgs could not be built (above); the ROS nodes need it, the rest of nifo does not" >&2
     fi
   fi
-  # nifo's own modules compiled to bytecode, as pip compiles the packages it installs: where PYTHONDONTWRITEBYTECODE
-  # is set (this machine's environment) Python would otherwise compile them again in every process (about 190
-  # modules: 0.35 CPU-s a process that runs a nifo step, measured on 2026-12-07; issue 58). Up to date, this only
-  # compares their times (0.1 s). Never fatal: without it nifo runs the same, only slower to start.
-  "$venv/bin/python" -m compileall -q "$here/nifo" "$here/nifo_core" "$here/nifo_nodes" "$here/launch_scripts" \
+  nifo_compile_bytecode "$here" "$venv/bin/python"
+}
+
+# nifo's own modules compiled to bytecode, as pip compiles the packages it installs: where PYTHONDONTWRITEBYTECODE is
+# set (this machine's environment) Python would otherwise compile them again in every process (about 190 modules;
+# measured on 2026-12-07, a process importing the pipeline: 1.72 -> 1.40 s wall, 1.40 -> 1.22 CPU-s; issue 58). Up to
+# date, this only compares their times (0.1 s). Never fatal: without it nifo runs the same, only slower to start.
+nifo_compile_bytecode() {
+  local here="$1" py="$2"
+  "$py" -m compileall -q "$here/nifo" "$here/nifo_core" "$here/nifo_nodes" "$here/launch_scripts" \
     "$here/ros2_ws/src" >/dev/null 2>&1 || true
 }
 
