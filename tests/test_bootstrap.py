@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -76,8 +77,6 @@ def test_set_up_compiles_nifos_own_modules_to_bytecode(tmp_path):
     """``nifo_compile_bytecode`` (run by every ``./nifo.sh`` and ``./test.sh``): where PYTHONDONTWRITEBYTECODE is set,
     nothing else writes nifo's bytecode and every process would compile its modules again. Written here under a
     cache prefix of the test's own (PYTHONPYCACHEPREFIX), so the checkout is not touched."""
-    import sys
-
     env = {"PATH": os.environ.get("PATH", ""), "HOME": os.environ.get("HOME", "/tmp"),
            "PYTHONPYCACHEPREFIX": str(tmp_path / "pyc"), "PYTHONDONTWRITEBYTECODE": "1"}
     proc = subprocess.run([BASH, "-c", f'source "{REPO}/tools/bootstrap.sh" && nifo_compile_bytecode "{REPO}" '
