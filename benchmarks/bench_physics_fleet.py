@@ -436,9 +436,15 @@ def coulomb_levels(root: Path) -> dict:
 # --------------------------------------------------------------------------------------------
 # scoring against the truth
 # --------------------------------------------------------------------------------------------
+def _level_records(case: Case, root: Path) -> list:
+    """The case's records as simulated (``case{id}/level*.mcap``, in the order of their names)."""
+    from nifo.io.loader import load_record
+
+    return [load_record(p) for p in sorted((root / f"case{case.id:02d}").glob("level*.mcap"))]
+
+
 def true_limits(case: Case, root: Path, band=None) -> dict[str, float]:
     """Each hidden effect's detection limit [its coefficient's unit] beside the other true terms, on the records."""
-    from nifo.io.loader import load_record
     from nifo_core.characterize.data import RegressionData, candidate_grid
     from nifo_core.characterize.restoring import restoring_force, suggest_band
     from nifo_core.characterize.result import Thresholds
@@ -446,7 +452,7 @@ def true_limits(case: Case, root: Path, band=None) -> dict[str, float]:
     from nifo_core.characterize.static import static_bump_stops
     from nifo_core.kinds.describing import Term
 
-    recs = [load_record(p) for p in sorted((root / f"case{case.id:02d}").glob("level*.mcap"))]
+    recs = _level_records(case, root)
     band = band or suggest_band(recs).band
     data = RegressionData([restoring_force(r, band=band) for r in recs], n_groups=4, body_stiffness=False)
     true = [case.declared, *case.hidden]
@@ -510,10 +516,7 @@ def _law_equivalent(case: Case, root: Path, found: list[tuple[str, dict, float]]
     named = [f for f in found if f[0] == "coulomb"]
     if case.simulator != "independent" or not fr or not named:
         return {}
-    from nifo.io.loader import load_record
-
-    recs = [load_record(p) for p in sorted((root / f"case{case.id:02d}").glob("level*.mcap"))]
-    eq = law_equivalent_friction(fr[0], _zdot_rms(recs))
+    eq = law_equivalent_friction(fr[0], _zdot_rms(_level_records(case, root)))
     best = min(named, key=lambda f: abs(abs(f[2]) - abs(eq)))
     return {"coulomb": {"coefficient": abs(best[2]) / abs(eq) - 1, "law_equivalent_N": eq}}
 
