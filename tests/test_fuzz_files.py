@@ -582,6 +582,22 @@ def test_model_json_fields_null_missing_or_mistyped_read_right_or_fail_clearly(t
     assert tally.bad == 0, tally.failures
 
 
+def test_a_null_band_of_a_linear_part_reads_as_one_not_stated(tmp_path):
+    """The document's schema lets ``band_hz`` of a linear part be null, as it lets either value be; the reader took
+    only the values (found by the test above: ``linear_h1.linear_part.band_hz`` null ended in an error naming no field
+    nor fix). Read as a missing band is: NaN, NaN."""
+    from nifo.io.results import read_model
+
+    path = _model_json(tmp_path, "rational")
+    doc = json.loads(path.read_text())
+    for part in (doc["linear_part"], doc["linear_h1"]["linear_part"]):
+        part["band_hz"] = None
+    path.write_text(json.dumps(doc))
+    model, linear = read_model(path)
+    for m in (model, linear):
+        assert np.isnan(m.linear.band_hz).all() and np.isfinite(m.linear.all_poles()).all()
+
+
 def test_a_csv_with_a_duplicated_column_is_refused_naming_it(tmp_path):
     path = tmp_path / "dup.csv"
     path.write_text("time,spindle_accel,body_accel,body_accel\n0,1,2,5\n0.01,2,3,4\n0.02,3,1,2\n")

@@ -347,7 +347,8 @@ class LinearPart:
     def from_dict(cls, d: Mapping) -> "LinearPart":
         try:
             kw = {"fit_rms": float(d.get("fit_rms") if d.get("fit_rms") is not None else np.nan),
-                  "band_hz": tuple(float(v) if v is not None else np.nan for v in d.get("band_hz", (np.nan,) * 2)),
+                  "band_hz": tuple(float(v) if v is not None else np.nan     # null (the pair or a value): not stated
+                                   for v in d.get("band_hz") or (np.nan,) * 2),
                   "reason": str(d.get("reason", "")), "candidates": dict(d.get("candidates") or {}),
                   "absorbed": tuple(d.get("absorbed") or (0.0, 0.0))}
             if d["kind"] == "body":
