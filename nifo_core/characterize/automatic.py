@@ -73,7 +73,7 @@ from scipy import stats
 from .data import GridSearch, RegressionData, candidate_grid
 from .result import (DEFAULT_KINDS, Candidate, Characterization, Equivalence, FittedModel,
                      RecordSummary, Thresholds)
-from .score import base_fit, detection_limit, lstsq, score_candidate
+from .score import BaseFit, base_fit, detection_limit, lstsq, score_candidate
 from .static import shifted_offsets, static_bump_stops, static_frame
 from .subsets import better_set, forward_order
 from ..kinds.describing import Term, kind as lookup_kind
@@ -181,9 +181,10 @@ def _characterize(data: RegressionData, rfs: Sequence[RestoringForce], *, m2_kg:
     search = GridSearch(data, kinds, grid_points, progress)
     n_grid = {k: len(search.grids[k]) for k in kinds}
 
-    def score(j: int, base: list[np.ndarray], names: tuple[str, ...]) -> Candidate:
+    def score(j: int, base: list[np.ndarray], names: tuple[str, ...], fit: BaseFit | None = None) -> Candidate:
         t = search.terms[j]
-        return score_candidate(data, base, t, thresholds=thresholds, n_grid=n_grid[t.kind], m2=m2_kg, names=names)
+        return score_candidate(data, base, t, thresholds=thresholds, n_grid=n_grid[t.kind], m2=m2_kg, names=names,
+                               fit=fit)
 
     # --- each kind's best on its own, refitted at full length: the ranked table ------------
     none = np.empty((data.rows.size, 0))
@@ -192,7 +193,8 @@ def _characterize(data: RegressionData, rfs: Sequence[RestoringForce], *, m2_kg:
     for k in kinds:  # a kind with only unphysical signs keeps its best, to show why it fails
         j = search.best_of(k, e1, s1)
         best1[k] = j if j is not None else search.best_of(k, e1, np.ones_like(s1))
-    table = dict(zip(kinds, thread_map(lambda k: score(best1[k], [], ()), kinds)))
+    alone = base_fit(data, [])
+    table = dict(zip(kinds, thread_map(lambda k: score(best1[k], [], (), alone), kinds)))
     # --- stepwise selection: forward, each term chosen again given the others, backward ------------------------
     chosen_j, replaced = _stepwise(search, data, kinds, score, max_terms, table, best1)
     chosen_terms = [search.terms[i] for i in chosen_j]
@@ -218,6 +220,7 @@ def _characterize(data: RegressionData, rfs: Sequence[RestoringForce], *, m2_kg:
     out = []
     chosen_kinds = [c.kind for c in chosen]
     names = tuple(c.term.label for c in chosen)
+    against = base_fit(data, base)      # the suggestion's fit: what every other kind is scored and limited against
     for k in sorted(kinds, key=lambda k: -table[k].err):
         c = table[k]
         mine = [ch for ch in chosen if ch.kind == k]
@@ -243,7 +246,8 @@ def _characterize(data: RegressionData, rfs: Sequence[RestoringForce], *, m2_kg:
             out.append(replace(c, status=status, alternative_to=by.term.label))
         else:  # still adds something given the suggestion: say why it was not taken
             e, sg = search.err(extra, r)
-            cond = score(search.best_of(k, e, sg) if search.best_of(k, e, sg) is not None else best1[k], base, names)
+            cond = score(search.best_of(k, e, sg) if search.best_of(k, e, sg) is not None else best1[k], base, names,
+                         against)
             why = cond.failed or (f"the suggestion holds max_terms={max_terms} terms",)
             out.append(replace(c, status="unselected", failed=tuple(f"given the suggestion: {w}" for w in why)))
     out = sorted(out, key=lambda c: (c.status != "suggested",
@@ -268,7 +272,6 @@ def _characterize(data: RegressionData, rfs: Sequence[RestoringForce], *, m2_kg:
                          f"found from the balance of the mean force")
     unseen = []
     e, sg = search.err(extra, r)
-    against = base_fit(data, base)      # every limit is measured against the same fit
     for k in [c.kind for c in out if c.status in ("weak", "alternative", "redundant")]:
         # what was not seen, and how big it would have had to be: the kind's best given the suggestion
         j = search.best_of(k, e, sg)
@@ -364,8 +367,9 @@ def rank_beyond(rfs: Sequence[RestoringForce], declared: Sequence[Term], *, m2_k
             j = search.best_of(k, np.where(ok, e, -1.0), np.ones_like(sg))
         if j is not None and ok[j]:
             best.append((k, j))
+    fit = base_fit(data, base)
     out = thread_map(lambda kj: score_candidate(data, base, search.terms[kj[1]], thresholds=thresholds,
-                                                n_grid=n_grid[kj[0]], m2=m2_kg, names=names), best)
+                                                n_grid=n_grid[kj[0]], m2=m2_kg, names=names, fit=fit), best)
     data.forget()
     return tuple(sorted(out, key=lambda c: -c.err))
 
@@ -382,7 +386,7 @@ def _labels(search: GridSearch, js: Sequence[int]) -> str:
 
 
 def _stepwise(search: GridSearch, data: RegressionData, kinds: Sequence[str],
-              score: Callable[[int, list[np.ndarray], tuple[str, ...]], Candidate], max_terms: int,
+              score: Callable[..., Candidate], max_terms: int,
               table: dict, best1: dict) -> tuple[list[int], list[tuple[list[int], list[int]]]]:
     """The suggested terms (grid indices) by stepwise selection: every kind whose partial contribution, given all
     the other terms chosen, passes the thresholds (is above its detection limit), and none that does not.
@@ -428,7 +432,7 @@ _SUBSET_GAIN = 0.01
 
 
 def _steps(search: GridSearch, data: RegressionData, kinds: Sequence[str],
-           score: Callable[[int, list[np.ndarray], tuple[str, ...]], Candidate], max_terms: int,
+           score: Callable[..., Candidate], max_terms: int,
            table: dict, best1: dict, chosen: list[int]) -> list[int]:
     """The passes of :func:`_stepwise` from the terms ``chosen``."""
     seen: set[frozenset] = set()
@@ -460,7 +464,8 @@ def _steps(search: GridSearch, data: RegressionData, kinds: Sequence[str],
                 js = {k: search.best_of(k, e, sg) for k in kinds if k not in taken}
                 js = {k: j for k, j in js.items() if j is not None and e[j] > 0}
                 top = sorted(js, key=lambda k: -e[js[k]])[:_FULL_PER_STEP]
-                scored = list(zip(thread_map(lambda k: score(js[k], base, names), top), [js[k] for k in top]))
+                fit = base_fit(data, base)
+                scored = list(zip(thread_map(lambda k: score(js[k], base, names, fit), top), [js[k] for k in top]))
             scored = [(c, j) for c, j in scored if c.present and c.kind not in taken]
             if scored:
                 chosen = chosen + [max(scored, key=lambda cj: cj[0].err)[1]]
@@ -473,7 +478,7 @@ def _steps(search: GridSearch, data: RegressionData, kinds: Sequence[str],
 
 
 def _equivalences(search: GridSearch, data: RegressionData, chosen: Sequence[Candidate], base: Sequence[np.ndarray],
-                  kinds: Sequence[str], score: Callable[[int, list[np.ndarray], tuple[str, ...]], Candidate],
+                  kinds: Sequence[str], score: Callable[..., Candidate],
                   thresholds: Thresholds) -> tuple[Equivalence, ...]:
     """Per suggested term, the other kinds that explain as much in its place (:class:`Equivalence`).
 
@@ -494,7 +499,8 @@ def _equivalences(search: GridSearch, data: RegressionData, chosen: Sequence[Can
         top = sorted(js, key=lambda k: -e[js[k]])[:2]
         dof = max(c.n_eff - (len(data.lin) + len(base)), 1.0)
         alts, ps = [], []
-        for a in thread_map(lambda k: score(js[k], others, names), top):
+        fit = base_fit(data, others)
+        for a in thread_map(lambda k: score(js[k], others, names, fit), top):
             if not a.present:
                 continue
             p = float(stats.f.sf(max(c.err - a.err, 0.0) / max(1.0 - c.err, 1e-12) * dof, 1, dof))
@@ -507,7 +513,7 @@ def _equivalences(search: GridSearch, data: RegressionData, chosen: Sequence[Can
 
 
 def _reselect(search: GridSearch, data: RegressionData, chosen_j: Sequence[int], kinds: Sequence[str],
-              score: Callable[[int, list[np.ndarray], tuple[str, ...]], Candidate], *, passes: int = 2) -> list[int]:
+              score: Callable[..., Candidate], *, passes: int = 2) -> list[int]:
     """The forward selection's terms, each chosen again given all the others (iterative orthogonal forward
     regression: Guo, Guo, Billings & Wei, Int. J. Systems Science 46 (2015) 776-789).
 
@@ -532,12 +538,13 @@ def _reselect(search: GridSearch, data: RegressionData, chosen_j: Sequence[int],
             taken = {t.kind for t in others}
             js = {k: search.best_of(k, e, sg) for k in kinds if k not in taken}
             js = {k: j for k, j in js.items() if j is not None and e[j] > 0}
-            now = score(chosen_j[i], base, names)
+            fit = base_fit(data, base)
+            now = score(chosen_j[i], base, names, fit)
             best_j, best_err = chosen_j[i], now.err
             for k in sorted(js, key=lambda k: -e[js[k]])[:_FULL_PER_STEP]:
                 if js[k] == chosen_j[i]:
                     continue
-                c = score(js[k], base, names)
+                c = score(js[k], base, names, fit)
                 if c.present and c.err > best_err:
                     best_j, best_err = js[k], c.err
             if best_j != chosen_j[i]:

@@ -3,7 +3,8 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Sequence
 
 import numpy as np
@@ -30,9 +31,10 @@ def _n_eff(res: np.ndarray, rec: np.ndarray, fs: Sequence[float]) -> float:
     return total
 
 
-def _half_width(a0: np.ndarray, g: np.ndarray, res: np.ndarray, data: RegressionData, *, level: float = 0.95,
+def _half_width(q0: np.ndarray, g: np.ndarray, res: np.ndarray, data: RegressionData, *, level: float = 0.95,
                 block_s: float = 2.0) -> float:
-    """Half-width of the ``level`` bound of the last coefficient θ of the fit [a0, g] with residual ``res``.
+    """Half-width of the ``level`` bound of the last coefficient θ of the fit [a0, g] with residual ``res``, ``q0``
+    an orthonormal basis of a0's columns (:attr:`BaseFit.basis`).
 
     Batch means (a heteroscedasticity- and autocorrelation-consistent sandwich): with g⊥ = g
     orthogonalised against ``a0``, θ - θ_true = Σ g⊥·e / Σ g⊥², so over blocks b of ``block_s``
@@ -43,7 +45,6 @@ def _half_width(a0: np.ndarray, g: np.ndarray, res: np.ndarray, data: Regression
     The N_eff count of the F-test (N·mean(S)²/mean(S²)) treats the residual as if g⊥ were white;
     g⊥ is band-limited too, and that bound came out 5.6× too wide (20-seed check, quadratic damping).
     """
-    q0, _ = np.linalg.qr(a0)
     gp = g - q0 @ (q0.T @ g)
     info = float(gp @ gp)
     if not info > 0:
@@ -105,24 +106,28 @@ def _quarters(data: RegressionData) -> np.ndarray:
 
 
 def score_candidate(data: RegressionData, base: list[np.ndarray], term: Term, *, thresholds: Thresholds, n_grid: int,
-           m2: float | None, names: tuple[str, ...], offsets: Sequence[float] | None = None) -> Candidate:
-    """Full-length fit of ``term`` on top of the linear columns and the ``base`` regressors."""
+           m2: float | None, names: tuple[str, ...], offsets: Sequence[float] | None = None,
+           fit: BaseFit | None = None) -> Candidate:
+    """Full-length fit of ``term`` on top of the linear columns and the ``base`` regressors.
+
+    ``fit``: :func:`base_fit` of ``data`` and ``base``, when several terms are scored against the same base (a
+    round's kinds side by side): what they share is computed once (the same numbers)."""
     y = data.y
-    a0 = np.column_stack([data.x, *base]) if base else data.x
+    fit = base_fit(data, base) if fit is None else fit
+    a0 = fit.columns
     a1 = np.column_stack([a0, data.regressor(term, offsets=offsets)])
     c1 = lstsq(a1, y)
-    r0 = y - a0 @ lstsq(a0, y)
     r1 = y - a1 @ c1
-    rss0, rss1, tss = float(r0 @ r0), float(r1 @ r1), float(y @ y)
+    rss0, rss1, tss = fit.rss, float(r1 @ r1), fit.tss
     err = max(0.0, 1.0 - rss1 / rss0) if rss0 > 0 else 0.0
     neff = _n_eff(r1, data.rec, [rf.fs_hz for rf in data.rfs])
     dof = max(neff - a1.shape[1], 1.0)
     fstat = max(rss0 - rss1, 0.0) / max(rss1 / dof, 1e-300)
     p = float(min(1.0, stats.f.sf(fstat, 1, dof) * max(n_grid, 1)))  # Bonferroni over the grid
-    cv0 = _cv_rss(a0, y, data.fold)
+    cv0 = fit.cv_rss
     err_cv = 1.0 - _cv_rss(a1, y, data.fold) / cv0 if cv0 > 0 else 0.0
     theta = float(c1[-1])
-    half = _half_width(a0, a1[:, -1], r1, data)
+    half = _half_width(fit.basis, a1[:, -1], r1, data)
     gth_a, w_a = _group_thetas(a1, y, data.group)
     if w_a.size < 2 and len(data.rfs) > 1:
         # several records, and only one exercises the term (a stop reached at the highest level alone): its
@@ -169,24 +174,35 @@ def _relative(term: Term, data: RegressionData) -> float | None:
 
 @dataclass(frozen=True)
 class BaseFit:
-    """The fit [z, ż, base] a detection limit is measured against: an orthonormal ``basis`` of its columns, its
-    residual sum of squares ``rss``, its degrees of freedom ``dof`` (N_eff - q - 1) and the total sum of squares
-    ``tss`` of -ẍ2 (what ΔR² is a fraction of)."""
+    """The fit [z, ż, base] that candidates are scored and detection limits measured against: its ``columns``, an
+    orthonormal ``basis`` of them, its residual sum of squares ``rss`` and two-fold cross-validated one ``cv_rss``
+    (the folds of ``data.fold``), the total sum of squares ``tss`` of -ẍ2 (what ΔR² is a fraction of) and, when first
+    read, its degrees of freedom :attr:`dof`."""
 
+    columns: np.ndarray
     basis: np.ndarray
+    residual: np.ndarray
     rss: float
-    dof: float
+    cv_rss: float
     tss: float
+    data: RegressionData = field(repr=False, compare=False)
+
+    @cached_property
+    def dof(self) -> float:
+        """N_eff - q - 1: the residual's effective samples less the columns and the term a limit adds (a candidate's
+        score counts its own, with the term in)."""
+        d = self.data
+        return max(_n_eff(self.residual, d.rec, [rf.fs_hz for rf in d.rfs]) - self.columns.shape[1] - 1, 1.0)
 
 
 def base_fit(data: RegressionData, base: list[np.ndarray]) -> BaseFit:
-    """The :class:`BaseFit` every :func:`detection_limit` beside ``base`` is measured against. Computed once
-    for all the kinds a note covers."""
+    """The :class:`BaseFit` of ``data`` and ``base``: computed once for every candidate scored or every detection
+    limit measured beside the same ``base``."""
     a0 = np.column_stack([data.x, *base]) if base else data.x
     res = data.y - a0 @ lstsq(a0, data.y)
     q, _ = np.linalg.qr(a0)
-    dof = max(_n_eff(res, data.rec, [rf.fs_hz for rf in data.rfs]) - a0.shape[1] - 1, 1.0)
-    return BaseFit(basis=q, rss=float(res @ res), dof=dof, tss=float(data.y @ data.y))
+    return BaseFit(columns=a0, basis=q, residual=res, rss=float(res @ res), cv_rss=_cv_rss(a0, data.y, data.fold),
+                   tss=float(data.y @ data.y), data=data)
 
 
 def detection_limit(data: RegressionData, base: list[np.ndarray], term: Term, *, thresholds: Thresholds,

@@ -10,7 +10,7 @@ from typing import Sequence
 import numpy as np
 
 from ..kinds.describing import Term, kind as lookup_kind
-from ..characterize.score import score_candidate
+from ..characterize.score import base_fit, score_candidate
 from ..predict.feedback_paths import PATH_KINDS
 from .residual import _Evaluator
 from .settings import LoopSettings
@@ -47,8 +47,9 @@ def _grid_candidates(ev: _Evaluator, pred: _Predictor, terms: Sequence[Term], s:
     chosen = [t for t in grid if all(t.label != u.label for u in terms)]
     data = ev.regression()
     base = [data.regressor(t, offsets=ev.static.get(t.label)) for t in terms]
+    fit = base_fit(data, base)
     return [score_candidate(data, base, t, thresholds=s.thresholds, n_grid=int(s.path_widths), m2=m2_kg,
-                            names=tuple(t.label for t in terms)) for t in chosen]
+                            names=tuple(t.label for t in terms), fit=fit) for t in chosen]
 
 
 def _iwan(kind: str) -> bool:
