@@ -8,8 +8,8 @@ from scipy import signal
 
 from nifo_core.kinds.describing import Term
 from nifo_core.errors import ConfigError
-from nifo_core.simulate.quarter_car import (PRESETS, ChirpRoad, RandomRoad, SensorNoise, SimConfig, StrutForce, preset,
-                                simulate)
+from nifo_core.simulate.quarter_car import (DECIMATE_FFT, PRESETS, ChirpRoad, RandomRoad, SensorNoise, SimConfig,
+                                            StrutForce, antialias_taps, decimate, preset, simulate)
 from nifo_core.simulate.vehicle import QuarterCar
 
 #: one of every kind and side, at levels that a 2.5 mm road exercises
@@ -223,3 +223,21 @@ def test_command_writes_record_and_truth(tmp_path, capsys):
     rec = loader.load_record(out)
     assert rec.n == 3000
     assert "lift-off" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("q", [2, 4, 8, 16])
+def test_decimate_is_the_antialias_convolution_at_the_fine_rate_read_every_qth_sample(q):
+    # the polyphase blocks of decimate against the plain definition: the zero-phase FIR over the whole fine-rate
+    # signal (zeros beyond its ends), every q-th output kept; one signal and several rows, lengths from one sample
+    # up, across block edges (DECIMATE_FFT)
+    rng = np.random.default_rng(q)
+    taps = antialias_taps(q)
+    for n in (1, q - 1, 77, 5000, 9 * DECIMATE_FFT * q + 3):
+        x = rng.standard_normal(n)
+        want = signal.oaconvolve(x, taps, mode="same")[::q]
+        got = decimate(x, q)
+        assert got.shape == want.shape
+        assert np.max(np.abs(got - want)) <= 1e-13 * np.max(np.abs(want))
+    rows = rng.standard_normal((3, 40_001))
+    want = signal.oaconvolve(rows, taps[None, :], mode="same", axes=1)[:, ::q]
+    assert np.max(np.abs(decimate(rows, q) - want)) <= 1e-13 * np.max(np.abs(want))

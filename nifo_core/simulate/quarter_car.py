@@ -36,6 +36,7 @@ from typing import Callable, Mapping
 
 import numba
 import numpy as np
+from scipy import fft as sfft
 from scipy import signal
 
 from .. import __version__
@@ -528,21 +529,60 @@ def antialias_taps(q: int) -> np.ndarray:
     return taps
 
 
+#: FFT length of :func:`decimate`'s blocks (measured on 0.96 M samples, q = 8: 12.5 ms at 4096, 12.7-13.7 ms at
+#: 1024-16384)
+DECIMATE_FFT = 4096
+
+
+@lru_cache(maxsize=8)
+def _phase_spectra(q: int, nfft: int) -> tuple[np.ndarray, int, int]:
+    """The anti-alias filter split into its q phases at the coarse rate, as spectra of ``nfft`` (q, 1, nfft/2 + 1),
+    with the coarse samples each phase leads the output by and its length: phase p holds the taps
+    h[n·q + c - p] (c the centre tap), n from -lead on."""
+    h = antialias_taps(q)
+    c = (h.size - 1) // 2
+    lead = c // q
+    k = (h.size - 1 - c + q - 1) // q + lead + 1
+    g = np.zeros((q, k))
+    for p in range(q):
+        j = np.arange(-lead, k - lead) * q + c - p
+        ok = (j >= 0) & (j < h.size)
+        g[p, ok] = h[j[ok]]
+    spec = sfft.rfft(g, nfft, axis=-1)[:, None, :]
+    spec.flags.writeable = False
+    return spec, lead, k
+
+
 def decimate(x: np.ndarray, q: int) -> np.ndarray:
     """Anti-alias (zero-phase FIR, :func:`antialias_taps`) and keep every q-th sample: output k is at input k·q.
 
-    The same numbers as ``scipy.signal.resample_poly(x, 1, q, window=taps)`` (zeros beyond the ends; measured
-    2e-15 relative) by an overlap-add convolution at the fine rate: 2.3× faster for q = 8 and 515 taps on
-    0.5 M samples (15 ms against 35 ms). The polyphase filter does q times fewer products, but one at a time;
-    the FFT's are batched. The simulator and every model simulation (:mod:`nifo_core.predict.timesim`: the
-    loop's and the refinement's hundreds) decimate through it.
+    The same numbers as ``scipy.signal.resample_poly(x, 1, q, window=taps)`` (zeros beyond the ends) to rounding,
+    computed only at the kept samples: the signal's q phases (every q-th sample from p on) each convolved with the
+    filter's matching phase at the coarse rate, their spectra summed before one inverse FFT, in overlap-added blocks
+    of :data:`DECIMATE_FFT` (measured against the overlap-add convolution at the fine rate it replaces, q = 8, 515
+    taps: 0.96 M samples 12.2 ms against 20.5 ms, five rows of them 67 ms against 120 ms, equal to 7e-16 of the
+    peak; that one was 2.3× faster than the polyphase filter). The simulator and every model simulation
+    (:mod:`nifo_core.predict.timesim`: the loop's and the refinement's hundreds, the sensitivity march's columns as
+    rows) decimate through it. ``x``: one signal, or one per row (the last axis is time).
     """
+    x = np.asarray(x, float)
     if q == 1:
         return np.array(x, float)
-    x = np.asarray(x, float)
-    if x.ndim == 2:     # each row (the sensitivity march's columns), the rows' FFTs batched
-        return signal.oaconvolve(x, antialias_taps(q)[None, :], mode="same", axes=1)[:, ::q].copy()
-    return signal.oaconvolve(x, antialias_taps(q), mode="same")[::q].copy()
+    n, rows = x.shape[-1], x.shape[:-1]
+    m = -(-n // q)                                  # the kept samples
+    spec, lead, k = _phase_spectra(q, DECIMATE_FFT)
+    seg = DECIMATE_FFT - k + 1                      # coarse samples per block
+    nb = -(-(m + lead) // seg)
+    fine = np.zeros(rows + (nb * seg * q,))
+    fine[..., :n] = x
+    phases = np.swapaxes(fine.reshape(rows + (nb * seg, q)), -1, -2).reshape(rows + (q, nb, seg))
+    y = sfft.irfft((sfft.rfft(phases, DECIMATE_FFT, axis=-1) * spec).sum(axis=-3), DECIMATE_FFT, axis=-1)
+    out = np.zeros(rows + ((nb + 1) * seg,))
+    out[..., :nb * seg] = y[..., :seg].reshape(rows + (nb * seg,))
+    tails = np.zeros(rows + (nb, seg))
+    tails[..., :k - 1] = y[..., seg:]
+    out[..., seg:] += tails.reshape(rows + (nb * seg,))        # each block's tail onto the next block's start
+    return np.ascontiguousarray(out[..., lead:lead + m])
 
 
 def _add_noise(x: np.ndarray, noise: SensorNoise, rng: np.random.Generator, *, absolute: float) -> np.ndarray:
