@@ -2,7 +2,10 @@
 
 Each column is compared with central differences of :func:`~nifo_core.predict.refine.prediction_residual` at a
 step small enough that their truncation error stays below the tolerance (the march differentiates the engine's own
-discrete step, kinks included on the side the step lies on).
+discrete step, kinks included on the side the step lies on), and small enough that no kink lies within it: 1e-6 of
+the parameter (at 1e-5, once the decimation's rounding moved by 1e-16, a contact of the play-stop case's backlash
+fell inside the step: its deadband column 6.9e-4 from the quotient, 1.2e-7 at 1e-6; the rounding error of a
+quotient at 1e-6 is ~1e-10).
 """
 
 from dataclasses import replace
@@ -38,7 +41,7 @@ def _columns(model, rec, *, track):
     jac = residual_jacobian(m, rec, sp.march_parameters(m), band_hz=band, skip_samples=skip)
     diff = []
     for k in range(x.size):
-        h = 1e-5 * max(1.0, abs(x[k]))
+        h = 1e-6 * max(1.0, abs(x[k]))
         xp, xm = x.copy(), x.copy()
         xp[k] += h
         xm[k] -= h
