@@ -74,18 +74,38 @@ def _cv_rss(a: np.ndarray, y: np.ndarray, fold: np.ndarray) -> float:
     return rss
 
 
-def _group_thetas(a1: np.ndarray, y: np.ndarray, group: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The last column's coefficient fitted on each group alone (given the others), and its information there; groups
-    where the term is barely exercised (motion within a play, say) are left out: they say nothing."""
-    gth, w = [], []
+@dataclass(frozen=True)
+class _Group:
+    """One data group of a :class:`BaseFit`: its rows, an orthonormal basis of the base's columns there and -ẍ2 there
+    orthogonalised against them (what every candidate's coefficient in the group is fitted from)."""
+
+    rows: np.ndarray
+    basis: np.ndarray
+    y_perp: np.ndarray
+
+
+def _groups(a0: np.ndarray, y: np.ndarray, group: np.ndarray) -> tuple[_Group, ...]:
+    out = []
     for gi in np.unique(group):
-        am, ym = a1[group == gi], y[group == gi]
-        q, rr = np.linalg.qr(am[:, :-1])
-        gp = am[:, -1] - q @ (q.T @ am[:, -1])
+        rows = group == gi
+        q, _ = np.linalg.qr(a0[rows])
+        ym = y[rows]
+        out.append(_Group(rows, q, ym - q @ (q.T @ ym)))
+    return tuple(out)
+
+
+def _group_thetas(groups: Sequence[_Group], g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The coefficient of the column ``g`` fitted on each group alone (given the base's columns), and its information
+    there; groups where the term is barely exercised (motion within a play, say) are left out: they say nothing."""
+    gth, w = [], []
+    for grp in groups:
+        gm = g[grp.rows]
+        q = grp.basis
+        gp = gm - q @ (q.T @ gm)
         info = float(gp @ gp)
-        if info <= 1e-12 * float(am[:, -1] @ am[:, -1]) or info == 0:
+        if info <= 1e-12 * float(gm @ gm) or info == 0:
             continue  # the term is not exercised in this group
-        gth.append(float(gp @ (ym - q @ (q.T @ ym)) / info))
+        gth.append(float(gp @ grp.y_perp / info))
         w.append(info)
     gth_a, w_a = np.array(gth), np.array(w)
     if w_a.size:
@@ -128,11 +148,11 @@ def score_candidate(data: RegressionData, base: list[np.ndarray], term: Term, *,
     err_cv = 1.0 - _cv_rss(a1, y, data.fold) / cv0 if cv0 > 0 else 0.0
     theta = float(c1[-1])
     half = _half_width(fit.basis, a1[:, -1], r1, data)
-    gth_a, w_a = _group_thetas(a1, y, data.group)
+    gth_a, w_a = _group_thetas(fit.groups, a1[:, -1])
     if w_a.size < 2 and len(data.rfs) > 1:
         # several records, and only one exercises the term (a stop reached at the highest level alone): its
         # stability across consecutive quarters of the records where it acts, as for a single record
-        gth_a, w_a = _group_thetas(a1, y, _quarters(data))
+        gth_a, w_a = _group_thetas(fit.quarters, a1[:, -1])
     if w_a.size >= 2 and theta != 0:
         spread = float(np.sqrt(np.sum(w_a * (gth_a - theta) ** 2) / np.sum(w_a)) / abs(theta))
     else:
@@ -177,7 +197,7 @@ class BaseFit:
     """The fit [z, ż, base] that candidates are scored and detection limits measured against: its ``columns``, an
     orthonormal ``basis`` of them, its residual sum of squares ``rss`` and two-fold cross-validated one ``cv_rss``
     (the folds of ``data.fold``), the total sum of squares ``tss`` of -ẍ2 (what ΔR² is a fraction of) and, when first
-    read, its degrees of freedom :attr:`dof`."""
+    read, its degrees of freedom :attr:`dof` and its data groups (:attr:`groups`, :attr:`quarters`)."""
 
     columns: np.ndarray
     basis: np.ndarray
@@ -186,6 +206,16 @@ class BaseFit:
     cv_rss: float
     tss: float
     data: RegressionData = field(repr=False, compare=False)
+
+    @cached_property
+    def groups(self) -> tuple[_Group, ...]:
+        """The data groups (``data.group``), each with the base's basis there: a candidate's coefficient per group."""
+        return _groups(self.columns, self.data.y, self.data.group)
+
+    @cached_property
+    def quarters(self) -> tuple[_Group, ...]:
+        """The same for consecutive quarters of each record (:func:`_quarters`)."""
+        return _groups(self.columns, self.data.y, _quarters(self.data))
 
     @cached_property
     def dof(self) -> float:
