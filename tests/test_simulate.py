@@ -8,8 +8,9 @@ from scipy import signal
 
 from nifo_core.kinds.describing import Term
 from nifo_core.errors import ConfigError
-from nifo_core.simulate.quarter_car import (DECIMATE_FFT, PRESETS, ChirpRoad, RandomRoad, SensorNoise, SimConfig,
-                                            StrutForce, antialias_taps, decimate, preset, simulate)
+from nifo_core.simulate.quarter_car import (PHASE_FFT, PRESETS, ChirpRoad, RandomRoad, SensorNoise, SimConfig,
+                                            StrutForce, antialias_taps, decimate, interpolate, preset,
+                                            simulate)
 from nifo_core.simulate.vehicle import QuarterCar
 
 #: one of every kind and side, at levels that a 2.5 mm road exercises
@@ -229,10 +230,10 @@ def test_command_writes_record_and_truth(tmp_path, capsys):
 def test_decimate_is_the_antialias_convolution_at_the_fine_rate_read_every_qth_sample(q):
     # the polyphase blocks of decimate against the plain definition: the zero-phase FIR over the whole fine-rate
     # signal (zeros beyond its ends), every q-th output kept; one signal and several rows, lengths from one sample
-    # up, across block edges (DECIMATE_FFT)
+    # up, across block edges (PHASE_FFT)
     rng = np.random.default_rng(q)
     taps = antialias_taps(q)
-    for n in (1, q - 1, 77, 5000, 9 * DECIMATE_FFT * q + 3):
+    for n in (1, q - 1, 77, 5000, 9 * PHASE_FFT * q + 3):
         x = rng.standard_normal(n)
         want = signal.oaconvolve(x, taps, mode="same")[::q]
         got = decimate(x, q)
@@ -241,3 +242,16 @@ def test_decimate_is_the_antialias_convolution_at_the_fine_rate_read_every_qth_s
     rows = rng.standard_normal((3, 40_001))
     want = signal.oaconvolve(rows, taps[None, :], mode="same", axes=1)[:, ::q]
     assert np.max(np.abs(decimate(rows, q) - want)) <= 1e-13 * np.max(np.abs(want))
+
+
+@pytest.mark.parametrize("q", [2, 4, 8, 16])
+def test_interpolate_is_resample_poly_with_the_antialias_taps(q):
+    # the phases' blocks of interpolate against scipy's polyphase filter of the stuffed zeros, across block edges
+    rng = np.random.default_rng(q + 100)
+    taps = antialias_taps(q)
+    for n in (1, 3, 77, 5000, 3 * PHASE_FFT + 11):
+        x = rng.standard_normal(n)
+        want = signal.resample_poly(x, q, 1, window=taps)
+        got = interpolate(x, q)
+        assert got.shape == want.shape
+        assert np.max(np.abs(got - want)) <= 1e-13 * np.max(np.abs(want))

@@ -42,12 +42,11 @@ from typing import Sequence
 import numba
 import numpy as np
 import scipy.linalg
-from scipy import signal
 
 from ..kinds.describing import Term, path_slopes
 from ..errors import ConfigError
 from .linear_part import LinearPart
-from ..simulate.quarter_car import antialias_taps, decimate
+from ..simulate.quarter_car import antialias_taps, decimate, interpolate
 from ..kinds.strut_forces import PLAY, g_one, strut_arrays, strut_force
 from ..signal.memo import ArrayMemo
 
@@ -451,7 +450,7 @@ def lookahead_samples(q: int) -> int:
 
 
 def _up(x: np.ndarray, q: int) -> np.ndarray:
-    return x.copy() if q == 1 else signal.resample_poly(x, q, 1, window=antialias_taps(q))
+    return interpolate(x, q)
 
 
 def _down(x: np.ndarray, q: int) -> np.ndarray:
