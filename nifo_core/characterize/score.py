@@ -131,7 +131,8 @@ def score_candidate(data: RegressionData, base: list[np.ndarray], term: Term, *,
     """Full-length fit of ``term`` on top of the linear columns and the ``base`` regressors.
 
     ``fit``: :func:`base_fit` of ``data`` and ``base``, when several terms are scored against the same base (a
-    round's kinds side by side): what they share is computed once (the same numbers)."""
+    round's kinds side by side): what they share is computed once (the same numbers; the per-group coefficients'
+    stability to rounding, 1e-15: :attr:`BaseFit.groups`)."""
     y = data.y
     fit = base_fit(data, base) if fit is None else fit
     a0 = fit.columns

@@ -594,8 +594,8 @@ def decimate(x: np.ndarray, q: int) -> np.ndarray:
 
 
 def interpolate(x: np.ndarray, q: int) -> np.ndarray:
-    """``x`` (one signal) at q times its rate, band-limited by the same zero-phase FIR as :func:`decimate`: sample k·q
-    is at input k, and decimating it again gives ``x`` back within the filter's passband.
+    """``x`` (one signal) at q times its rate, band-limited by the same zero-phase FIR as :func:`decimate`: fine sample
+    k·q is at input k.
 
     The same numbers as ``scipy.signal.resample_poly(x, q, 1, window=taps)`` to rounding (1e-15 of the peak),
     without the stuffed zeros' products: one FFT of each block of ``x``, times each of the filter's q phases, q inverse
