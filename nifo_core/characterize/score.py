@@ -196,17 +196,22 @@ def _relative(term: Term, data: RegressionData) -> float | None:
 @dataclass(frozen=True)
 class BaseFit:
     """The fit [z, ż, base] that candidates are scored and detection limits measured against: its ``columns``, an
-    orthonormal ``basis`` of them, its residual sum of squares ``rss`` and two-fold cross-validated one ``cv_rss``
-    (the folds of ``data.fold``), the total sum of squares ``tss`` of -ẍ2 (what ΔR² is a fraction of) and, when first
-    read, its degrees of freedom :attr:`dof` and its data groups (:attr:`groups`, :attr:`quarters`)."""
+    orthonormal ``basis`` of them, its residual sum of squares ``rss``, the total sum of squares ``tss`` of -ẍ2 (what
+    ΔR² is a fraction of) and, each computed when first read (a score and a limit need different ones), its two-fold
+    cross-validated residual :attr:`cv_rss`, its degrees of freedom :attr:`dof` and its data groups (:attr:`groups`,
+    :attr:`quarters`)."""
 
     columns: np.ndarray
     basis: np.ndarray
     residual: np.ndarray
     rss: float
-    cv_rss: float
     tss: float
     data: RegressionData = field(repr=False, compare=False)
+
+    @cached_property
+    def cv_rss(self) -> float:
+        """The residual sum of squares of the two-fold cross-validated fit (the folds of ``data.fold``)."""
+        return _cv_rss(self.columns, self.data.y, self.data.fold)
 
     @cached_property
     def groups(self) -> tuple[_Group, ...]:
@@ -232,8 +237,7 @@ def base_fit(data: RegressionData, base: list[np.ndarray]) -> BaseFit:
     a0 = np.column_stack([data.x, *base]) if base else data.x
     res = data.y - a0 @ lstsq(a0, data.y)
     q, _ = np.linalg.qr(a0)
-    return BaseFit(columns=a0, basis=q, residual=res, rss=float(res @ res), cv_rss=_cv_rss(a0, data.y, data.fold),
-                   tss=float(data.y @ data.y), data=data)
+    return BaseFit(columns=a0, basis=q, residual=res, rss=float(res @ res), tss=float(data.y @ data.y), data=data)
 
 
 def detection_limit(data: RegressionData, base: list[np.ndarray], term: Term, *, thresholds: Thresholds,
