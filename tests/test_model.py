@@ -138,3 +138,29 @@ def test_the_frequency_domain_path_runs_only_where_it_provably_converges():
     with pytest.raises(ConfigError, match="not provably convergent"):
         predict_body(stiff, a1, FS, engine="frequency")
     assert predict_body(stiff, a1, FS, method="nonparametric").engine == "time"
+
+
+def test_a_term_set_on_a_rational_part_is_fitted_at_the_linear_models_order():
+    """On a rational linear part the order is the structure's, chosen once on the linear model (by how well it
+    predicts the fit parts): every term set is fitted at it, with one vector fit, not chosen again among 2-40
+    poles by its own T21 misfit (issue 58: the loop fitted every candidate 20 times; on physics-fleet case 64 the
+    orders chosen jumped between 20 and 32 from one candidate to the next, and the vector fits took 26 of the
+    loop's 54 CPU-s)."""
+    from test_feedback_paths import PERIOD, _linear, _paths_true, _record
+
+    from nifo_core.predict.heldout import split_records
+    from nifo_core.predict.model_fit import fit_linear, fit_model
+    from nifo_core.settings import AnalysisSettings
+
+    recs = [_record(lv, _linear(paths=_paths_true()), periods=6) for lv in (1.0, 6.0)]
+    data = AnalysisSettings(spectral=SpectralSettings(block=PERIOD, overlap=0.0, window="boxcar"),
+                            band=IntegrationBand(1.0, 60.0), analysis_band_hz=(2.0, 20.0), period_samples=PERIOD,
+                            skip_periods=1)
+    held = split_records(recs, skip_samples=PERIOD, period_samples=PERIOD, band_hz=(2.0, 20.0))
+    linear = fit_linear(held, data, form="rational")
+    lin = linear.model.linear
+    assert lin.kind == "rational" and len(lin.candidates["rational"]["orders_tried"]) > 1     # the linear model's order chosen
+    for term in (Term("cubic_stiffness"), DZ):
+        got = fit_model(held, [term], data, linear=linear, structure="constant").model.linear
+        assert got.kind == "rational" and got.poles.size == lin.poles.size, term.label
+        assert list(got.candidates["rational"]["orders_tried"]) == [str(lin.fitted_poles)], term.label

@@ -49,6 +49,9 @@ __all__ = ["BodyModel", "LinearPart", "absorbed_rates", "fit_body_model", "fit_r
 
 #: a physical one-mass body is kept unless its T21 misfit exceeds this (relative RMS over the band)
 BODY_FIT_LIMIT = 0.10
+#: poles a rational part holds besides those vector fitting places: one well-damped pair at 3× the band's top for the
+#: modes above it (:func:`fit_rational`)
+RESIDUAL_POLES = 2
 
 #: the linear part each kind gives to the linear part of the model: g = α·z + β·ż + (a bounded remainder)
 #: (from the kind registry, ``Kind.absorb``)
@@ -238,6 +241,12 @@ class LinearPart:
         return 2 if self.kind == "body" else int(self.poles.size)
 
     @property
+    def fitted_poles(self) -> int:
+        """A rational part's poles placed by vector fitting: its states without the fixed pair standing for the modes
+        above the band (:func:`fit_rational`), the ``order`` that fits the same structure again."""
+        return int(self.poles.size) - RESIDUAL_POLES if self.kind == "rational" else 0
+
+    @property
     def physical(self) -> bool:
         """A physical parameterisation with physical values (only the one-mass body can be)."""
         return self.kind == "body" and self.body.physical
@@ -423,7 +432,7 @@ def fit_rational(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[float, 
     # modes above the band act in it as a constant (residual flexibility): one fixed, well-damped pole pair
     # at 3× the band's top frequency represents them with relative degree 2 (a bare constant would not)
     w_res = 2 * np.pi * 3 * band_hz[1]
-    residual = w_res * np.array([-0.7 + 0.714j, -0.7 - 0.714j])
+    residual = w_res * np.array([-0.7 + 0.714j, -0.7 - 0.714j])     # RESIDUAL_POLES
     # a resonance narrower than the line spacing df cannot be seen in the data, only ring in time: every
     # pole decays at least at π·df (half-power bandwidth ≥ df)
     min_decay = np.pi * float(np.median(np.diff(f[m])))
