@@ -182,3 +182,21 @@ def test_the_bias_correction_side_by_side_is_its_serial_result_bit_for_bit(monke
     for name in ("theta", "noise_bias", "draw_sd", "tail", "drive_sd", "fit_sd"):
         assert np.array_equal(getattr(one, name), getattr(two, name)), name
     assert one.gain == two.gain
+
+
+def test_the_kinds_tried_by_output_error_side_by_side_are_what_one_thread_gives(monkeypatch):
+    """Beyond the equation error's reach the loop refines every kind the last round ranked by output error
+    (:func:`nifo_core.loop.beyond.search_beyond`), the kinds side by side on threads: every trial (its refined term,
+    coefficient, held-out figures, verdict) and the model are those of one thread, bit for bit."""
+    from test_loop_beyond import BAND, D, _record
+
+    from nifo_core.loop import LoopSettings, close_loop
+
+    rec, _ = _record(0.04 * D, seconds=30.0)
+    got = {}
+    for n in ("1", "2"):
+        monkeypatch.setenv("NIFO_THREADS", n)
+        got[n] = close_loop([rec], ["cubic_stiffness"], band=BAND, settings=LoopSettings(max_rounds=1))
+    one, two = got["1"], got["2"]
+    assert len(one.beyond) >= 2, one.report()      # tried side by side
+    assert one.to_dict() == two.to_dict()
