@@ -49,9 +49,11 @@ __all__ = ["BodyModel", "LinearPart", "absorbed_rates", "fit_body_model", "fit_r
 
 #: a physical one-mass body is kept unless its T21 misfit exceeds this (relative RMS over the band)
 BODY_FIT_LIMIT = 0.10
-#: poles a rational part holds besides those vector fitting places: one well-damped pair at 3× the band's top for the
-#: modes above it (:func:`fit_rational`)
-RESIDUAL_POLES = 2
+#: the pole pair a rational part holds besides those vector fitting places, for the modes above the band (residual
+#: flexibility): well damped, in units of _RESIDUAL_AT × the band's top angular frequency (:func:`fit_rational`)
+_RESIDUAL_PAIR = np.array([-0.7 + 0.714j, -0.7 - 0.714j])
+_RESIDUAL_AT = 3
+RESIDUAL_POLES = _RESIDUAL_PAIR.size
 
 #: the linear part each kind gives to the linear part of the model: g = α·z + β·ż + (a bounded remainder)
 #: (from the kind registry, ``Kind.absorb``)
@@ -430,9 +432,9 @@ def fit_rational(freq_hz: np.ndarray, t21: np.ndarray, *, band_hz: tuple[float, 
         wgt = wgt * np.sqrt(np.asarray(weights)[m])
     fits = []
     # modes above the band act in it as a constant (residual flexibility): one fixed, well-damped pole pair
-    # at 3× the band's top frequency represents them with relative degree 2 (a bare constant would not)
-    w_res = 2 * np.pi * 3 * band_hz[1]
-    residual = w_res * np.array([-0.7 + 0.714j, -0.7 - 0.714j])     # RESIDUAL_POLES
+    # at _RESIDUAL_AT × the band's top frequency represents them with relative degree 2 (a bare constant would not)
+    w_res = 2 * np.pi * _RESIDUAL_AT * band_hz[1]
+    residual = w_res * _RESIDUAL_PAIR
     # a resonance narrower than the line spacing df cannot be seen in the data, only ring in time: every
     # pole decays at least at π·df (half-power bandwidth ≥ df)
     min_decay = np.pi * float(np.median(np.diff(f[m])))

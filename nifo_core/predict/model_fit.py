@@ -303,8 +303,7 @@ def fit_model(held: HeldOut, terms: Sequence[Term], settings: AnalysisSettings, 
     if structure == "constant" or not can_paths:
         try:
             res = _nifo(held, terms, settings)
-            # a rational part keeps the linear model's order: the structure's modes, chosen once by how well the
-            # linear model predicts the fit parts, not chosen again among 2-40 poles by each term set's T21 misfit
+            # a rational part at the linear model's order (module docstring)
             model = IdentifiedModel.from_nifo(res, source="static", linear_form=form,
                                               order=linear.model.linear.fitted_poles if form == "rational" else None)
             out["constant"] = Fitted(model, "constant", held.score(model), "constant coefficients (NIFO's static fit)")
