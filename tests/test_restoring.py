@@ -336,6 +336,32 @@ def test_mean_shift_solves_the_force_balance_of_the_mean():
         assert mean_shift(z, 0 * z, k, [(stop, theta)], near=near) == pytest.approx(m_true, rel=1e-6)
 
 
+
+@pytest.mark.parametrize("term", [Term("cubic_stiffness"), Term("quadratic_stiffness"), Term("clearance", {"gap": 2e-3}),
+                                  Term("saturation", {"limit": 2e-3}), Term("bump_stop", {"gap": 4e-3}),
+                                  Term("bump_stop", {"gap": 3e-3, "side": "rebound", "offset": 1e-3}),
+                                  Term("backlash", {"deadband": 1e-3}), Term("coulomb", {"eps": 0.01})],
+                         ids=lambda t: t.label)
+def test_a_records_means_at_any_shift_are_its_samples_means(term):
+    """The balance's means from a record's sorted z (a kind given as pieces of a polynomial: two binary searches),
+    from ż once (it does not move with the shift), or sample by sample (a play): the samples' own mean, to rounding.
+    Each kind's pieces are its g: a piece that drifted from ``func`` fails here."""
+    from nifo_core.characterize.static import RecordMeans
+
+    rng = np.random.default_rng(7)
+    z, zdot = rng.normal(0.0, 3e-3, 50_000), rng.normal(0.0, 0.05, 50_000)
+    means = RecordMeans(z, zdot)
+    scale = float(np.mean(np.abs(term.evaluate(z, zdot))))
+    for m in (0.0, 7e-4, -1.3e-3, 2.5e-3):
+        assert means.mean(term, m) == pytest.approx(float(np.mean(term.evaluate(z + m, zdot))), abs=1e-12 * scale)
+    if term.spec.pieces is not None:    # every piece is g on its interval, g is 0 outside them
+        x = np.linspace(-0.02, 0.02, 4001)
+        got = np.zeros_like(x)
+        for lo, hi, a in term.spec.pieces(term.params):
+            inside = (x >= lo) & (x < hi)
+            got[inside] = np.polynomial.polynomial.polyval(x[inside], a)
+        assert got == pytest.approx(term.evaluate(x, 0 * x), abs=1e-15)
+
 def test_bump_stop_gap_is_measured_from_the_static_position_at_every_level():
     # a stiff stop pushes the mean position into rebound, more at the higher level: measured from the
     # mean the gap read 8.5 and 9.9 mm; from the static position it is one gap, with one offset per level

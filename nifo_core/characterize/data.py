@@ -131,6 +131,13 @@ class RegressionData:
         out._cache = {}
         return out
 
+    def remembered(self, key: str, make: Callable[[], object]) -> object:
+        """What ``make()`` gives for these rows, made once (beside the remembered columns; :meth:`forget` drops it)."""
+        got = self._cache.get(("made", key))
+        if got is None:
+            got = self._cache.setdefault(("made", key), make())
+        return got
+
     def forget(self) -> None:
         """Drop the remembered full-length columns (:meth:`regressors`): for data kept while other work runs."""
         self._cache.clear()

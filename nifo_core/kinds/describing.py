@@ -112,6 +112,14 @@ def _sym_deadzone(x, w):
     return np.sign(x) * np.maximum(np.abs(x) - w, 0.0)
 
 
+def _bump_pieces(p):
+    """g of a bump stop (:func:`_bump`) as pieces of a polynomial of z (``Kind.pieces``)."""
+    gap, off = float(p["gap"]), float(p["offset"])
+    if p["side"] == "compression":
+        return ((-np.inf, off - gap, (gap - off, 1.0)),)
+    return ((off + gap, np.inf, (-off - gap, 1.0)),)
+
+
 def _bump(z, gap, side, offset):
     s = str(side)
     if s == "compression":
@@ -194,6 +202,10 @@ class Kind:
     slopes_within: Callable[[Mapping[str, object], float, float], tuple[float, float]] | None = None
     #: a hysteretic kind whose state is a play operator's (streaming NIFO carries it)
     play_state: bool = False
+    #: params -> g of a memoryless kind of z as pieces of a polynomial: ((from, to, (a0, a1, ...)), ...), g = Σ a_j·z^j
+    #: on from ≤ z < to and 0 elsewhere; its mean over a record at any shift of z then comes from the record's sorted
+    #: z in log time (:class:`nifo_core.characterize.static.RecordMeans`). None: g is evaluated sample by sample
+    pieces: Callable[[Mapping[str, object]], tuple[tuple[float, float, tuple[float, ...]], ...]] | None = None
 
     def check(self, params: Mapping[str, object]) -> dict:
         """The parameters with their defaults filled in, numbers as floats; :class:`ConfigError` naming the value.
@@ -367,29 +379,33 @@ def _kinds() -> dict[str, Kind]:
         Kind("cubic_stiffness", "z", {}, _cube,
              "hardening (c>0) or softening (c<0) cubic spring", None, coef_unit="N/m³",
              compiled=_code("cubic"), lipschitz=lambda p: (inf, 0.0), noun="cubic spring", phrase=_cubic_words,
-             slopes_within=lambda p, z, zd: (3 * z**2, 0.0)),
+             slopes_within=lambda p, z, zd: (3 * z**2, 0.0), pieces=lambda p: ((-inf, inf, (0.0, 0.0, 0.0, 1.0)),)),
         Kind("quadratic_stiffness", "z", {}, lambda z, zd: z**2,
              "asymmetric (even) quadratic spring: stiffer on one side than the other, e.g. a cubic centred off the "
              "static position", None, coef_unit="N/m²", compiled=_code("quadratic_stiffness"),
              lipschitz=lambda p: (inf, 0.0), noun="even (quadratic) spring", static_frame="position",
-             phrase=_quadratic_words, slopes_within=lambda p, z, zd: (2 * z, 0.0)),
+             phrase=_quadratic_words, slopes_within=lambda p, z, zd: (2 * z, 0.0),
+             pieces=lambda p: ((-inf, inf, (0.0, 0.0, 1.0)),)),
         Kind("clearance", "z", {"gap": (None, "m")}, lambda z, zd, gap: _sym_deadzone(z, gap),
              "stiffness change beyond ±gap (clearance, piecewise-linear stiffness)", "gap", coef_unit="N/m",
              absorb=(1.0, 0.0), path_slopes=(1.0, 0.0), compiled=_code("clearance", "gap"), noun="clearance",
              grid_spec=GridSpec("gap", 0.03, 0.9), equivalent="saturation", path_width=0.5,
-             phrase=_clearance_words, beyond=True, joiner=" "),
+             phrase=_clearance_words, beyond=True, joiner=" ",
+             pieces=lambda p: ((-inf, -p["gap"], (p["gap"], 1.0)), (p["gap"], inf, (-p["gap"], 1.0)))),
         Kind("saturation", "z", {"limit": (None, "m")}, lambda z, zd, limit: np.clip(z, -limit, limit),
              "stiffness that saturates beyond ±limit", "limit", coef_unit="N/m",
              path_slopes=(0.0, 1.0), compiled=_code("saturation", "limit"), noun="saturating spring",
              grid_spec=GridSpec("limit", 0.03, 0.9), searched=False, bounded=True, path_width=0.5,
-             phrase=lambda th, p, static: f"stiffness saturates beyond ±{_mm(p['limit'])}", joiner=" at ±"),
+             phrase=lambda th, p, static: f"stiffness saturates beyond ±{_mm(p['limit'])}", joiner=" at ±",
+             pieces=lambda p: ((-inf, -p["limit"], (-p["limit"],)), (-p["limit"], p["limit"], (0.0, 1.0)),
+                               (p["limit"], inf, (p["limit"],)))),
         Kind("bump_stop", "z", {"gap": (None, "m"), "side": ("compression", "compression|rebound"), "offset": (0.0, "m")},
              lambda z, zd, gap, side, offset: _bump(z, gap, side, offset),
              "one-sided contact stiffness beyond gap (compression: z < offset-gap)", "gap", coef_unit="N/m",
              compiled=lambda p: (CODES["bump_compression" if p["side"] == "compression" else "bump_rebound"],
                                  p["gap"], p["offset"]), noun="bump stop", zero_ok=("gap",), signed=("offset",),
              grid_spec=GridSpec("gap", 0.0, 0.92, linear=True, per_side=True), static_frame="threshold",
-             phrase=_bump_words, beyond=True),
+             phrase=_bump_words, beyond=True, pieces=_bump_pieces),
         Kind("backlash", "z", {"deadband": (None, "m")}, lambda z, zd, deadband: play_operator(z, deadband),
              "hysteretic stiffness through a play of total width deadband (paper Fig. 9a)", "deadband",
              hysteretic=True, coef_unit="N/m", absorb=(1.0, 0.0), path_slopes=(1.0, 0.0),

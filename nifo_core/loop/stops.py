@@ -25,7 +25,7 @@ from typing import Sequence
 import numpy as np
 
 from ..characterize.data import RegressionData
-from ..characterize.static import balance_offsets, equation_fit
+from ..characterize.static import Refits, balance_offsets, equation_fit
 from ..kinds.describing import Term
 from ..signal.parallel import thread_map
 
@@ -88,13 +88,14 @@ def _retuned(data: RegressionData, static: dict[str, tuple[float, ...]], terms: 
     lo, hi = 0.5 * g0, 2.0 * g0
     offsets = [static.get(u.label) for u in terms]
     c0, now = equation_fit(data, terms, offsets)
+    refits = Refits(data, terms, offsets, j, [False] * len(terms))   # the other columns' part computed once
 
     def trial(gap: float) -> tuple[float, float, list[float]]:
         c, off, rss = c0, None, np.inf
         at = [*terms[:j], Term(t.kind, {**t.params, key: gap}), *terms[j + 1:]]
         for _ in range(3):   # m depends on k and θ, which depend on the offsets: a few fixed-point steps
             off = balance_offsets(data, at, c)
-            c, rss = equation_fit(data, at, [*offsets[:j], off, *offsets[j + 1:]])
+            c, rss = refits.fit(at, [*offsets[:j], off, *offsets[j + 1:]])
         return rss, gap, off
 
     def best_of(gaps) -> tuple[float, float, list[float]]:
