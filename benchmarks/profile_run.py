@@ -46,6 +46,10 @@ Measured on 2026-12-07 between 10:45 and 11:55, an idle machine (issue 58; the s
   10.6, FFT 7.2, other C 5.5 CPU-s): out of reach with this many simulations;
 - ``--f16``: 19.3 + 8.5 = 27.9 s, floor 13.9 s against 30 s.
 
+Measured on 2026-12-07 at 22:30, another host (the loop benchmark on 8baeb1a, the static position's balance from
+sorted z): 22.9 + 0.6 = 23.5 s, floor 11.5 s against 10 s (numba 11.7, FFT 7.4, other C 3.9 CPU-s; the Python 18.4 s
+under the profiler).
+
     PYTHONPATH=. python benchmarks/profile_run.py [--f16] [--floor] [--out DIR] [--top 40] [--save run.prof]
                                                   [-- nifo ARGS...]
 """

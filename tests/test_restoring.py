@@ -336,9 +336,9 @@ def test_mean_shift_solves_the_force_balance_of_the_mean():
         assert mean_shift(z, 0 * z, k, [(stop, theta)], near=near) == pytest.approx(m_true, rel=1e-6)
 
 
-
-@pytest.mark.parametrize("term", [Term("cubic_stiffness"), Term("quadratic_stiffness"), Term("clearance", {"gap": 2e-3}),
-                                  Term("saturation", {"limit": 2e-3}), Term("bump_stop", {"gap": 4e-3}),
+@pytest.mark.parametrize("term", [Term("cubic_stiffness"), Term("quadratic_stiffness"),
+                                  Term("clearance", {"gap": 2e-3}), Term("saturation", {"limit": 2e-3}),
+                                  Term("bump_stop", {"gap": 4e-3}),
                                   Term("bump_stop", {"gap": 3e-3, "side": "rebound", "offset": 1e-3}),
                                   Term("backlash", {"deadband": 1e-3}), Term("coulomb", {"eps": 0.01})],
                          ids=lambda t: t.label)
@@ -361,6 +361,7 @@ def test_a_records_means_at_any_shift_are_its_samples_means(term):
             inside = (x >= lo) & (x < hi)
             got[inside] = np.polynomial.polynomial.polyval(x[inside], a)
         assert got == pytest.approx(term.evaluate(x, 0 * x), abs=1e-15)
+
 
 def test_bump_stop_gap_is_measured_from_the_static_position_at_every_level():
     # a stiff stop pushes the mean position into rebound, more at the higher level: measured from the

@@ -40,8 +40,8 @@ from ..kinds.describing import Term
 from ..signal.least_squares import FixedColumns, lstsq
 from ..signal.parallel import thread_map
 
-__all__ = ["RecordMeans", "record_means", "mean_shift", "static_bump_stops", "shifted_offsets", "static_frame", "equation_fit",
-           "balance_offsets", "Refits"]
+__all__ = ["RecordMeans", "record_means", "mean_shift", "static_bump_stops", "shifted_offsets", "static_frame",
+           "equation_fit", "balance_offsets", "Refits"]
 
 
 def _threshold_from_static(t: Term) -> bool:

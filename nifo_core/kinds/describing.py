@@ -202,9 +202,10 @@ class Kind:
     slopes_within: Callable[[Mapping[str, object], float, float], tuple[float, float]] | None = None
     #: a hysteretic kind whose state is a play operator's (streaming NIFO carries it)
     play_state: bool = False
-    #: params -> g of a memoryless kind of z as pieces of a polynomial: ((from, to, (a0, a1, ...)), ...), g = Σ a_j·z^j
-    #: on from ≤ z < to and 0 elsewhere; its mean over a record at any shift of z then comes from the record's sorted
-    #: z in log time (:class:`nifo_core.characterize.static.RecordMeans`). None: g is evaluated sample by sample
+    #: params -> g of a memoryless kind of z as pieces of a polynomial: ((from, to, (a0, a1, ...)), ...), g =
+    #: Σ a_j·z^j on from ≤ z < to and 0 elsewhere; its mean over a record at any shift of z then comes from the
+    #: record's sorted z in log time (:class:`nifo_core.characterize.static.RecordMeans`). None: g is evaluated
+    #: sample by sample
     pieces: Callable[[Mapping[str, object]], tuple[tuple[float, float, tuple[float, ...]], ...]] | None = None
 
     def check(self, params: Mapping[str, object]) -> dict:
