@@ -159,7 +159,8 @@ def test_a_term_set_on_a_rational_part_is_fitted_at_the_linear_models_order():
     held = split_records(recs, skip_samples=PERIOD, period_samples=PERIOD, band_hz=(2.0, 20.0))
     linear = fit_linear(held, data, form="rational")
     lin = linear.model.linear
-    assert lin.kind == "rational" and len(lin.candidates["rational"]["orders_tried"]) > 1     # the linear model's order chosen
+    # the linear model's order was chosen among several
+    assert lin.kind == "rational" and len(lin.candidates["rational"]["orders_tried"]) > 1
     for term in (Term("cubic_stiffness"), DZ):
         got = fit_model(held, [term], data, linear=linear, structure="constant").model.linear
         assert got.kind == "rational" and got.poles.size == lin.poles.size, term.label
