@@ -93,6 +93,32 @@ def test_run_runs_the_loop_when_it_is_part_of_the_build(ran):
         assert "loop" in stdout
 
 
+def test_a_rounds_coefficient_is_the_final_corrected_one_or_its_plain_fit_said_so(ran):
+    """The sample's loop re-tunes its play after the round that added it. That round keeps its plain fit and says so
+    (no correction of its own set, issue 58); a round whose term the final model holds unchanged carries the final
+    model's bias-corrected coefficient."""
+    from nifo.commands.run import loop_available
+
+    if not loop_available():
+        pytest.skip("nifo loop is not part of this build")
+    doc = json.loads((ran[0] / "loop" / "loop.json").read_text())
+    assert doc["bias_corrected"]
+    final = {c["name"]: c["value"] for c in doc["coefficients"]}
+    texts = {r["round"]: r["text"] for r in doc["rounds"]}
+    kinds = {t["kind"] for t in doc["refined_model"]}
+    assert {"backlash", "velocity_deadzone"} <= kinds
+    seen = set()
+    for e in doc["effects_added"]:
+        held = e["label"] in final
+        assert e["coefficient_bias_corrected"] == held
+        if held:
+            assert e["theta_per_kg"] == final[e["label"]]
+            assert "plain fit" not in texts[e["round"]]
+        else:
+            assert "that round's plain fit: the term is re-tuned since" in texts[e["round"]]
+        seen.add(held)
+    assert seen == {True, False}    # both cases on the sample: its knee kept, its play re-tuned
+
 def test_run_prints_where_the_results_are(ran):
     out, _, stdout = ran
     assert str(out / "report" / "report.html") in stdout
