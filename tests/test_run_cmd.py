@@ -20,18 +20,37 @@ from conftest import built_once
 SAMPLE_RECORDS = ["road_0p5mm", "road_1mm", "road_2p5mm"]
 
 
+def count_resolutions(mp: pytest.MonkeyPatch) -> list[int]:
+    """From now on (until ``mp`` undoes it), how many times settings are resolved: the calls of the core's one merge,
+    :func:`nifo_core.settings.resolve_settings`, as :mod:`nifo.settings` makes them (``[count]``)."""
+    import nifo.settings as settings
+
+    calls, real = [0], settings.resolve_settings
+
+    def counting(*args, **kw):
+        calls[0] += 1
+        return real(*args, **kw)
+
+    mp.setattr(settings, "resolve_settings", counting)
+    return calls
+
+
 def _build_pipeline(base: Path) -> None:
     """``nifo --json run`` on the bundled sample into ``base/out``: the JSON summary (stdout) goes to
-    ``base/run.json``, the human text (stderr under --json) to ``base/run.txt``, the exit code to ``base/exit``."""
+    ``base/run.json``, the human text (stderr under --json) to ``base/run.txt``, the exit code to ``base/exit``, and
+    how many times the run resolved its settings (the core's one merge, :func:`nifo_core.settings.resolve_settings`,
+    as :mod:`nifo.settings` calls it) to ``base/resolutions`` (tests/test_settings_once.py)."""
     import contextlib
     import io
 
     out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+    with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        calls = count_resolutions(mp)
         code = main(["--json", "run", "--out", str(base / "out")])
     (base / "run.json").write_text(out.getvalue())
     (base / "run.txt").write_text(err.getvalue())
     (base / "exit").write_text(str(code))
+    (base / "resolutions").write_text(str(calls[0]))
 
 
 def pipeline(tmp_path_factory) -> tuple[Path, int, str]:

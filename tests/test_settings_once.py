@@ -5,7 +5,8 @@
 (:func:`nifo.settings.for_records`: a level characterized alone, each file predicted), never resolving again. On
 a99f355 one ``nifo run`` on the bundled sample resolved 9 times (job 1, characterize 3, identify 1, loop 1, predict 3).
 Counted here by the core's one merge, :func:`nifo_core.settings.resolve_settings`, which every resolution goes through,
-on real records of the simulated quarter car (two road levels, 40 s each).
+in the bundled sample's ``nifo --json run`` (three simulated road levels; built once for the whole test run and
+counted as it runs: ``tests/test_run_cmd.py``, ``_build_pipeline``).
 """
 
 from __future__ import annotations
@@ -19,9 +20,12 @@ from nifo.cli import main
 from nifo.io.loader import save_record
 from nifo_core.simulate.quarter_car import RandomRoad, SimConfig, preset, simulate
 
+from test_run_cmd import count_resolutions, pipeline
+
 
 @pytest.fixture(scope="module")
 def records(tmp_path_factory):
+    """Two road levels of the simulated quarter car (40 s each), for the single commands."""
     base = tmp_path_factory.mktemp("once")
     paths = []
     for k, rms in enumerate((1e-3, 2.5e-3)):
@@ -30,32 +34,11 @@ def records(tmp_path_factory):
     return base, paths
 
 
-def _counted(monkeypatch) -> list[int]:
-    calls = [0]
-    real = settings.resolve_settings
-
-    def counting(*args, **kw):
-        calls[0] += 1
-        return real(*args, **kw)
-
-    monkeypatch.setattr(settings, "resolve_settings", counting)
-    return calls
-
-
 @pytest.fixture(scope="module")
-def job(records):
-    """``nifo --json run`` on the two levels (no recording): (out, resolutions counted, exit code, stdout)."""
-    base, paths = records
-    with pytest.MonkeyPatch.context() as mp:
-        calls = _counted(mp)
-        out = base / "run"
-        import contextlib
-        import io
-
-        text = io.StringIO()
-        with contextlib.redirect_stdout(text):
-            code = main(["run", *map(str, paths), "--out", str(out), "--no-recording"])
-    return out, calls[0], code, text.getvalue()
+def job(tmp_path_factory):
+    """The sample's ``nifo --json run``: (out, resolutions counted, exit code, the human text)."""
+    out, code, text = pipeline(tmp_path_factory)
+    return out, int((out.parent / "resolutions").read_text()), code, text
 
 
 def test_one_nifo_run_resolves_its_settings_once(job):
@@ -88,7 +71,7 @@ def test_each_single_command_resolves_its_settings_once(job, records, command, m
             "identify": ["identify", *data, "--model", str(out / "characterize" / "suggested_model.yaml")],
             "loop": ["loop", *data, "--max-rounds", "1", "--no-refine"],
             "predict": ["predict", *data, "--model", str(out / "identify" / "model.json"), "--no-plots"]}[command]
-    calls = _counted(monkeypatch)
+    calls = count_resolutions(monkeypatch)
     assert main([*argv, "--out", str(tmp_path / command)]) == 0, capsys.readouterr().err[-2000:]
     assert calls[0] == 1
 
