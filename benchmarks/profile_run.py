@@ -50,6 +50,11 @@ Measured on 2026-12-07 at 22:30, another host (the loop benchmark on 8baeb1a, th
 sorted z): 22.9 + 0.6 = 23.5 s, floor 11.5 s against 10 s (numba 11.7, FFT 7.4, other C 3.9 CPU-s; the Python 18.4 s
 under the profiler).
 
+Measured on 2026-12-08 at 00:15, a host 1.7-1.8x slower than the last (the loop benchmark on 8db6925, the sample on
+36b122a): the loop benchmark 25.7 + 0.9 = 26.7 s, floor 13.3 s (numba 13.8, FFT 6.7, other C 5.2 CPU-s; the Python
+19.8 s); the bundled sample 15.1 + 16.0 = 31.2 s, floor 15.6 s against 15 s: its figures' rendering (44 files, 16.0
+CPU-s) is now its largest part, more than its compiled arithmetic (numba 4.0, FFT 4.3, other C 6.9 CPU-s).
+
     PYTHONPATH=. python benchmarks/profile_run.py [--f16] [--floor] [--out DIR] [--top 40] [--save run.prof]
                                                   [-- nifo ARGS...]
 """
