@@ -138,6 +138,7 @@ def test_a_rounds_coefficient_is_the_final_corrected_one_or_its_plain_fit_said_s
         seen.add(held)
     assert seen == {True, False}    # both cases on the sample: its knee kept, its play re-tuned
 
+
 def test_run_prints_where_the_results_are(ran):
     out, _, stdout = ran
     assert str(out / "report" / "report.html") in stdout

@@ -117,12 +117,12 @@ def _rounds_corrected(ev: _Evaluator, rounds: Sequence[Round], terms: Sequence[T
     the final set's, :meth:`_Evaluator.bounds`). A term re-tuned or replaced since keeps its round's plain fit, and
     its round says so (:func:`_as_added`): the final model holds its corrected value in its final form, and
     correcting the round's own set for a coefficient of a form the model no longer has cost a whole correction (39
-    simulations; the bundled sample's whole run 53.4 → 46.9 CPU-s without it, three runs each alternating). Where the final set's correction is refused
-    (terms that share their shape, a friction beside a damper knee), each round's own set is corrected, the only
-    corrected value its term gets (measured on ``benchmarks/bench_loop.py``'s records: a hidden cubic of 2e8 N/m³
-    at 1.73e8 by the plain fit and 2.00e8 corrected beside the declared knee alone, the final set with the friction
-    not correctable). One correction for the loop where the final set's holds every added term (issue 58: one per
-    round took 5.7 of the bundled sample's 19.6 s)."""
+    simulations; the bundled sample's whole run 53.4 → 46.9 CPU-s without it, three runs each alternating). Where
+    the final set's correction is refused (terms that share their shape, a friction beside a damper knee), each
+    round's own set is corrected, the only corrected value its term gets (measured on ``benchmarks/bench_loop.py``'s
+    records: a hidden cubic of 2e8 N/m³ at 1.73e8 by the plain fit and 2.00e8 corrected beside the declared knee
+    alone, the final set with the friction not correctable). One correction for the loop where the final set's
+    holds every added term (issue 58: one per round took 5.7 of the bundled sample's 19.6 s)."""
     held = ev.corrected(terms) is not None
     final = {t.label: ev.n_lin + k for k, t in enumerate(terms)} if held else {}
     out = []
