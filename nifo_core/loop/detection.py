@@ -337,18 +337,18 @@ def detection_limits(rfs: Sequence[RestoringForce], terms: Sequence[Term], candi
 def confounded_pairs(rfs: Sequence[RestoringForce], terms: Sequence[Term], candidates: Sequence[Term], *,
                      rho_max: float = 0.8, rho_sep: float = 0.5) -> tuple[Confounding, ...]:
     """Model terms and candidates on different variables that the data cannot tell apart (module docstring)."""
+    if not terms or not candidates:
+        return ()
     out = []
     lowest = min(rfs, key=lambda rf: float(np.std(rf.zdot)))
-    q: list[np.ndarray] = []
+    q = np.linalg.qr(_columns(rfs, []))[0]      # z, ż on every record: one basis for every term's column
     beyond: dict[str, np.ndarray] = {}
 
     def perp(t: Term) -> np.ndarray:
-        """The column of ``t`` beyond z, ż on every record (one basis of z, ż, each term's column made once)."""
-        if not q:
-            q.append(np.linalg.qr(_columns(rfs, []))[0])
+        """The column of ``t`` beyond z, ż on every record, made once."""
         if t.label not in beyond:
             g = _column(rfs, t)
-            beyond[t.label] = g - q[0] @ (q[0].T @ g)
+            beyond[t.label] = g - q @ (q.T @ g)
         return beyond[t.label]
 
     for a in terms:
