@@ -409,3 +409,34 @@ def test_quadratic_stiffness_is_evaluated_from_the_static_position_at_every_leve
     np.testing.assert_allclose(-np.array(quad.offsets), true_mean, atol=0.15 * max(abs(m) for m in true_mean))
     assert quad.coefficient == pytest.approx(3e5, rel=0.15)
     assert any("from the static position" in n for n in ch.notes)
+
+
+def test_a_grid_search_in_a_new_frame_takes_the_forms_of_zdot_from_the_last_and_gives_the_same_bits(monkeypatch):
+    """The characterization's frame passes (every form of z from the static position) search the grid again; the
+    forms of ż are the same in every frame, so the search takes them from the search before (issue 58) instead of
+    evaluating and band-passing them again: the same columns, terms and scores to the bit, fewer columns computed."""
+    from nifo_core.characterize.data import GridSearch, RegressionData, framed
+    from nifo_core.kinds.describing import kind
+
+    rec = _sim((StrutForce(Term("cubic_stiffness"), 2e8),), duration_s=60.0).record
+    rf = restoring_force(rec, band=IntegrationBand(2.0, 120.0))
+    data = RegressionData([rf], n_groups=4, body_stiffness=False)
+    first = GridSearch(data, DEFAULT_KINDS, 24, None)
+    moved = data.in_frame([-0.3 * float(np.std(rf.z))])
+    computed = []
+    real = RegressionData._compute
+
+    def counted(self, term, offsets):
+        computed.append(term.kind)
+        return real(self, term, offsets)
+
+    monkeypatch.setattr(RegressionData, "_compute", counted)
+    fresh = GridSearch(moved, DEFAULT_KINDS, 24, None)
+    n_fresh = len(computed)
+    computed.clear()
+    taken = GridSearch(moved.in_frame(moved.frame), DEFAULT_KINDS, 24, None, prior=first)
+    assert [t.label for t in taken.terms] == [t.label for t in fresh.terms]
+    assert np.array_equal(taken.gt, fresh.gt) and np.array_equal(taken.norm2, fresh.norm2)
+    assert np.array_equal(taken.gp2, fresh.gp2)
+    assert computed and all(framed(kind(k)) for k in computed)
+    assert len(computed) < n_fresh and any(not framed(kind(k)) for k in DEFAULT_KINDS)

@@ -128,12 +128,12 @@ def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None
 
     means = RegressionData(rfs, n_groups=n_groups, body_stiffness=body_stiffness, masks=masks)
 
-    def once(data: RegressionData, progress) -> Characterization:
+    def once(data: RegressionData, progress, prior: GridSearch | None) -> tuple[Characterization, GridSearch]:
         return _characterize(data, rfs, m2_kg=m2_kg, kinds=kinds, thresholds=thresholds, grid_points=grid_points,
-                             max_terms=max_terms, body_stiffness=body_stiffness, progress=progress)
+                             max_terms=max_terms, body_stiffness=body_stiffness, progress=progress, prior=prior)
 
     data = means
-    out = once(data, progress)
+    out, search = once(data, progress, None)
     frame = None
     for _ in range(_FRAME_PASSES):
         new = _frame_of(out, data)
@@ -141,7 +141,7 @@ def characterize_restoring(rfs: Sequence[RestoringForce], *, m2_kg: float | None
             break
         frame = new
         data = means.in_frame(frame)
-        out = once(data, None)
+        out, search = once(data, None, search)      # the forms of ż searched once: the same in every frame
     if frame is None:
         return out
     where = ", ".join(f"{1e3 * -o:+.2f} mm ({rf.source or f'record {i}'})" for i, (o, rf) in enumerate(zip(frame, rfs)))
@@ -176,9 +176,11 @@ def _moved(a: Sequence[float], b: Sequence[float]) -> float:
 
 def _characterize(data: RegressionData, rfs: Sequence[RestoringForce], *, m2_kg: float | None,
                   kinds: tuple[str, ...], thresholds: Thresholds, grid_points: int, max_terms: int,
-                  body_stiffness: bool, progress: Callable[[float], None] | None) -> Characterization:
-    """One characterization of ``data`` in its frame (:func:`characterize_restoring`)."""
-    search = GridSearch(data, kinds, grid_points, progress)
+                  body_stiffness: bool, progress: Callable[[float], None] | None,
+                  prior: GridSearch | None = None) -> tuple[Characterization, GridSearch]:
+    """One characterization of ``data`` in its frame (:func:`characterize_restoring`), and its grid search
+    (``prior``: the search of the same rows in the frame before, :class:`GridSearch`)."""
+    search = GridSearch(data, kinds, grid_points, progress, prior)
     n_grid = {k: len(search.grids[k]) for k in kinds}
 
     def score(j: int, base: list[np.ndarray], names: tuple[str, ...], fit: BaseFit | None = None) -> Candidate:
@@ -305,7 +307,7 @@ def _characterize(data: RegressionData, rfs: Sequence[RestoringForce], *, m2_kg:
                             thresholds=thresholds, records=tuple(_summary(rf, data, i) for i, rf in enumerate(rfs)),
                             linear=lin, model=model, m2_kg=m2_kg,
                             z_range_m=data.zmax, zdot_range_m_s=data.vmax, notes=tuple(notes),
-                            ambiguities=ambiguities)
+                            ambiguities=ambiguities), search
 
 
 def grid_search(rfs: Sequence[RestoringForce], *, kinds: Sequence[str] = DEFAULT_KINDS, grid_points: int = 24,

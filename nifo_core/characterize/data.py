@@ -111,7 +111,7 @@ class RegressionData:
         if offsets is not None and len(offsets) != len(self.rfs):
             raise ConfigError(f"{len(offsets)} offsets for {len(self.rfs)} records")
         off = None if offsets is None else tuple(float(o) for o in offsets)
-        offs = [off if off is not None or t.spec.variable != "z" else self.frame for t in terms]
+        offs = [off if off is not None or not framed(t.spec) else self.frame for t in terms]
         keys = [(t.kind, tuple(sorted(t.params.items())), o) for t, o in zip(terms, offs)]
         out: list[np.ndarray | None] = [self._cache.get(k) for k in keys]
         todo = [i for i, got in enumerate(out) if got is None]
@@ -154,6 +154,12 @@ class RegressionData:
                 g = term.evaluate(rf.z - offsets[i], rf.zdot)
             parts.append(bandpass(g, rf.fs_hz, rf.band)[k])
         return np.concatenate(parts)
+
+
+def framed(spec) -> bool:
+    """Whether a kind's columns are forms of z, evaluated in the data's frame (:attr:`RegressionData.frame`); the
+    others (forms of ż) are the same in every frame."""
+    return spec.variable == "z"
 
 
 # --------------------------------------------------------------------------------------------
@@ -212,7 +218,10 @@ class GridSearch:
     """
 
     def __init__(self, data: RegressionData, kinds: Sequence[str], grid_points: int,
-                 progress: Callable[[float], None] | None) -> None:
+                 progress: Callable[[float], None] | None, prior: "GridSearch | None" = None) -> None:
+        """``prior``: the search of the same rows in another frame (:meth:`RegressionData.in_frame`); its columns of
+        the kinds that are not forms of z (:func:`framed`) are the same here and are taken from it, not computed
+        again: the same arrays, every score the same to the bit."""
         self.data = data
         self.grid_points = grid_points
         rows = data.rows
@@ -226,11 +235,19 @@ class GridSearch:
         self._norms: list[np.ndarray] = []       # ‖column‖² before and after the projection
         self._total = sum(len(g) for g in self.grids.values()) + 7 * len(kinds)
         self._progress = progress
+        same = (prior is not None and prior.data.x is data.x and prior.data.rows is rows
+                and prior.grid_points == grid_points)
+        kept = {k for k in kinds if same and k in prior.span and not framed(lookup_kind(k))}
         for k in kinds:
-            self._add(self.grids[k])
+            if k in kept:       # the grid and its refinement, as this search would make them
+                self._taken(prior, k)
+            else:
+                self._add(self.grids[k])
         self._refresh()
         err, th = self.err(np.empty((rows.size, 0)), self.r0)
         for k in kinds:  # refine each kind's best
+            if k in kept:
+                continue
             j = self.best_of(k, err, th)
             if j is not None:
                 self._add(refine_grid(self.terms[j], self.grids[k]))
@@ -248,6 +265,15 @@ class GridSearch:
             self.terms.extend(chunk)
             if self._progress:
                 self._progress(min(len(self.terms) / self._total, 1.0))
+
+    def _taken(self, prior: "GridSearch", kind_name: str) -> None:
+        """``prior``'s columns of ``kind_name`` (its grid, then its refinement), as :meth:`_add` would add them."""
+        cols = prior.span[kind_name]
+        self._blocks.append(prior.gt[cols])
+        self._norms.append(np.stack([prior.norm2[cols], prior.gp2[cols]]))
+        self.terms.extend(prior.terms[cols])
+        if self._progress:
+            self._progress(min(len(self.terms) / self._total, 1.0))
 
     def _refresh(self) -> None:
         """Stack the blocks with each kind's columns together, in the order added (:attr:`span`): :meth:`best_given`
