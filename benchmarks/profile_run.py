@@ -55,6 +55,11 @@ Measured on 2026-12-08 at 00:15, a host 1.7-1.8x slower than the last (the loop 
 19.8 s); the bundled sample 15.1 + 16.0 = 31.2 s, floor 15.6 s against 15 s: its figures' rendering (44 files, 16.0
 CPU-s) is now its largest part, more than its compiled arithmetic (numba 4.0, FFT 4.3, other C 6.9 CPU-s).
 
+Measured on 2026-12-08 at 02:50, a host like 2026-12-07's first (the loop benchmark and the sample on 326ac7b, the
+synthetic refits stopped once converged): the loop benchmark 25.6 + 0.7 = 26.3 s, floor 13.1 s (numba 13.5, FFT 8.0,
+other C 4.0 CPU-s; the Python 18.0 s); the bundled sample 11.3 + 8.7 = 20.0 s, floor 10.0 s (10.1 s on c9099cc, the
+same hour), the Python 10.6 s under the profiler.
+
     PYTHONPATH=. python benchmarks/profile_run.py [--f16] [--floor] [--out DIR] [--top 40] [--save run.prof]
                                                   [-- nifo ARGS...]
 """
