@@ -263,8 +263,7 @@ class GridSearch:
             self._blocks.append(gp)
             self._norms.append(np.stack([np.einsum("ij,ij->i", g, g), np.einsum("ij,ij->i", gp, gp)]))
             self.terms.extend(chunk)
-            if self._progress:
-                self._progress(min(len(self.terms) / self._total, 1.0))
+            self._progressed()
 
     def _taken(self, prior: "GridSearch", kind_name: str) -> None:
         """``prior``'s columns of ``kind_name`` (its grid, then its refinement), as :meth:`_add` would add them."""
@@ -272,6 +271,9 @@ class GridSearch:
         self._blocks.append(prior.gt[cols])
         self._norms.append(np.stack([prior.norm2[cols], prior.gp2[cols]]))
         self.terms.extend(prior.terms[cols])
+        self._progressed()
+
+    def _progressed(self) -> None:
         if self._progress:
             self._progress(min(len(self.terms) / self._total, 1.0))
 

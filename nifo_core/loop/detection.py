@@ -283,7 +283,11 @@ def _settled(x: np.ndarray, rf: RestoringForce) -> np.ndarray:
 
 
 def _orth(a: np.ndarray, basis: np.ndarray) -> np.ndarray:
-    q, _ = np.linalg.qr(basis)
+    return _beyond(a, np.linalg.qr(basis)[0])
+
+
+def _beyond(a: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """``a`` less its projection on the orthonormal columns ``q`` (a basis factored once for many columns)."""
     return a - q @ (q.T @ a)
 
 
@@ -319,8 +323,7 @@ def detection_limits(rfs: Sequence[RestoringForce], terms: Sequence[Term], candi
     q, _ = np.linalg.qr(x)      # the model's columns, one basis for every candidate
     out = []
     for c in candidates:
-        g = _column(rfs, c.term)
-        gp = g - q @ (q.T @ g)
+        gp = _beyond(_column(rfs, c.term), q)
         info = float(gp @ gp)
         if not info > 0:
             continue
@@ -347,8 +350,7 @@ def confounded_pairs(rfs: Sequence[RestoringForce], terms: Sequence[Term], candi
     def perp(t: Term) -> np.ndarray:
         """The column of ``t`` beyond z, ż on every record, made once."""
         if t.label not in beyond:
-            g = _column(rfs, t)
-            beyond[t.label] = g - q @ (q.T @ g)
+            beyond[t.label] = _beyond(_column(rfs, t), q)
         return beyond[t.label]
 
     for a in terms:
