@@ -184,6 +184,34 @@ def test_the_bias_correction_side_by_side_is_its_serial_result_bit_for_bit(monke
     assert one.gain == two.gain
 
 
+def test_the_bias_correction_with_its_records_simulated_together_is_the_record_by_record_one():
+    """Given ``simulate_records`` (the records of one length marched together), simulated_correction simulates each
+    step's records and each record's drive-noise versions in it, side by side or not: the correction is the one of
+    ``simulate`` record by record, to the last bit."""
+    from nifo_core.signal.bias_correction import DRIVE_PAIRS, simulated_correction
+
+    from conftest import static_cubic_problem
+
+    simulate, fit, recs, noise = static_cubic_problem(3, 4000)
+    theta0 = fit(recs)
+    kw = dict(pairs=2, drive_noise=True, iterations=3)
+    alone = simulated_correction(fit, simulate, recs, noise, theta0, **kw)
+    for side in (False, True):
+        calls = []
+
+        def together(theta, some):
+            calls.append(len(some))
+            return [simulate(theta, r) for r in some]
+
+        got = simulated_correction(fit, simulate, recs, noise, theta0, side_by_side=side, simulate_records=together,
+                                   **kw)
+        for name in ("theta", "noise_bias", "draw_sd", "tail", "drive_sd", "fit_sd"):
+            assert np.array_equal(getattr(alone, name), getattr(got, name)), name
+        # three steps of three records, then each record's 2·DRIVE_PAIRS drive-noise versions in one call (or batches)
+        assert sum(calls) == 3 * len(recs) + len(recs) * 2 * DRIVE_PAIRS
+        assert side or calls == [len(recs)] * 3 + [2 * DRIVE_PAIRS] * len(recs)
+
+
 def test_the_kinds_tried_by_output_error_side_by_side_are_what_one_thread_gives(monkeypatch):
     """Beyond the equation error's reach the loop refines every kind the last round ranked by output error
     (:func:`nifo_core.loop.beyond.search_beyond`), the kinds side by side on threads: every trial (its refined term,

@@ -1,5 +1,7 @@
 """Several models of one record marched together (nifo_core.predict.timesim_lanes) give each model's own
-simulation to the last bit: the refinement's Jacobian columns, and so the refinement itself, are unchanged.
+simulation to the last bit: the refinement's Jacobian columns, and so the refinement itself, are unchanged. So does
+one model on several records of one length (predict_records: the bias correction's synthetic records, the held-out
+parts).
 
 The lanes differ as a refinement's models do (coefficients, key parameters, the body's k and c, the absorbed
 linear part); one of them diverges half-way; and where lanes cannot share a march (different kinds, feedback
@@ -16,7 +18,8 @@ from nifo_core.kinds.describing import Term
 from nifo_core.predict import refine as refine_mod
 from nifo_core.predict.refine_space import Space
 from nifo_core.predict.linear_part import BodyModel, LinearPart
-from nifo_core.predict.model import IdentifiedModel, PredictionDivergedError, predict_bodies, predict_body
+from nifo_core.predict.model import (IdentifiedModel, PredictionDivergedError, predict_bodies, predict_body,
+                                     predict_records)
 from nifo_core.predict.timesim import simulate_response
 from nifo_core.predict.timesim_lanes import simulate_responses
 from nifo_core.signal.parallel import forward_jacobian
@@ -112,6 +115,31 @@ def test_predict_bodies_is_predict_body_of_each_and_puts_a_divergence_in_its_pla
     with pytest.raises(PredictionDivergedError) as err:
         predict_body(soft, a1, FS, label="road")
     assert isinstance(got[2], PredictionDivergedError) and str(got[2]) == str(err.value) and marches == [3]
+
+
+def test_predict_records_is_predict_body_of_each_record_the_records_of_one_length_marched_together(drive, marches):
+    """One model on seven records: five of one length (four marched together, the fifth alone: MAX_LANES), one
+    shorter, one at another rate. Each prediction is predict_body's to the last bit; a record on which the softening
+    model runs away gets its error in its place while the others of its march go on."""
+    a1 = np.asarray(drive.record.spindle_accel, float)
+    base = IdentifiedModel.from_body(BodyModel(k=(2 * np.pi * 1.4) ** 2, c=2.5), TERM_SETS["knee + cubic + coulomb"],
+                                     GAMMAS["knee + cubic + coulomb"], fs_hz=FS)
+    soft = replace(base, c_over_m2=np.array([-2.3, -8e7, 0.3]))      # runs away at the drive's full level
+    n = 3000
+    drives = [0.05 * a1[k * 1000:k * 1000 + n] for k in range(5)]
+    drives[1] = a1[1000:1000 + n]                                     # the full level: diverges
+    drives += [0.05 * a1[:n // 2], 0.01 * a1[:n]]
+    rates = [FS] * 6 + [FS / 2]
+    got = predict_records(soft, drives, rates, labels=[f"r{i}" for i in range(7)])
+    assert marches == [4]       # the first four of one length and rate; the fifth, the shorter, the slower alone
+    for a, fs, g, i in zip(drives, rates, got, range(7)):
+        try:
+            p = predict_body(soft, a, fs, label=f"r{i}")
+        except PredictionDivergedError as err:
+            assert i == 1 and isinstance(g, PredictionDivergedError) and str(g) == str(err)
+            continue
+        assert all(np.array_equal(getattr(p, k), getattr(g, k)) for k in ("body_accel", "z", "zdot")), i
+        assert (p.method, p.edge_samples, p.oversample) == (g.method, g.edge_samples, g.oversample)
 
 
 def test_a_forward_jacobian_of_points_marched_together_is_the_column_by_column_one():

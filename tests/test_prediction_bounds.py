@@ -102,14 +102,19 @@ def test_the_synthetic_refits_stop_once_converged_and_land_where_running_on_land
     rec = _sim(0.0025, 40.0, 4, 0.02).record
     res = identify_nifo(rec, [s.term for s in STRUT])
     ref = refine_model(IdentifiedModel.from_nifo(res), [rec], linear=IdentifiedModel.from_nifo(res, source="h1"))
-    calls = []
-    real = rb.prediction_residuals
+    calls = []      # simulations of a record: a Jacobian's models of one, or one model's of the records
+    real, real_records = rb.prediction_residuals, rb.record_residuals
 
     def counted(models, *a, **k):
         calls.append(len(models))
         return real(models, *a, **k)
 
+    def counted_records(model, records, **k):
+        calls.append(len(records))
+        return real_records(model, records, **k)
+
     monkeypatch.setattr(rb, "prediction_residuals", counted)
+    monkeypatch.setattr(rb, "record_residuals", counted_records)
 
     def corrected() -> tuple[np.ndarray, np.ndarray, int]:
         calls.clear()

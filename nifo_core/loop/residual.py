@@ -40,7 +40,7 @@ from ..signal.record import Record
 from ..signal.bias_correction import Correction, LinearFit, simulated_correction
 from ..signal.least_squares import lstsq
 from ..errors import NifoError
-from ..predict.model import fine_factor, predict_body
+from ..predict.model import fine_factor, predict_body, predict_records
 from ..predict.timesim import lookahead_samples
 from ..signal.uncertainty import CoefficientBounds, coefficient_bounds
 
@@ -251,11 +251,23 @@ class _Evaluator:
                 except (NifoError, np.linalg.LinAlgError, FloatingPointError):
                     return None
 
+            def simulate_records(theta: np.ndarray, some: Sequence[Record]) -> list[np.ndarray | None]:
+                model = self._model_of(terms, theta, spectral, band_hz)
+                if model is None:
+                    return [None] * len(some)
+                try:    # the same bits as simulate's, the records of one length marched together
+                    got = predict_records(model, [np.asarray(r.spindle_accel) for r in some], [r.fs_hz for r in some],
+                                          forces=[r.force if self.n_lin == 3 else None for r in some])
+                except (NifoError, np.linalg.LinAlgError, FloatingPointError):
+                    return [simulate(theta, r) for r in some]    # which record cannot: each alone
+                return [None if isinstance(p, NifoError) else p.body_accel for p in got]
+
             t0 = self._lstsq(self.fit_parts, terms)
             fit = LinearFit(self._fit_parts_of, _parts_sum, lambda parts: self._lstsq(parts, terms))
             self._cache[key] = simulated_correction(fit, simulate, recs, self.noise, t0, seed=BIAS_SEED,
                                                     iterations=BIAS_ITERATIONS, drive_noise=True,
-                                                    pairs=BIAS_PAIRS, side_by_side=True, reads=self._reads())
+                                                    pairs=BIAS_PAIRS, side_by_side=True, reads=self._reads(),
+                                                    simulate_records=simulate_records)
         return self._cache[key]
 
     def joint(self, terms: Sequence[Term]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

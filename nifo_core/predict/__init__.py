@@ -34,7 +34,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs={
                     "nominal_linear_part", "pole_residue_response", "select_linear_part"],
     "timesim": ["TimeResponse", "discretise", "simulate_response"],
     "timesim_lanes": ["simulate_responses"],
-    "time_prediction": ["predict_bodies"],
+    "time_prediction": ["predict_bodies", "predict_records"],
     "fixed_point": ["contraction_bound", "fixed_point_solve"],
     "model": ["IdentifiedModel", "Prediction", "PredictedTransmissibility", "PredictionDivergedError",
               "predict_body", "predict_transmissibility", "record_inputs"],

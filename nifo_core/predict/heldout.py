@@ -27,12 +27,12 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import InputError, NifoError
-from .model import IdentifiedModel, predict_body, record_inputs
+from .model import IdentifiedModel, predict_records, record_inputs
 from .output_signal import common_mode, measured_output, output_name
 from .whole_signal import whole_signal_error
 from ..signal.band import band_limit
 from .prediction_error import band_nmse
-from ..signal.parallel import thread_map
+from ..signal.parallel import batch_map
 from ..signal.record import Record
 from .refine import start_up_samples
 
@@ -127,23 +127,32 @@ class HeldOut:
 
     def _simulated(self, model: IdentifiedModel, part: str) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per record (body acceleration, the output's predicted deviation in its measured unit), each an array of the
-        record's length, NaN where not simulated (:meth:`predictions`)."""
-        def one(i: int) -> tuple[np.ndarray, np.ndarray]:
+        record's length, NaN where not simulated (:meth:`predictions`). The records side by side: a batch on each
+        thread, the parts of one length in a batch marched together (:func:`~nifo_core.predict.model.predict_records`:
+        the same bits as one by one); the first record's divergence in record order is raised."""
+        def span(i: int) -> tuple[int, int]:
             r = self.records[i]
             if part == "held-out":
-                lo, hi = self.split[i] - self.warmup(model, i), r.n
-            elif part == "fit":
-                lo, hi = 0, self.split[i]
-            else:
-                lo, hi = 0, r.n
-            seg = r.slice(lo, hi)
-            a1, force = record_inputs(seg, model)
-            pred = predict_body(model, a1, r.fs_hz, force=force, label=r.source)
+                return self.split[i] - self.warmup(model, i), r.n
+            return (0, self.split[i]) if part == "fit" else (0, r.n)
+
+        def batch(idx: list[int]) -> list:
+            drives = [record_inputs(self.records[i].slice(*span(i)), model) for i in idx]
+            return predict_records(model, [a1 for a1, _ in drives], [self.records[i].fs_hz for i in idx],
+                                   forces=[f for _, f in drives], labels=[self.records[i].source for i in idx])
+
+        preds = batch_map(batch, range(len(self.records)))
+        out = []
+        for i, pred in enumerate(preds):
+            if isinstance(pred, NifoError):
+                raise pred
+            r = self.records[i]
+            lo, hi = span(i)
             y, dev = np.full(r.n, np.nan), np.full(r.n, np.nan)
             y[lo:hi] = pred.body_accel
             dev[lo:hi] = pred.z if output_name(r) == "body_disp" else pred.body_accel
-            return y, dev
-        return thread_map(one, range(len(self.records)))     # the records side by side (pure simulations)
+            out.append((y, dev))
+        return out
 
     def predictions(self, model: IdentifiedModel, *, part: str = "held-out") -> list[np.ndarray]:
         """The model's body acceleration of every record, simulated from rest (may raise NifoError), as arrays of the

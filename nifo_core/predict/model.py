@@ -55,11 +55,12 @@ from .scope import Offsets, PeriodicResponse, PredictionBand, Validity
 from ..signal.frf import coherence, h1
 from ..signal.spectral import SpectralSettings, cross_spectra
 from .time_prediction import (DIVERGENCE_FACTOR, FINE_RATE_HZ, Prediction, PredictionDivergedError, _check_input,
-                              _edge, _external, _predict_time, fine_factor, predict_bodies, record_inputs, time_method)
+                              _edge, _external, _predict_time, fine_factor, predict_bodies, predict_records,
+                              record_inputs, time_method)
 
 __all__ = ["BodyModel", "LinearPart", "IdentifiedModel", "Prediction", "PredictedTransmissibility",
-           "PredictionDivergedError", "fit_body_model", "predict_body", "predict_bodies", "predict_transmissibility",
-           "record_inputs", "fine_factor", "DIVERGENCE_FACTOR", "FINE_RATE_HZ"]
+           "PredictionDivergedError", "fit_body_model", "predict_body", "predict_bodies", "predict_records",
+           "predict_transmissibility", "record_inputs", "fine_factor", "DIVERGENCE_FACTOR", "FINE_RATE_HZ"]
 
 Method = Literal["parametric", "nonparametric"]
 Engine = Literal["time", "frequency"]

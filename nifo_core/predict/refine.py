@@ -78,13 +78,13 @@ from .linear_part import absorbed_rates
 from .model import IdentifiedModel, PredictionDivergedError, predict_body, record_inputs
 from .refine_space import Space, half_widths, reported_values, space_for, stored_covariance, terms_on
 from .sensitivity import Parameters, residual_jacobian
-from .time_prediction import predict_bodies
+from .time_prediction import predict_bodies, predict_records
 from .prediction_error import band_spectra
 from ..signal.parallel import batch_map, thread_map
 from ..signal.record import Record
 
 __all__ = ["Refinement", "refine_model", "refine_jointly", "model_nmse", "start_up_samples", "prediction_residual",
-           "prediction_residuals", "march_jacobians"]
+           "prediction_residuals", "record_residuals", "march_jacobians"]
 
 #: relative error a diverged simulation counts as (per record; 1 = predicting zero)
 _DIVERGED = 10.0
@@ -142,15 +142,9 @@ def model_nmse(model: IdentifiedModel, records: Sequence[Record], *, band_hz: tu
 
     A record whose prediction diverges gives ``inf``.
     """
-    skips = _skips(skip_samples, len(records))
-    out = []
-    for rec, skip in zip(records, skips):
-        try:
-            r = _residual(model, rec, band_hz, period_samples, skip, oversample)
-            out.append(float(100 * np.sum(np.abs(r) ** 2)))
-        except PredictionDivergedError:
-            out.append(float("inf"))
-    return out
+    got = record_residuals(model, records, band_hz=band_hz, period_samples=period_samples,
+                           skip_samples=_skips(skip_samples, len(records)), oversample=oversample)
+    return [float("inf") if r is None else float(100 * np.sum(np.abs(r) ** 2)) for r in got]
 
 
 def start_up_samples(model: IdentifiedModel, record: Record, period_samples: int | None = None) -> int:
@@ -176,6 +170,20 @@ def _residual(model, rec, band_hz, period_samples, skip, oversample) -> np.ndarr
     a1, force = record_inputs(rec, model)
     p = predict_body(model, a1, rec.fs_hz, force=force, oversample=oversample, label=rec.source)
     return _scored(p.body_accel, rec, band_hz, period_samples, skip)
+
+
+def record_residuals(model: IdentifiedModel, records: Sequence[Record], *, band_hz: tuple[float, float],
+                     period_samples: int | None = None, skip_samples: Sequence[int] | None = None,
+                     oversample: int | None = None) -> list[np.ndarray | None]:
+    """:func:`prediction_residual` of ``model`` on each record (``skip_samples[i]`` for record i), None where its
+    simulation diverges: the same values, the records of one length marched together
+    (:func:`~nifo_core.predict.time_prediction.predict_records`: a refinement's evaluation, a synthetic refit's)."""
+    skips = [0] * len(records) if skip_samples is None else list(skip_samples)
+    drives = [record_inputs(r, model) for r in records]
+    preds = predict_records(model, [a1 for a1, _ in drives], [r.fs_hz for r in records],
+                            forces=[f for _, f in drives], oversample=oversample, labels=[r.source for r in records])
+    return [None if isinstance(p, PredictionDivergedError) else _scored(p.body_accel, r, band_hz, period_samples, s)
+            for p, r, s in zip(preds, records, skips, strict=True)]
 
 
 def _scored(body_accel: np.ndarray, rec, band_hz, period_samples, skip) -> np.ndarray:
@@ -294,14 +302,12 @@ def refine_model(model: IdentifiedModel, records: Sequence[Record], *, band_hz: 
         else:
             m = sp.model(x)
 
-            def one(k: int) -> np.ndarray | None:
-                try:
-                    return _residual(m, records[k], band, period_samples, skips[k], oversample)
-                except PredictionDivergedError:
-                    return None
+            def some(ks: list[int]) -> list[np.ndarray | None]:
+                return record_residuals(m, [records[k] for k in ks], band_hz=band, period_samples=period_samples,
+                                        skip_samples=[skips[k] for k in ks], oversample=oversample)
 
-            # the records side by side
-            out, bad = assembled(thread_map(one, range(len(records))))
+            # the records side by side: a batch on each thread, those of one length marched together
+            out, bad = assembled(batch_map(some, range(len(records))))
         with lock:
             n_eval += 1
             diverged[key] = bad

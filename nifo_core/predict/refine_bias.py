@@ -35,12 +35,12 @@ import scipy.optimize
 
 from ..signal.bias_correction import MAX_RELATIVE_BIAS, Correction, simulated_correction
 from ..errors import NifoError
-from .model import predict_body, record_inputs
+from .model import predict_body, predict_records, record_inputs
 from ..signal.noise import NoiseEstimate
 from .prediction_bounds import Z95
 from ..signal.parallel import forward_jacobian
 from ..signal.record import Record
-from .refine import Refinement, march_jacobians, prediction_residuals
+from .refine import Refinement, march_jacobians, prediction_residuals, record_residuals
 from .refine_space import moved_refinement, parameter_space
 
 __all__ = ["REFIT_EVALUATIONS", "bracketed", "correct_refinement", "noted"]
@@ -108,6 +108,17 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
         except (NifoError, FloatingPointError, np.linalg.LinAlgError):
             return None
 
+    def simulate_records(theta: np.ndarray, recs: Sequence[Record]) -> list[np.ndarray | None]:
+        truth["x"] = np.asarray(theta, float)
+        model = to_model(truth["x"])
+        try:    # the same bits as simulate's, the records of one length marched together
+            drives = [record_inputs(rec, model) for rec in recs]
+            got = predict_records(model, [a1 for a1, _ in drives], [rec.fs_hz for rec in recs],
+                                  forces=[f for _, f in drives], oversample=oversample)
+        except (NifoError, FloatingPointError, np.linalg.LinAlgError):
+            return [simulate(theta, rec) for rec in recs]     # which record cannot: each alone
+        return [None if isinstance(p, NifoError) else p.body_accel for p in got]
+
     def fit(recs: Sequence[Record]) -> np.ndarray:
         def residuals(xs: list[np.ndarray]) -> list[np.ndarray]:   # pure: the refits run side by side
             """The residual vector at each θ of ``xs``; several θs (the Jacobian's columns) marched together."""
@@ -116,8 +127,9 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
                                                oversample=oversample) for rec, skip in zip(recs, skips)]
             return [_vector([got[lane] for got in per_record]) for lane in range(len(xs))]
 
-        def residual(x: np.ndarray) -> np.ndarray:
-            return residuals([x])[0]
+        def residual(x: np.ndarray) -> np.ndarray:     # the records of one length marched together
+            return _vector(record_residuals(to_model(x), recs, band_hz=band, period_samples=period,
+                                            skip_samples=skips, oversample=oversample))
         # the refit starts at the synthetic truth and moves by the bias alone (a fraction of a half-width): the
         # Jacobian there serves every step (simplified Gauss-Newton), one simulation per step instead of 1 + len(θ)
         x0 = np.asarray(truth["x"], float)
@@ -148,7 +160,8 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
         return noted(refinement, "not bias-corrected (no parameter is determined to within half its value): the "
                                  "refined values may be biased by the spindle sensor's noise")
     cor = simulated_correction(fit, simulate, records, noise, x_star, seed=seed, scale=np.ones_like(x_star),
-                               noise_only=True, hold=hold, side_by_side=True, bracket=True)
+                               noise_only=True, hold=hold, side_by_side=True, bracket=True,
+                               simulate_records=simulate_records)
     if cor is None:
         return noted(refinement, "not bias-corrected (the correction does not converge or would move a parameter "
                                  "by more than half): the refined values may be biased by the spindle sensor's noise")

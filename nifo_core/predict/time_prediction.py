@@ -4,8 +4,8 @@
 one: the model's linear part and terms simulated by :mod:`nifo_core.predict.timesim` from the record's measured
 input v = ẍ1 [+ k3·x1] [- F/M2], on a fine step of at least :data:`FINE_RATE_HZ`, a response beyond
 :data:`DIVERGENCE_FACTOR` times the linear part's own peak raised as :class:`PredictionDivergedError`.
-:func:`predict_bodies` predicts several models on one record, marched side by side where they can be
-(:mod:`nifo_core.predict.timesim_lanes`), each the same bits as alone.
+:func:`predict_bodies` predicts several models on one record, :func:`predict_records` one model on several records,
+marched side by side where they can be (:mod:`nifo_core.predict.timesim_lanes`), each the same bits as alone.
 
 A ``model`` here is an :class:`~nifo_core.predict.model.IdentifiedModel`; it is not imported (model.py imports
 this module, and the core's modules form no cycle).
@@ -26,10 +26,10 @@ from ..signal.integrate import integrate
 from ..signal.memo import ArrayMemo
 from .linear_part import LinearPart
 from .timesim import simulate_response
-from .timesim_lanes import simulate_responses
+from .timesim_lanes import MAX_LANES, simulate_responses
 
 __all__ = ["DIVERGENCE_FACTOR", "FINE_RATE_HZ", "Prediction", "PredictionDivergedError", "fine_factor",
-           "predict_bodies", "record_inputs", "time_method", "EngineInput", "engine_input"]
+           "predict_bodies", "predict_records", "record_inputs", "time_method", "EngineInput", "engine_input"]
 
 
 #: a response whose |z| exceeds this many times the linear part's peak counts as diverged
@@ -297,6 +297,52 @@ def predict_bodies(models: Sequence, spindle_accel: np.ndarray | None, fs_hz: fl
     for m, resp, (_, _, limit) in zip(models, responses, inputs):
         try:
             out.append(_time_prediction(m, m.linear, resp, a1, force, fs_hz, limit, label, time_method(m.linear)))
+        except PredictionDivergedError as e:
+            out.append(e)
+    return out
+
+
+def predict_records(model, spindle_accels: Sequence[np.ndarray | None], fs_hz: float | Sequence[float], *,
+                    forces: Sequence[np.ndarray | None] | None = None, oversample: int | None = None,
+                    labels: Sequence[str | None] | None = None) -> list[Prediction | PredictionDivergedError]:
+    """:func:`~nifo_core.predict.model.predict_body` of one model on several records (record i driven by
+    ``spindle_accels[i]`` and ``forces[i]`` at its rate, ``fs_hz`` or ``fs_hz[i]``), with its defaults (parametric, time
+    domain): the same predictions bit for bit, the records of one length and rate marched side by side
+    (:mod:`nifo_core.predict.timesim_lanes`: the bias correction's synthetic records, the held-out parts of equal
+    records; at most :data:`~nifo_core.predict.timesim_lanes.MAX_LANES` in a march). A record whose response diverges
+    gets its :class:`PredictionDivergedError` in its place (not raised)."""
+    n_rec = len(spindle_accels)
+    rates = [float(f) for f in (np.broadcast_to(fs_hz, (n_rec,)) if np.ndim(fs_hz) == 0 else fs_hz)]
+    forces = [None] * n_rec if forces is None else list(forces)
+    labels = [None] * n_rec if labels is None else list(labels)
+    a1s, fs = [], []
+    for a1, force in zip(spindle_accels, forces, strict=True):
+        a1 = _check_input(a1, "spindle_accel", None)
+        force = _check_input(force, "force", None if a1 is None else a1.size)
+        if a1 is None and force is None:
+            raise InputError("nothing drives the model: give the spindle acceleration or a force",
+                             channel="spindle_accel")
+        a1s.append(a1)
+        fs.append(force)
+    inputs = [_time_inputs(model, model.linear, a1, f, rate, oversample) for a1, f, rate in zip(a1s, fs, rates)]
+    groups: dict[tuple, list[int]] = {}     # lanes share a length, a rate, a fine step and whether a spindle drives
+    for i, (v, q, _) in enumerate(inputs):
+        groups.setdefault((v.size, rates[i], q, a1s[i] is None), []).append(i)
+    chunks = [(key, idx[k:k + MAX_LANES]) for key, idx in groups.items() for k in range(0, len(idx), MAX_LANES)]
+    terms = _static_frame(model.terms)
+    responses: list = [None] * n_rec
+    for (_, rate, q, fixed), idx in chunks:
+        got = simulate_responses([model.linear] * len(idx), [terms] * len(idx), [model.c_over_m2] * len(idx),
+                                 np.stack([inputs[i][0] for i in idx]), rate,
+                                 spindle_accel=None if fixed else np.stack([a1s[i] for i in idx]), oversample=q,
+                                 z_limits=[inputs[i][2] for i in idx])
+        for i, resp in zip(idx, got):
+            responses[i] = resp
+    out: list[Prediction | PredictionDivergedError] = []
+    what = time_method(model.linear)
+    for a1, f, rate, resp, (_, _, limit), label in zip(a1s, fs, rates, responses, inputs, labels):
+        try:
+            out.append(_time_prediction(model, model.linear, resp, a1, f, rate, limit, label, what))
         except PredictionDivergedError as e:
             out.append(e)
     return out

@@ -74,7 +74,7 @@ import numpy as np
 from scipy import stats
 
 from .noise import NoiseEstimate, noise_draw
-from .parallel import thread_map
+from .parallel import batch_map, thread_map
 from .record import Record
 
 __all__ = ["ITERATIONS", "NOISE_LEVEL_RTOL", "Correction", "LinearFit", "simulated_correction"]
@@ -275,7 +275,9 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
                          noise_only: bool = False, hold: np.ndarray | None = None,
                          side_by_side: bool = False, drive_noise: bool = False,
                          pairs: int = 1, reads: Sequence[int] | None = None,
-                         bracket: bool = False) -> Correction | None:
+                         bracket: bool = False,
+                         simulate_records: Callable[[np.ndarray, Sequence[Record]], list] | None = None
+                         ) -> Correction | None:
     """``theta0`` (the fit ``fit`` on ``records``) with the fit's bias removed (module docstring).
 
     ``simulate(θ, record)`` is the body acceleration the model with θ gives for the record's spindle
@@ -297,8 +299,17 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
     seed gives the same draws; the result is the same to rounding (the filters' FFT lengths differ).
     ``bracket``: a last step that turned back past :data:`MAX_CONTRACTION` × the one before is not refused: the
     fixed point lies between the two iterates and the secant through them is taken (:attr:`Correction.bracketed`;
-    module docstring)."""
+    module docstring). ``simulate_records(θ, records)``: ``[simulate(θ, r) for r in records]``, the same values, cheaper
+    together (:func:`~nifo_core.predict.model.predict_records`: records of one length marched side by side); each
+    step's records and the drive noise's versions of each record are then simulated so."""
     each = thread_map if side_by_side else (lambda fn, items: [fn(x) for x in items])
+
+    def bodies_of(theta: np.ndarray, recs: Sequence[Record]) -> list:
+        """Each record's simulation at ``theta``: side by side on threads, in batches where given together."""
+        if simulate_records is None:
+            return each(lambda r: simulate(theta, r), recs)
+        return batch_map(lambda b: simulate_records(theta, b), recs) if side_by_side else simulate_records(theta, recs)
+
     rng = np.random.default_rng(seed)
     whole = [r.n for r in records]
     draws = [[noise_draw(n, rng) for n in whole] for _ in range(max(int(pairs), 1))]
@@ -314,7 +325,7 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
     n_steps = max(int(iterations), 1)
     fits = _Fits(fit, records, noise, draws)
     for step in range(n_steps):
-        bodies = each(lambda r: simulate(theta, r), records)
+        bodies = bodies_of(theta, records)
         if any(b is None or not np.all(np.isfinite(b)) for b in bodies):
             return None
         # steps before the last two on the first pair alone (:data:`FULL_STEPS`)
@@ -347,7 +358,7 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
         if np.any(big & ~beyond):
             return None     # the fixed point contracts slowly: the bias map is ill-conditioned (confounded terms)
     # the drive noise's simulations only for a correction that is kept (they do not change the refusal above)
-    drive_sd = _drive_sd(fits, simulate, theta, rng, each, free, whole) if drive_noise else None
+    drive_sd = _drive_sd(fits, bodies_of, theta, rng, each, free, whole) if drive_noise else None
     if drive_sd is not None and not np.all(np.isfinite(drive_sd)):
         return None
     gain, tail = 1.0, None
@@ -369,7 +380,7 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
     return Correction(theta, t0, noise_bias, draw_sd, gain, tail, drive_sd, fit_sd, len(draws), bool(np.any(beyond)))
 
 
-def _drive_sd(fits: _Fits, simulate, theta, rng, each, free, whole) -> np.ndarray:
+def _drive_sd(fits: _Fits, bodies_of, theta, rng, each, free, whole) -> np.ndarray:
     """The synthetic fit's standard deviation from the noise in its drive: the root mean square of the half
     differences of the fits whose drive carries ± one more draw of the spindle's estimated noise
     (:data:`DRIVE_PAIRS` pairs, at ``theta``).
@@ -385,16 +396,18 @@ def _drive_sd(fits: _Fits, simulate, theta, rng, each, free, whole) -> np.ndarra
     """
     extra = [[noise_draw(n, rng)[0] for n in whole] for _ in range(DRIVE_PAIRS)]   # whole records: the same draws
     fits.ready([0], each)
+    jobs = [(k, sign) for k in range(DRIVE_PAIRS) for sign in (1.0, -1.0)]
+    # drove[j][i]: record i driven with job j's draw; a record's versions simulated together (one length)
+    drove = [[replace(r, spindle_accel=np.asarray(r.spindle_accel, float) + sign * e.stds[0] * x[:r.n])
+              if e.available else r for r, e, x in zip(fits.records, fits.noise, extra[k])] for k, sign in jobs]
+    by_record = [bodies_of(theta, [d[i] for d in drove]) for i in range(len(fits.records))]
 
-    def one(job: tuple[int, float]) -> np.ndarray:
-        k, sign = job
-        drove = [replace(r, spindle_accel=np.asarray(r.spindle_accel, float) + sign * e.stds[0] * x[:r.n])
-                 if e.available else r for r, e, x in zip(fits.records, fits.noise, extra[k])]
-        bodies = [simulate(theta, r) for r in drove]
+    def one(j: int) -> np.ndarray:
+        bodies = [got_i[j] for got_i in by_record]
         if any(b is None or not np.all(np.isfinite(b)) for b in bodies):
             return np.full(theta.shape, np.nan)
-        return fits.fitted(fits.clean(drove, bodies), (0, 1.0))   # the first pair's first draw, as the steps'
+        return fits.fitted(fits.clean(drove[j], bodies), (0, 1.0))   # the first pair's first draw, as the steps'
 
-    got = each(one, [(k, s) for k in range(DRIVE_PAIRS) for s in (1.0, -1.0)])
+    got = each(one, range(len(jobs)))
     half = [0.5 * (got[2 * k] - got[2 * k + 1]) for k in range(DRIVE_PAIRS)]
     return free * np.sqrt(np.mean(np.square(half), axis=0))
