@@ -40,7 +40,7 @@ from ..signal.record import Record
 from ..signal.bias_correction import Correction, LinearFit, simulated_correction
 from ..signal.least_squares import lstsq
 from ..errors import NifoError
-from ..predict.model import fine_factor, predict_body, predict_records
+from ..predict.model import fine_factor, predict_records
 from ..predict.timesim import lookahead_samples
 from ..signal.uncertainty import CoefficientBounds, coefficient_bounds
 
@@ -241,26 +241,21 @@ class _Evaluator:
             recs = list(self.held.records)
             spectral, band_hz = self.settings.spectral, self.settings.analysis_band_hz
 
-            def simulate(theta: np.ndarray, rec: Record) -> np.ndarray | None:
-                model = self._model_of(terms, theta, spectral, band_hz)
-                if model is None:
-                    return None
-                try:
-                    return predict_body(model, np.asarray(rec.spindle_accel), rec.fs_hz, force=rec.force
-                                        if self.n_lin == 3 else None).body_accel
-                except (NifoError, np.linalg.LinAlgError, FloatingPointError):
-                    return None
-
             def simulate_records(theta: np.ndarray, some: Sequence[Record]) -> list[np.ndarray | None]:
+                """Each record's body acceleration at θ (None where it cannot be simulated), the records of one
+                length marched together (predict_body's bits)."""
                 model = self._model_of(terms, theta, spectral, band_hz)
                 if model is None:
                     return [None] * len(some)
-                try:    # the same bits as simulate's, the records of one length marched together
+                try:
                     got = predict_records(model, [np.asarray(r.spindle_accel) for r in some], [r.fs_hz for r in some],
                                           forces=[r.force if self.n_lin == 3 else None for r in some])
                 except (NifoError, np.linalg.LinAlgError, FloatingPointError):
-                    return [simulate(theta, r) for r in some]    # which record cannot: each alone
+                    return [None] if len(some) == 1 else [simulate(theta, r) for r in some]  # which cannot: alone
                 return [None if isinstance(p, NifoError) else p.body_accel for p in got]
+
+            def simulate(theta: np.ndarray, rec: Record) -> np.ndarray | None:
+                return simulate_records(theta, [rec])[0]
 
             t0 = self._lstsq(self.fit_parts, terms)
             fit = LinearFit(self._fit_parts_of, _parts_sum, lambda parts: self._lstsq(parts, terms))

@@ -35,7 +35,7 @@ import scipy.optimize
 
 from ..signal.bias_correction import MAX_RELATIVE_BIAS, Correction, simulated_correction
 from ..errors import NifoError
-from .model import predict_body, predict_records, record_inputs
+from .model import predict_records, record_inputs
 from ..signal.noise import NoiseEstimate
 from .prediction_bounds import Z95
 from ..signal.parallel import forward_jacobian
@@ -99,25 +99,20 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
     skips = [int(v) for v in info["skip_samples"]]
     truth = {"x": x_star}
 
-    def simulate(theta: np.ndarray, rec: Record) -> np.ndarray | None:
+    def simulate_records(theta: np.ndarray, recs: Sequence[Record]) -> list[np.ndarray | None]:
+        """Each record's body acceleration at θ, None where it cannot be simulated (predict_records)."""
         truth["x"] = np.asarray(theta, float)
         model = to_model(truth["x"])
         try:
-            a1, force = record_inputs(rec, model)
-            return predict_body(model, a1, rec.fs_hz, force=force, oversample=oversample).body_accel
-        except (NifoError, FloatingPointError, np.linalg.LinAlgError):
-            return None
-
-    def simulate_records(theta: np.ndarray, recs: Sequence[Record]) -> list[np.ndarray | None]:
-        truth["x"] = np.asarray(theta, float)
-        model = to_model(truth["x"])
-        try:    # the same bits as simulate's, the records of one length marched together
             drives = [record_inputs(rec, model) for rec in recs]
             got = predict_records(model, [a1 for a1, _ in drives], [rec.fs_hz for rec in recs],
                                   forces=[f for _, f in drives], oversample=oversample)
         except (NifoError, FloatingPointError, np.linalg.LinAlgError):
-            return [simulate(theta, rec) for rec in recs]     # which record cannot: each alone
+            return [None] if len(recs) == 1 else [simulate(theta, rec) for rec in recs]   # which cannot: alone
         return [None if isinstance(p, NifoError) else p.body_accel for p in got]
+
+    def simulate(theta: np.ndarray, rec: Record) -> np.ndarray | None:
+        return simulate_records(theta, [rec])[0]
 
     def fit(recs: Sequence[Record]) -> np.ndarray:
         def residuals(xs: list[np.ndarray]) -> list[np.ndarray]:   # pure: the refits run side by side

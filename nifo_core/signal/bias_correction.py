@@ -363,21 +363,27 @@ def simulated_correction(fit: Callable[[Sequence[Record]], np.ndarray],
         return None
     gain, tail = 1.0, None
     if len(steps) > 1:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            q = np.where(np.abs(steps[-2]) > 0, steps[-1] / steps[-2], 0.0)
-        # a step that turned back past the last one brackets the fixed point between the two iterates: the secant
-        # through them (the same geometric tail, unclipped) lands inside the first step's correction, never beyond
-        q_back = q
-        q = np.clip(q, -MAX_CONTRACTION, MAX_CONTRACTION)
-        # the contraction read where the steps are above the convergence tolerance: the ratio of two steps already
-        # within it is noise (measured: k's and c's after five steps on a bump stop, clipped at MAX_CONTRACTION)
-        moving = free & (np.abs(steps[-2]) > CONVERGED_RTOL * size)
-        rate = float(np.max(np.abs(q[moving]))) if np.any(moving) else float(np.max(np.abs(q)))
-        gain = float(1.0 / (1.0 - rate))
-        q_tail = np.where(beyond, q_back, q)
-        tail = free * steps[-1] * q_tail / (1.0 - q_tail)      # the geometric rest of the way to the fixed point
+        gain, tail = _tail(steps, free, size, beyond)
         theta = theta + tail
     return Correction(theta, t0, noise_bias, draw_sd, gain, tail, drive_sd, fit_sd, len(draws), bool(np.any(beyond)))
+
+
+def _tail(steps: list[np.ndarray], free: np.ndarray, size: np.ndarray, beyond: np.ndarray) -> tuple[float, np.ndarray]:
+    """The iteration's gain 1/(1 - r), r its contraction, and the geometric rest of the way to the fixed point from
+    the last two of ``steps`` (module docstring); ``beyond``: the coordinates whose last step turned back past
+    :data:`MAX_CONTRACTION` × the one before (their secant)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        q = np.where(np.abs(steps[-2]) > 0, steps[-1] / steps[-2], 0.0)
+    # a step that turned back past the last one brackets the fixed point between the two iterates: the secant
+    # through them (the same geometric tail, unclipped) lands inside the first step's correction, never beyond
+    q_back = q
+    q = np.clip(q, -MAX_CONTRACTION, MAX_CONTRACTION)
+    # the contraction read where the steps are above the convergence tolerance: the ratio of two steps already
+    # within it is noise (measured: k's and c's after five steps on a bump stop, clipped at MAX_CONTRACTION)
+    moving = free & (np.abs(steps[-2]) > CONVERGED_RTOL * size)
+    rate = float(np.max(np.abs(q[moving]))) if np.any(moving) else float(np.max(np.abs(q)))
+    q_tail = np.where(beyond, q_back, q)
+    return float(1.0 / (1.0 - rate)), free * steps[-1] * q_tail / (1.0 - q_tail)
 
 
 def _drive_sd(fits: _Fits, bodies_of, theta, rng, each, free, whole) -> np.ndarray:
