@@ -7,7 +7,9 @@ number of terms compiled in against counted at run time (the baseline, same run)
 and the quarter car with every kind, the step as it runs (each row of the block-diagonal Φ two fixed products)
 against the same step looping over each row's band (the baseline, same run), bit for bit the same output; and
 for each quarter car, three models of one record (a forward-difference Jacobian's columns) marched together
-(:mod:`nifo_core.predict.timesim_lanes`) against one by one (the baseline, same run), bit for bit the same.
+(:mod:`nifo_core.predict.timesim_lanes`) against one by one (the baseline, same run), bit for bit the same, and
+one model on four records of one length (the record's quarters, :func:`~nifo_core.predict.model.predict_records`)
+marched together against one by one (the baseline, same run), bit for bit the same.
 Target: 300 s at 600 Hz predicted in less than 2 s after compilation (CPU
 time of the process; the wall time is printed beside it, with the load). Each
 model is the true one of a simulated record (so the accuracy printed beside
@@ -30,7 +32,7 @@ import numpy as np
 
 from nifo_core.kinds.describing import Term
 from nifo_core.errors import ConfigError
-from nifo_core.predict.model import BodyModel, IdentifiedModel, predict_bodies, predict_body
+from nifo_core.predict.model import BodyModel, IdentifiedModel, predict_bodies, predict_body, predict_records
 from nifo_core.simulate.quarter_car import RandomRoad, SimConfig, StrutForce, preset, simulate
 
 TARGET_S = 2.0
@@ -130,6 +132,23 @@ def _against_one_by_one(name: str, model: IdentifiedModel, a1, fs: float, q, rep
         raise SystemExit(f"{name}: the models marched together differ from one by one")
 
 
+def _records_against_one_by_one(name: str, model: IdentifiedModel, a1, fs: float, q, repeats: int,
+                                records: int = 4) -> None:
+    """CPU of one model's predictions of ``records`` records of one length (the quarters of ``a1``) marched together
+    (:func:`predict_records`: the bias corrections' synthetic records, the held-out parts) against one by one (the
+    baseline, same run), and whether every output is identical."""
+    n = a1.size // records
+    drives = [a1[k * n:(k + 1) * n] for k in range(records)]
+    _, alone, ref = _timed(lambda: [predict_body(model, a, fs, oversample=q) for a in drives], repeats)
+    _, together, out = _timed(lambda: predict_records(model, drives, fs, oversample=q), repeats)
+    same = all(np.array_equal(getattr(o, k), getattr(r, k))
+               for o, r in zip(out, ref) for k in ("z", "zdot", "body_accel"))
+    print(f"{name:<38} {records} records of one model: marched together {together:6.3f} s CPU, one by one "
+          f"{alone:6.3f} s -> {together / alone:.2f}, output {'identical' if same else 'DIFFERENT'}")
+    if not same:
+        raise SystemExit(f"{name}: the records marched together differ from one by one")
+
+
 def _nmse(y, yhat, v) -> float:
     return float(100 * np.mean((y[v] - yhat[v]) ** 2) / np.var(y[v]))
 
@@ -205,6 +224,7 @@ def main() -> int:
             line += f"; frequency domain refused ({err.message})"
         print(line)
         _against_one_by_one(name, model, a1, fs, q, args.repeats)
+        _records_against_one_by_one(name, model, a1, fs, q, args.repeats)
         if strut is cases["every kind (incl. backlash), 2.5 mm"][0]:
             _against_band_loop(name, lambda: predict_body(model, a1, fs, oversample=q), args.repeats)
     wall_c, cpu_c, wall_p, cpu_p = _rational_cases(args.duration, fs, q, args.repeats)
