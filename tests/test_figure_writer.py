@@ -130,6 +130,18 @@ def test_abandoned_helpers_leave_no_manager_thread_for_the_exit_hook_to_race():
     assert not manager.is_alive() and wakeup._closed
 
 
+def test_a_command_that_fails_ends_its_helpers_at_once_and_a_later_one_starts_them_anew(tmp_path):
+    """A failed command (an input error after its helpers started) kills them at once rather than at exit, when they
+    have finished importing matplotlib for nothing; a later command of the same process has helpers again."""
+    from nifo.cli import main
+
+    writer.start_helpers()
+    pids = _helpers()
+    assert main(["-q", "run", str(tmp_path / "missing.mcap"), "--out", str(tmp_path / "out")]) == 3
+    assert writer._pool is None and not any(_running(p) for p in pids)
+    assert sorted(_helpers()) != sorted(pids)     # started anew
+
+
 def _running(pid: int) -> bool:
     try:
         with open(f"/proc/{pid}/stat") as f:

@@ -424,8 +424,10 @@ def submit_figure(fig, path: str | Path, dpi: int, tight_rect: tuple | None = No
     return True
 
 
-def abandon_helpers() -> None:
-    """An interrupted command's helpers, killed at once: none is left starting after its parent has gone.
+def abandon_helpers(*, again: bool = False) -> None:
+    """An interrupted command's helpers, killed at once: none is left starting after its parent has gone. ``again``
+    (a failed command's, every figure of it cancelled or waited for): a later figure of this process may start
+    helpers anew; else it is written in the calling process.
 
     A helper still starting when its parent exits unpickles the pool's queues, whose semaphores the parent's exit
     has removed, and prints a traceback to the terminal before any of our code runs in it (measured:
@@ -439,7 +441,7 @@ def abandon_helpers() -> None:
     interrupted command's own message (CI, ``tests/test_kill.py``, SIGINT 7.0 s into ``nifo run``)."""
     global _pool, _pool_failed
     with _lock:
-        pool, _pool, _pool_failed = _pool, None, True
+        pool, _pool, _pool_failed = _pool, None, not again
     if pool is None:
         return
     procs = list((getattr(pool, "_processes", None) or {}).values())
