@@ -60,6 +60,11 @@ synthetic refits stopped once converged): the loop benchmark 25.6 + 0.7 = 26.3 s
 other C 4.0 CPU-s; the Python 18.0 s); the bundled sample 11.3 + 8.7 = 20.0 s, floor 10.0 s (10.1 s on c9099cc, the
 same hour), the Python 10.6 s under the profiler.
 
+Measured on 2026-12-08 at 04:50-05:05, the same host (one model's simulations of several records of one length
+marched together, :func:`nifo_core.predict.model.predict_records`): the loop benchmark (ac924a8) 22.0 + 0.7 = 22.7 s,
+floor 11.4 s (numba 13.5 → 10.4, FFT 7.9, other C 3.8 CPU-s; the Python 17.8 s); the bundled sample (f2538b0)
+10.6 + 9.0 = 19.6 s, floor 9.8 s (numba 4.0 → 2.9 CPU-s; the Python 11.1 s, the figures' building 1.9 s).
+
     PYTHONPATH=. python benchmarks/profile_run.py [--f16] [--floor] [--out DIR] [--top 40] [--save run.prof]
                                                   [-- nifo ARGS...]
 """
