@@ -44,7 +44,7 @@ import scipy.fft
 
 from ..defaults import DEFAULT_ANALYSIS_BAND_HZ
 from ..kinds.describing import Term, make_term
-from ..errors import ConfigError, InputError
+from ..errors import ConfigError
 from .fixed_point import contraction_bound, fixed_point_solve
 from ..signal.integrate import IntegrationBand
 from .linear_part import BodyModel, LinearPart, absorbed_rates, fit_body_model, nominal_linear_part, select_linear_part
@@ -54,7 +54,7 @@ from ..signal.band import band_taper
 from .scope import Offsets, PeriodicResponse, PredictionBand, Validity
 from ..signal.frf import coherence, h1
 from ..signal.spectral import SpectralSettings, cross_spectra
-from .time_prediction import (DIVERGENCE_FACTOR, FINE_RATE_HZ, Prediction, PredictionDivergedError, _check_input,
+from .time_prediction import (DIVERGENCE_FACTOR, FINE_RATE_HZ, Prediction, PredictionDivergedError, _checked_drive,
                               _edge, _external, _predict_time, fine_factor, predict_bodies, predict_records,
                               record_inputs, time_method)
 
@@ -327,10 +327,7 @@ def predict_body(model: IdentifiedModel, spindle_accel: np.ndarray | None, fs_hz
     InputError
         For non-finite or empty input.
     """
-    a1 = _check_input(spindle_accel, "spindle_accel", None)
-    force = _check_input(force, "force", None if a1 is None else a1.size)
-    if a1 is None and force is None:
-        raise InputError("nothing drives the model: give the spindle acceleration or a force", channel="spindle_accel")
+    a1, force = _checked_drive(spindle_accel, force)
     if not (0 < relax <= 1):
         raise ConfigError(f"relax={relax!r} must be in (0, 1]")
     n = (a1 if a1 is not None else force).size

@@ -128,6 +128,16 @@ def record_inputs(record, model) -> tuple[np.ndarray | None, np.ndarray | None]:
     return a1, force
 
 
+def _checked_drive(spindle_accel, force) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(ẍ1, F) as the engine takes them, each checked (:func:`_check_input`; F as long as ẍ1); InputError when neither
+    drives the model."""
+    a1 = _check_input(spindle_accel, "spindle_accel", None)
+    force = _check_input(force, "force", None if a1 is None else a1.size)
+    if a1 is None and force is None:
+        raise InputError("nothing drives the model: give the spindle acceleration or a force", channel="spindle_accel")
+    return a1, force
+
+
 def _deviation(x, about: float | None = None) -> np.ndarray:
     """``x`` about ``about`` (its own mean when None), in float64: offsets of any size leave the same deviation."""
     x = np.asarray(x, float)
@@ -278,10 +288,7 @@ def predict_bodies(models: Sequence, spindle_accel: np.ndarray | None, fs_hz: fl
     time domain): the same predictions bit for bit, the models marched side by side where they can be
     (:mod:`nifo_core.predict.timesim_lanes`: the refinement's Jacobian columns). A model whose response diverges
     gets its :class:`PredictionDivergedError` in its place (not raised)."""
-    a1 = _check_input(spindle_accel, "spindle_accel", None)
-    force = _check_input(force, "force", None if a1 is None else a1.size)
-    if a1 is None and force is None:
-        raise InputError("nothing drives the model: give the spindle acceleration or a force", channel="spindle_accel")
+    a1, force = _checked_drive(spindle_accel, force)
     inputs = [_time_inputs(m, m.linear, a1, force, fs_hz, oversample) for m in models]
     # one input for all (every model of a parameter space but one with another k3): simulate_responses marches
     # them together where it can and says where it cannot
@@ -315,16 +322,10 @@ def predict_records(model, spindle_accels: Sequence[np.ndarray | None], fs_hz: f
     rates = [float(f) for f in (np.broadcast_to(fs_hz, (n_rec,)) if np.ndim(fs_hz) == 0 else fs_hz)]
     forces = [None] * n_rec if forces is None else list(forces)
     labels = [None] * n_rec if labels is None else list(labels)
-    a1s, fs = [], []
-    for a1, force in zip(spindle_accels, forces, strict=True):
-        a1 = _check_input(a1, "spindle_accel", None)
-        force = _check_input(force, "force", None if a1 is None else a1.size)
-        if a1 is None and force is None:
-            raise InputError("nothing drives the model: give the spindle acceleration or a force",
-                             channel="spindle_accel")
-        a1s.append(a1)
-        fs.append(force)
-    inputs = [_time_inputs(model, model.linear, a1, f, rate, oversample) for a1, f, rate in zip(a1s, fs, rates)]
+    drives = [_checked_drive(a1, force) for a1, force in zip(spindle_accels, forces, strict=True)]
+    a1s, fs = [a1 for a1, _ in drives], [f for _, f in drives]
+    inputs = [_time_inputs(model, model.linear, a1, f, rate, oversample)
+              for a1, f, rate in zip(a1s, fs, rates, strict=True)]
     groups: dict[tuple, list[int]] = {}     # lanes share a length, a rate, a fine step and whether a spindle drives
     for i, (v, q, _) in enumerate(inputs):
         groups.setdefault((v.size, rates[i], q, a1s[i] is None), []).append(i)
