@@ -238,3 +238,19 @@ def test_feedback_paths_on_a_one_mass_body_say_why_and_keep_the_constant_coeffic
     assert _quietly(["identify", HIGH, "--model", model, "--out", tmp_path / "o2", "--feedback-paths",
                      "--refine"]) == ConfigError.exit_code
     assert not (tmp_path / "o2").exists()
+
+
+def test_a_ridge_whose_held_out_prediction_could_not_be_scored_is_said_so_not_a_traceback(capsys):
+    """--feedback-paths prints each ridge weight's held-out NMSE; a stable one whose model could not be scored on the
+    held-out parts (its mean is None in the grid) printed a TypeError traceback before."""
+    from types import SimpleNamespace
+
+    from nifo.pipeline.identify import _print_fits
+
+    grid = ({"ridge": 0.001, "regimes_stable": True, "held_out_nmse_percent": None},
+            {"ridge": 0.01, "regimes_stable": False},
+            {"ridge": 0.1, "regimes_stable": True, "held_out_nmse_percent": 0.25})
+    _print_fits(SimpleNamespace(message="paths", grid=grid), None, {}, None)
+    out = capsys.readouterr().out
+    assert "ridge 0.001: its held-out prediction could not be scored" in out
+    assert "ridge 0.01: not eligible" in out and "ridge 0.1: held-out prediction NMSE 0.25 %" in out

@@ -314,9 +314,11 @@ def _print_fits(paths, refinement, summary: dict, check) -> None:
     if paths is not None:
         print(paths.message)
         for g in paths.grid:
-            print(f"  ridge {g['ridge']:g}: " + (f"held-out prediction NMSE {g['held_out_nmse_percent']:.4g} %"
-                                                 if g["regimes_stable"] else
-                                                 "not eligible: a regime of the terms (stuck/active) is unstable"))
+            nmse = g.get("held_out_nmse_percent")
+            print(f"  ridge {g['ridge']:g}: " + (
+                "not eligible: a regime of the terms (stuck/active) is unstable" if not g["regimes_stable"] else
+                "its held-out prediction could not be scored (its model diverges there)" if nmse is None else
+                f"held-out prediction NMSE {nmse:.4g} %"))
     if refinement is not None:
         if "linear" in summary["refinement"]:
             print("linear baseline: " + summary["refinement"]["linear"]["message"])
