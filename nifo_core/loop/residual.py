@@ -251,7 +251,7 @@ class _Evaluator:
                     got = predict_records(model, [np.asarray(r.spindle_accel) for r in some], [r.fs_hz for r in some],
                                           forces=[r.force if self.n_lin == 3 else None for r in some])
                 except (NifoError, np.linalg.LinAlgError, FloatingPointError):
-                    return [None] if len(some) == 1 else [simulate(theta, r) for r in some]  # which cannot: alone
+                    return [None] * len(some)     # any None refuses the correction, whichever record it is
                 return [None if isinstance(p, NifoError) else p.body_accel for p in got]
 
             def simulate(theta: np.ndarray, rec: Record) -> np.ndarray | None:

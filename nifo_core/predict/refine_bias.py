@@ -108,7 +108,7 @@ def correct_refinement(refinement: Refinement, records: Sequence[Record], noise:
             got = predict_records(model, [a1 for a1, _ in drives], [rec.fs_hz for rec in recs],
                                   forces=[f for _, f in drives], oversample=oversample)
         except (NifoError, FloatingPointError, np.linalg.LinAlgError):
-            return [None] if len(recs) == 1 else [simulate(theta, rec) for rec in recs]   # which cannot: alone
+            return [None] * len(recs)     # any None refuses the correction, whichever record it is
         return [None if isinstance(p, NifoError) else p.body_accel for p in got]
 
     def simulate(theta: np.ndarray, rec: Record) -> np.ndarray | None:

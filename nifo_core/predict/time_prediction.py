@@ -319,7 +319,7 @@ def predict_records(model, spindle_accels: Sequence[np.ndarray | None], fs_hz: f
     records; at most :data:`~nifo_core.predict.timesim_lanes.MAX_LANES` in a march). A record whose response diverges
     gets its :class:`PredictionDivergedError` in its place (not raised)."""
     n_rec = len(spindle_accels)
-    rates = [float(f) for f in (np.broadcast_to(fs_hz, (n_rec,)) if np.ndim(fs_hz) == 0 else fs_hz)]
+    rates = [float(fs_hz)] * n_rec if np.ndim(fs_hz) == 0 else [float(f) for f in fs_hz]
     forces = [None] * n_rec if forces is None else list(forces)
     labels = [None] * n_rec if labels is None else list(labels)
     drives = [_checked_drive(a1, force) for a1, force in zip(spindle_accels, forces, strict=True)]

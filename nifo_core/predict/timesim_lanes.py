@@ -223,7 +223,7 @@ def simulate_responses(linears: Sequence[LinearPart], terms: Sequence[Sequence[T
     v = np.stack(ups) if own else ups[0][None, :]
     v.flags.writeable = False
     rows = np.arange(n_lanes, dtype=np.int64) if own else np.zeros(n_lanes, dtype=np.int64)
-    atol = np.array([solve_tolerance(ups[r]) for r in rows], dtype=float)
+    atol = np.array([solve_tolerance(u) for u in ups], dtype=float)[rows]     # each input's once
 
     def lanes(field: str) -> np.ndarray:
         return np.array([getattr(m, field) for m in marches], dtype=float)
